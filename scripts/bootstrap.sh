@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Creates .venv and installs companion with its dev extras; sourced by scripts/demo and scripts/test.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+py="${PYTHON:-python3}"
+if ! command -v "$py" >/dev/null; then
+    echo "error: $py not found. fix: install Python 3.11+ (apt-get install python3 python3-venv)" >&2; exit 2
+fi
+if [ ! -x .venv/bin/python ]; then
+    if ! "$py" -m venv .venv 2>/dev/null; then
+        rm -rf .venv
+        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+            echo "python3-venv missing: installing it with apt-get" >&2
+            apt-get update -qq && apt-get install -y -qq python3-venv >/dev/null
+            "$py" -m venv .venv
+        else
+            echo "error: cannot create .venv. fix: sudo apt-get install python3-venv" >&2; exit 2
+        fi
+    fi
+fi
+stamp=.venv/.companion-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    .venv/bin/python -m pip install -q --upgrade pip >/dev/null
+    .venv/bin/python -m pip install -q -e ".[dev]"
+    touch "$stamp"
+fi

@@ -39,7 +39,9 @@ class FacadeFrame:
 
     @classmethod
     def from_wall(cls, start: GeoPoint, end: GeoPoint) -> FacadeFrame:
-        e, n, _ = pymap3d.geodetic2enu(end.lat, end.lon, start.alt_amsl_m, start.lat, start.lon, start.alt_amsl_m)
+        e, n, _ = pymap3d.geodetic2enu(
+            end.lat, end.lon, start.alt_amsl_m, start.lat, start.lon, start.alt_amsl_m
+        )
         length = math.hypot(e, n)
         if length <= 0.0:
             raise ValueError("wall start and end coincide")

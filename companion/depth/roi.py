@@ -1,0 +1,236 @@
+"""ROI extraction from a disparity image (paper Eq. 1), pure numpy + OpenCV.
+
+disparity -> Sobel gradient magnitude G -> Otsu binarisation -> pepper-noise removal -> boundary ->
+regions between boundaries -> keep the nearer (higher disparity) regions -> mask at full frame resolution.
+
+Monocular disparity is only defined up to scale, so every decision here is relative (ratios of disparities,
+gradients normalised by the median disparity) except the optional ``min_roi_disparity`` that flags a frame
+whose nearest region is still too far to be the facade (the whole frame is background).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+
+
+@dataclass(frozen=True)
+class RoiParams:
+    """Tuning of the ROI extraction. Defaults were chosen on simulator frames (see docs/DEPTH.md)."""
+
+    # A region is background when its mean disparity is below ``near_ratio`` x the nearest region's mean
+    # (0.6 means: more than 1.67x farther away than the facade).
+    near_ratio: float = 0.6
+    # Gradients below this (relative to the median disparity, per pixel) are never a boundary, so a smooth,
+    # boundary-free disparity map is not cut by Otsu thresholding its noise.
+    min_rel_gradient: float = 0.02
+    # Boundary components and regions smaller than this fraction of the frame are pepper noise.
+    min_component_frac: float = 0.002
+    # Closing kernel (pixels at model resolution) that bridges small gaps in the boundary.
+    close_px: int = 3
+    # Nearest region mean disparity below this: whole frame background (frame dropped). None: never.
+    min_roi_disparity: float | None = None
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.near_ratio < 1.0:
+            raise CompanionError(
+                f"near_ratio must be in (0, 1), got {self.near_ratio}", "use e.g. 0.6 (background >= 1.67x farther)"
+            )
+        if self.min_rel_gradient < 0 or not 0 <= self.min_component_frac < 0.5 or self.close_px < 0:
+            raise CompanionError("ROI parameters out of range", "use non-negative values (see RoiParams defaults)")
+
+
+@dataclass
+class RoiResult:
+    """Outcome of ROI extraction for one frame.
+
+    ``mask`` is uint8 0/255 at the requested output size (255 = facade). ``empty`` marks a frame with no ROI
+    (whole frame background): the pipeline drops it and counts it. ``no_boundary`` marks a frame that is
+    facade everywhere (no depth boundary found).
+    """
+
+    mask: np.ndarray
+    empty: bool
+    no_boundary: bool
+    roi_fraction: float
+    n_regions: int  # regions found between boundaries (after pepper-noise removal)
+    n_kept: int  # of which kept as ROI
+    roi_mean_disparity: float  # nan when empty
+    background_mean_disparity: float  # nan when there is no background
+    gradient_threshold: float  # relative gradient threshold used (max of Otsu and the floor)
+
+    @property
+    def roi_nearer(self) -> bool | None:
+        """True when the ROI's mean disparity is above the background's (nearer); None without both."""
+        if self.empty or np.isnan(self.background_mean_disparity):
+            return None
+        return bool(self.roi_mean_disparity > self.background_mean_disparity)
+
+
+def gradient_magnitude(disparity: np.ndarray) -> np.ndarray:
+    """Paper Eq. 1: G = sqrt((dI'/dx)^2 + (dI'/dy)^2) with 3x3 Sobel derivatives (scaled to per-pixel)."""
+    gx = cv2.Sobel(disparity, cv2.CV_32F, 1, 0, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
+    gy = cv2.Sobel(disparity, cv2.CV_32F, 0, 1, ksize=3, borderType=cv2.BORDER_REPLICATE) / 8.0
+    return np.sqrt(gx * gx + gy * gy)
+
+
+def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
+    """Otsu's threshold of a float array (maximises the between-class variance of a histogram)."""
+    v = values.ravel()
+    lo, hi = float(v.min()), float(v.max())
+    if hi - lo <= 1e-12:
+        return hi
+    hist, edges = np.histogram(v, bins=bins, range=(lo, hi))
+    hist = hist.astype(np.float64)
+    centers = 0.5 * (edges[:-1] + edges[1:])
+    w0 = np.cumsum(hist)
+    w1 = w0[-1] - w0
+    m0 = np.cumsum(hist * centers)
+    mu0 = m0 / np.maximum(w0, 1e-12)
+    mu1 = (m0[-1] - m0) / np.maximum(w1, 1e-12)
+    between = w0 * w1 * (mu0 - mu1) ** 2
+    k = int(np.argmax(between[:-1]))
+    return float(edges[k + 1])
+
+
+def _remove_small(binary: np.ndarray, min_area: int, connectivity: int = 8) -> np.ndarray:
+    """Drop connected components of a 0/1 image smaller than ``min_area`` pixels (pepper noise)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary.astype(np.uint8), connectivity=connectivity)
+    if n <= 1:
+        return binary.astype(bool)
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area
+    keep[0] = False
+    return keep[labels]
+
+
+def boundary_map(disparity: np.ndarray, params: RoiParams) -> tuple[np.ndarray, float]:
+    """Binary boundary image (True = boundary) after Otsu and pepper-noise removal, and the threshold used."""
+    d = disparity.astype(np.float32)
+    scale = float(np.median(d))
+    if not np.isfinite(scale) or scale <= 0:
+        scale = float(np.max(d)) if np.max(d) > 0 else 1.0
+    g = gradient_magnitude(d / scale)
+    thr = max(otsu_threshold(g), params.min_rel_gradient)
+    edges = g > thr
+    min_area = max(4, int(params.min_component_frac * d.size))
+    edges = _remove_small(edges, min_area)
+    if params.close_px > 1 and edges.any():
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (params.close_px, params.close_px))
+        edges = cv2.morphologyEx(edges.astype(np.uint8), cv2.MORPH_CLOSE, k).astype(bool)
+    return edges, thr
+
+
+def extract_roi(
+    disparity: np.ndarray,
+    out_size: tuple[int, int] | None = None,
+    params: RoiParams | None = None,
+) -> RoiResult:
+    """Segment the near facade from the far background in a disparity image (higher = nearer).
+
+    ``out_size`` is (width, height) of the full-resolution frame; the mask is computed at the disparity's
+    resolution and resized (linear interpolation of the 0/1 mask, then 0.5 threshold, for smooth edges).
+    """
+    params = params or RoiParams()
+    d = np.asarray(disparity)
+    if d.ndim == 4 and d.shape[:2] == (1, 1):
+        d = d[0, 0]
+    elif d.ndim == 3 and d.shape[0] == 1:
+        d = d[0]
+    if d.ndim != 2 or min(d.shape) < 8:
+        raise CompanionError(
+            f"disparity must be a 2-D image of at least 8x8 pixels, got shape {np.shape(disparity)}",
+            "pass the depth model's disparity output (H x W)",
+        )
+    d = d.astype(np.float32)
+    if not np.all(np.isfinite(d)):
+        raise CompanionError("disparity contains NaN or inf", "check the depth model output (disparity, not depth)")
+    d = np.maximum(d, 0.0)
+    h, w = d.shape
+    out_w, out_h = out_size if out_size is not None else (w, h)
+
+    edges, thr = boundary_map(d, params)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((~edges).astype(np.uint8), connectivity=4)
+    min_area = max(4, int(params.min_component_frac * d.size))
+    region_ids = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area]
+    if not region_ids:  # the boundary covers everything (pathological noise): treat the frame as one region
+        n, labels, region_ids = 2, np.ones_like(labels), [1]
+    flat = labels.ravel()
+    sums = np.bincount(flat, weights=d.ravel(), minlength=n + 1)
+    counts = np.bincount(flat, minlength=n + 1)
+    means = {i: sums[i] / max(counts[i], 1) for i in region_ids}
+    nearest = max(means.values())
+
+    if params.min_roi_disparity is not None and nearest < params.min_roi_disparity:
+        return RoiResult(
+            mask=np.zeros((out_h, out_w), np.uint8),
+            empty=True,
+            no_boundary=False,
+            roi_fraction=0.0,
+            n_regions=len(region_ids),
+            n_kept=0,
+            roi_mean_disparity=float("nan"),
+            background_mean_disparity=float(np.mean(d)),
+            gradient_threshold=thr,
+        )
+
+    kept = [i for i in region_ids if means[i] >= params.near_ratio * nearest]
+    dropped = [i for i in region_ids if i not in kept]
+    if not dropped:
+        # No depth boundary separates near from far: the whole frame is facade.
+        keep = np.ones((h, w), bool)
+        no_boundary = True
+    else:
+        no_boundary = False
+        kept_mean = float(sum(sums[i] for i in kept) / sum(counts[i] for i in kept))
+        drop_mean = float(sum(sums[i] for i in dropped) / sum(counts[i] for i in dropped))
+        # Pixels on the boundary (and tiny regions) go to the side their disparity is closer to; the same cut
+        # also trims background that leaked into a kept region through a gap in the boundary.
+        cut = 0.5 * (kept_mean + drop_mean)
+        in_dropped = np.isin(labels, dropped)
+        keep = (~in_dropped) & (d >= cut)
+        min_island = max(4, int(params.min_component_frac * d.size))
+        keep = _remove_small(keep, min_island, connectivity=4)
+        holes = _remove_small(~keep, min_island, connectivity=4)
+        keep = ~holes
+
+    if (out_w, out_h) != (w, h):
+        soft = cv2.resize(keep.astype(np.float32), (out_w, out_h), interpolation=cv2.INTER_LINEAR)
+        mask = np.where(soft >= 0.5, 255, 0).astype(np.uint8)
+    else:
+        mask = np.where(keep, 255, 0).astype(np.uint8)
+
+    roi_px = keep.sum()
+    roi_mean = float(d[keep].mean()) if roi_px else float("nan")
+    bg_mean = float(d[~keep].mean()) if roi_px < keep.size else float("nan")
+    return RoiResult(
+        mask=mask,
+        empty=bool(roi_px == 0),
+        no_boundary=no_boundary,
+        roi_fraction=float(np.count_nonzero(mask)) / mask.size,
+        n_regions=len(region_ids),
+        n_kept=len(kept),
+        roi_mean_disparity=roi_mean,
+        background_mean_disparity=bg_mean,
+        gradient_threshold=thr,
+    )
+
+
+def apply_mask(image: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """The masked frame: background pixels set to black (the mask must match the image's size)."""
+    if image.shape[:2] != mask.shape[:2]:
+        raise CompanionError(
+            f"mask {mask.shape[:2]} does not match image {image.shape[:2]}",
+            "extract the ROI with out_size=(image width, image height)",
+        )
+    return cv2.bitwise_and(image, image, mask=mask)
+
+
+def pixel_error_ratio(mask: np.ndarray, truth: np.ndarray) -> float:
+    """Fraction of pixels whose ROI/background label differs from the ground-truth mask (paper: 0.75 % mean)."""
+    if mask.shape != truth.shape:
+        truth = cv2.resize(truth, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_NEAREST)
+    return float(np.count_nonzero((mask > 127) != (truth > 127))) / mask.size

@@ -13,6 +13,7 @@ from companion.errors import CompanionError
 # ``func`` (called with the parsed args; returns an exit code or None).
 COMMAND_MODULES = [
     "companion.mission.commands",
+    "companion.demo",
 ]
 
 

@@ -160,9 +160,7 @@ def _format_validation_error(path: Path, exc: ValidationError) -> CompanionError
             lines.append(f"field '{loc}': {err['msg']}{got_text}")
             top = str(err["loc"][0]) if err["loc"] else ""
             fixes.append(_FIELD_FIXES.get(top, f"correct '{loc}' in {path.name}"))
-    return CompanionError(
-        f"invalid mission file {path}:\n    " + "\n    ".join(lines), "; ".join(dict.fromkeys(fixes))
-    )
+    return CompanionError(f"invalid mission file {path}:\n    " + "\n    ".join(lines), "; ".join(dict.fromkeys(fixes)))
 
 
 def _model_at(loc: tuple) -> type[BaseModel] | None:
@@ -199,9 +197,7 @@ def load_mission(path: str | Path) -> Mission:
     """Read and validate a mission YAML file; a footprint GeoJSON path is resolved next to the file."""
     path = Path(path)
     if not path.is_file():
-        raise CompanionError(
-            f"mission file {path} does not exist", "check the path (examples are in missions/)"
-        )
+        raise CompanionError(f"mission file {path} does not exist", "check the path (examples are in missions/)")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
@@ -224,9 +220,7 @@ def read_footprint_geojson(path: Path) -> list[tuple[float, float]]:
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise CompanionError(
-            f"footprint file {path} does not exist", "fix facade.footprint.geojson"
-        ) from None
+        raise CompanionError(f"footprint file {path} does not exist", "fix facade.footprint.geojson") from None
     except json.JSONDecodeError as exc:
         raise CompanionError(f"footprint file {path} is not valid JSON: {exc}", "fix the GeoJSON") from None
     geoms = []
@@ -239,6 +233,4 @@ def read_footprint_geojson(path: Path) -> list[tuple[float, float]]:
     for g in geoms:
         if g.get("type") == "Polygon" and g.get("coordinates"):
             return [(float(p[0]), float(p[1])) for p in g["coordinates"][0]]
-    raise CompanionError(
-        f"footprint file {path} holds no Polygon", "give a GeoJSON Polygon of the building outline"
-    )
+    raise CompanionError(f"footprint file {path} holds no Polygon", "give a GeoJSON Polygon of the building outline")

@@ -1,0 +1,50 @@
+"""`companion plan` (and, until the SITL pieces land, `companion demo`): plan a mission and write its exports."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from companion.mission.exports import render_outputs, write_outputs
+from companion.mission.planner import ScanPlan, plan_scan
+from companion.mission.spec import load_mission
+
+DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "missions" / "demo-facade.yaml"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plan", help="plan a facade scan and write mission exports + a review plot")
+    p.add_argument("mission", type=Path, help="mission YAML (see missions/)")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.set_defaults(func=run_plan)
+
+
+def format_estimates(plan: ScanPlan) -> str:
+    e = plan.estimates
+    plural = f"{e.strips} {plan.mission.pattern} strips {e.strip_spacing_m:.2f} m apart"
+    lines = [
+        f"mission {plan.mission.name}: wall {plan.frame.length_m:.1f} m x {plan.mission.facade.height_m:.1f} m, "
+        f"standoff {plan.mission.standoff_m} m, heading to wall {plan.frame.yaw_facing_wall_deg:.1f} deg",
+        f"  camera footprint {e.footprint_width_m:.2f} m x {e.footprint_height_m:.2f} m, "
+        f"GSD {e.gsd_mm_per_px:.2f} mm/px",
+        f"  {plural} (side overlap {e.side_overlap_achieved:.0%})",
+        f"  scan speed {e.scan_speed_m_s:.2f} m/s (limited by {e.speed_limited_by}): "
+        f"{e.frames_per_keyframe:.1f} frames per keyframe, motion blur {e.motion_blur_px:.2f} px",
+        f"  path {e.path_length_m:.0f} m, flight time ~{e.flight_time_s / 60:.1f} min, "
+        f"~{e.expected_keyframes} keyframes at {plan.mission.overlap:.0%} overlap",
+    ]
+    lines += [f"  warning: {w}" for w in plan.warnings]
+    return "\n".join(lines)
+
+
+def plan_to_dir(mission_path: Path, out: Path) -> tuple[ScanPlan, list[Path]]:
+    plan = plan_scan(load_mission(mission_path))
+    files = render_outputs(plan)  # everything rendered before anything is written
+    return plan, write_outputs(files, out)
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    plan, written = plan_to_dir(args.mission, args.out)
+    print(format_estimates(plan))
+    print(f"wrote {len(written)} files to {args.out}")
+    return 0

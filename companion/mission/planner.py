@@ -1,0 +1,410 @@
+"""Constant-standoff facade scan planner: camera footprint -> strips -> waypoints -> MAVLink mission items."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pymap3d
+
+from companion.errors import CompanionError
+from companion.geo import FacadeFrame, GeoPoint
+from companion.mission import items as mi
+from companion.mission.geometry import footprint_enu, polyline_clearance, wall_ends
+from companion.mission.spec import Mission
+
+# Nominal multirotor dynamics for the time estimate (a typical 1-2 kg inspection quad).
+NOMINAL_ACCEL_M_S2 = 1.5
+NOMINAL_CLIMB_M_S = 2.0
+NOMINAL_LAND_M_S = 0.7
+SCAN_ACCEPTANCE_M = 0.3
+TRANSIT_ACCEPTANCE_M = 1.0
+SCAN_START_HOLD_S = 0.5  # let the vehicle settle at the standoff before each strip
+STANDOFF_TOLERANCE_M = 0.05
+
+
+@dataclass(frozen=True)
+class Footprint:
+    """What the camera sees on the wall plane at the standoff, and at what resolution."""
+
+    width_m: float
+    height_m: float
+    gsd_mm_per_px: float
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    along_m: float
+    out_m: float
+    up_m: float
+    lat: float
+    lon: float
+    alt_amsl_m: float
+    rel_alt_m: float
+    yaw_deg: float
+    speed_m_s: float  # speed of the leg arriving at this waypoint
+    kind: str  # 'takeoff' | 'transit' | 'scan' | 'land'
+    hold_s: float = 0.0
+    acceptance_m: float = SCAN_ACCEPTANCE_M
+
+
+@dataclass(frozen=True)
+class PlanEstimates:
+    path_length_m: float
+    flight_time_s: float
+    scan_speed_m_s: float
+    speed_limited_by: str
+    keyframe_spacing_m: float
+    expected_keyframes: int
+    frames_per_keyframe: float
+    motion_blur_px: float
+    gsd_mm_per_px: float
+    footprint_width_m: float
+    footprint_height_m: float
+    strips: int
+    strip_spacing_m: float
+    side_overlap_achieved: float
+    uncovered_bottom_m: float
+
+    def as_dict(self) -> dict:
+        return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    mission: Mission
+    frame: FacadeFrame
+    home: GeoPoint
+    waypoints: list[Waypoint]
+    scan_legs: list[tuple[int, int]]
+    footprint: Footprint
+    estimates: PlanEstimates
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def wall_length_m(self) -> float:
+        return self.frame.length_m
+
+    def mavlink_items(self, flavour: str = "px4") -> list[mi.MissionItem]:
+        return build_mission_items(self, flavour)
+
+
+def camera_footprint(mission: Mission) -> Footprint:
+    cam = mission.camera
+    width = 2.0 * mission.standoff_m * math.tan(math.radians(cam.hfov_deg) / 2.0)
+    height = width * cam.height_px / cam.width_px
+    return Footprint(width_m=width, height_m=height, gsd_mm_per_px=1000.0 * width / cam.width_px)
+
+
+def _scan_speed(mission: Mission, fp: Footprint, spacing_m: float) -> tuple[float, str]:
+    """Fastest speed that keeps enough frames per keyframe, blur within budget, and under max speed."""
+    limits = {
+        "frames per keyframe": mission.camera.fps * spacing_m / mission.min_frames_per_keyframe,
+        "motion blur": mission.motion_blur_budget_px * (fp.gsd_mm_per_px / 1000.0) / mission.camera.exposure_s,
+        "max speed": mission.max_speed_m_s,
+    }
+    reason = min(limits, key=limits.get)
+    return limits[reason], reason
+
+
+def _spread(lo: float, hi: float, size: float, max_step: float) -> list[float]:
+    """Centres of frames of extent ``size`` covering [lo, hi] with steps no larger than ``max_step``."""
+    first, last = lo + size / 2.0, hi - size / 2.0
+    if last <= first:
+        return [(lo + hi) / 2.0]
+    n = math.ceil((last - first) / max_step - 1e-9) + 1
+    return [float(v) for v in np.linspace(first, last, n)]
+
+
+def plan_scan(mission: Mission) -> ScanPlan:
+    """Plan the scan; raises CompanionError when the mission cannot be flown safely."""
+    start, end = wall_ends(mission)
+    try:
+        frame = FacadeFrame.from_wall(start, end)
+    except ValueError:
+        raise CompanionError(
+            "the wall has zero length: facade.start and facade.end are the same point",
+            "give two different wall ends (start = left end, end = right end, seen from the drone)",
+        ) from None
+    if frame.length_m < 0.5:
+        raise CompanionError(
+            f"the wall is only {frame.length_m:.2f} m long", "check facade.start/end: they should be the wall's ends"
+        )
+    m = mission
+    fp = camera_footprint(m)
+    d = m.standoff_m
+    wall_h = m.facade.height_m
+    mg = m.margins
+    warnings: list[str] = []
+
+    # Home is the takeoff point on the ground; mission altitudes are relative to it.
+    if m.takeoff is not None:
+        home_alt = (
+            m.takeoff.ground_alt_amsl_m if m.takeoff.ground_alt_amsl_m is not None else m.facade.ground_alt_amsl_m
+        )
+        home = GeoPoint(m.takeoff.lat, m.takeoff.lon, home_alt)
+        ta, to, _ = frame.geodetic_to_facade(home.lat, home.lon, frame.origin.alt_amsl_m)
+        ta, to = float(ta), float(to)
+        if to < d - STANDOFF_TOLERANCE_M:
+            side = "behind the wall (inside the building side)" if to < 0 else f"only {to:.1f} m from the wall"
+            raise CompanionError(
+                f"the takeoff point is {side}; it must be on the drone's side at least standoff_m={d} m out",
+                "move takeoff further out on the drone's side (see the side convention in docs/ARCHITECTURE.md)",
+            )
+    else:
+        ta, to = frame.length_m / 2.0, d + 6.0
+        lat, lon, _ = frame.facade_to_geodetic(ta, to, 0.0)
+        home = GeoPoint(float(lat), float(lon), m.facade.ground_alt_amsl_m)
+    up_to_rel = m.facade.ground_alt_amsl_m - home.alt_amsl_m  # add to up_m to get altitude above home
+
+    along_lo, along_hi = -mg.ends_m, frame.length_m + mg.ends_m
+    top = wall_h + mg.roof_m
+    low_centre = max(mg.bottom_clearance_m, fp.height_m / 2.0)
+    uncovered_bottom = max(0.0, low_centre - fp.height_m / 2.0)
+    if uncovered_bottom > 0:
+        warnings.append(
+            f"the bottom {uncovered_bottom:.2f} m of the wall is below the lowest frame (bottom clearance "
+            f"{mg.bottom_clearance_m} m): lower margins.bottom_clearance_m or inspect it from the ground"
+        )
+    bottom_edge = low_centre - fp.height_m / 2.0
+
+    if m.pattern == "vertical":
+        kf_spacing = fp.height_m * (1.0 - m.overlap)
+        columns = _spread(along_lo, along_hi, fp.width_m, fp.width_m * (1.0 - m.side_overlap))
+        rows_span = _spread(bottom_edge, max(top, bottom_edge + fp.height_m), fp.height_m, kf_spacing)
+        z_lo, z_hi = rows_span[0], rows_span[-1]
+        strips = []
+        for i, a in enumerate(columns):
+            zs = (z_hi, z_lo) if i % 2 == 0 else (z_lo, z_hi)  # first strip from the top: we arrive from above
+            strips.append(((a, zs[0]), (a, zs[1])))
+        strip_step = columns[1] - columns[0] if len(columns) > 1 else 0.0
+        side_achieved = 1.0 - strip_step / fp.width_m if len(columns) > 1 else 1.0
+    else:
+        kf_spacing = fp.width_m * (1.0 - m.overlap)
+        rows = _spread(
+            bottom_edge, max(top, bottom_edge + fp.height_m), fp.height_m, fp.height_m * (1.0 - m.side_overlap)
+        )
+        cols_span = _spread(along_lo, along_hi, fp.width_m, kf_spacing)
+        a_lo, a_hi = cols_span[0], cols_span[-1]
+        strips = []
+        for i, z in enumerate(reversed(rows)):  # top row first
+            xs = (a_lo, a_hi) if i % 2 == 0 else (a_hi, a_lo)
+            strips.append(((xs[0], z), (xs[1], z)))
+        strip_step = rows[1] - rows[0] if len(rows) > 1 else 0.0
+        side_achieved = 1.0 - strip_step / fp.height_m if len(rows) > 1 else 1.0
+
+    v_scan, limited_by = _scan_speed(m, fp, kf_spacing)
+    v_transit = m.max_speed_m_s
+    yaw = frame.yaw_facing_wall_deg
+    default_transit = wall_h + mg.roof_m + 5.0 + up_to_rel
+    transit_rel = m.transit_alt_m if m.transit_alt_m is not None else default_transit
+    entrance_rel = m.entrance_alt_m if m.entrance_alt_m is not None else transit_rel
+    exit_rel = m.exit_alt_m if m.exit_alt_m is not None else transit_rel
+    for label, rel in (("entrance_alt_m", entrance_rel), ("exit_alt_m", exit_rel)):
+        if rel < mg.bottom_clearance_m:
+            raise CompanionError(
+                f"{label}={rel} m is below the bottom clearance of {mg.bottom_clearance_m} m",
+                f"raise {label} (it is measured above the takeoff point)",
+            )
+
+    wps: list[Waypoint] = []
+
+    def add(along: float, out: float, up: float, speed: float, kind: str, hold: float = 0.0, accept=SCAN_ACCEPTANCE_M):
+        lat, lon, alt = frame.facade_to_geodetic(along, out, up)
+        wps.append(
+            Waypoint(
+                along_m=float(along),
+                out_m=float(out),
+                up_m=float(up),
+                lat=float(lat),
+                lon=float(lon),
+                alt_amsl_m=float(alt),
+                rel_alt_m=float(up + up_to_rel),
+                yaw_deg=yaw,
+                speed_m_s=speed,
+                kind=kind,
+                hold_s=hold,
+                acceptance_m=accept,
+            )
+        )
+
+    first = strips[0][0]
+    add(ta, to, entrance_rel - up_to_rel, NOMINAL_CLIMB_M_S, "takeoff", accept=TRANSIT_ACCEPTANCE_M)
+    add(first[0], d, entrance_rel - up_to_rel, v_transit, "transit", accept=TRANSIT_ACCEPTANCE_M)
+    scan_legs: list[tuple[int, int]] = []
+    for (a0, z0), (a1, z1) in strips:
+        add(a0, d, z0, v_scan, "scan", hold=SCAN_START_HOLD_S)
+        add(a1, d, z1, v_scan, "scan")
+        scan_legs.append((len(wps) - 2, len(wps) - 1))
+    last = strips[-1][1]
+    add(last[0], d, exit_rel - up_to_rel, v_scan, "transit", accept=TRANSIT_ACCEPTANCE_M)
+    add(ta, to, exit_rel - up_to_rel, v_transit, "transit", accept=TRANSIT_ACCEPTANCE_M)
+    add(ta, to, -up_to_rel, NOMINAL_LAND_M_S, "land")
+
+    _check_clearance(m, frame, home, wps, d)
+    _check_geofence(m, home, wps)
+
+    path_len, flight_time = _path_estimates(wps)
+    expected_kf = 0
+    for i, j in scan_legs:
+        leg = math.dist((wps[i].along_m, wps[i].up_m), (wps[j].along_m, wps[j].up_m))
+        expected_kf += math.ceil(leg / kf_spacing - 1e-9) + 1
+    est = PlanEstimates(
+        path_length_m=path_len,
+        flight_time_s=flight_time,
+        scan_speed_m_s=v_scan,
+        speed_limited_by=limited_by,
+        keyframe_spacing_m=kf_spacing,
+        expected_keyframes=expected_kf,
+        frames_per_keyframe=m.camera.fps * kf_spacing / v_scan,
+        motion_blur_px=v_scan * m.camera.exposure_s / (fp.gsd_mm_per_px / 1000.0),
+        gsd_mm_per_px=fp.gsd_mm_per_px,
+        footprint_width_m=fp.width_m,
+        footprint_height_m=fp.height_m,
+        strips=len(strips),
+        strip_spacing_m=float(abs(strip_step)),
+        side_overlap_achieved=float(side_achieved),
+        uncovered_bottom_m=uncovered_bottom,
+    )
+    return ScanPlan(m, frame, home, wps, scan_legs, fp, est, warnings)
+
+
+def _path_estimates(wps: list[Waypoint]) -> tuple[float, float]:
+    length = wps[0].rel_alt_m - 0.0  # vertical climb of the takeoff
+    time_s = length / NOMINAL_CLIMB_M_S
+    for prev, wp in zip(wps, wps[1:], strict=False):
+        leg = math.dist((prev.along_m, prev.out_m, prev.up_m), (wp.along_m, wp.out_m, wp.up_m))
+        length += leg
+        v = wp.speed_m_s
+        time_s += leg / v + v / NOMINAL_ACCEL_M_S2 + wp.hold_s  # cruise + accelerate/brake
+    return length, time_s
+
+
+def _check_clearance(m: Mission, frame: FacadeFrame, home: GeoPoint, wps: list[Waypoint], standoff: float) -> None:
+    """No leg may come horizontally closer than the standoff to the wall (or any footprint edge)."""
+    origin = frame.origin
+    fp = footprint_enu(m, origin)
+    if fp is not None:
+        edges = [(fp[i], fp[(i + 1) % len(fp)]) for i in range(len(fp))]
+    else:
+        e, n, _ = frame.facade_to_enu(np.array([0.0, frame.length_m]), 0.0, 0.0)
+        edges = [(np.array([e[0], n[0]]), np.array([e[1], n[1]]))]
+    path = []
+    for wp in wps:
+        e, n, _ = pymap3d.geodetic2enu(wp.lat, wp.lon, origin.alt_amsl_m, origin.lat, origin.lon, origin.alt_amsl_m)
+        path.append((e, n))
+    clearance = polyline_clearance(np.array(path), edges)
+    worst = int(np.argmin(clearance)) if len(clearance) else 0
+    if len(clearance) and clearance[worst] < standoff - STANDOFF_TOLERANCE_M:
+        raise CompanionError(
+            f"leg {worst}->{worst + 1} ({wps[worst].kind} -> {wps[worst + 1].kind}) passes {clearance[worst]:.2f} m "
+            f"from the building, closer than the standoff of {standoff} m",
+            "move the takeoff point so the straight line to the wall stays on the drone's side, or check the footprint",
+        )
+
+
+def _check_geofence(m: Mission, home: GeoPoint, wps: list[Waypoint]) -> None:
+    gf = m.geofence
+    for k, wp in enumerate(wps):
+        if wp.rel_alt_m > gf.max_alt_m + 1e-6:
+            raise CompanionError(
+                f"the path leaves the geofence: waypoint {k} ({wp.kind}) is {wp.rel_alt_m:.1f} m above home, "
+                f"above geofence.max_alt_m={gf.max_alt_m}",
+                "raise geofence.max_alt_m (within your legal limit) or lower transit_alt_m / margins.roof_m",
+            )
+        e, n, _ = pymap3d.geodetic2enu(wp.lat, wp.lon, home.alt_amsl_m, home.lat, home.lon, home.alt_amsl_m)
+        dist = math.hypot(e, n)
+        if dist > gf.max_distance_m + 1e-6:
+            raise CompanionError(
+                f"the path leaves the geofence: waypoint {k} ({wp.kind}) is {dist:.1f} m from home, "
+                f"beyond geofence.max_distance_m={gf.max_distance_m}",
+                "raise geofence.max_distance_m or move the takeoff point closer to the wall",
+            )
+
+
+def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.MissionItem]:
+    """Raw MAVLink mission. ``ardupilot`` puts the home placeholder at seq 0 (ArduPilot keeps home there)."""
+    if flavour not in ("px4", "ardupilot"):
+        raise CompanionError(f"unknown autopilot flavour {flavour!r}", "use 'px4' or 'ardupilot'")
+    nan = float("nan")
+    rows: list[tuple] = []  # (frame, command, p1, p2, p3, p4, lat, lon, z)
+    if flavour == "ardupilot":
+        h = plan.home
+        rows.append((mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, h.lat, h.lon, h.alt_amsl_m))
+    pitch = plan.mission.gimbal_pitch_deg
+    speed = None
+    for k, wp in enumerate(plan.waypoints):
+        if wp.kind == "takeoff":
+            yaw_p = nan if flavour == "px4" else 0.0
+            rows.append(
+                (
+                    mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                    mi.MAV_CMD_NAV_TAKEOFF,
+                    0,
+                    0,
+                    0,
+                    yaw_p,
+                    wp.lat,
+                    wp.lon,
+                    wp.rel_alt_m,
+                )
+            )
+            # Camera level and forward; gimbal manager first (PX4, ArduPilot 4.3+), mount control for older stacks.
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, pitch, 0, nan, nan, 0, 0, 0))
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_MOUNT_CONTROL, pitch, 0, 0, 0, 0, 0, 2))
+            continue
+        if wp.kind == "land":
+            rows.append(
+                (
+                    mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                    mi.MAV_CMD_NAV_LAND,
+                    0,
+                    0,
+                    0,
+                    nan if flavour == "px4" else 0,
+                    wp.lat,
+                    wp.lon,
+                    0.0,
+                )
+            )
+            continue
+        if speed is None or abs(wp.speed_m_s - speed) > 1e-6:
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_CHANGE_SPEED, 1, wp.speed_m_s, -1, 0, 0, 0, 0))
+            speed = wp.speed_m_s
+        is_last_before_land = k + 1 < len(plan.waypoints) and plan.waypoints[k + 1].kind == "land"
+        if is_last_before_land and plan.mission.end_action == "rtl":
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0))
+            break
+        rows.append(
+            (
+                mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                mi.MAV_CMD_NAV_WAYPOINT,
+                wp.hold_s,
+                wp.acceptance_m,
+                0,
+                wp.yaw_deg,
+                wp.lat,
+                wp.lon,
+                wp.rel_alt_m,
+            )
+        )
+    items = []
+    for seq, (frm, cmd, p1, p2, p3, p4, lat, lon, z) in enumerate(rows):
+        items.append(
+            mi.MissionItem(
+                seq=seq,
+                frame=frm,
+                command=cmd,
+                current=1 if seq == 0 else 0,
+                autocontinue=1,
+                param1=float(p1),
+                param2=float(p2),
+                param3=float(p3),
+                param4=float(p4),
+                x=int(round(lat * 1e7)),
+                y=int(round(lon * 1e7)),
+                z=float(z),
+            )
+        )
+    return items

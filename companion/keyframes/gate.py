@@ -1,0 +1,325 @@
+"""Streaming keyframe gate (paper Sec. 2.2, made online): frames go in one by one, keyframes come out when decided.
+
+After keyframe Ip every new frame Iq gets R(Ip, Iq). While R >= Rth, Iq is the candidate (the newest such frame,
+unless it is blurred and the held candidate is not). When R falls below Rth the candidate becomes the next
+keyframe and the current frame is compared again against it. So the keyframe is the last frame still >= Rth
+(paper: R(I1, I4) = 82.9 % kept, R(I1, I5) = 77.2 % rejected -> I4).
+
+Memory is bounded: between calls the gate holds the last keyframe and one candidate at full resolution, plus
+their working-resolution features (one SIFT extraction per incoming frame, one match, two after a promotion).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+from companion.errors import CompanionError
+from companion.keyframes.features import FeatureConfig, FeatureExtractor, FeatureSet
+from companion.keyframes.overlap import OverlapConfig, OverlapEstimate, OverlapEstimator
+from companion.keyframes.sharpness import SharpnessReference, laplacian_variance
+from companion.records import Keyframe, MaskedFrame
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """``rth`` and ``warn_margin`` are fractions (0.80 = 80 %), the unit of the mission's ``overlap``."""
+
+    rth: float = 0.80
+    warn_margin: float = 0.10  # R dropping from >= Rth to below Rth - margin in one frame -> overlap warning
+    blur_ratio: float = 0.6  # sharpness below this share of the running reference = blurred
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    overlap: OverlapConfig = field(default_factory=OverlapConfig)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.rth < 1.0:
+            hint = f"pass a fraction: {self.rth / 100:.2f}" if 1.0 < self.rth <= 100.0 else "use e.g. 0.80"
+            raise CompanionError(f"overlap threshold rth={self.rth} is not a fraction in (0, 1)", hint)
+        if not 0.0 <= self.warn_margin < self.rth:
+            raise CompanionError(f"warn_margin={self.warn_margin} must be in [0, rth)", "use e.g. 0.10")
+        if not 0.0 < self.blur_ratio <= 1.0:
+            raise CompanionError(f"blur_ratio={self.blur_ratio} must be in (0, 1]", "use e.g. 0.6")
+
+    @classmethod
+    def for_mission(cls, mission, **overrides) -> GateConfig:
+        """Rth from the mission's ``overlap`` (fraction), 0.80 when the mission has none."""
+        rth = getattr(mission, "overlap", None)
+        return cls(rth=float(rth) if rth is not None else 0.80, **overrides)
+
+
+class GateEventKind(StrEnum):
+    KEYFRAME = "keyframe"
+    OVERLAP_WARNING = "overlap_warning"  # overlap falling too fast: slow down
+    LOW_OVERLAP = "low_overlap"  # a keyframe had to be taken below Rth (no frame in between was >= Rth)
+    GAP = "gap"  # tracking lost: a new segment starts, the map may have a hole here
+    UNUSABLE_FRAME = "unusable_frame"  # no texture in the ROI, or blurred and unmatched: frame skipped
+
+
+@dataclass(frozen=True)
+class GateEvent:
+    kind: GateEventKind
+    frame_index: int
+    message: str
+    R: float | None = None  # percent
+
+
+def _percent(est: OverlapEstimate) -> float:
+    return float(est.R)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One R(Ip, Iq) the gate computed (kept per step for evaluation against simulator truth)."""
+
+    ref_index: int
+    frame_index: int
+    estimate: OverlapEstimate
+
+
+@dataclass
+class GateStep:
+    """What one push did. ``role``: keyframe | candidate | rejected | unusable."""
+
+    frame_index: int
+    role: str
+    sharpness: float
+    blurred: bool
+    comparisons: list[Comparison] = field(default_factory=list)
+    keyframe_indices: list[int] = field(default_factory=list)  # indices only: the step must not pin frames
+    events: list[GateEvent] = field(default_factory=list)
+
+    @property
+    def overlap_warning(self) -> bool:
+        return any(e.kind == GateEventKind.OVERLAP_WARNING for e in self.events)
+
+
+@dataclass
+class _Held:
+    masked: MaskedFrame
+    features: FeatureSet
+    sharpness: float
+    blurred: bool
+    estimate: OverlapEstimate | None = None  # vs the keyframe it was compared with
+
+    @property
+    def index(self) -> int:
+        return self.masked.tagged.frame.index
+
+
+class KeyframeGate:
+    """Online keyframe selection. ``push(frame) -> keyframes decided now``; ``flush()`` at end of stream."""
+
+    def __init__(self, config: GateConfig | None = None):
+        self.config = config or GateConfig()
+        self._extractor = FeatureExtractor(self.config.features)
+        self._estimator = OverlapEstimator(self.config.overlap)
+        self._sharp_ref = SharpnessReference(self.config.blur_ratio)
+        self._key: _Held | None = None
+        self._cand: _Held | None = None
+        self._prev_R: float = 100.0  # R of the previous frame vs the current keyframe
+        self._segment = 0
+        self._unusable_since_key = 0
+        self._events: list[GateEvent] = []
+        self._out: list[Keyframe] = []  # keyframes decided during the current push/flush
+        self.last_step: GateStep | None = None
+        self.frames_in = 0
+        self.keyframes_out = 0
+
+    # -- public -------------------------------------------------------------------------------------------
+    @property
+    def rth_percent(self) -> float:
+        return 100.0 * self.config.rth
+
+    def held_frames(self) -> int:
+        """Full-resolution frames held between calls (at most 2: the keyframe and one candidate)."""
+        return int(self._key is not None) + int(self._cand is not None)
+
+    def pop_events(self) -> list[GateEvent]:
+        """Events since the last call (warnings, gaps, skipped frames, keyframes), oldest first."""
+        events, self._events = self._events, []
+        return events
+
+    def push(self, masked: MaskedFrame) -> list[Keyframe]:
+        if not isinstance(masked, MaskedFrame):
+            raise CompanionError(
+                f"the gate takes MaskedFrame records, got {type(masked).__name__}",
+                "wrap frames as MaskedFrame(TaggedFrame(Frame(...), pose), mask) (mask all 255 when unmasked)",
+            )
+        frame = masked.tagged.frame
+        feats = self._extractor.extract(frame.image, masked.mask)
+        sharp = laplacian_variance(feats.work_gray, feats.work_mask)
+        blurred = self._sharp_ref.is_blurred(sharp)
+        self._sharp_ref.update(sharp)
+        item = _Held(masked, feats, sharp, blurred)
+        step = GateStep(frame.index, "rejected", sharp, blurred)
+        self.last_step = step
+        self.frames_in += 1
+        self._out = []
+        try:
+            self._decide(item, step)
+        finally:
+            self._events.extend(step.events)
+        out, self._out = self._out, []
+        return out
+
+    def flush(self) -> list[Keyframe]:
+        """End of stream: the held candidate becomes the last keyframe."""
+        step = GateStep(-1, "flush", 0.0, False)
+        self.last_step = step
+        self._out = []
+        if self._cand is not None:
+            self._promote(step, reason="end_of_stream")
+        if self._unusable_since_key:
+            step.events.append(
+                GateEvent(
+                    GateEventKind.GAP,
+                    -1,
+                    f"stream ended with {self._unusable_since_key} unusable frame(s) after the last keyframe",
+                )
+            )
+        self._events.extend(step.events)
+        out, self._out = self._out, []
+        return out
+
+    def run(self, frames: Iterable[MaskedFrame]) -> Iterator[Keyframe]:
+        """Convenience: push every frame, then flush."""
+        for f in frames:
+            yield from self.push(f)
+        yield from self.flush()
+
+    # -- decisions ----------------------------------------------------------------------------------------
+    def _decide(self, item: _Held, step: GateStep) -> None:
+        rth = self.rth_percent
+        if self._key is None:
+            step.role = "keyframe"
+            self._emit(item, step, overlap=None, gap=False, reason="first")
+            return
+        if len(item.features) < self.config.overlap.min_matches:
+            self._unusable(item, step, f"only {len(item.features)} features in the ROI")
+            return
+        est = self._compare(self._key, item, step)
+        if est.known and _percent(est) >= rth:
+            self._offer_candidate(item, est, step)
+            return
+        if est.known:
+            self._warn_if_falling(item, est, step)
+            if self._cand is not None:
+                self._promote(step, reason="overlap")
+                self._after_promotion(item, step)
+            else:
+                self._low_overlap_keyframe(item, est, step)
+            return
+        # Unknown R: tracking lost against the keyframe.
+        if item.blurred:
+            self._unusable(item, step, f"blurred and unmatched ({est.status})")
+            return
+        if self._cand is not None:
+            self._promote(step, reason="tracking_lost")
+            self._after_promotion(item, step)
+        else:
+            self._gap_keyframe(item, est, step)
+
+    def _after_promotion(self, item: _Held, step: GateStep) -> None:
+        est = self._compare(self._key, item, step)
+        if est.known and _percent(est) >= self.rth_percent:
+            self._offer_candidate(item, est, step)
+        elif est.known:
+            self._warn_if_falling(item, est, step)
+            self._low_overlap_keyframe(item, est, step)
+        else:
+            self._gap_keyframe(item, est, step)
+
+    def _offer_candidate(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
+        item.estimate = est
+        self._prev_R = est.R
+        cand = self._cand
+        if cand is not None and item.blurred and not cand.blurred:
+            step.role = "rejected"  # keep the sharper neighbour, which is still >= Rth
+            return
+        self._cand = item
+        step.role = "candidate"
+
+    def _warn_if_falling(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
+        rth = self.rth_percent
+        if self._prev_R >= rth and _percent(est) < rth - 100.0 * self.config.warn_margin:
+            step.events.append(
+                GateEvent(
+                    GateEventKind.OVERLAP_WARNING,
+                    item.index,
+                    f"overlap falling too fast: slow down (R {self._prev_R:.1f} % -> {est.R:.1f} % in one frame, "
+                    f"threshold {rth:.0f} %)",
+                    est.R,
+                )
+            )
+
+    def _low_overlap_keyframe(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
+        step.events.append(
+            GateEvent(
+                GateEventKind.LOW_OVERLAP,
+                item.index,
+                f"frame {item.index} kept at R {est.R:.1f} % < {self.rth_percent:.0f} %: no frame in between",
+                est.R,
+            )
+        )
+        item.estimate = est
+        step.role = "keyframe"
+        self._emit(item, step, overlap=est, gap=False, reason="low_overlap")
+
+    def _gap_keyframe(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
+        step.events.append(
+            GateEvent(
+                GateEventKind.GAP,
+                item.index,
+                f"tracking lost at frame {item.index} ({est.status}): new segment, possible gap in the map",
+            )
+        )
+        self._segment += 1
+        item.estimate = est
+        step.role = "keyframe"
+        self._emit(item, step, overlap=None, gap=True, reason="tracking_lost")
+
+    def _unusable(self, item: _Held, step: GateStep, why: str) -> None:
+        self._unusable_since_key += 1
+        step.role = "unusable"
+        step.events.append(GateEvent(GateEventKind.UNUSABLE_FRAME, item.index, f"frame {item.index} skipped: {why}"))
+
+    def _promote(self, step: GateStep, reason: str) -> None:
+        cand, self._cand = self._cand, None
+        self._emit(cand, step, overlap=cand.estimate, gap=False, reason=reason)
+
+    def _compare(self, key: _Held, item: _Held, step: GateStep) -> OverlapEstimate:
+        est = self._estimator.estimate(key.features, item.features)
+        step.comparisons.append(Comparison(key.index, item.index, est))
+        return est
+
+    def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool, reason: str) -> None:
+        est = overlap
+        kf = Keyframe(
+            masked=item.masked,
+            overlap_to_previous=None if est is None else est.R,
+            inliers=0 if est is None else est.inliers,
+            gap_before=gap,
+            extra={
+                "reason": reason,
+                "segment": self._segment,
+                "previous_index": None if self._key is None else self._key.index,
+                "frames_since_previous": 0 if self._key is None else item.index - self._key.index,
+                "matches": 0 if est is None else est.matches,
+                "dx_px": None if est is None else est.dx,
+                "dy_px": None if est is None else est.dy,
+                "R_displacement": None if est is None else est.R_displacement,
+                "R_polygon": None if est is None else est.R_polygon,
+                "sharpness": item.sharpness,
+                "low_overlap": est is not None and est.known and _percent(est) < self.rth_percent,
+            },
+        )
+        self._key = item
+        self._prev_R = 100.0
+        self._unusable_since_key = 0
+        self.keyframes_out += 1
+        self._out.append(kf)
+        step.keyframe_indices.append(item.index)
+        step.events.append(
+            GateEvent(GateEventKind.KEYFRAME, item.index, f"keyframe {item.index} ({reason})", kf.overlap_to_previous)
+        )

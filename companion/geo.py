@@ -57,7 +57,7 @@ class FacadeFrame:
     def yaw_facing_wall_deg(self) -> float:
         """Heading (degrees clockwise from north, 0..360) of a camera looking straight at the wall."""
         oe, on = self.out_enu
-        return math.degrees(math.atan2(-oe, -on)) % 360.0
+        return round(math.degrees(math.atan2(-oe, -on)), 9) % 360.0
 
     def facade_to_enu(self, along_m, out_m, up_m) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         de, dn = self.along_enu

@@ -1,0 +1,164 @@
+"""Planner geometry: standoff, yaw, coverage, ordering, speed limits and estimates; property-based on any wall."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from companion.mission import items as mi
+from companion.mission import load_mission, parse_mission, plan_scan
+
+DEMO = Path(__file__).resolve().parents[1] / "missions" / "demo-facade.yaml"
+
+
+def _distance_to_wall_line(plan, wp) -> float:
+    """Independent of FacadeFrame: horizontal distance from a waypoint to the infinite wall line, in ENU."""
+    s = plan.frame.origin
+    lat2, lon2, _ = plan.frame.facade_to_geodetic(plan.frame.length_m, 0.0, 0.0)
+    ee, en, _ = pymap3d.geodetic2enu(lat2, lon2, s.alt_amsl_m, s.lat, s.lon, s.alt_amsl_m)
+    pe, pn, _ = pymap3d.geodetic2enu(wp.lat, wp.lon, s.alt_amsl_m, s.lat, s.lon, s.alt_amsl_m)
+    return abs(ee * pn - en * pe) / math.hypot(ee, en)
+
+
+def _mission(lat, lon, heading_deg, length, height, standoff, overlap, pattern, side_overlap=0.6):
+    end_lat, end_lon, _ = pymap3d.enu2geodetic(
+        length * math.sin(math.radians(heading_deg)), length * math.cos(math.radians(heading_deg)), 0.0, lat, lon, 0.0
+    )
+    return parse_mission(
+        {
+            "name": "prop",
+            "facade": {
+                "start": {"lat": lat, "lon": lon},
+                "end": {"lat": float(end_lat), "lon": float(end_lon)},
+                "ground_alt_amsl_m": 10.0,
+                "height_m": height,
+            },
+            "standoff_m": standoff,
+            "overlap": overlap,
+            "side_overlap": side_overlap,
+            "camera": {"width_px": 3840, "height_px": 2160, "hfov_deg": 69.0, "fps": 30, "exposure_s": 0.002},
+            "pattern": pattern,
+            "geofence": {"max_alt_m": 1000.0, "max_distance_m": 20000.0},
+        }
+    )
+
+
+def _check_plan(plan):
+    m = plan.mission
+    fp = plan.footprint
+    scan = [w for w in plan.waypoints if w.kind == "scan"]
+    # Standoff: every scan waypoint at standoff +- 0.05 m from the wall line (measured independently).
+    for wp in scan:
+        assert abs(_distance_to_wall_line(plan, wp) - m.standoff_m) <= 0.05
+    # Yaw faces the wall: the heading points from the waypoint towards the wall.
+    oe, on = plan.frame.out_enu
+    for wp in plan.waypoints:
+        look = (math.sin(math.radians(wp.yaw_deg)), math.cos(math.radians(wp.yaw_deg)))
+        assert look[0] * -oe + look[1] * -on == pytest.approx(1.0, abs=1e-6)
+    # Transit never closer to the wall than the standoff, nothing below the ground.
+    assert all(w.out_m >= m.standoff_m - 0.05 for w in plan.waypoints)
+    assert all(w.up_m >= m.margins.bottom_clearance_m - 1e-6 for w in plan.waypoints if w.kind != "land")
+    # Coverage: union of frames along the scan legs covers wall + margins (sampled on a grid).
+    legs = [(plan.waypoints[i], plan.waypoints[j]) for i, j in plan.scan_legs]
+    a_grid = np.linspace(-m.margins.ends_m, plan.frame.length_m + m.margins.ends_m, 60)
+    z_lo = plan.estimates.uncovered_bottom_m
+    z_grid = np.linspace(z_lo + 1e-3, m.facade.height_m + m.margins.roof_m, 40)
+    covered = np.zeros((len(z_grid), len(a_grid)), bool)
+    for p, q in legs:
+        a0, a1 = sorted((p.along_m, q.along_m))
+        u0, u1 = sorted((p.up_m, q.up_m))
+        covered |= (
+            (a_grid[None, :] >= a0 - fp.width_m / 2 - 1e-6)
+            & (a_grid[None, :] <= a1 + fp.width_m / 2 + 1e-6)
+            & (z_grid[:, None] >= u0 - fp.height_m / 2 - 1e-6)
+            & (z_grid[:, None] <= u1 + fp.height_m / 2 + 1e-6)
+        )
+    assert covered.all()
+    # Ordering: strips advance monotonically along (vertical) or downwards (horizontal) and alternate direction.
+    if m.pattern == "vertical":
+        pos = [plan.waypoints[i].along_m for i, _ in plan.scan_legs]
+        dirs = [np.sign(plan.waypoints[j].up_m - plan.waypoints[i].up_m) for i, j in plan.scan_legs]
+    else:
+        pos = [-plan.waypoints[i].up_m for i, _ in plan.scan_legs]
+        dirs = [np.sign(plan.waypoints[j].along_m - plan.waypoints[i].along_m) for i, j in plan.scan_legs]
+    assert all(b > a for a, b in zip(pos, pos[1:], strict=False))
+    assert all(d1 == -d2 for d1, d2 in zip(dirs, dirs[1:], strict=False) if d1 and d2)
+    # Side overlap between neighbouring strips is at least what was asked.
+    assert plan.estimates.side_overlap_achieved >= m.side_overlap - 1e-9
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    lat=st.floats(-60, 60),
+    lon=st.floats(-179, 179),
+    heading=st.floats(0, 360),
+    length=st.floats(3, 150),
+    height=st.floats(3, 80),
+    standoff=st.floats(2, 15),
+    overlap=st.floats(0.5, 0.95),
+    pattern=st.sampled_from(["vertical", "horizontal"]),
+)
+def test_any_valid_wall(lat, lon, heading, length, height, standoff, overlap, pattern):
+    _check_plan(plan_scan(_mission(lat, lon, heading, length, height, standoff, overlap, pattern)))
+
+
+def test_demo_plan_geometry_and_estimates():
+    plan = plan_scan(load_mission(DEMO))
+    _check_plan(plan)
+    e = plan.estimates
+    fp = plan.footprint
+    # 69 deg HFOV at 4 m: 2 * 4 * tan(34.5 deg) = 5.498 m wide, 16:9 -> 3.093 m high, 1.432 mm/px on 3840 px.
+    assert fp.width_m == pytest.approx(5.498, abs=1e-3)
+    assert fp.height_m == pytest.approx(3.093, abs=1e-3)
+    assert e.gsd_mm_per_px == pytest.approx(1.432, abs=1e-3)
+    # Blur budget 1 px at 2 ms exposure: v <= 1.432 mm / 2 ms = 0.716 m/s, below the frames-per-keyframe limit.
+    assert e.scan_speed_m_s == pytest.approx(0.716, abs=1e-3) and e.speed_limited_by == "motion blur"
+    assert e.motion_blur_px <= 1.0 + 1e-9 and e.frames_per_keyframe >= 10
+    assert e.keyframe_spacing_m == pytest.approx(0.2 * fp.height_m)
+    legs = sum(
+        math.dist(
+            (plan.waypoints[i].along_m, plan.waypoints[i].up_m), (plan.waypoints[j].along_m, plan.waypoints[j].up_m)
+        )
+        for i, j in plan.scan_legs
+    )
+    assert e.expected_keyframes >= legs / e.keyframe_spacing_m
+    assert e.path_length_m > legs and e.flight_time_s > e.path_length_m / plan.mission.max_speed_m_s
+
+
+def test_speed_limited_by_frames_per_keyframe_when_fps_is_low():
+    m = _mission(37.0, 127.0, 90.0, 20.0, 10.0, 4.0, 0.8, "vertical")
+    m = m.model_copy(update={"camera": m.camera.model_copy(update={"fps": 2.0})})
+    plan = plan_scan(m)
+    assert plan.estimates.speed_limited_by == "frames per keyframe"
+    assert plan.estimates.frames_per_keyframe == pytest.approx(m.min_frames_per_keyframe)
+
+
+def test_mission_items_px4_and_ardupilot():
+    plan = plan_scan(load_mission(DEMO))
+    px4 = plan.mavlink_items("px4")
+    ap = plan.mavlink_items("ardupilot")
+    assert [i.seq for i in px4] == list(range(len(px4)))
+    assert px4[0].command == mi.MAV_CMD_NAV_TAKEOFF and px4[-1].command == mi.MAV_CMD_NAV_LAND
+    assert ap[0].command == mi.MAV_CMD_NAV_WAYPOINT and ap[0].frame == mi.MAV_FRAME_GLOBAL  # home placeholder
+    assert ap[1].command == mi.MAV_CMD_NAV_TAKEOFF
+    assert not any(math.isnan(p) for p in (ap[1].param1, ap[1].param2, ap[1].param3))  # ArduPilot refuses NaN
+    cmds = {i.command for i in px4}
+    assert {mi.MAV_CMD_DO_CHANGE_SPEED, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, mi.MAV_CMD_DO_MOUNT_CONTROL} <= cmds
+    nav = [i for i in px4 if i.command == mi.MAV_CMD_NAV_WAYPOINT]
+    assert len(nav) == sum(1 for w in plan.waypoints if w.kind in ("scan", "transit"))
+    assert all(i.param4 == pytest.approx(plan.frame.yaw_facing_wall_deg) for i in nav)
+    # The speed before each scan leg is the scan speed.
+    speeds = [i.param2 for i in px4 if i.command == mi.MAV_CMD_DO_CHANGE_SPEED]
+    assert plan.estimates.scan_speed_m_s in speeds and plan.mission.max_speed_m_s in speeds
+
+
+def test_rtl_end_action():
+    m = load_mission(DEMO)
+    plan = plan_scan(m.model_copy(update={"end_action": "rtl"}))
+    assert plan.mavlink_items()[-1].command == mi.MAV_CMD_NAV_RETURN_TO_LAUNCH

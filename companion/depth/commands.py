@@ -1,0 +1,186 @@
+"""CLI: ``companion depth export|train|run`` and ``companion eval mask RECORDING``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from pathlib import Path
+
+from companion.errors import CompanionError
+
+log = logging.getLogger(__name__)
+
+
+def _seeds(text: str) -> list[int]:
+    """'0-23' or '1,2,5' or '0-3,10' -> list of ints."""
+    out: list[int] = []
+    try:
+        for part in text.split(","):
+            if "-" in part:
+                a, b = part.split("-")
+                out.extend(range(int(a), int(b) + 1))
+            elif part.strip():
+                out.append(int(part))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"bad seed list {text!r}: use e.g. 0-23 or 1,2,5") from exc
+    return out
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"bad size {text!r}: use HEIGHTxWIDTH, e.g. 192x640") from exc
+    return h, w
+
+
+def _need_torch() -> None:
+    try:
+        import onnx  # noqa: F401
+        import torch  # noqa: F401
+    except ImportError as exc:
+        raise CompanionError(
+            f"this command needs the training extra ({exc.name} is not installed)",
+            "pip install torch==2.13.0 --index-url <your CPU wheel index> && pip install -e '.[train]'",
+        ) from exc
+
+
+def cmd_export(args) -> int:
+    _need_torch()
+    from companion.depth.training.export import export_checkpoints
+
+    h, w = args.size
+    rep = export_checkpoints(
+        args.encoder, args.decoder, args.out, height=h, width=w, source=args.source, licence=args.licence,
+        opset=args.opset,
+    )
+    print(f"wrote {rep.path} ({rep.size_bytes / 1e6:.1f} MB, input 1x3x{rep.height}x{rep.width}); "
+          f"torch vs onnxruntime max abs diff {rep.max_abs_diff:.3g}")
+    return 0
+
+
+def cmd_train(args) -> int:
+    _need_torch()
+    from companion.depth.training.recordings import ensure_recordings
+    from companion.depth.training.train import TrainConfig, train
+
+    out = Path(args.out)
+    recs = [Path(p) for p in args.recordings or []]
+    evals = [Path(p) for p in args.eval_recordings or []]
+    if args.seeds:
+        recs += ensure_recordings(args.mission, args.seeds, out / "data", width_px=args.width_px, stride=args.stride)
+    if args.eval_seeds:
+        evals += ensure_recordings(args.mission, args.eval_seeds, out / "data", width_px=args.width_px, stride=4)
+    h, w = args.size
+    cfg = TrainConfig(
+        out=out, recordings=recs, eval_recordings=evals, height=h, width=w, crop=args.crop, batch=args.batch,
+        model_width=args.model_width, lr=args.lr, max_minutes=args.max_minutes, max_steps=args.max_steps,
+        threads=args.threads,
+    )
+    path = train(cfg)
+    print(f"model: {path}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    """Mask image files and save frame | disparity | masked frame pictures (for looking at real photos)."""
+    import cv2
+    import numpy as np
+
+    from companion.depth.evaluate import save_visual
+    from companion.depth.masker import Masker
+    from companion.records import Frame, TaggedFrame
+
+    masker = Masker(args.model)
+    for n, name in enumerate(args.images):
+        image = cv2.imread(str(name), cv2.IMREAD_COLOR)
+        if image is None:
+            raise CompanionError(f"cannot read image {name}", "pass JPEG/PNG files")
+        _, roi = masker.mask(TaggedFrame(Frame(n, 0.0, image), pose=None))
+        disp = masker.session.disparity(image)
+        save_visual(Path(args.out) / f"{Path(name).stem}.jpg", image, disp, roi.mask, None)
+        print(f"{name}: ROI {100 * roi.roi_fraction:.1f} % of the frame, regions {roi.n_regions}, "
+              f"no_boundary={roi.no_boundary}, empty={roi.empty}, "
+              f"disparity p5/p50/p95 = {' / '.join(f'{v:.4f}' for v in np.percentile(disp, [5, 50, 95]))}")
+    return 0
+
+
+def cmd_eval_mask(args) -> int:
+    from companion.depth.evaluate import evaluate_recording
+    from companion.depth.masker import Masker
+
+    masker = Masker(args.model)
+    summaries = []
+    for rec in args.recordings:
+        ev = evaluate_recording(rec, masker, stride=args.stride, max_frames=args.max_frames, save_dir=args.save)
+        s = ev.summary()
+        summaries.append(s)
+        print(f"{rec}: {s['frames']} frames, pixel error ratio mean {100 * s['error_mean']:.2f} % "
+              f"p95 {100 * s['error_p95']:.2f} % max {100 * s['error_max']:.2f} %; ROI nearer than background in "
+              f"{100 * s['roi_nearer_fraction']:.0f} % of {s['frames_with_both_sides']} frames with both; "
+              f"dropped {s['dropped_empty']} (true empty {s['true_empty']})")
+    if args.json:
+        Path(args.json).write_text(json.dumps(summaries, indent=1))
+    return 0
+
+
+def _eval_subparsers(subparsers):
+    """The shared ``eval`` command: reuse it when another area registered it first."""
+    parser = subparsers._name_parser_map.get("eval")  # noqa: SLF001 - argparse offers no public lookup
+    if parser is None:
+        parser = subparsers.add_parser("eval", help="measure a pipeline stage against simulator ground truth")
+    sub = getattr(parser, "_companion_sub", None)
+    if sub is None:
+        sub = parser.add_subparsers(dest="eval_what", required=True)
+        parser._companion_sub = sub
+    return sub
+
+
+def register(subparsers) -> None:
+    depth = subparsers.add_parser("depth", help="depth model: export, train, run on images")
+    dsub = depth.add_subparsers(dest="depth_command", required=True)
+
+    p = dsub.add_parser("export", help="Monodepth2 encoder.pth + depth.pth -> verified ONNX")
+    p.add_argument("--encoder", required=True, help="encoder.pth (official key layout)")
+    p.add_argument("--decoder", required=True, help="depth.pth (official key layout)")
+    p.add_argument("--out", required=True, help="output .onnx")
+    p.add_argument("--size", type=_size, default=(192, 640), help="input HEIGHTxWIDTH (default 192x640)")
+    p.add_argument("--source", default=None, help="metadata: where the weights come from")
+    p.add_argument("--licence", default="as licensed by the checkpoint's owner", help="metadata: weights licence")
+    p.add_argument("--opset", type=int, default=17)
+    p.set_defaults(func=cmd_export)
+
+    p = dsub.add_parser("train", help="train the Monodepth2 model on simulator recordings (needs .[train])")
+    p.add_argument("--out", required=True, help="run folder (checkpoints, logs, model.onnx); resumes if present")
+    p.add_argument("--mission", default="missions/demo-facade.yaml", help="mission the recordings fly")
+    p.add_argument("--seeds", type=_seeds, default=None, help="training recording seeds, e.g. 0-23")
+    p.add_argument("--eval-seeds", type=_seeds, default=None, help="held-out seeds, e.g. 100-103")
+    p.add_argument("--recordings", nargs="*", help="existing training recording folders")
+    p.add_argument("--eval-recordings", nargs="*", help="existing held-out recording folders")
+    p.add_argument("--width-px", type=int, default=640, help="recording width in pixels")
+    p.add_argument("--stride", type=int, default=2, help="keep every n-th camera frame of a recording")
+    p.add_argument("--size", type=_size, default=(192, 640), help="model input HEIGHTxWIDTH")
+    p.add_argument("--crop", type=_size, default=(128, 320), help="training crop HEIGHTxWIDTH (CPU speed)")
+    p.add_argument("--batch", type=int, default=8)
+    p.add_argument("--model-width", type=float, default=0.25, help="channel width factor (1.0 = original)")
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--max-minutes", type=float, default=45.0, help="wall-time budget")
+    p.add_argument("--max-steps", type=int, default=1_000_000)
+    p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
+    p.set_defaults(func=cmd_train)
+
+    p = dsub.add_parser("run", help="mask image files; save frame | disparity | masked frame pictures")
+    p.add_argument("images", nargs="+")
+    p.add_argument("--out", required=True, help="folder for the pictures")
+    p.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    p.set_defaults(func=cmd_run)
+
+    p = _eval_subparsers(subparsers).add_parser("mask", help="depth mask error ratio against simulator masks")
+    p.add_argument("recordings", nargs="+", help="recording folder(s) (held-out seeds)")
+    p.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
+    p.add_argument("--stride", type=int, default=1)
+    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures")
+    p.add_argument("--json", default=None, help="write the summaries to this JSON file")
+    p.set_defaults(func=cmd_eval_mask)

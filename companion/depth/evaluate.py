@@ -1,0 +1,128 @@
+"""Mask accuracy against the simulator's ground truth: pixel error ratio (paper: 0.75 % mean) and ROI nearness."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.depth.masker import Masker
+from companion.depth.roi import pixel_error_ratio
+from companion.errors import CompanionError
+from companion.records import Frame, TaggedFrame
+
+
+@dataclass
+class FrameEval:
+    index: int
+    error_ratio: float
+    roi_fraction: float
+    true_roi_fraction: float
+    empty: bool
+    no_boundary: bool
+    roi_nearer: bool | None  # predicted ROI's mean disparity > predicted background's (None: one side only)
+    true_roi_nearer: bool | None  # model disparity, true masks: facade's mean > background's
+    depth_ms: float
+    mask_ms: float
+
+
+@dataclass
+class MaskEval:
+    recording: str
+    frames: list[FrameEval] = field(default_factory=list)
+
+    @property
+    def errors(self) -> np.ndarray:
+        return np.array([f.error_ratio for f in self.frames])
+
+    def summary(self) -> dict:
+        e = self.errors
+        nearer = [f.roi_nearer for f in self.frames if f.roi_nearer is not None]
+        true_nearer = [f.true_roi_nearer for f in self.frames if f.true_roi_nearer is not None]
+        return {
+            "recording": self.recording,
+            "frames": len(self.frames),
+            "error_mean": float(e.mean()) if len(e) else float("nan"),
+            "error_p95": float(np.percentile(e, 95)) if len(e) else float("nan"),
+            "error_max": float(e.max()) if len(e) else float("nan"),
+            "dropped_empty": sum(f.empty for f in self.frames),
+            "true_empty": sum(f.true_roi_fraction == 0.0 for f in self.frames),
+            "no_boundary": sum(f.no_boundary for f in self.frames),
+            "frames_with_both_sides": len(nearer),
+            "roi_nearer_fraction": float(np.mean(nearer)) if nearer else float("nan"),
+            "true_roi_nearer_fraction": float(np.mean(true_nearer)) if true_nearer else float("nan"),
+            "depth_ms_median": float(np.median([f.depth_ms for f in self.frames])) if self.frames else float("nan"),
+            "mask_ms_median": float(np.median([f.mask_ms for f in self.frames])) if self.frames else float("nan"),
+        }
+
+
+def evaluate_recording(
+    path: str | Path,
+    masker: Masker | None = None,
+    *,
+    stride: int = 1,
+    max_frames: int | None = None,
+    save_dir: str | Path | None = None,
+) -> MaskEval:
+    """Mask every ``stride``-th frame of a recording and compare with its true ROI masks."""
+    try:
+        from sim.camera.recording import load_recording
+    except ImportError as exc:  # pragma: no cover - sim ships with companion
+        raise CompanionError("the simulator package is not installed", "pip install -e . in the repository") from exc
+    if not Path(path).is_dir():
+        raise CompanionError(f"recording not found: {path}", "pass a folder written by the camera simulator")
+    rec = load_recording(path)
+    masker = masker or Masker()
+    result = MaskEval(recording=str(path))
+    indices = list(range(0, len(rec), max(1, stride)))[: max_frames or None]
+    for i in indices:
+        image = rec.image(i)
+        tagged = TaggedFrame(Frame(index=i, capture_time_s=rec.capture_time(i), image=image), pose=None)
+        masked, roi = masker.mask(tagged)
+        truth = rec.roi_mask(i)
+        disp = masker.session.disparity(image) if masked is None else masked.disparity
+        t_small = cv2.resize(truth, (disp.shape[1], disp.shape[0]), interpolation=cv2.INTER_NEAREST) > 127
+        true_nearer = None
+        if t_small.any() and not t_small.all():
+            true_nearer = bool(disp[t_small].mean() > disp[~t_small].mean())
+        result.frames.append(
+            FrameEval(
+                index=i,
+                error_ratio=pixel_error_ratio(roi.mask, truth),
+                roi_fraction=roi.roi_fraction,
+                true_roi_fraction=float(np.count_nonzero(truth > 127)) / truth.size,
+                empty=roi.empty,
+                no_boundary=roi.no_boundary,
+                roi_nearer=roi.roi_nearer,
+                true_roi_nearer=true_nearer,
+                depth_ms=masker.stats.depth_ms[-1],
+                mask_ms=masker.stats.mask_ms[-1],
+            )
+        )
+        if save_dir is not None:
+            save_visual(Path(save_dir) / f"{i:06d}.jpg", image, disp, roi.mask, truth)
+    return result
+
+
+def colour_disparity(disp: np.ndarray) -> np.ndarray:
+    """Disparity as a colour image (bright/yellow = near), normalised to its own 1st..99th percentile."""
+    lo, hi = np.percentile(disp, [1, 99])
+    norm = np.clip((disp - lo) / max(hi - lo, 1e-9), 0, 1)
+    return cv2.applyColorMap((norm * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
+
+
+def save_visual(path: Path, image: np.ndarray, disp: np.ndarray, mask: np.ndarray, truth: np.ndarray | None) -> None:
+    """One picture per frame: frame | disparity | masked frame (| true mask), at 640 px width each."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w = 640
+    h = int(round(image.shape[0] * w / image.shape[1]))
+    tiles = [
+        cv2.resize(image, (w, h), interpolation=cv2.INTER_AREA),
+        cv2.resize(colour_disparity(disp), (w, h)),
+        cv2.resize(cv2.bitwise_and(image, image, mask=mask), (w, h), interpolation=cv2.INTER_AREA),
+    ]
+    if truth is not None:
+        tiles.append(cv2.cvtColor(cv2.resize(truth, (w, h), interpolation=cv2.INTER_NEAREST), cv2.COLOR_GRAY2BGR))
+    cv2.imwrite(str(path), np.hstack(tiles))

@@ -1,0 +1,68 @@
+"""The depth-mask pipeline stage: TaggedFrame -> MaskedFrame (or dropped and counted when no ROI is left)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from companion.depth.roi import RoiParams, RoiResult, extract_roi
+from companion.depth.session import DepthSession
+from companion.records import MaskedFrame, TaggedFrame
+
+
+@dataclass
+class MaskerStats:
+    frames: int = 0
+    dropped_empty: int = 0  # whole frame background: no ROI, frame dropped
+    no_boundary: int = 0  # whole frame facade
+    depth_ms: list[float] = field(default_factory=list)
+    mask_ms: list[float] = field(default_factory=list)
+
+
+class Masker:
+    """Runs the depth model and ROI extraction on each frame.
+
+    ``max_roi_depth_m`` (default 15 m, about 4x the scan standoff) only applies to models trained on metric
+    depth (metadata ``metric_depth=true``, as the shipped one): a frame whose nearest region is farther is
+    entirely background and is dropped. Scale-free models (e.g. official KITTI weights) never drop a frame
+    for distance, only cut the far side of depth boundaries.
+    """
+
+    def __init__(
+        self,
+        model_path: str | Path | None = None,
+        *,
+        session: DepthSession | None = None,
+        params: RoiParams | None = None,
+        max_roi_depth_m: float | None = 15.0,
+        threads: int | None = None,
+    ):
+        self.session = session or DepthSession(model_path, threads=threads)
+        params = params or RoiParams()
+        info = self.session.info
+        if info.metric and max_roi_depth_m is not None and params.min_roi_disparity is None:
+            params = RoiParams(**{**params.__dict__, "min_roi_disparity": info.disparity_for_depth(max_roi_depth_m)})
+        self.params = params
+        self.stats = MaskerStats()
+
+    def mask(self, tagged: TaggedFrame) -> tuple[MaskedFrame | None, RoiResult]:
+        """Mask one frame; the MaskedFrame is None when the frame has no ROI (counted in ``stats``)."""
+        image = tagged.frame.image
+        t0 = time.perf_counter()
+        disp = self.session.disparity(image)
+        t1 = time.perf_counter()
+        roi = extract_roi(disp, out_size=(image.shape[1], image.shape[0]), params=self.params)
+        t2 = time.perf_counter()
+        st = self.stats
+        st.frames += 1
+        st.depth_ms.append((t1 - t0) * 1e3)
+        st.mask_ms.append((t2 - t1) * 1e3)
+        st.no_boundary += int(roi.no_boundary)
+        if roi.empty:
+            st.dropped_empty += 1
+            return None, roi
+        return MaskedFrame(tagged=tagged, mask=roi.mask, disparity=disp), roi
+
+    def __call__(self, tagged: TaggedFrame) -> MaskedFrame | None:
+        return self.mask(tagged)[0]

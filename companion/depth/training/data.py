@@ -1,0 +1,103 @@
+"""Training samples from simulator recordings, with the domain randomisation that carries the model to real photos.
+
+Each sample is the frame resized to the model input (as the runtime does: whole frame, squashed to H x W), its
+true depth (metres, inf sky clipped to the model's max depth), and a random crop of both for cheaper CPU steps.
+Randomisation: colour/brightness/contrast/gamma, greyscale, light gradients, blur, sensor noise, JPEG, flips.
+Needs numpy + OpenCV only (torch is imported by the training loop).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+
+
+@dataclass
+class FrameSet:
+    """Frames (N x H x W x 3 uint8 BGR) and true depth (N x H x W float32 metres) at model input size."""
+
+    images: np.ndarray
+    depths: np.ndarray
+    roi_masks: np.ndarray  # N x H x W uint8, 255 = facade (for evaluation)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+def load_frames(recordings: list[Path], height: int, width: int, max_depth: float, stride: int = 1) -> FrameSet:
+    """Read recordings (sim.camera.recording layout) and resize every ``stride``-th frame to the model input."""
+    from sim.camera.recording import load_recording
+
+    images, depths, masks = [], [], []
+    for path in recordings:
+        rec = load_recording(path)
+        for i in range(0, len(rec), stride):
+            images.append(cv2.resize(rec.image(i), (width, height), interpolation=cv2.INTER_AREA))
+            d = np.asarray(rec.depth(i), dtype=np.float32)
+            d = np.where(np.isfinite(d), d, max_depth)
+            # nearest keeps depth edges sharp (no averaged near/far pixels that exist nowhere)
+            depths.append(np.clip(cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST), 0.1, max_depth))
+            masks.append(cv2.resize(rec.roi_mask(i), (width, height), interpolation=cv2.INTER_NEAREST))
+    if not images:
+        raise CompanionError("no frames in the training recordings", "check the recording folders (frames/*.jpg)")
+    return FrameSet(np.stack(images), np.stack(depths), np.stack(masks))
+
+
+def randomise(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Photometric domain randomisation of one BGR uint8 image (geometry untouched)."""
+    img = image.astype(np.float32) / 255.0
+    if rng.random() < 0.2:  # greyscale: real facades are often colourless concrete / cladding
+        g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        img = np.repeat(g[..., None], 3, axis=2)
+    img = img * rng.uniform(0.7, 1.3, size=3).astype(np.float32)  # white balance / colour cast
+    mean = img.mean()
+    img = (img - mean) * rng.uniform(0.5, 1.4) + mean * rng.uniform(0.6, 1.4)  # contrast, brightness
+    if rng.random() < 0.5:  # uneven light: a linear ramp in a random direction
+        h, w = img.shape[:2]
+        ang = rng.uniform(0, 2 * np.pi)
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        ramp = (np.cos(ang) * (xx / w - 0.5) + np.sin(ang) * (yy / h - 0.5)) * rng.uniform(0, 0.6)
+        img = img * (1.0 + ramp[..., None])
+    img = np.clip(img, 0, 1) ** rng.uniform(0.7, 1.4)  # gamma
+    if rng.random() < 0.4:
+        k = int(rng.choice([3, 5, 7]))
+        img = cv2.GaussianBlur(img, (k, k), 0)
+    if rng.random() < 0.5:
+        img = img + rng.normal(0, rng.uniform(0.005, 0.04), img.shape).astype(np.float32)
+    out = np.clip(img * 255.0, 0, 255).astype(np.uint8)
+    if rng.random() < 0.5:
+        ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(25, 90))])
+        if ok:
+            out = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return out
+
+
+def to_input(image_bgr: np.ndarray) -> np.ndarray:
+    """BGR uint8 H x W x 3 -> RGB float32 3 x H x W in [0, 1], the model's input convention."""
+    return cv2.cvtColor(image_bgr, cv2.COLOR_BGR2RGB).astype(np.float32).transpose(2, 0, 1) / 255.0
+
+
+def sample_batch(
+    frames: FrameSet, batch: int, crop: tuple[int, int] | None, rng: np.random.Generator, augment: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """A random batch: (B x 3 x h x w inputs, B x 1 x h x w true depth), cropped and randomised."""
+    n, h, w = frames.depths.shape
+    ch, cw = crop or (h, w)
+    xs, ds = [], []
+    for idx in rng.integers(0, n, batch):
+        y0 = int(rng.integers(0, h - ch + 1))
+        x0 = int(rng.integers(0, w - cw + 1))
+        img = frames.images[idx, y0 : y0 + ch, x0 : x0 + cw]
+        dep = frames.depths[idx, y0 : y0 + ch, x0 : x0 + cw]
+        if augment:
+            img = randomise(img, rng)
+            if rng.random() < 0.5:
+                img, dep = img[:, ::-1], dep[:, ::-1]
+        xs.append(to_input(np.ascontiguousarray(img)))
+        ds.append(np.ascontiguousarray(dep)[None])
+    return np.stack(xs), np.stack(ds).astype(np.float32)

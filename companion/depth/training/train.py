@@ -1,0 +1,192 @@
+"""``companion depth train``: Monodepth2 (ResNet-18 layout, reduced width) trained on simulator recordings.
+
+Supervision: the simulator's true depth, through a scale-invariant log loss on disparity (Eigen et al., with
+lambda = 0.5 so that absolute scale is learned too: the shipped model is metric, which lets the masker drop a
+frame that is all background) at Monodepth2's four output scales, plus Monodepth2's edge-aware smoothness
+(weight 1e-3). Adam, lr 1e-4 then 1e-5 for the last quarter of the budget (the paper's schedule in time rather
+than epochs). Photometric domain randomisation (colour, light, blur, noise, JPEG) in companion.depth.training.data.
+
+The run is bounded by wall time (``--max-minutes``), checkpoints every few minutes and resumes from ``DIR``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from companion.depth.training.data import FrameSet, load_frames, sample_batch
+from companion.depth.training.networks import Monodepth2, disp_to_depth, encoder_state_dict
+from companion.errors import CompanionError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class TrainConfig:
+    out: Path
+    recordings: list[Path]
+    eval_recordings: list[Path] = field(default_factory=list)
+    height: int = 192
+    width: int = 640
+    crop: tuple[int, int] | None = (128, 320)
+    model_width: float = 0.25
+    batch: int = 8
+    lr: float = 1e-4
+    lr_final: float = 1e-5
+    final_fraction: float = 0.25
+    smoothness: float = 1e-3
+    si_lambda: float = 0.5
+    min_depth: float = 0.1
+    max_depth: float = 100.0
+    max_minutes: float = 45.0
+    max_steps: int = 1_000_000
+    checkpoint_minutes: float = 3.0
+    threads: int = 1
+    seed: int = 0
+    stride: int = 1
+    source: str = ""
+
+
+def silog_loss(disp: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+    """Scale-invariant log loss between predicted and true (scaled) disparity, per image then averaged."""
+    scaled, _ = disp_to_depth(disp, cfg.min_depth, cfg.max_depth)
+    g = (torch.log(scaled) - torch.log(1.0 / depth_gt)).flatten(1)
+    return ((g**2).mean(1) - cfg.si_lambda * g.mean(1) ** 2).mean()
+
+
+def smooth_loss(disp: torch.Tensor, img: torch.Tensor) -> torch.Tensor:
+    """Monodepth2's edge-aware smoothness on mean-normalised disparity."""
+    disp = disp / (disp.mean((2, 3), keepdim=True) + 1e-7)
+    gdx = (disp[:, :, :, :-1] - disp[:, :, :, 1:]).abs()
+    gdy = (disp[:, :, :-1, :] - disp[:, :, 1:, :]).abs()
+    gix = (img[:, :, :, :-1] - img[:, :, :, 1:]).abs().mean(1, keepdim=True)
+    giy = (img[:, :, :-1, :] - img[:, :, 1:, :]).abs().mean(1, keepdim=True)
+    return (gdx * torch.exp(-gix)).mean() + (gdy * torch.exp(-giy)).mean()
+
+
+def total_loss(outputs: dict, x: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+    loss = x.new_zeros(())
+    for s in range(4):
+        disp = outputs[("disp", s)]
+        up = F.interpolate(disp, size=depth_gt.shape[-2:], mode="bilinear", align_corners=False)
+        img_s = F.interpolate(x, size=disp.shape[-2:], mode="area") if s else x
+        loss = loss + silog_loss(up, depth_gt, cfg) + cfg.smoothness * smooth_loss(disp, img_s) / (2**s)
+    return loss / 4.0
+
+
+def _save_checkpoint(path: Path, model, opt, step: int, elapsed_s: float) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step, "elapsed_s": elapsed_s}, tmp)
+    tmp.replace(path)
+
+
+@torch.no_grad()
+def evaluate_torch(model: Monodepth2, frames: FrameSet, cfg: TrainConfig, batch: int = 4) -> dict:
+    """Held-out loss and absolute relative depth error of the full-size frames (no augmentation)."""
+    model.eval()
+    losses, absrel = [], []
+    for i in range(0, len(frames), batch):
+        x = torch.from_numpy(
+            np.stack([f[..., ::-1].transpose(2, 0, 1) for f in frames.images[i : i + batch]]).astype(np.float32) / 255
+        )
+        d = torch.from_numpy(frames.depths[i : i + batch][:, None].copy())
+        out = model.forward_all(x)
+        losses.append(float(total_loss(out, x, d, cfg)))
+        _, depth = disp_to_depth(out[("disp", 0)], cfg.min_depth, cfg.max_depth)
+        valid = d < cfg.max_depth * 0.99
+        absrel.append(float(((depth - d).abs() / d)[valid].mean()))
+    model.train()
+    return {"loss": float(np.mean(losses)), "abs_rel_facade_and_near": float(np.mean(absrel))}
+
+
+def train(cfg: TrainConfig) -> Path:
+    """Train (or resume) into ``cfg.out``; returns the exported ONNX path. Bounded by ``cfg.max_minutes``."""
+    if not cfg.recordings:
+        raise CompanionError("no training recordings", "pass --seeds (generates recordings) or --recordings DIR ...")
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    out = cfg.out
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(asdict(cfg), default=str, indent=1))
+    frames = load_frames(cfg.recordings, cfg.height, cfg.width, cfg.max_depth, cfg.stride)
+    held = load_frames(cfg.eval_recordings, cfg.height, cfg.width, cfg.max_depth, 4) if cfg.eval_recordings else None
+    log.info("training on %d frames from %d recordings", len(frames), len(cfg.recordings))
+
+    model = Monodepth2(width=cfg.model_width)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+    ckpt = out / "checkpoint.pt"
+    step, elapsed0 = 0, 0.0
+    if ckpt.is_file():
+        state = torch.load(ckpt, map_location="cpu", weights_only=False)
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        step, elapsed0 = int(state["step"]), float(state["elapsed_s"])
+        log.info("resumed from step %d (%.1f min)", step, elapsed0 / 60)
+    rng = np.random.default_rng(cfg.seed + step)
+    budget_s = cfg.max_minutes * 60.0
+    t_start = time.monotonic()
+    last_ckpt = t_start
+    logf = (out / "train.jsonl").open("a")
+    model.train()
+    while True:
+        elapsed = elapsed0 + time.monotonic() - t_start
+        if elapsed >= budget_s or step >= cfg.max_steps:
+            break
+        progress = max(elapsed / budget_s, step / cfg.max_steps)
+        lr = cfg.lr if progress < 1.0 - cfg.final_fraction else cfg.lr_final
+        for group in opt.param_groups:
+            group["lr"] = lr
+        xb, db = sample_batch(frames, cfg.batch, cfg.crop, rng)
+        x, d = torch.from_numpy(xb), torch.from_numpy(db)
+        loss = total_loss(model.forward_all(x), x, d, cfg)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        step += 1
+        if step % 25 == 0:
+            rec = {"step": step, "minutes": round(elapsed / 60, 2), "lr": lr, "loss": round(float(loss), 5)}
+            if held is not None and step % 250 == 0:
+                rec["held_out"] = evaluate_torch(model, held, cfg)
+            logf.write(json.dumps(rec) + "\n")
+            logf.flush()
+            log.info("%s", rec)
+        if time.monotonic() - last_ckpt > cfg.checkpoint_minutes * 60:
+            _save_checkpoint(ckpt, model, opt, step, elapsed0 + time.monotonic() - t_start)
+            last_ckpt = time.monotonic()
+    elapsed = elapsed0 + time.monotonic() - t_start
+    _save_checkpoint(ckpt, model, opt, step, elapsed)
+    return finish(model, cfg, step, elapsed, held)
+
+
+def finish(model: Monodepth2, cfg: TrainConfig, step: int, elapsed_s: float, held: FrameSet | None) -> Path:
+    """Save official-layout checkpoints, export the verified ONNX and write the summary."""
+    from companion.depth.training.export import export_onnx
+
+    model.eval()
+    out = cfg.out
+    torch.save(encoder_state_dict(model, cfg.height, cfg.width), out / "encoder.pth")
+    torch.save(model.depth.state_dict(), out / "depth.pth")
+    source = cfg.source or (
+        f"companion depth train: Monodepth2 ResNet-18 layout at width {cfg.model_width}, "
+        f"{len(cfg.recordings)} simulator recordings, {step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
+    )
+    report = export_onnx(
+        model, out / "model.onnx", height=cfg.height, width=cfg.width, min_depth=cfg.min_depth,
+        max_depth=cfg.max_depth, source=source, licence="BSD-3-Clause (companion project, trained on its simulator)",
+        extra_metadata={"metric_depth": "true", "encoder_width": str(cfg.model_width), "train_steps": str(step)},
+    )
+    summary = {
+        "steps": step, "minutes": elapsed_s / 60, "onnx": str(report.path), "onnx_max_abs_diff": report.max_abs_diff
+    }
+    if held is not None:
+        summary["held_out"] = evaluate_torch(model, held, cfg)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    log.info("training done: %s", summary)
+    return report.path

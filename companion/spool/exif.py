@@ -1,0 +1,141 @@
+"""Keyframe JPEGs tagged the way photogrammetry tools read them.
+
+EXIF: GPS position/altitude, DateTimeOriginal + SubSecTimeOriginal, camera model. XMP: DJI's ``drone-dji``
+namespace (GimbalYaw/Pitch/RollDegree, FlightYaw/Pitch/RollDegree, Absolute/RelativeAltitude), which Pix4D,
+Metashape and OpenDroneMap all read, plus ``Camera:Yaw/Pitch/Roll`` (Pix4D's own camera orientation tags).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import io
+import math
+from dataclasses import dataclass
+from fractions import Fraction
+
+import cv2
+import numpy as np
+import piexif
+
+from companion.records import Pose
+
+XMP_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
+
+
+@dataclass(frozen=True)
+class CameraTags:
+    make: str = "companion"
+    model: str = "facade-scan"
+    focal_length_mm: float | None = None
+    focal_length_35mm: int | None = None
+
+
+def _rational(value: float, denom: int = 10000) -> tuple[int, int]:
+    f = Fraction(value).limit_denominator(denom)
+    return f.numerator, f.denominator
+
+
+def _dms(deg: float) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int]]:
+    deg = abs(deg)
+    d = int(deg)
+    m = int((deg - d) * 60)
+    s = (deg - d - m / 60) * 3600
+    return (d, 1), (m, 1), (int(round(s * 10000)), 10000)
+
+
+def exif_bytes(pose: Pose | None, capture_utc: dt.datetime, camera: CameraTags) -> bytes:
+    stamp = capture_utc.strftime("%Y:%m:%d %H:%M:%S")
+    subsec = f"{capture_utc.microsecond // 1000:03d}"
+    zeroth = {piexif.ImageIFD.Make: camera.make, piexif.ImageIFD.Model: camera.model, piexif.ImageIFD.DateTime: stamp}
+    exif = {
+        piexif.ExifIFD.DateTimeOriginal: stamp,
+        piexif.ExifIFD.DateTimeDigitized: stamp,
+        piexif.ExifIFD.SubSecTimeOriginal: subsec,
+        piexif.ExifIFD.SubSecTimeDigitized: subsec,
+        piexif.ExifIFD.OffsetTimeOriginal: "+00:00",
+    }
+    if camera.focal_length_mm:
+        exif[piexif.ExifIFD.FocalLength] = _rational(camera.focal_length_mm)
+    if camera.focal_length_35mm:
+        exif[piexif.ExifIFD.FocalLengthIn35mmFilm] = int(camera.focal_length_35mm)
+    gps = {}
+    if pose is not None and all(math.isfinite(v) for v in (pose.lat, pose.lon, pose.alt_amsl_m)):
+        gps = {
+            piexif.GPSIFD.GPSVersionID: (2, 3, 0, 0),
+            piexif.GPSIFD.GPSLatitudeRef: "N" if pose.lat >= 0 else "S",
+            piexif.GPSIFD.GPSLatitude: _dms(pose.lat),
+            piexif.GPSIFD.GPSLongitudeRef: "E" if pose.lon >= 0 else "W",
+            piexif.GPSIFD.GPSLongitude: _dms(pose.lon),
+            piexif.GPSIFD.GPSAltitudeRef: 0 if pose.alt_amsl_m >= 0 else 1,
+            piexif.GPSIFD.GPSAltitude: _rational(abs(pose.alt_amsl_m), 1000),
+            piexif.GPSIFD.GPSTimeStamp: (
+                (capture_utc.hour, 1),
+                (capture_utc.minute, 1),
+                _rational(capture_utc.second + capture_utc.microsecond / 1e6, 1000),
+            ),
+            piexif.GPSIFD.GPSDateStamp: capture_utc.strftime("%Y:%m:%d"),
+        }
+    return piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps, "1st": {}, "thumbnail": None})
+
+
+def xmp_packet(pose: Pose | None) -> bytes:
+    if pose is None:
+        return b""
+    cam_yaw = pose.yaw_deg  # gimbal yaw follows the body in our missions; camera heading = body heading
+    fields = {
+        "drone-dji:GpsLatitude": f"{pose.lat:.9f}",
+        "drone-dji:GpsLongitude": f"{pose.lon:.9f}",
+        "drone-dji:AbsoluteAltitude": f"{pose.alt_amsl_m:+.3f}",
+        "drone-dji:RelativeAltitude": f"{pose.relative_alt_m:+.3f}",
+        "drone-dji:GimbalRollDegree": "+0.00",
+        "drone-dji:GimbalYawDegree": f"{cam_yaw:+.2f}",
+        "drone-dji:GimbalPitchDegree": f"{pose.gimbal_pitch_deg:+.2f}",
+        "drone-dji:FlightRollDegree": f"{pose.roll_deg:+.2f}",
+        "drone-dji:FlightYawDegree": f"{pose.yaw_deg:+.2f}",
+        "drone-dji:FlightPitchDegree": f"{pose.pitch_deg:+.2f}",
+        "Camera:Yaw": f"{cam_yaw:.2f}",
+        "Camera:Pitch": f"{pose.gimbal_pitch_deg + 90.0:.2f}",  # Pix4D: 90 = horizontal, 0 = nadir
+        "Camera:Roll": "0.00",
+    }
+    attrs = "\n   ".join(f'{k}="{v}"' for k, v in fields.items())
+    xml = (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
+        '  <rdf:Description rdf:about=""\n'
+        '   xmlns:drone-dji="http://www.dji.com/drone-dji/1.0/"\n'
+        '   xmlns:Camera="http://pix4d.com/camera/1.0/"\n'
+        f'   {attrs}/>\n </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>'
+    )
+    return xml.encode("utf-8")
+
+
+def encode_tagged_jpeg(
+    image: np.ndarray, pose: Pose | None, capture_utc: dt.datetime, camera: CameraTags, quality: int = 95
+) -> bytes:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError("JPEG encoding failed")
+    out = io.BytesIO()
+    piexif.insert(exif_bytes(pose, capture_utc, camera), buf.tobytes(), out)
+    return _insert_xmp(out.getvalue(), xmp_packet(pose))
+
+
+def _insert_xmp(jpeg: bytes, xmp: bytes) -> bytes:
+    """Put the XMP APP1 segment right after the EXIF APP1 (or after SOI)."""
+    if not xmp:
+        return jpeg
+    payload = XMP_HEADER + xmp
+    segment = b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
+    pos = 2
+    if jpeg[2:4] == b"\xff\xe1":
+        pos = 4 + int.from_bytes(jpeg[4:6], "big")
+    return jpeg[:pos] + segment + jpeg[pos:]
+
+
+def read_xmp(jpeg: bytes) -> str | None:
+    """The XMP packet of a JPEG (for tests and tools)."""
+    i = jpeg.find(XMP_HEADER)
+    if i < 0:
+        return None
+    length = int.from_bytes(jpeg[i - 2 : i], "big")
+    return jpeg[i + len(XMP_HEADER) : i - 2 + length].decode("utf-8")

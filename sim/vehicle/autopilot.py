@@ -1,0 +1,810 @@
+"""The simulated autopilot: flight modes, commands, mission execution, telemetry streams and the true-pose feed.
+
+One ``SimVehicle`` runs a fixed 50 Hz simulated-time loop paced ``speedup`` times faster than the wall clock.
+MAVLink timestamps are simulated time. It answers what mavsdk 4.1 asks of a PX4 SITL (or ArduCopter, with
+``autopilot="ardupilot"``): heartbeats with decodable custom modes, health in SYS_STATUS, AUTOPILOT_VERSION on
+request, parameters, message intervals, the mission protocol and the commands below.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import select
+import socket
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.geo import GeoPoint
+from companion.mission import items as mi
+from sim.vehicle import flavours as fl
+from sim.vehicle.environment import Battery, GpsError, Wind
+from sim.vehicle.link import FaultyUdpLink
+from sim.vehicle.mission_server import MissionServer
+from sim.vehicle.model import Limits, Multirotor
+from sim.vehicle.tasks import Climb, Hold, Land, Line, ReturnHome, Task
+
+log = logging.getLogger(__name__)
+
+DT_S = 0.02  # 50 Hz simulated time
+WALL_CAP_HZ = 25.0  # no stream faster than this in wall time, whatever the speed-up (CPU is shared)
+SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+           | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS
+           | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
+PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+FORCE_MAGIC = 21196
+
+
+def _int(x: float, default: int = 0) -> int:
+    """Integer value of a float command parameter; NaN (\"unset\") gives ``default``."""
+    return int(x) if math.isfinite(x) else default
+
+
+@dataclass
+class VehicleConfig:
+    """Everything the command line can set. Link fault times: ``outage_at_s`` is simulated time since boot (so
+    it hits a reproducible point of the flight), ``outage_s`` is wall time (the peer's timeouts are wall time)."""
+
+    home: GeoPoint = field(default_factory=lambda: GeoPoint(37.56638, 126.97815, 30.0))
+    home_yaw_deg: float = 0.0
+    speedup: float = 1.0
+    seed: int = 0
+    autopilot: str = "px4"
+    target: tuple[str, int] = ("127.0.0.1", 14540)
+    bind_port: int = 0
+    pose_port: int | None = 14660
+    truth_log: Path | None = None
+    wind_m_s: float = 0.0
+    gusts_m_s: float = 0.0
+    wind_from_deg: float | None = None
+    gps_noise_m: float = 0.0
+    packet_loss: float = 0.0
+    latency_ms: float = 0.0
+    outage_at_s: float | None = None
+    outage_s: float = 0.0
+    gps_glitch_at_s: float | None = None
+    gps_glitch_m: float = 5.0
+    gps_glitch_s: float = 3.0
+    duration_s: float | None = None
+    max_mission_items: int = 500
+    system_id: int = 1
+    limits: Limits = field(default_factory=Limits)
+
+
+def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> list[float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy]
+
+
+class _LinkWriter:
+    def __init__(self, link: FaultyUdpLink):
+        self.link = link
+
+    def write(self, buf) -> None:
+        self.link.send(bytes(buf))
+
+
+class SimVehicle:
+    """A MAVLink multirotor. ``run()`` blocks until ``stop()`` or ``duration_s`` of simulated time."""
+
+    def __init__(self, cfg: VehicleConfig):
+        if cfg.speedup <= 0:
+            raise ValueError("speedup must be positive")
+        if cfg.autopilot not in fl.FLAVOURS:
+            raise ValueError(f"unknown autopilot flavour {cfg.autopilot!r}; use one of {sorted(fl.FLAVOURS)}")
+        self.cfg = cfg
+        self.flavour = fl.FLAVOURS[cfg.autopilot]()
+        self.rng = np.random.default_rng(cfg.seed)
+        self.model = Multirotor(cfg.limits)
+        self.model.state.yaw_deg = cfg.home_yaw_deg % 360.0
+        self.limits = cfg.limits
+        self.wind = Wind(cfg.wind_m_s, cfg.gusts_m_s, np.random.default_rng(cfg.seed + 1), cfg.wind_from_deg)
+        self.gps = GpsError(cfg.gps_noise_m, np.random.default_rng(cfg.seed + 2), cfg.gps_glitch_at_s,
+                            cfg.gps_glitch_m, cfg.gps_glitch_s)
+        self.battery = Battery()
+        self.link = FaultyUdpLink(cfg.target, np.random.default_rng(cfg.seed + 3),
+                                  bind=("127.0.0.1", cfg.bind_port), loss=cfg.packet_loss,
+                                  latency_s=cfg.latency_ms / 1000.0)
+        self.mav = mavlink.MAVLink(_LinkWriter(self.link), srcSystem=cfg.system_id, srcComponent=1)
+        self.mav.robust_parsing = True
+        self.params = dict(self.flavour.params)
+        self.rates = dict(self.flavour.default_rates_hz)
+        self._next_due: dict[str, float] = {}
+        self.home_item = mi.MissionItem(0, mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
+                                        round(cfg.home.lat * 1e7), round(cfg.home.lon * 1e7), cfg.home.alt_amsl_m)
+        self.missions = MissionServer(
+            self.mav, self._send, self.flavour.validate, self._on_new_mission, cfg.max_mission_items,
+            transform_upload=lambda items: self.flavour.transform_upload(items, self.home_item),
+            transform_download=lambda items: self.flavour.transform_download(items, self.home_item))
+        self.pose_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if cfg.pose_port else None
+        self.truth_file = open(cfg.truth_log, "w") if cfg.truth_log else None  # noqa: SIM115 (closed in close())
+
+        self.t = 0.0
+        self.armed = False
+        self.mode = fl.HOLD if self.flavour.name == "px4" else fl.POSCTL
+        self.task: Task = Hold(self.model.state.pos)
+        self.yaw_target: float | None = None
+        self.cruise_m_s = self.param("MPC_XY_CRUISE", 5.0)
+        self.gimbal_pitch_deg = 0.0
+        self.gimbal_yaw_deg = 0.0
+        self.mission: list[mi.MissionItem] = []
+        self.mission_seq = self.flavour.first_seq
+        self.mission_task: Task | None = None
+        self.mission_prev: np.ndarray | None = None
+        self.mission_finished = False
+        self.reached_seq = -1
+        self.landed_since: float | None = None
+        self.took_off = False
+        self.gcs: tuple[int, int] | None = None
+        self.last_gcs_wall: float | None = None
+        self.link_failsafe = False
+        self.battery_failsafe = False
+        self._outage_start_wall: float | None = None
+        self._stop = False
+        self.nav = self.model.state.pos.copy()
+
+    # --- helpers -------------------------------------------------------------------------------------------
+    def param(self, name: str, default: float) -> float:
+        v = self.params.get(name)
+        if v is None:
+            return default
+        return float(v)
+
+    @property
+    def yaw_deg(self) -> float:
+        return self.model.state.yaw_deg
+
+    @property
+    def land_speed_m_s(self) -> float:
+        if self.flavour.name == "ardupilot":
+            return self.param("LAND_SPEED", 70.0) / 100.0
+        return self.param("MPC_LAND_SPEED", 0.7)
+
+    @property
+    def on_ground(self) -> bool:
+        return self.model.state.on_ground
+
+    def _send(self, msg) -> None:
+        self.mav.send(msg)
+
+    def statustext(self, severity: int, text: str) -> None:
+        log.info("statustext: %s", text)
+        self._send(self.mav.statustext_encode(severity, text.encode()[:50]))
+
+    def ned_to_geodetic(self, ned) -> tuple[float, float, float]:
+        h = self.cfg.home
+        return pymap3d.ned2geodetic(float(ned[0]), float(ned[1]), float(ned[2]), h.lat, h.lon, h.alt_amsl_m)
+
+    def item_ned(self, item: mi.MissionItem) -> np.ndarray:
+        """Local NED target of a positional mission item; lat/lon 0/0 means 'here'."""
+        h = self.cfg.home
+        if item.x == 0 and item.y == 0:
+            north, east = float(self.nav[0]), float(self.nav[1])
+        else:
+            north, east, _ = pymap3d.geodetic2ned(item.lat, item.lon, h.alt_amsl_m, h.lat, h.lon, h.alt_amsl_m)
+        down = -(item.z - h.alt_amsl_m) if item.frame in (mi.MAV_FRAME_GLOBAL, mi.MAV_FRAME_GLOBAL_INT) else -item.z
+        return np.array([north, east, down], dtype=float)
+
+    # --- modes ---------------------------------------------------------------------------------------------
+    def set_mode(self, mode: str) -> str | None:
+        """Switch flight mode; returns a refusal reason or None."""
+        nav = self.nav.copy()
+        if mode == fl.MISSION:
+            if len(self.mission) <= self.flavour.first_seq:
+                return "no mission uploaded"
+            if self.on_ground and self.armed:
+                refusal = self.flavour.ground_start_refusal(self.mission)
+                if refusal:
+                    return refusal
+            if self.mission_finished:
+                self.mission_seq, self.mission_finished = self.flavour.first_seq, False
+            self.mission_task = None
+            self.mission_prev = nav
+        elif mode == fl.TAKEOFF:
+            if not self.armed:
+                return "takeoff needs the vehicle armed"
+            alt = self.param("MIS_TAKEOFF_ALT", 2.5)
+            if self.flavour.name == "ardupilot":
+                alt = self.param("PILOT_TKOFF_ALT", 250.0) / 100.0
+            self.task = Climb(nav[:2], -max(alt, -nav[2]))
+        elif mode == fl.RTL:
+            if self.on_ground:
+                self.task = Hold(nav)
+            else:
+                alt = self.param("RTL_RETURN_ALT", 15.0)
+                if self.flavour.name == "ardupilot":
+                    alt = self.param("RTL_ALT", 1500.0) / 100.0
+                self.task = ReturnHome(nav, alt)
+        elif mode == fl.LAND:
+            self.task = Land()
+        else:  # hold-like modes
+            self.task = Hold(nav if not self.on_ground else self.model.state.pos)
+        if mode != self.mode:
+            log.info("mode %s -> %s", self.mode, mode)
+        self.mode = mode
+        return None
+
+    def arm(self, force: bool = False) -> str | None:
+        if self.armed:
+            return None
+        if not force:
+            refusal = self.flavour.arm_refusal(self.mode)
+            if refusal:
+                return refusal
+            if self.battery.remaining < 0.2:
+                return "battery too low to arm"
+            if self.gps.glitching(self.t):
+                return "GPS position not usable"
+        self.armed = True
+        self.took_off = False
+        self.landed_since = None
+        self.battery_failsafe = self.link_failsafe = False
+        if self.mode in (fl.HOLD, fl.POSCTL, fl.GUIDED, fl.BRAKE):
+            self.task = Hold(self.model.state.pos)
+        log.info("armed")
+        return None
+
+    def disarm(self, force: bool = False) -> str | None:
+        if not self.armed:
+            return None
+        if not self.on_ground and not force:
+            return "refusing to disarm in the air"
+        self.armed = False
+        log.info("disarmed")
+        return None
+
+    def _on_new_mission(self, items: list) -> None:
+        self.mission = list(items)
+        self.mission_seq = self.flavour.first_seq
+        self.mission_task = None
+        self.mission_finished = False
+        self.reached_seq = -1
+        if self.mode == fl.MISSION and self.armed:
+            self.set_mode(fl.HOLD)
+        self._send_mission_current()
+
+    # --- mission execution ---------------------------------------------------------------------------------
+    def _start_item(self, item: mi.MissionItem) -> bool:
+        """Set up the task for ``item``; returns True when the item completes at once (DO/CONDITION items)."""
+        nav = self.nav
+        cmd = item.command
+        prev = self.mission_prev if self.mission_prev is not None else nav.copy()
+        if cmd == mi.MAV_CMD_NAV_TAKEOFF:
+            target = self.item_ned(item)
+            self.mission_task = Climb(nav[:2], min(target[2], nav[2]))
+            return False
+        if cmd == mi.MAV_CMD_NAV_WAYPOINT:
+            target = self.item_ned(item)
+            yaw = item.param4 if math.isfinite(item.param4) else None
+            if yaw is None and math.hypot(*(target[:2] - nav[:2])) > 2.0 and self.param("MIS_YAWMODE", 0) == 0:
+                yaw = math.degrees(math.atan2(target[1] - nav[1], target[0] - nav[0])) % 360.0
+            radius = item.param2 if item.param2 > 0 else self.param("NAV_ACC_RAD", 2.0)
+            self.mission_task = Line(prev, target, radius, max(item.param1, 0.0), yaw)
+            return False
+        if cmd == mi.MAV_CMD_NAV_LAND:
+            xy = None if item.x == 0 and item.y == 0 else self.item_ned(item)[:2]
+            self.mission_task = Land(xy)
+            return False
+        if cmd == mi.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self.mission_task = ReturnHome(nav, self.param("RTL_RETURN_ALT", 15.0))
+            return False
+        if cmd == mi.MAV_CMD_DO_CHANGE_SPEED:
+            if item.param2 > 0:
+                self.cruise_m_s = min(float(item.param2), self.limits.max_speed_h_m_s)
+        elif cmd == mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
+            self._set_gimbal(item.param1, item.param2)
+        elif cmd == mi.MAV_CMD_DO_MOUNT_CONTROL:
+            self._set_gimbal(item.param1, item.param3)
+        elif cmd == mi.MAV_CMD_CONDITION_YAW:
+            self._condition_yaw(item.param1, item.param3, item.param4)
+        return True
+
+    def _set_gimbal(self, pitch: float, yaw: float) -> None:
+        if math.isfinite(pitch):
+            self.gimbal_pitch_deg = max(-90.0, min(30.0, float(pitch)))
+        if math.isfinite(yaw):
+            self.gimbal_yaw_deg = float(yaw)
+
+    def _condition_yaw(self, angle: float, direction: float, relative: float) -> None:
+        if not math.isfinite(angle):
+            return
+        if relative:
+            self.yaw_target = (self.yaw_deg + (angle if direction >= 0 else -angle)) % 360.0
+        else:
+            self.yaw_target = angle % 360.0
+        if isinstance(self.task, Hold):
+            self.task.yaw_deg = self.yaw_target
+
+    def _item_done(self) -> None:
+        seq = self.mission_seq
+        task = self.mission_task
+        if isinstance(task, Line):
+            self.mission_prev = task.b.copy()
+        elif isinstance(task, Climb):
+            self.mission_prev = task.point.copy()
+        elif task is not None:
+            self.mission_prev = self.nav.copy()
+        self.reached_seq = seq
+        self._send(self.mav.mission_item_reached_encode(seq))
+        self.mission_task = None
+        self.mission_seq += 1
+        if self.mission_seq >= len(self.mission):
+            self.mission_finished = True
+            self.mission_seq = len(self.mission) - 1
+            self.task = Hold(self.nav if not self.on_ground else self.model.state.pos)
+            log.info("mission finished")
+        self._send_mission_current()
+
+    def _mission_command(self, on_ground: bool, dt: float) -> np.ndarray:
+        for _ in range(len(self.mission) + 1):
+            if self.mission_finished:
+                return self.task.command(self.nav, on_ground, dt, self)
+            if self.mission_task is None and self._start_item(self.mission[self.mission_seq]):
+                self._item_done()
+                continue
+            assert self.mission_task is not None
+            v = self.mission_task.command(self.nav, on_ground, dt, self)
+            if self.mission_task.yaw_deg is not None:
+                self.yaw_target = self.mission_task.yaw_deg
+            if self.mission_task.done:
+                self._item_done()
+            return v
+        return np.zeros(3)
+
+    # --- simulation step -----------------------------------------------------------------------------------
+    def step(self, dt: float = DT_S) -> None:
+        self.t += dt
+        st = self.model.state
+        wind = self.wind.step(dt)
+        self.nav = st.pos + self.gps.step(self.t, dt)
+        v_cmd = np.zeros(3)
+        if self.armed:
+            if self.mode == fl.MISSION:
+                v_cmd = self._mission_command(st.on_ground, dt)
+            else:
+                v_cmd = self.task.command(self.nav, st.on_ground, dt, self)
+                if self.task.yaw_deg is not None:
+                    self.yaw_target = self.task.yaw_deg
+                if self.task.done and self.mode == fl.TAKEOFF:
+                    self.set_mode(fl.HOLD if self.flavour.name == "px4" else fl.GUIDED)
+        self.model.step(dt, v_cmd, self.yaw_target, wind if not st.on_ground else np.zeros(3), self.armed)
+        if not st.on_ground:
+            self.took_off = True
+        self._landing_logic()
+        self.battery.step(dt, self.armed, float(np.linalg.norm(st.vel)))
+        self._failsafes()
+        self._publish_truth()
+
+    def _landing_logic(self) -> None:
+        st = self.model.state
+        if self.armed and st.on_ground and self.took_off:
+            if self.landed_since is None:
+                self.landed_since = self.t
+            elif self.t - self.landed_since >= self.param("COM_DISARM_LAND", 2.0):
+                self.disarm()
+                self.statustext(mavlink.MAV_SEVERITY_INFO, "Landing detected, disarmed")
+        elif not st.on_ground:
+            self.landed_since = None
+
+    def _failsafes(self) -> None:
+        if not (self.armed and not self.on_ground):
+            return
+        if (not self.battery_failsafe and self.battery.remaining < self.param("BAT_LOW_THR", 0.15)
+                and self.mode not in (fl.RTL, fl.LAND)):
+            self.battery_failsafe = True
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, "Low battery: returning to launch")
+            self.set_mode(fl.RTL)
+        if self.last_gcs_wall is None or self.link_failsafe:
+            return
+        timeout = self.param("COM_DL_LOSS_T", 10.0)
+        if (time.monotonic() - self.last_gcs_wall > timeout and self.param("NAV_DLL_ACT", 2.0) == 2
+                and self.mode not in (fl.RTL, fl.LAND)):
+            self.link_failsafe = True
+            log.warning("data link lost for more than %.0f s: RTL", timeout)
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Data link lost: returning to launch")
+            self.set_mode(fl.RTL)
+
+    def landed_state(self) -> int:
+        st = self.model.state
+        if st.on_ground:
+            return mavlink.MAV_LANDED_STATE_ON_GROUND
+        if self.mode == fl.LAND or (isinstance(self.mission_task or self.task, Land) and st.vel[2] > 0.2):
+            return mavlink.MAV_LANDED_STATE_LANDING
+        if st.pos[2] > -1.0 and st.vel[2] < -0.2:
+            return mavlink.MAV_LANDED_STATE_TAKEOFF
+        return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def true_pose(self) -> dict:
+        st = self.model.state
+        lat, lon, alt = self.ned_to_geodetic(st.pos)
+        h = self.cfg.home
+        return {
+            "t_s": round(self.t, 4), "time_boot_ms": int(round(self.t * 1000)), "lat": lat, "lon": lon,
+            "alt_amsl_m": alt, "north_m": float(st.pos[0]), "east_m": float(st.pos[1]), "down_m": float(st.pos[2]),
+            "vn_m_s": float(st.vel[0]), "ve_m_s": float(st.vel[1]), "vd_m_s": float(st.vel[2]),
+            "roll_deg": st.roll_deg, "pitch_deg": st.pitch_deg, "yaw_deg": st.yaw_deg,
+            "gimbal_pitch_deg": self.gimbal_pitch_deg, "gimbal_yaw_deg": self.gimbal_yaw_deg,
+            "armed": self.armed, "in_air": not st.on_ground,
+            "home": {"lat": h.lat, "lon": h.lon, "alt_amsl_m": h.alt_amsl_m},
+        }
+
+    def _publish_truth(self) -> None:
+        if self.pose_sock is None and self.truth_file is None:
+            return
+        line = json.dumps(self.true_pose())
+        if self.pose_sock is not None:
+            with contextlib.suppress(OSError):
+                self.pose_sock.sendto(line.encode(), ("127.0.0.1", self.cfg.pose_port))
+        if self.truth_file is not None:
+            self.truth_file.write(line + "\n")
+
+    # --- telemetry -----------------------------------------------------------------------------------------
+    def _heartbeat(self):
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if self.mode in (fl.MISSION, fl.RTL, fl.LAND, fl.TAKEOFF, fl.HOLD):
+            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        if self.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
+        if self.link_failsafe or self.battery_failsafe:
+            status = mavlink.MAV_STATE_CRITICAL
+        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, self.flavour.autopilot, base,
+                                         self.flavour.custom_mode(self.mode), status)
+
+    def _sys_status(self):
+        health = SENSORS
+        if self.gps.glitching(self.t):
+            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        elif self.battery.remaining >= 0.2 or self.armed:
+            health |= PREARM
+        b = self.battery
+        return self.mav.sys_status_encode(SENSORS | PREARM, SENSORS | PREARM, health, 250,
+                                          int(b.voltage_v * 1000), int(b.current_a * 100), int(b.remaining * 100),
+                                          0, 0, 0, 0, 0, 0)
+
+    def _global_position(self):
+        lat, lon, alt = self.ned_to_geodetic(self.nav)
+        v = self.model.state.vel
+        return self.mav.global_position_int_encode(
+            int(self.t * 1000), round(lat * 1e7), round(lon * 1e7), int(alt * 1000), int(-self.nav[2] * 1000),
+            int(v[0] * 100), int(v[1] * 100), int(v[2] * 100), int(self.yaw_deg * 100) % 36000)
+
+    def _gps_raw(self):
+        lat, lon, alt = self.ned_to_geodetic(self.nav)
+        v = self.model.state.vel
+        cog = int((math.degrees(math.atan2(v[1], v[0])) % 360.0) * 100)
+        fix = 2 if self.gps.glitching(self.t) else 3
+        return self.mav.gps_raw_int_encode(int(self.t * 1e6), fix, round(lat * 1e7), round(lon * 1e7),
+                                           int(alt * 1000), 80, 120, int(math.hypot(v[0], v[1]) * 100), cog, 14)
+
+    def _attitude(self):
+        st = self.model.state
+        yaw = math.radians(((st.yaw_deg + 180.0) % 360.0) - 180.0)
+        return self.mav.attitude_encode(int(self.t * 1000), math.radians(st.roll_deg), math.radians(st.pitch_deg),
+                                         yaw, 0.0, 0.0, 0.0)
+
+    def _attitude_q(self):
+        st = self.model.state
+        q = quaternion_from_euler(math.radians(st.roll_deg), math.radians(st.pitch_deg), math.radians(st.yaw_deg))
+        return self.mav.attitude_quaternion_encode(int(self.t * 1000), *q, 0.0, 0.0, 0.0)
+
+    def _local_position(self):
+        v = self.model.state.vel
+        n = self.nav
+        return self.mav.local_position_ned_encode(int(self.t * 1000), n[0], n[1], n[2], v[0], v[1], v[2])
+
+    def _home_position(self):
+        h = self.cfg.home
+        return self.mav.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), int(h.alt_amsl_m * 1000),
+                                             0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.t * 1e6))
+
+    def _battery_status(self):
+        b = self.battery
+        cell_mv = int(b.voltage_v / b.cells * 1000)
+        volts = [cell_mv] * b.cells + [65535] * (10 - b.cells)
+        return self.mav.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
+                                              32767, volts, int(b.current_a * 100), int(b.consumed_mah), -1,
+                                              int(b.remaining * 100))
+
+    def _mission_current_msg(self):
+        total = len(self.mission)
+        if total == 0:
+            state = mavlink.MISSION_STATE_NO_MISSION
+        elif self.mission_finished:
+            state = mavlink.MISSION_STATE_COMPLETE
+        elif self.mode == fl.MISSION:
+            state = mavlink.MISSION_STATE_ACTIVE
+        else:
+            state = mavlink.MISSION_STATE_NOT_STARTED if self.reached_seq < 0 else mavlink.MISSION_STATE_PAUSED
+        return self.mav.mission_current_encode(self.mission_seq if total else 0, total, state,
+                                               1 if self.mode == fl.MISSION else 0)
+
+    def _send_mission_current(self) -> None:
+        self._send(self._mission_current_msg())
+
+    def _vfr_hud(self):
+        v = self.model.state.vel
+        lat, lon, alt = self.ned_to_geodetic(self.nav)
+        return self.mav.vfr_hud_encode(float(np.linalg.norm(v)), math.hypot(v[0], v[1]), int(self.yaw_deg),
+                                       50 if self.armed else 0, alt, -v[2])
+
+    def _extended_sys_state(self):
+        return self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_MC, self.landed_state())
+
+    def _autopilot_version(self):
+        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
+        caps |= (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.flavour.param_bytewise
+                 else mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
+        version = (1 << 24) | (15 << 16) | (0 << 8) | 255 if self.flavour.name == "px4" else (4 << 24) | (6 << 16) | 255
+        return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11,
+                                                 1000 + self.cfg.seed)
+
+    STREAMS = {
+        "HEARTBEAT": "_heartbeat", "SYS_STATUS": "_sys_status", "GPS_RAW_INT": "_gps_raw",
+        "GLOBAL_POSITION_INT": "_global_position", "LOCAL_POSITION_NED": "_local_position",
+        "ATTITUDE": "_attitude", "ATTITUDE_QUATERNION": "_attitude_q", "HOME_POSITION": "_home_position",
+        "EXTENDED_SYS_STATE": "_extended_sys_state", "BATTERY_STATUS": "_battery_status",
+        "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud",
+    }
+
+    def send_streams(self) -> None:
+        floor = self.cfg.speedup / WALL_CAP_HZ
+        for name, rate in self.rates.items():
+            if rate <= 0 or name not in self.STREAMS:
+                continue
+            due = self._next_due.get(name, 0.0)
+            if self.t + 1e-9 < due:
+                continue
+            interval = max(1.0 / rate, floor)
+            if name == "HEARTBEAT":
+                interval = min(interval, self.cfg.speedup * 1.0)  # at least 1 Hz of wall time
+            self._next_due[name] = self.t + interval
+            self._send(getattr(self, self.STREAMS[name])())
+
+    # --- incoming ------------------------------------------------------------------------------------------
+    def handle(self, msg) -> None:
+        t = msg.get_type()
+        if t == "BAD_DATA" or msg.get_srcSystem() == self.cfg.system_id:
+            return
+        self.last_gcs_wall = time.monotonic()
+        if t == "HEARTBEAT":
+            if self.gcs is None:
+                log.info("GCS heartbeat from system %d component %d", msg.get_srcSystem(), msg.get_srcComponent())
+            self.gcs = (msg.get_srcSystem(), msg.get_srcComponent())
+            return
+        target = getattr(msg, "target_system", None)
+        if target not in (None, 0, self.cfg.system_id):
+            return
+        if self.missions.handle(msg):
+            return
+        if t == "COMMAND_LONG":
+            self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5,
+                                                msg.param6, msg.param7])
+        elif t == "COMMAND_INT":
+            self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.x / 1e7,
+                                                msg.y / 1e7, msg.z])
+        elif t == "MISSION_SET_CURRENT":
+            self._set_current(msg.seq)
+        elif t == "PARAM_REQUEST_LIST":
+            for i, name in enumerate(self.params):
+                self._send_param(name, i)
+        elif t == "PARAM_REQUEST_READ":
+            self._on_param_read(msg)
+        elif t == "PARAM_SET":
+            self._on_param_set(msg)
+        elif t == "TIMESYNC" and msg.tc1 == 0:
+            self._send(self.mav.timesync_encode(int(self.t * 1e9), msg.ts1))
+        elif t == "REQUEST_DATA_STREAM":
+            for name, rate in fl.Px4.default_rates_hz.items():
+                self.rates[name] = (rate if msg.req_message_rate <= 0 else max(rate, msg.req_message_rate)) \
+                    if msg.start_stop else (1.0 if name == "HEARTBEAT" else 0.0)
+
+    def _send_param(self, name: str, index: int) -> None:
+        value, ptype = self.flavour.encode_param(self.params[name])
+        self._send(self.mav.param_value_encode(name.encode(), value, ptype, len(self.params), index))
+
+    def _on_param_read(self, msg) -> None:
+        names = list(self.params)
+        pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
+        if msg.param_index >= 0:
+            if msg.param_index < len(names):
+                self._send_param(names[msg.param_index], msg.param_index)
+        elif pid in self.params:
+            self._send_param(pid, names.index(pid))
+
+    def _on_param_set(self, msg) -> None:
+        pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
+        if pid not in self.params:
+            return  # PX4 ignores unknown parameters; the client times out
+        self.params[pid] = self.flavour.decode_param(msg.param_value, msg.param_type, self.params[pid])
+        if pid == "MPC_XY_CRUISE":
+            self.cruise_m_s = float(self.params[pid])
+        self._send_param(pid, list(self.params).index(pid))
+
+    def _set_current(self, seq: int) -> bool:
+        if not self.flavour.first_seq <= seq < len(self.mission):
+            return False
+        self.mission_seq = seq
+        self.mission_task = None
+        self.mission_finished = False
+        self.mission_prev = self.nav.copy()
+        self._send_mission_current()
+        return True
+
+    def _ack(self, msg, command: int, result: int) -> None:
+        self._send(self.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _refused(self, msg, command: int, reason: str) -> None:
+        self.statustext(mavlink.MAV_SEVERITY_WARNING, reason)
+        self._ack(msg, command, mavlink.MAV_RESULT_DENIED)
+
+    def _on_command(self, msg, cmd: int, p: list[float]) -> None:
+        ok = mavlink.MAV_RESULT_ACCEPTED
+        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            force = _int(p[1]) == FORCE_MAGIC
+            reason = self.arm(force) if p[0] >= 0.5 else self.disarm(force)
+            if reason:
+                return self._refused(msg, cmd, reason)
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
+            if self.flavour.name == "ardupilot":
+                if self.mode != fl.GUIDED or not self.armed:
+                    return self._refused(msg, cmd, "Takeoff needs GUIDED and armed")
+                self.params["PILOT_TKOFF_ALT"] = float(p[6] if math.isfinite(p[6]) else 2.5) * 100.0
+            elif math.isfinite(p[6]):
+                self.params["MIS_TAKEOFF_ALT"] = float(p[6]) - self.cfg.home.alt_amsl_m
+            reason = self.set_mode(fl.TAKEOFF)
+            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
+            mode = self.flavour.mode_from_set_mode(p[0], p[1], p[2])
+            if mode is None:
+                return self._ack(msg, cmd, mavlink.MAV_RESULT_UNSUPPORTED)
+            if mode == self.mode and mode != fl.MISSION:
+                return self._ack(msg, cmd, ok)
+            reason = self.set_mode(mode)
+            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_MISSION_START:
+            if _int(p[0]) > 0 and not self._set_current(_int(p[0])):
+                return self._ack(msg, cmd, mavlink.MAV_RESULT_DENIED)
+            reason = self.set_mode(fl.MISSION)
+            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
+            reason = self.set_mode(fl.MISSION if p[0] >= 0.5 else fl.HOLD)
+            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self.set_mode(fl.RTL)
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_NAV_LAND:
+            self.set_mode(fl.LAND)
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            if p[1] > 0:
+                self.cruise_m_s = min(float(p[1]), self.limits.max_speed_h_m_s)
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
+            return self._ack(msg, cmd, ok if self._set_current(_int(p[0], -1)) else mavlink.MAV_RESULT_DENIED)
+        if cmd == mavlink.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
+            self._set_gimbal(p[0], p[1])
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_MOUNT_CONTROL:
+            self._set_gimbal(p[0], p[2])
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_CONDITION_YAW:
+            self._condition_yaw(p[0], p[2], p[3])
+            return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            return self._ack(msg, cmd, ok if self._set_interval(_int(p[0], -1), p[1]) else mavlink.MAV_RESULT_UNSUPPORTED)
+        if cmd in (mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
+            msg_id = _int(p[0], -1) if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE else mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+            reply = self._requested(msg_id)
+            self._ack(msg, cmd, ok if reply is not None else mavlink.MAV_RESULT_UNSUPPORTED)
+            if reply is not None:
+                self._send(reply)
+            return None
+        return self._ack(msg, cmd, mavlink.MAV_RESULT_UNSUPPORTED)
+
+    def _requested(self, msg_id: int):
+        if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return self._autopilot_version()
+        cls = mavlink.mavlink_map.get(msg_id)
+        if cls is not None and cls.msgname in self.STREAMS:
+            return getattr(self, self.STREAMS[cls.msgname])()
+        return None
+
+    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
+        cls = mavlink.mavlink_map.get(msg_id)
+        if cls is None or cls.msgname not in self.STREAMS:
+            return False
+        name = cls.msgname
+        if interval_us < 0:
+            self.rates[name] = 0.0
+        elif interval_us == 0:
+            self.rates[name] = fl.Px4.default_rates_hz.get(name, 1.0)
+        else:
+            self.rates[name] = 1e6 / interval_us
+        self._next_due[name] = 0.0
+        return True
+
+    # --- main loop -----------------------------------------------------------------------------------------
+    def _update_outage(self) -> None:
+        cfg = self.cfg
+        if cfg.outage_at_s is None or cfg.outage_s <= 0:
+            return
+        now = time.monotonic()
+        if self._outage_start_wall is None and self.t >= cfg.outage_at_s:
+            self._outage_start_wall = now
+            log.warning("link outage starts (%.1f s wall)", cfg.outage_s)
+        if self._outage_start_wall is not None:
+            down = now - self._outage_start_wall < cfg.outage_s
+            if self.link.down and not down:
+                log.warning("link outage ends")
+            self.link.down = down
+
+    def _parse(self, data: bytes) -> list:
+        try:
+            return self.mav.parse_buffer(data) or []
+        except Exception:
+            log.debug("unparseable datagram dropped")
+            return []
+
+    def stop(self) -> None:
+        self._stop = True
+
+    def run(self) -> None:
+        speed = self.cfg.speedup
+        t0 = time.monotonic()
+        try:
+            while not self._stop:
+                now = time.monotonic()
+                target = (now - t0) * speed
+                steps = 0
+                while self.t + DT_S <= target and steps < 50:
+                    self.step(DT_S)
+                    steps += 1
+                if steps == 50:  # cannot keep up: slow the simulated clock down instead of jumping
+                    t0 = now - self.t / speed
+                self._update_outage()
+                for data in self.link.receive():
+                    for msg in self._parse(data):
+                        try:
+                            self.handle(msg)
+                        except Exception:  # a malformed request must not bring the vehicle down
+                            log.exception("failed to handle %s", msg.get_type())
+                self.missions.poll()
+                self.send_streams()
+                if self.cfg.duration_s is not None and self.t >= self.cfg.duration_s:
+                    break
+                wake = t0 + (self.t + DT_S) / speed
+                due = self.link.next_due()
+                if due is not None:
+                    wake = min(wake, due)
+                timeout = wake - time.monotonic()
+                if timeout > 0:
+                    select.select([self.link.sock], [], [], timeout)
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        if self.truth_file is not None:
+            self.truth_file.close()
+            self.truth_file = None
+        if self.pose_sock is not None:
+            self.pose_sock.close()
+            self.pose_sock = None
+        self.link.close()

@@ -1,0 +1,106 @@
+"""Command line of the simulated vehicle: ``python -m sim vehicle`` and ``companion sim`` share these options."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from companion.errors import CompanionError
+from companion.geo import GeoPoint
+from sim.vehicle.autopilot import SimVehicle, VehicleConfig
+from sim.vehicle.flavours import FLAVOURS
+from sim.vehicle.model import Limits
+
+
+def _home(text: str) -> GeoPoint:
+    try:
+        parts = [float(p) for p in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 3 or not (-90 <= parts[0] <= 90 and -180 <= parts[1] <= 180):
+        raise argparse.ArgumentTypeError(f"--home wants LAT,LON,ALT_AMSL (e.g. 37.56638,126.97815,30), got {text!r}")
+    return GeoPoint(*parts)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--home", type=_home, default=GeoPoint(37.56638, 126.97815, 30.0),
+                   help="home LAT,LON,ALT_AMSL (default: the demo mission's takeoff point)")
+    p.add_argument("--home-yaw", type=float, default=0.0, help="initial heading, degrees from north")
+    p.add_argument("--autopilot", choices=sorted(FLAVOURS), default="px4", help="behave like PX4 or ArduCopter")
+    p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall second")
+    p.add_argument("--seed", type=int, default=0, help="seed for wind, GPS noise and packet loss")
+    p.add_argument("--mavlink-host", default="127.0.0.1", help="where the GCS/companion listens")
+    p.add_argument("--mavlink-port", type=int, default=14540,
+                   help="UDP port the vehicle sends MAVLink to (PX4 SITL: 14540; connect with udp://:PORT)")
+    p.add_argument("--bind-port", type=int, default=0, help="local UDP port of the vehicle (0: any free port)")
+    p.add_argument("--pose-port", type=int, default=14660, help="true-pose JSON channel for sim.camera (0: off)")
+    p.add_argument("--truth-log", type=Path, help="also write every true pose as JSON lines to this file")
+    p.add_argument("--wind", type=float, default=0.0, help="mean wind speed, m/s")
+    p.add_argument("--wind-from", type=float, help="wind direction (from), degrees; default: random by seed")
+    p.add_argument("--gusts", type=float, default=0.0, help="peak gust amplitude, m/s")
+    p.add_argument("--gps-noise", type=float, default=0.0, help="GPS position error std (random walk), metres")
+    p.add_argument("--packet-loss", type=float, default=0.0, metavar="PCT", help="drop this percent of datagrams")
+    p.add_argument("--latency-ms", type=float, default=0.0, help="added one-way link latency, wall ms")
+    p.add_argument("--outage-at", type=float, metavar="S", help="link outage begins at this simulated time, s")
+    p.add_argument("--outage-s", type=float, default=5.0, metavar="N", help="link outage length, wall seconds")
+    p.add_argument("--gps-glitch-at", type=float, metavar="S", help="GPS jumps at this simulated time, s")
+    p.add_argument("--gps-glitch-m", type=float, default=5.0, help="GPS glitch size, metres")
+    p.add_argument("--gps-glitch-s", type=float, default=3.0, help="GPS glitch length, simulated seconds")
+    p.add_argument("--max-mission-items", type=int, default=500, help="larger uploads are refused (NO_SPACE)")
+    p.add_argument("--duration", type=float, help="exit after this much simulated time, s")
+    p.add_argument("--max-speed", type=float, default=12.0, help="max horizontal speed, m/s")
+    p.add_argument("--max-accel", type=float, default=4.0, help="max acceleration, m/s^2")
+
+
+def config_from_args(args: argparse.Namespace) -> VehicleConfig:
+    if not 0.0 <= args.packet_loss < 100.0:
+        raise CompanionError(f"--packet-loss {args.packet_loss} is not a percentage below 100",
+                             "give e.g. --packet-loss 20")
+    if args.speedup <= 0:
+        raise CompanionError(f"--speedup {args.speedup} must be positive", "use e.g. --speedup 10")
+    return VehicleConfig(
+        home=args.home, home_yaw_deg=args.home_yaw, speedup=args.speedup, seed=args.seed, autopilot=args.autopilot,
+        target=(args.mavlink_host, args.mavlink_port), bind_port=args.bind_port, pose_port=args.pose_port or None,
+        truth_log=args.truth_log, wind_m_s=args.wind, gusts_m_s=args.gusts, wind_from_deg=args.wind_from,
+        gps_noise_m=args.gps_noise, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
+        outage_at_s=args.outage_at, outage_s=args.outage_s if args.outage_at is not None else 0.0,
+        gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,
+        duration_s=args.duration, max_mission_items=args.max_mission_items,
+        limits=Limits(max_speed_h_m_s=args.max_speed, max_accel_m_s2=args.max_accel),
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    """Start the vehicle and run until SIGINT/SIGTERM (or ``--duration``)."""
+    cfg = config_from_args(args)
+    vehicle = SimVehicle(cfg)
+
+    def _stop(signum, frame):
+        vehicle.stop()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    port = vehicle.link.sock.getsockname()[1]
+    print(f"sim vehicle ({cfg.autopilot}): home {cfg.home.lat:.6f},{cfg.home.lon:.6f},{cfg.home.alt_amsl_m:.1f} "
+          f"speedup {cfg.speedup:g}; MAVLink to {cfg.target[0]}:{cfg.target[1]} from :{port} "
+          f"(connect with udp://:{cfg.target[1]}); pose channel :{cfg.pose_port or 'off'}",
+          file=sys.stderr, flush=True)
+    vehicle.run()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m sim vehicle", description="Simulated MAVLink multirotor (SITL)")
+    parser.add_argument("-v", "--verbose", action="store_true")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return run(args)
+    except CompanionError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2

@@ -1,0 +1,31 @@
+"""Tagging stage: Frame -> TaggedFrame with the pose at its capture time (or flagged stale)."""
+
+from __future__ import annotations
+
+import logging
+
+from companion.capture.telemetry import ClockMap, TelemetryBuffer
+from companion.records import Frame, TaggedFrame
+
+log = logging.getLogger(__name__)
+
+
+class FrameTagger:
+    def __init__(self, buffer: TelemetryBuffer, clock: ClockMap):
+        self.buffer = buffer
+        self.clock = clock
+        self.stale_count = 0
+
+    def tag(self, frame: Frame) -> TaggedFrame:
+        t = self.clock.to_autopilot(frame.capture_time_s)
+        if t is None:
+            self.stale_count += 1
+            return TaggedFrame(frame, None, pose_stale=True)
+        result = self.buffer.pose_at(t)
+        if result.stale:
+            self.stale_count += 1
+            if self.stale_count in (1, 10, 100) or self.stale_count % 1000 == 0:
+                log.warning(
+                    "frame %d: pose not used (%s); %d stale so far", frame.index, result.reason, self.stale_count
+                )
+        return TaggedFrame(frame, result.pose, pose_stale=result.stale)

@@ -1,0 +1,159 @@
+"""Telemetry buffer: the vehicle's recent poses, interpolated at a frame's capture time.
+
+Times are seconds on the AUTOPILOT's clock (MAVLink time_boot_ms / 1000). Frames are stamped by the camera's
+clock; ``ClockMap`` turns those into autopilot time. Position is interpolated linearly, attitude by quaternion
+slerp. A pose is flagged stale (and not used) when the telemetry around the capture time has a gap, or the
+capture time lies beyond the newest sample by more than a short extrapolation window.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.records import Pose
+
+
+def euler_to_quat(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    """Aerospace ZYX Euler angles -> unit quaternion (w, x, y, z), body to NED."""
+    r, p, y = (math.radians(v) / 2.0 for v in (roll_deg, pitch_deg, yaw_deg))
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array(
+        [
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ]
+    )
+
+
+def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:
+    w, x, y, z = q
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return math.degrees(roll), math.degrees(pitch), math.degrees(yaw) % 360.0
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    dot = float(np.dot(q0, q1))
+    if dot < 0.0:  # take the short way round
+        q1, dot = -q1, -dot
+    if dot > 0.9995:
+        q = q0 + t * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = math.acos(dot)
+    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
+
+
+@dataclass(frozen=True)
+class TagResult:
+    pose: Pose | None
+    stale: bool
+    reason: str = ""
+
+
+class ClockMap:
+    """Maps a camera/companion clock onto the autopilot clock.
+
+    Fed with (local_time, autopilot_time) pairs observed when telemetry arrives; since every message reaches us
+    later than it was stamped, the smallest (local - autopilot) difference over a window is the best estimate of
+    the offset (the same minimum-delay idea as MAVLink TIMESYNC). A fixed offset can be set instead (e.g. the
+    simulator's camera shares the vehicle's clock: offset 0).
+    """
+
+    def __init__(self, fixed_offset_s: float | None = None, window: int = 200):
+        self._fixed = fixed_offset_s
+        self._diffs: deque[float] = deque(maxlen=window)
+
+    def observe(self, local_time_s: float, autopilot_time_s: float) -> None:
+        self._diffs.append(local_time_s - autopilot_time_s)
+
+    @property
+    def offset_s(self) -> float | None:
+        if self._fixed is not None:
+            return self._fixed
+        return min(self._diffs) if self._diffs else None
+
+    def to_autopilot(self, local_time_s: float) -> float | None:
+        off = self.offset_s
+        return None if off is None else local_time_s - off
+
+
+class TelemetryBuffer:
+    """Thread-safe ring buffer of poses ordered by autopilot time."""
+
+    def __init__(self, max_samples: int = 4000, max_gap_s: float = 0.5, max_extrapolation_s: float = 0.1):
+        self.max_gap_s = max_gap_s
+        self.max_extrapolation_s = max_extrapolation_s
+        self._times: deque[float] = deque(maxlen=max_samples)
+        self._poses: deque[Pose] = deque(maxlen=max_samples)
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self._times)
+
+    def add(self, pose: Pose) -> bool:
+        """Append a sample; out-of-order or duplicate times are ignored (returns False)."""
+        with self._lock:
+            if self._times and pose.time_s <= self._times[-1]:
+                return False
+            self._times.append(pose.time_s)
+            self._poses.append(pose)
+            return True
+
+    @property
+    def newest_time_s(self) -> float | None:
+        with self._lock:
+            return self._times[-1] if self._times else None
+
+    def pose_at(self, t: float) -> TagResult:
+        with self._lock:
+            times = list(self._times)
+            poses = list(self._poses)
+        if not times:
+            return TagResult(None, True, "no telemetry yet")
+        if t < times[0] - self.max_extrapolation_s:
+            return TagResult(None, True, f"capture time {t:.3f} s is older than the telemetry buffer")
+        if t > times[-1] + self.max_extrapolation_s:
+            return TagResult(None, True, f"telemetry is {t - times[-1]:.2f} s behind the frame")
+        k = bisect.bisect_right(times, t)
+        if k == 0:
+            return TagResult(_with_time(poses[0], t), False)
+        if k == len(times):
+            return TagResult(_with_time(poses[-1], t), False)
+        t0, t1 = times[k - 1], times[k]
+        if t1 - t0 > self.max_gap_s:
+            return TagResult(None, True, f"telemetry gap of {t1 - t0:.2f} s around the frame")
+        return TagResult(interpolate(poses[k - 1], poses[k], (t - t0) / (t1 - t0), t), False)
+
+
+def _with_time(p: Pose, t: float) -> Pose:
+    return Pose(**{**p.__dict__, "time_s": t})
+
+
+def interpolate(a: Pose, b: Pose, s: float, t: float) -> Pose:
+    def lerp(x: float, y: float) -> float:
+        return x + s * (y - x)
+
+    q = slerp(euler_to_quat(a.roll_deg, a.pitch_deg, a.yaw_deg), euler_to_quat(b.roll_deg, b.pitch_deg, b.yaw_deg), s)
+    roll, pitch, yaw = quat_to_euler(q)
+    return Pose(
+        time_s=t,
+        lat=lerp(a.lat, b.lat),
+        lon=lerp(a.lon, b.lon),
+        alt_amsl_m=lerp(a.alt_amsl_m, b.alt_amsl_m),
+        relative_alt_m=lerp(a.relative_alt_m, b.relative_alt_m),
+        roll_deg=roll,
+        pitch_deg=pitch,
+        yaw_deg=yaw,
+        velocity_ned_m_s=tuple(lerp(x, y) for x, y in zip(a.velocity_ned_m_s, b.velocity_ned_m_s, strict=True)),
+        gimbal_pitch_deg=lerp(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
+        mission_item=b.mission_item if s >= 0.5 else a.mission_item,
+    )

@@ -1,0 +1,55 @@
+"""Pose interpolation at capture time, stale detection and clock mapping."""
+
+from __future__ import annotations
+
+import pytest
+
+from companion.capture.tagging import FrameTagger
+from companion.capture.telemetry import ClockMap, TelemetryBuffer, euler_to_quat, quat_to_euler
+from companion.records import Frame, Pose
+
+
+def _pose(t, lat=37.0, yaw=0.0, roll=0.0, pitch=0.0, alt=40.0):
+    return Pose(t, lat, 127.0, alt, alt - 30.0, roll, pitch, yaw, (1.0, 0.0, 0.0), 0.0, 3)
+
+
+def test_euler_quaternion_round_trip():
+    for angles in ((10.0, -20.0, 350.0), (0.0, 0.0, 0.0), (-45.0, 30.0, 90.0)):
+        r, p, y = quat_to_euler(euler_to_quat(*angles))
+        assert (r, p, y % 360) == pytest.approx((angles[0], angles[1], angles[2] % 360), abs=1e-9)
+
+
+def test_interpolation_linear_position_and_slerp_across_north():
+    buf = TelemetryBuffer()
+    buf.add(_pose(10.0, lat=37.0, yaw=350.0, alt=40.0))
+    buf.add(_pose(10.2, lat=37.0001, yaw=10.0, alt=42.0))
+    res = buf.pose_at(10.05)
+    assert not res.stale
+    assert res.pose.lat == pytest.approx(37.000025) and res.pose.alt_amsl_m == pytest.approx(40.5)
+    assert min(res.pose.yaw_deg, 360 - res.pose.yaw_deg) == pytest.approx(5.0, abs=1e-6)  # 355 deg, not 180
+
+
+def test_stale_when_gap_or_beyond_newest():
+    buf = TelemetryBuffer(max_gap_s=0.5, max_extrapolation_s=0.1)
+    assert buf.pose_at(1.0).stale  # empty
+    buf.add(_pose(1.0))
+    buf.add(_pose(3.0))  # a 2 s hole (link outage)
+    assert buf.pose_at(2.0).stale and "gap" in buf.pose_at(2.0).reason
+    assert not buf.pose_at(3.05).stale
+    assert buf.pose_at(3.5).stale and "behind" in buf.pose_at(3.5).reason
+    assert not buf.add(_pose(2.5))  # out of order ignored
+
+
+def test_clock_map_uses_minimum_delay_and_tagger_flags_stale():
+    clock = ClockMap()
+    assert clock.to_autopilot(5.0) is None
+    for delay in (0.03, 0.01, 0.05):
+        clock.observe(1000.0 + 2.0 + delay, 2.0)
+    assert clock.offset_s == pytest.approx(1000.01)
+    buf = TelemetryBuffer()
+    buf.add(_pose(2.0))
+    buf.add(_pose(2.1, lat=37.001))
+    tagger = FrameTagger(buf, clock)
+    tagged = tagger.tag(Frame(0, 1002.06, None))
+    assert not tagged.pose_stale and tagged.pose.lat == pytest.approx(37.0005)
+    assert tagger.tag(Frame(1, 1010.0, None)).pose_stale and tagger.stale_count == 1

@@ -1,0 +1,95 @@
+"""Map accuracy against a ground-truth facade texture: alignment error (px, mm), SSIM, coverage.
+
+Used by the tests (synthetic walls) and bench/stitch_eval.py (simulator recordings). The truth is resampled
+onto the map's own grid, so an error is a true position error on the wall, not just a seam mismatch.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from companion.stitch.render import MapGrid
+
+
+def truth_on_grid(
+    texture: np.ndarray, texture_m_per_px: float, height_m: float, grid: MapGrid, along0_m: float = 0.0
+) -> np.ndarray:
+    """The texture (top-left = along ``along0_m``, up ``height_m``) resampled onto the map grid."""
+    ratio = grid.m_per_px / texture_m_per_px
+    src = texture
+    if ratio > 1.0:  # anti-alias before downsampling
+        src = cv2.GaussianBlur(texture, (0, 0), sigmaX=0.45 * ratio)
+    # map px (u, v) -> texture px: tx = (along0 + u s - along0_t) / st, ty = (H - (top - v s)) / st
+    A = np.array(
+        [
+            [ratio, 0.0, (grid.along0_m - along0_m) / texture_m_per_px],
+            [0.0, ratio, (height_m - grid.up_top_m) / texture_m_per_px],
+        ]
+    )
+    return cv2.warpAffine(
+        src,
+        A,
+        (grid.width, grid.height),
+        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
+
+
+def patch_displacements(
+    image: np.ndarray,
+    truth: np.ndarray,
+    valid: np.ndarray,
+    *,
+    patch: int = 64,
+    step: int | None = None,
+    min_response: float = 0.2,
+) -> np.ndarray:
+    """Shift (px) of each fully valid, textured patch of ``image`` relative to ``truth`` (phase correlation)."""
+    step = step or patch
+    g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32) if image.ndim == 3 else image.astype(np.float32)
+    g2 = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY).astype(np.float32) if truth.ndim == 3 else truth.astype(np.float32)
+    win = cv2.createHanningWindow((patch, patch), cv2.CV_32F)
+    out = []
+    for y in range(0, g1.shape[0] - patch + 1, step):
+        for x in range(0, g1.shape[1] - patch + 1, step):
+            if valid[y : y + patch, x : x + patch].min() == 0:
+                continue
+            a, b = g1[y : y + patch, x : x + patch], g2[y : y + patch, x : x + patch]
+            if b.std() < 4.0:
+                continue  # featureless: no measurable shift
+            (dx, dy), resp = cv2.phaseCorrelate(b, a, win)
+            if resp >= min_response:
+                out.append(np.hypot(dx, dy))
+    return np.asarray(out)
+
+
+def ssim(image: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float:
+    """Mean structural similarity (Gaussian window, sigma 1.5) over valid pixels, on grey levels."""
+    a = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float64) if image.ndim == 3 else image.astype(np.float64)
+    b = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY).astype(np.float64) if truth.ndim == 3 else truth.astype(np.float64)
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+
+    def blur(x):
+        return cv2.GaussianBlur(x, (11, 11), 1.5)
+
+    ma, mb = blur(a), blur(b)
+    va, vb, cov = blur(a * a) - ma**2, blur(b * b) - mb**2, blur(a * b) - ma * mb
+    s = ((2 * ma * mb + c1) * (2 * cov + c2)) / ((ma**2 + mb**2 + c1) * (va + vb + c2))
+    m = cv2.erode(valid.astype(np.uint8), np.ones((11, 11), np.uint8)) > 0
+    return float(s[m].mean()) if m.any() else float("nan")
+
+
+def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_per_px: float) -> dict:
+    valid = (coverage > 0) & (truth.max(axis=2) > 0 if truth.ndim == 3 else truth > 0)
+    d = patch_displacements(image, truth, valid.astype(np.uint8))
+    res = {"patches": int(d.size), "ssim": ssim(image, truth, valid)}
+    if d.size:
+        res.update(
+            median_px=float(np.median(d)),
+            p95_px=float(np.percentile(d, 95)),
+            median_mm=float(np.median(d)) * m_per_px * 1000,
+            p95_mm=float(np.percentile(d, 95)) * m_per_px * 1000,
+        )
+    return res

@@ -1,0 +1,86 @@
+"""SIFT features inside the ROI mask only, so sky, trees and far buildings never steer the alignment."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+from companion.stitch.inputs import KeyframeInput
+
+
+@dataclass
+class Features:
+    keypoints: np.ndarray  # (N, 2) float32 full-resolution pixel coordinates
+    descriptors: np.ndarray  # (N, 128) float32
+    image_size: tuple[int, int]  # (width, height)
+
+
+def load_image_and_mask(kf: KeyframeInput) -> tuple[np.ndarray, np.ndarray]:
+    """BGR image and a 0/255 ROI mask of the same size (all 255 when the keyframe has no mask)."""
+    img = cv2.imread(str(kf.image_path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise CompanionError(f"cannot decode keyframe image {kf.image_path}", "the spool must write JPEG or PNG files")
+    if kf.mask_path is None:
+        return img, np.full(img.shape[:2], 255, np.uint8)
+    mask = cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE)
+    if mask is None:
+        raise CompanionError(f"cannot decode mask {kf.mask_path}", "write the ROI mask as a single-channel PNG")
+    if mask.shape != img.shape[:2]:
+        raise CompanionError(
+            f"mask {kf.mask_path} is {mask.shape[1]}x{mask.shape[0]} but its image is {img.shape[1]}x{img.shape[0]}",
+            "write the mask at the full frame resolution",
+        )
+    return img, np.where(mask > 127, 255, 0).astype(np.uint8)
+
+
+def detect(image: np.ndarray, mask: np.ndarray, *, work_width: int = 1600, max_features: int = 4000) -> Features:
+    """SIFT on a working-resolution copy; keypoints are returned in full-resolution pixels."""
+    h, w = image.shape[:2]
+    scale = min(1.0, work_width / float(w))
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    m = mask
+    if scale < 1.0:
+        gray = cv2.resize(gray, (round(w * scale), round(h * scale)), interpolation=cv2.INTER_AREA)
+        m = cv2.resize(mask, (gray.shape[1], gray.shape[0]), interpolation=cv2.INTER_NEAREST)
+    # keep descriptors away from the mask edge: their patches would straddle facade and background
+    m = cv2.erode(m, np.ones((7, 7), np.uint8))
+    sift = cv2.SIFT_create(nfeatures=max_features)
+    kps, desc = sift.detectAndCompute(gray, m)
+    if desc is None or len(kps) == 0:
+        return Features(np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), (w, h))
+    pts = np.array([k.pt for k in kps], dtype=np.float32) / scale
+    return Features(pts, desc.astype(np.float32), (w, h))
+
+
+def feature_key(kf: KeyframeInput, settings: dict) -> str:
+    parts = [str(kf.image_path), str(kf.mask_path), json.dumps(settings, sort_keys=True)]
+    for p in (kf.image_path, kf.mask_path):
+        if p is not None:
+            st = Path(p).stat()
+            parts.append(f"{st.st_size}:{st.st_mtime_ns}")
+    return hashlib.sha1("|".join(parts).encode()).hexdigest()[:16]
+
+
+def cached_features(kf: KeyframeInput, cache_dir: Path, *, work_width: int, max_features: int) -> Features:
+    """Features from the on-disk cache when the image, mask and settings are unchanged (resumable runs)."""
+    key = feature_key(kf, {"w": work_width, "n": max_features})
+    path = cache_dir / f"kf{kf.index:06d}-{key}.npz"
+    if path.exists():
+        try:
+            z = np.load(path)
+            return Features(z["kp"], z["desc"], (int(z["size"][0]), int(z["size"][1])))
+        except (OSError, ValueError, KeyError):
+            path.unlink(missing_ok=True)  # torn write from an interrupted run: recompute
+    img, mask = load_image_and_mask(kf)
+    feats = detect(img, mask, work_width=work_width, max_features=max_features)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size))
+    tmp.replace(path)
+    return feats

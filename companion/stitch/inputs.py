@@ -1,0 +1,289 @@
+"""Reads the worker's input: a keyframe spool directory (manifest.jsonl) or a simulator recording.
+
+The spool format is written down in docs/STITCH.md; this module is its reference reader. Everything downstream
+works on :class:`StitchInput`, never on files.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from companion.errors import CompanionError
+from companion.geo import FacadeFrame, GeoPoint
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Pinhole intrinsics of the full-resolution keyframe images (no distortion: images are undistorted)."""
+
+    K: np.ndarray
+    width: int
+    height: int
+
+    @classmethod
+    def from_hfov(cls, width: int, height: int, hfov_deg: float) -> CameraModel:
+        if not (0.0 < hfov_deg < 179.0) or width <= 0 or height <= 0:
+            raise CompanionError(
+                f"camera model is invalid: {width}x{height} px, hfov {hfov_deg} deg",
+                "give width_px/height_px > 0 and 0 < hfov_deg < 179 in spool.json 'camera'",
+            )
+        f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+        return cls(K=K, width=int(width), height=int(height))
+
+    @property
+    def focal_px(self) -> float:
+        return float(self.K[0, 0])
+
+
+@dataclass(frozen=True)
+class FacadeGeometry:
+    """The wall being mapped: its facade frame (geo.py convention) and its height."""
+
+    frame: FacadeFrame
+    height_m: float
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where the camera was and how it was turned: R maps camera axes (x right, y down, z forward) to ENU."""
+
+    lat: float
+    lon: float
+    alt_amsl_m: float
+    R_enu_from_cam: np.ndarray
+
+
+@dataclass(frozen=True)
+class KeyframeInput:
+    index: int
+    image_path: Path
+    mask_path: Path | None  # None: the whole frame is facade (no background removal happened)
+    pose: CameraPose | None
+    overlap_to_previous: float | None = None
+
+
+@dataclass(frozen=True)
+class StitchInput:
+    keyframes: list[KeyframeInput]
+    camera: CameraModel | None
+    facade: FacadeGeometry | None
+    standoff_m: float | None
+    source: str  # "spool" or "recording"
+
+    @property
+    def has_poses(self) -> bool:
+        """Telemetry can place keyframes on the wall only with poses, intrinsics and the wall geometry."""
+        return self.camera is not None and self.facade is not None and any(kf.pose is not None for kf in self.keyframes)
+
+
+# --- attitude -> rotation ---------------------------------------------------------------------------------
+
+_R_ENU_FROM_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+# columns: camera x (right) = body y, camera y (down) = body z, camera z (forward) = body x
+_R_BODY_FROM_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def rotation_enu_from_cam(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
+    """Camera attitude (aerospace ZYX Euler angles, yaw clockwise from north, pitch up +) -> R_enu_from_cam."""
+    r, p, y = (math.radians(v) for v in (roll_deg, pitch_deg, yaw_deg))
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return _R_ENU_FROM_NED @ (rz @ ry @ rx) @ _R_BODY_FROM_CAM
+
+
+def camera_attitude(pose: dict) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) of the CAMERA from a manifest pose.
+
+    Priority: explicit ``camera_roll/pitch/yaw_deg``; else a stabilised gimbal (``gimbal_pitch_deg`` present:
+    camera yaw = body yaw + ``gimbal_yaw_deg``, pitch = gimbal pitch, no roll); else a camera fixed to the body.
+    """
+    if "camera_yaw_deg" in pose:
+        return (
+            float(pose.get("camera_roll_deg", 0.0)),
+            float(pose.get("camera_pitch_deg", 0.0)),
+            float(pose["camera_yaw_deg"]),
+        )
+    if pose.get("gimbal_pitch_deg") is not None:
+        return 0.0, float(pose["gimbal_pitch_deg"]), float(pose["yaw_deg"]) + float(pose.get("gimbal_yaw_deg") or 0.0)
+    return float(pose.get("roll_deg", 0.0)), float(pose.get("pitch_deg", 0.0)), float(pose["yaw_deg"])
+
+
+def parse_pose(pose: dict | None, where: str) -> CameraPose | None:
+    if pose is None:
+        return None
+    try:
+        roll, pitch, yaw = camera_attitude(pose)
+        vals = (float(pose["lat"]), float(pose["lon"]), float(pose["alt_amsl_m"]), roll, pitch, yaw)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise CompanionError(
+            f"{where}: pose is incomplete or not numeric ({exc!r})",
+            "a pose needs lat, lon, alt_amsl_m and yaw_deg (plus roll/pitch or gimbal_pitch_deg), or null",
+        ) from exc
+    if not all(math.isfinite(v) for v in vals):
+        return None  # telemetry was stale / NaN: treat as no pose rather than a wrong prior
+    return CameraPose(vals[0], vals[1], vals[2], rotation_enu_from_cam(vals[3], vals[4], vals[5]))
+
+
+# --- spool ------------------------------------------------------------------------------------------------
+
+
+def _read_spool_meta(spool: Path) -> tuple[CameraModel | None, FacadeGeometry | None, float | None]:
+    path = spool / "spool.json"
+    if not path.exists():
+        return None, None, None
+    try:
+        meta = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise CompanionError(f"{path} is not valid JSON ({exc})", "rewrite spool.json (see docs/STITCH.md)") from exc
+    camera = None
+    if meta.get("camera"):
+        c = meta["camera"]
+        try:
+            if c.get("K") is not None:
+                camera = CameraModel(
+                    np.asarray(c["K"], dtype=float).reshape(3, 3), int(c["width_px"]), int(c["height_px"])
+                )
+            else:
+                camera = CameraModel.from_hfov(int(c["width_px"]), int(c["height_px"]), float(c["hfov_deg"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CompanionError(
+                f"{path}: camera needs width_px, height_px and hfov_deg or K ({exc!r})", "fix spool.json 'camera'"
+            ) from exc
+    facade = None
+    if meta.get("facade"):
+        f = meta["facade"]
+        try:
+            ground = float(f["ground_alt_amsl_m"])
+            start = GeoPoint(float(f["start"]["lat"]), float(f["start"]["lon"]), ground)
+            end = GeoPoint(float(f["end"]["lat"]), float(f["end"]["lon"]), ground)
+            frame = FacadeFrame.from_wall(start, end)
+            facade = FacadeGeometry(frame=frame, height_m=float(f["height_m"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CompanionError(
+                f"{path}: facade needs start/end {{lat, lon}}, ground_alt_amsl_m and height_m ({exc!r})",
+                "fix spool.json 'facade' (copy it from the mission file)",
+            ) from exc
+    standoff = meta.get("standoff_m")
+    return camera, facade, (float(standoff) if standoff is not None else None)
+
+
+def load_spool(spool: Path) -> StitchInput:
+    manifest = spool / "manifest.jsonl"
+    if not manifest.exists():
+        raise CompanionError(
+            f"{spool} has no manifest.jsonl", "point at a keyframe spool directory or a simulator recording"
+        )
+    camera, facade, standoff = _read_spool_meta(spool)
+    keyframes: list[KeyframeInput] = []
+    seen: set[int] = set()
+    for lineno, line in enumerate(manifest.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        where = f"{manifest}:{lineno}"
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            # a torn last line is what a crash mid-append leaves: stop there, the next run picks it up
+            if lineno == len(manifest.read_text().splitlines()):
+                break
+            raise CompanionError(f"{where} is not valid JSON", "repair or remove that line") from None
+        try:
+            index = int(rec["index"])
+            image = spool / rec["image"]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CompanionError(f"{where}: needs 'index' and 'image' ({exc!r})", "see docs/STITCH.md") from exc
+        if index in seen:
+            raise CompanionError(f"{where}: keyframe index {index} appears twice", "give each keyframe a new index")
+        seen.add(index)
+        if not image.exists():
+            raise CompanionError(f"{where}: image {image} is missing", "the spool must write the JPEG before the line")
+        mask = spool / rec["mask"] if rec.get("mask") else None
+        if mask is not None and not mask.exists():
+            raise CompanionError(f"{where}: mask {mask} is missing", "write the mask before the manifest line")
+        overlap = rec.get("overlap_to_previous")
+        keyframes.append(
+            KeyframeInput(
+                index, image, mask, parse_pose(rec.get("pose"), where), None if overlap is None else float(overlap)
+            )
+        )
+    if camera is None and keyframes:
+        # no intrinsics: the sizes still tell the principal point; focal from a nominal 70 degree lens
+        import cv2
+
+        img = cv2.imread(str(keyframes[0].image_path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise CompanionError(f"cannot decode {keyframes[0].image_path}", "write JPEG/PNG keyframes")
+        camera = CameraModel.from_hfov(img.shape[1], img.shape[0], 70.0) if facade is None else None
+        if camera is None:
+            raise CompanionError(f"{spool}/spool.json has a facade but no camera", "add 'camera' to spool.json")
+    return StitchInput(keyframes, camera, facade, standoff, "spool")
+
+
+# --- simulator recording ----------------------------------------------------------------------------------
+
+
+def load_recording_input(
+    path: Path, *, stride: int = 1, frames: list[int] | None = None, use_poses: bool = True
+) -> StitchInput:
+    """Keyframes straight from a simulator recording (sim.camera.recording), for evaluation.
+
+    ``frames`` picks frame indices (e.g. the gate's choice); otherwise every ``stride``-th frame.
+    """
+    try:
+        from sim.camera.recording import load_recording
+    except ImportError as exc:
+        raise CompanionError("the simulator recording reader is not installed", "pip install -e . in the repo") from exc
+    rec = load_recording(path)
+    if len(rec) == 0:
+        raise CompanionError(f"recording {path} has no frames", "record a flight first")
+    meta = rec.meta
+    camera = CameraModel(np.asarray(rec.K, dtype=float), int(rec.width), int(rec.height))
+    facade = _facade_from_meta(meta)
+    indices = frames if frames is not None else list(range(0, len(rec), max(1, int(stride))))
+    keyframes = []
+    for i in indices:
+        pose = None
+        if use_poses:
+            tp = rec.camera_pose(i)
+            pose = CameraPose(float(tp.lat), float(tp.lon), float(tp.alt), np.asarray(tp.R_world_from_cam, dtype=float))
+        keyframes.append(
+            KeyframeInput(i, Path(path) / "frames" / f"{i:06d}.jpg", Path(path) / "masks" / f"{i:06d}.png", pose)
+        )
+    standoff = meta.get("standoff_m") or (meta.get("mission") or {}).get("standoff_m")
+    return StitchInput(keyframes, camera, facade, float(standoff) if standoff else None, "recording")
+
+
+def _facade_from_meta(meta: dict) -> FacadeGeometry | None:
+    f = meta.get("facade")
+    if not f:
+        return None
+    try:
+        ground = float(f["ground_alt_amsl_m"])
+        start = GeoPoint(float(f["start"]["lat"]), float(f["start"]["lon"]), ground)
+        end = GeoPoint(float(f["end"]["lat"]), float(f["end"]["lon"]), ground)
+        return FacadeGeometry(FacadeFrame.from_wall(start, end), float(f["height_m"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def load_input(path: str | Path, **recording_options) -> StitchInput:
+    """A spool (has manifest.jsonl) or a simulator recording (has truth.jsonl + frames/)."""
+    p = Path(path)
+    if not p.is_dir():
+        raise CompanionError(f"{p} is not a directory", "give the keyframe spool directory")
+    if (p / "manifest.jsonl").exists():
+        return load_spool(p)
+    if (p / "truth.jsonl").exists() and (p / "frames").is_dir():
+        return load_recording_input(p, **recording_options)
+    raise CompanionError(
+        f"{p} is neither a keyframe spool (manifest.jsonl) nor a simulator recording (truth.jsonl)",
+        "point at the spool directory the keyframe gate writes",
+    )

@@ -1,0 +1,172 @@
+"""Draws keyframes onto the rectified map, tile by tile, so memory stays bounded for long facades.
+
+Each keyframe is warped cell by cell with its mesh (every map pixel of a cell is pulled back through that
+cell's homography), only through its ROI mask: background pixels are never drawn. Seams run where two
+keyframes are equally far inside their valid areas (a Voronoi seam on the distance to the mask edge), and a
+narrow feather of width ``feather_px`` hides residual steps without ghosting large areas.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from companion.stitch.mesh import WarpedMesh
+
+
+@dataclass(frozen=True)
+class MapGrid:
+    """Plane (along_m, up_m) <-> map pixel (u right, v down): u = (along - along0)/s, v = (up_top - up)/s."""
+
+    along0_m: float
+    up_top_m: float
+    m_per_px: float
+    width: int
+    height: int
+
+    def to_px(self, plane: np.ndarray) -> np.ndarray:
+        plane = np.asarray(plane, dtype=float)
+        return np.stack(
+            ((plane[..., 0] - self.along0_m) / self.m_per_px, (self.up_top_m - plane[..., 1]) / self.m_per_px), axis=-1
+        )
+
+    def to_plane(self, px: np.ndarray) -> np.ndarray:
+        px = np.asarray(px, dtype=float)
+        return np.stack(
+            (self.along0_m + px[..., 0] * self.m_per_px, self.up_top_m - px[..., 1] * self.m_per_px), axis=-1
+        )
+
+
+@dataclass
+class PlacedKeyframe:
+    """A keyframe ready to draw: its mesh in map pixels and the inverse homography of every cell."""
+
+    position: int
+    mesh_px: np.ndarray  # (Cy+1, Cx+1, 2) vertices in map pixels
+    src_px: np.ndarray  # (Cy+1, Cx+1, 2) vertices in the keyframe
+    cell_inv: np.ndarray  # (Cy*Cx, 3, 3) map pixel -> keyframe pixel
+    bbox: tuple[int, int, int, int]  # x0, y0, x1, y1 (exclusive) in map pixels, clipped to the map
+
+
+def place(position: int, mesh: WarpedMesh, grid: MapGrid) -> PlacedKeyframe | None:
+    dst = grid.to_px(mesh.dst_plane)
+    src = mesh.src_px
+    cy, cx = src.shape[0] - 1, src.shape[1] - 1
+    inv = np.zeros((cy * cx, 3, 3))
+    for r in range(cy):
+        for c in range(cx):
+            q_src = np.float32([src[r, c], src[r, c + 1], src[r + 1, c + 1], src[r + 1, c]])
+            q_dst = np.float32([dst[r, c], dst[r, c + 1], dst[r + 1, c + 1], dst[r + 1, c]])
+            inv[r * cx + c] = cv2.getPerspectiveTransform(q_dst, q_src)
+    if not np.all(np.isfinite(dst)):
+        return None
+    x0, y0 = np.floor(dst.reshape(-1, 2).min(axis=0)).astype(int)
+    x1, y1 = np.ceil(dst.reshape(-1, 2).max(axis=0)).astype(int) + 1
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, grid.width), min(y1, grid.height)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return PlacedKeyframe(position, dst, src, inv, (int(x0), int(y0), int(x1), int(y1)))
+
+
+def seam_weight(mask: np.ndarray) -> np.ndarray:
+    """Distance (px) from each ROI pixel to the nearest background pixel or image border."""
+    padded = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
+    d = cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
+    return d.astype(np.float32)
+
+
+class SourceCache:
+    """Decoded keyframes (image, mask, seam weight) with a small LRU so tiles do not re-read every file."""
+
+    def __init__(self, loader: Callable[[int], tuple[np.ndarray, np.ndarray]], size: int = 12):
+        self.loader, self.size = loader, size
+        self.items: OrderedDict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+
+    def get(self, position: int):
+        if position in self.items:
+            self.items.move_to_end(position)
+            return self.items[position]
+        img, mask = self.loader(position)
+        # one pixel of erosion: JPEG ringing and mask resampling at the ROI edge never reach the map
+        mask = cv2.erode(mask, np.ones((3, 3), np.uint8))
+        item = (img, mask, seam_weight(mask))
+        self.items[position] = item
+        if len(self.items) > self.size:
+            self.items.popitem(last=False)
+        return item
+
+
+def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Per map pixel of the region, the keyframe pixel it shows (-1 outside the mesh)."""
+    cy, cx = pk.src_px.shape[0] - 1, pk.src_px.shape[1] - 1
+    label = np.zeros((h, w), np.int32)
+    off = np.array([x0, y0], dtype=float)
+    for r in range(cy):
+        for c in range(cx):
+            quad = (
+                np.array([pk.mesh_px[r, c], pk.mesh_px[r, c + 1], pk.mesh_px[r + 1, c + 1], pk.mesh_px[r + 1, c]]) - off
+            )
+            if quad[:, 0].max() < 0 or quad[:, 1].max() < 0 or quad[:, 0].min() >= w or quad[:, 1].min() >= h:
+                continue
+            cv2.fillConvexPoly(
+                label, np.round(quad * 16).astype(np.int32), r * cx + c + 1, lineType=cv2.LINE_8, shift=4
+            )
+    ys, xs = np.nonzero(label)
+    if len(xs) == 0:
+        return None
+    Hinv = pk.cell_inv[label[ys, xs] - 1]
+    u, v = xs + float(x0), ys + float(y0)
+    den = Hinv[:, 2, 0] * u + Hinv[:, 2, 1] * v + Hinv[:, 2, 2]
+    sx = (Hinv[:, 0, 0] * u + Hinv[:, 0, 1] * v + Hinv[:, 0, 2]) / den
+    sy = (Hinv[:, 1, 0] * u + Hinv[:, 1, 1] * v + Hinv[:, 1, 2]) / den
+    mx = np.full((h, w), -1.0, np.float32)
+    my = np.full((h, w), -1.0, np.float32)
+    mx[ys, xs], my[ys, xs] = sx, sy
+    return mx, my
+
+
+def render_tile(
+    x0: int, y0: int, w: int, h: int, placed: list[PlacedKeyframe], sources: SourceCache, *, feather_px: float = 4.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(BGR uint8 tile, coverage uint8 0/255, owner int32 = keyframe position or -1) for one map region."""
+    layers = []
+    for pk in placed:
+        bx0, by0, bx1, by1 = pk.bbox
+        rx0, ry0, rx1, ry1 = max(bx0, x0), max(by0, y0), min(bx1, x0 + w), min(by1, y0 + h)
+        if rx1 <= rx0 or ry1 <= ry0:
+            continue
+        maps = _pullback(pk, rx0, ry0, rx1 - rx0, ry1 - ry0)
+        if maps is None:
+            continue
+        img, mask, weight = sources.get(pk.position)
+        mx, my = maps
+        m = cv2.remap(mask, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if not m.any():
+            continue
+        im = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        d = cv2.remap(weight, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        d = np.where(m > 0, np.maximum(d, 1e-3), 0.0).astype(np.float32)
+        layers.append((pk.position, (rx0 - x0, ry0 - y0), im, d))
+    out = np.zeros((h, w, 3), np.float32)
+    owner = np.full((h, w), -1, np.int32)
+    if not layers:
+        return out.astype(np.uint8), np.zeros((h, w), np.uint8), owner
+    dmax = np.zeros((h, w), np.float32)
+    for pos, (ox, oy), _im, d in layers:
+        sl = (slice(oy, oy + d.shape[0]), slice(ox, ox + d.shape[1]))
+        better = d > dmax[sl]
+        owner[sl][better] = pos
+        dmax[sl] = np.maximum(dmax[sl], d)
+    wsum = np.zeros((h, w), np.float32)
+    for _pos, (ox, oy), im, d in layers:
+        sl = (slice(oy, oy + d.shape[0]), slice(ox, ox + d.shape[1]))
+        wgt = np.where(d > 0, np.exp((d - dmax[sl]) / max(feather_px, 1e-3)), 0.0).astype(np.float32)
+        out[sl] += im.astype(np.float32) * wgt[..., None]
+        wsum[sl] += wgt
+    covered = wsum > 0
+    out[covered] /= wsum[covered][:, None]
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8), np.where(covered, 255, 0).astype(np.uint8), owner

@@ -1,0 +1,209 @@
+"""Synthetic keyframe spools with exact ground truth, for tests and benchmarks without the simulator.
+
+A textured wall (random multi-scale blobs and edges, optionally a repetitive window grid) is viewed by a
+pinhole camera at a constant standoff; what lies beyond the wall edges is a far, differently textured plane
+(the "background" the masks must remove). Camera poses are written as telemetry (optionally noisy) in the
+spool format of docs/STITCH.md, so the worker is exercised exactly as in flight.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.geo import FacadeFrame, GeoPoint
+from companion.stitch.inputs import CameraModel, rotation_enu_from_cam
+
+
+@dataclass(frozen=True)
+class SyntheticWall:
+    length_m: float = 8.0
+    height_m: float = 4.0
+    texture_mm_per_px: float = 4.0
+    windows: bool = False  # a repetitive grid of identical dark windows (the matcher's trap)
+    seed: int = 0
+
+
+def make_texture(wall: SyntheticWall) -> np.ndarray:
+    rng = np.random.default_rng(wall.seed)
+    w = int(round(wall.length_m * 1000 / wall.texture_mm_per_px))
+    h = int(round(wall.height_m * 1000 / wall.texture_mm_per_px))
+    tex = np.zeros((h, w), np.float32)
+    for cell in (8, 24, 64, 160):  # multi-scale value noise: texture at every scale SIFT looks at
+        small = rng.random((max(2, h // cell), max(2, w // cell))).astype(np.float32)
+        tex += cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC) * (cell / 64.0) ** 0.5
+    tex = (tex - tex.min()) / (tex.max() - tex.min()) * 160 + 40
+    img = cv2.cvtColor(tex.astype(np.uint8), cv2.COLOR_GRAY2BGR)
+    img[..., 0] = np.clip(img[..., 0] * 0.85, 0, 255).astype(np.uint8)  # a warm plaster tint
+    for _ in range(int(wall.length_m * wall.height_m * 6)):  # cracks/stains: sharp features
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        col = tuple(int(c) for c in rng.integers(0, 255, 3))
+        if rng.random() < 0.5:
+            cv2.circle(img, (x, y), int(rng.integers(3, 25)), col, -1, cv2.LINE_AA)
+        else:
+            d = rng.integers(-60, 60, 2)
+            cv2.line(img, (x, y), (x + int(d[0]), y + int(d[1])), col, int(rng.integers(1, 4)), cv2.LINE_AA)
+    if wall.windows:
+        px = 1000 / wall.texture_mm_per_px
+        for cx in np.arange(0.6, wall.length_m - 0.6, 1.5):
+            for cy in np.arange(0.6, wall.height_m - 0.6, 1.6):
+                x0, y0 = int((cx - 0.4) * px), int(h - (cy + 0.5) * px)
+                cv2.rectangle(img, (x0, y0), (x0 + int(0.8 * px), y0 + int(1.0 * px)), (40, 50, 60), -1)
+                cv2.rectangle(img, (x0, y0), (x0 + int(0.8 * px), y0 + int(1.0 * px)), (230, 230, 230), 6)
+                cv2.line(img, (x0 + int(0.4 * px), y0), (x0 + int(0.4 * px), y0 + int(1.0 * px)), (230, 230, 230), 4)
+    return img
+
+
+def _background(seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed + 991)
+    bg = np.full((600, 1600, 3), (235, 200, 150), np.uint8)  # sky
+    for _ in range(220):  # trees and far buildings: strong features the masks must hide
+        x, y = int(rng.integers(0, 1600)), int(rng.integers(250, 600))
+        col = tuple(int(c) for c in rng.integers(0, 120, 3))
+        cv2.rectangle(bg, (x, y), (x + int(rng.integers(10, 80)), 600), col, -1)
+    return bg
+
+
+def view(
+    texture: np.ndarray,
+    wall: SyntheticWall,
+    camera: CameraModel,
+    frame: FacadeFrame,
+    along_m: float,
+    up_m: float,
+    standoff_m: float,
+    *,
+    yaw_offset_deg: float = 0.0,
+    pitch_deg: float = 0.0,
+    background: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(image, mask, R_enu_from_cam) of a camera at facade (along, standoff, up) looking at the wall."""
+    R = rotation_enu_from_cam(0.0, pitch_deg, frame.yaw_facing_wall_deg + yaw_offset_deg)
+    e, n, u = frame.facade_to_enu(along_m, standoff_m, up_m)
+    C = np.array([float(e), float(n), float(u)])
+    de, dn = frame.along_enu
+    a, up = np.array([de, dn, 0.0]), np.array([0.0, 0.0, 1.0])
+    s = wall.texture_mm_per_px / 1000.0
+    plane_from_tex = np.array([[s, 0, 0], [0, -s, wall.height_m], [0, 0, 1]])
+    img_from_tex = camera.K @ R.T @ np.column_stack((a, up, -C)) @ plane_from_tex
+    size = (camera.width, camera.height)
+    img = cv2.warpPerspective(texture, img_from_tex, size, flags=cv2.INTER_AREA if False else cv2.INTER_LINEAR)
+    ones = np.full(texture.shape[:2], 255, np.uint8)
+    mask = cv2.warpPerspective(ones, img_from_tex, size, flags=cv2.INTER_NEAREST)
+    if background is not None:
+        # a far plane 40 m behind the wall, 20 m x 7.5 m per background image, tiled
+        out = np.array([frame.out_enu[0], frame.out_enu[1], 0.0])
+        bs = 20.0 / background.shape[1]
+        far_from_bg = np.array([[bs, 0, -10.0 + along_m * 0.0], [0, -bs, 7.5], [0, 0, 1]])
+        origin = -40.0 * out + a * (along_m - 10.0) * 0.0
+        img_from_bg = camera.K @ R.T @ np.column_stack((a, up, origin - C)) @ far_from_bg
+        bgv = cv2.warpPerspective(background, img_from_bg, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
+        img = np.where(mask[..., None] > 0, img, bgv)
+    return img, mask, R
+
+
+def make_spool(
+    out_dir: str | Path,
+    wall: SyntheticWall,
+    *,
+    width: int = 640,
+    height: int = 360,
+    hfov_deg: float = 70.0,
+    standoff_m: float = 4.0,
+    overlap: float = 0.6,
+    pose_noise_m: float = 0.0,
+    yaw_noise_deg: float = 0.0,
+    background: bool = True,
+    margin_m: float = 0.3,
+    with_poses: bool = True,
+    seed: int = 0,
+    jitter_deg: float = 0.0,
+) -> dict:
+    """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views)."""
+    out = Path(out_dir)
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    camera = CameraModel.from_hfov(width, height, hfov_deg)
+    start = GeoPoint(37.56650, 126.97800, 30.0)
+    end_lon = start.lon + wall.length_m / (111320.0 * math.cos(math.radians(start.lat)))
+    frame = FacadeFrame.from_wall(start, GeoPoint(start.lat, end_lon, 30.0))
+    texture = make_texture(wall)
+    bg = _background(seed) if background else None
+    fw = standoff_m * width / camera.focal_px
+    fh = standoff_m * height / camera.focal_px
+    step_a, step_u = fw * (1 - overlap), fh * (1 - overlap)
+    alongs = np.arange(fw / 2 - margin_m, wall.length_m - fw / 2 + margin_m + 1e-6, step_a)
+    if alongs[-1] < wall.length_m - fw / 2 + margin_m - 1e-6:
+        alongs = np.append(alongs, wall.length_m - fw / 2 + margin_m)
+    ups = np.arange(fh / 2 - margin_m, wall.height_m - fh / 2 + margin_m + 1e-6, step_u)
+    if ups[-1] < wall.height_m - fh / 2 + margin_m - 1e-6:
+        ups = np.append(ups, wall.height_m - fh / 2 + margin_m)
+    views = []
+    lines = []
+    for c, al in enumerate(alongs):  # vertical strips, up then down (the planner's 'vertical' pattern)
+        for up in ups if c % 2 == 0 else ups[::-1]:
+            k = len(views)
+            yaw_off = float(rng.normal(0, jitter_deg)) if jitter_deg else 0.0
+            pitch = float(rng.normal(0, jitter_deg)) if jitter_deg else 0.0
+            img, mask, _ = view(
+                texture,
+                wall,
+                camera,
+                frame,
+                float(al),
+                float(up),
+                standoff_m,
+                yaw_offset_deg=yaw_off,
+                pitch_deg=pitch,
+                background=bg,
+            )
+            name = f"frames/{k:06d}.jpg"
+            cv2.imwrite(str(out / name), img, [cv2.IMWRITE_JPEG_QUALITY, 92])
+            cv2.imwrite(str(out / f"frames/{k:06d}_mask.png"), mask)
+            pose = None
+            if with_poses:
+                na, nu, no = rng.normal(0, pose_noise_m, 3) if pose_noise_m else (0.0, 0.0, 0.0)
+                lat, lon, alt = frame.facade_to_geodetic(al + na, standoff_m + no, up + nu)
+                pose = {
+                    "lat": float(lat),
+                    "lon": float(lon),
+                    "alt_amsl_m": float(alt),
+                    "roll_deg": 0.0,
+                    "pitch_deg": pitch + (float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0),
+                    "yaw_deg": (
+                        frame.yaw_facing_wall_deg
+                        + yaw_off
+                        + (float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0)
+                    )
+                    % 360.0,
+                }
+            lines.append(
+                json.dumps(
+                    {
+                        "index": k,
+                        "image": name,
+                        "mask": f"frames/{k:06d}_mask.png",
+                        "pose": pose,
+                        "overlap_to_previous": None if k == 0 else round(overlap * 100, 1),
+                    }
+                )
+            )
+            views.append({"along_m": float(al), "up_m": float(up)})
+    spool_meta = {
+        "camera": {"width_px": width, "height_px": height, "hfov_deg": hfov_deg},
+        "facade": {
+            "start": {"lat": start.lat, "lon": start.lon},
+            "end": {"lat": start.lat, "lon": end_lon},
+            "ground_alt_amsl_m": 30.0,
+            "height_m": wall.height_m,
+        },
+        "standoff_m": standoff_m,
+    }
+    (out / "spool.json").write_text(json.dumps(spool_meta, indent=1))
+    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}

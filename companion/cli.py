@@ -14,6 +14,7 @@ from companion.errors import CompanionError
 COMMAND_MODULES = [
     "companion.mission.commands",
     "companion.demo",
+    "companion.onboard.commands",
     "companion.depth.commands",
 ]
 

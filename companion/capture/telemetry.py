@@ -157,3 +157,34 @@ def interpolate(a: Pose, b: Pose, s: float, t: float) -> Pose:
         gimbal_pitch_deg=lerp(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
         mission_item=b.mission_item if s >= 0.5 else a.mission_item,
     )
+
+
+def pose_from_log_row(row: dict) -> Pose | None:
+    """A Pose from one telemetry-log line (``companion fly --telemetry-log``); None if it lacks a fix or a time."""
+    t = row.get("t_boot_s")
+    keys = ("lat", "lon", "alt_amsl_m", "roll_deg", "pitch_deg", "yaw_deg")
+    if t is None or any(row.get(k) is None for k in keys):
+        return None
+    return Pose(
+        time_s=float(t),
+        lat=float(row["lat"]),
+        lon=float(row["lon"]),
+        alt_amsl_m=float(row["alt_amsl_m"]),
+        relative_alt_m=float(row.get("rel_alt_m") or 0.0),
+        roll_deg=float(row["roll_deg"]),
+        pitch_deg=float(row["pitch_deg"]),
+        yaw_deg=float(row["yaw_deg"]) % 360.0,
+        velocity_ned_m_s=tuple(float(row.get(k) or 0.0) for k in ("vn_m_s", "ve_m_s", "vd_m_s")),
+        gimbal_pitch_deg=float(row.get("gimbal_pitch_deg") or 0.0),
+        mission_item=int(row.get("mission_item", -1) if row.get("mission_item") is not None else -1),
+    )
+
+
+def buffer_from_log(rows: list[dict], max_gap_s: float = 0.5) -> TelemetryBuffer:
+    """A buffer holding a whole recorded flight (offline culling)."""
+    buf = TelemetryBuffer(max_samples=max(len(rows), 1), max_gap_s=max_gap_s)
+    for row in rows:
+        pose = pose_from_log_row(row)
+        if pose is not None:
+            buf.add(pose)
+    return buf

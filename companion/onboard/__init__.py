@@ -1,0 +1,1 @@
+"""The onboard chain: capture -> tag -> depth mask -> overlap gate -> spool, live during flight or offline."""

@@ -1,0 +1,137 @@
+"""One frame through the whole chain: tag -> mask -> gate -> spool, with counts and user-facing warnings.
+
+Kept synchronous and free of threads so the live runner (``runner.py``) and the offline ``companion cull`` use
+exactly the same logic.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.capture.tagging import FrameTagger
+from companion.depth.masker import Masker
+from companion.errors import CompanionError
+from companion.keyframes.gate import GateEventKind, KeyframeGate
+from companion.records import Frame, Keyframe, MaskedFrame
+from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ChainStats:
+    frames_in: int = 0
+    skipped_backlog: int = 0  # dropped before processing because the CPU could not keep up
+    corrupt: int = 0
+    stale_pose: int = 0
+    dropped_no_roi: int = 0
+    keyframes: int = 0
+    already_spooled: int = 0  # resumed run: keyframes found in the spool already
+    overlap_warnings: int = 0
+    low_overlap_keyframes: int = 0
+    gaps: int = 0
+    spool_errors: int = 0
+    busy_s: float = 0.0
+    first_frame_wall_s: float | None = None
+    last_frame_wall_s: float | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        d = {k: v for k, v in self.__dict__.items() if k != "warnings"}
+        span = (self.last_frame_wall_s or 0) - (self.first_frame_wall_s or 0)
+        d["processed_fps"] = round((self.frames_in - self.skipped_backlog) / span, 3) if span > 0 else None
+        d["warnings"] = self.warnings[-20:]
+        return d
+
+
+class CullChain:
+    def __init__(
+        self,
+        tagger: FrameTagger,
+        masker: Masker | None,
+        gate: KeyframeGate,
+        spool: KeyframeSpool,
+        *,
+        on_keyframe: Callable[[Keyframe, SpoolEntry], None] | None = None,
+        on_warning: Callable[[str], None] | None = None,
+    ):
+        self.tagger = tagger
+        self.masker = masker
+        self.gate = gate
+        self.spool = spool
+        self.on_keyframe = on_keyframe
+        self.on_warning = on_warning or (lambda msg: log.warning(msg))
+        self.stats = ChainStats()
+        self.spool_disabled = False
+
+    def warn(self, message: str) -> None:
+        self.stats.warnings.append(message)
+        self.on_warning(message)
+
+    def process(self, frame: Frame) -> list[SpoolEntry]:
+        now = time.monotonic()
+        st = self.stats
+        st.first_frame_wall_s = st.first_frame_wall_s or now
+        st.last_frame_wall_s = now
+        st.frames_in += 1
+        tagged = self.tagger.tag(frame)
+        st.stale_pose += int(tagged.pose_stale)
+        if self.masker is not None:
+            masked = self.masker(tagged)
+            if masked is None:
+                st.dropped_no_roi += 1
+                return []
+        else:  # no depth model requested: the whole frame is ROI
+            masked = MaskedFrame(tagged, np.full(frame.image.shape[:2], 255, np.uint8))
+        keyframes = self.gate.push(masked)
+        self._events()
+        out = self._spool(keyframes)
+        st.busy_s += time.monotonic() - now
+        return out
+
+    def finish(self) -> list[SpoolEntry]:
+        out = self._spool(self.gate.flush())
+        self._events()
+        return out
+
+    def _events(self) -> None:
+        for ev in self.gate.pop_events():
+            if ev.kind == GateEventKind.OVERLAP_WARNING:
+                self.stats.overlap_warnings += 1
+                self.warn(f"overlap falling too fast at frame {ev.frame_index} ({ev.message}): slow down")
+            elif ev.kind == GateEventKind.LOW_OVERLAP:
+                self.stats.low_overlap_keyframes += 1
+                self.warn(f"keyframe below the overlap target at frame {ev.frame_index}: {ev.message}")
+            elif ev.kind == GateEventKind.GAP:
+                self.stats.gaps += 1
+                self.warn(f"possible gap in coverage at frame {ev.frame_index}: {ev.message}")
+
+    def _spool(self, keyframes: list[Keyframe]) -> list[SpoolEntry]:
+        out = []
+        for kf in keyframes:
+            if self.spool_disabled:
+                continue
+            try:
+                entry = self.spool.append(kf)
+            except SpoolFullError as exc:
+                self.stats.spool_errors += 1
+                self.spool_disabled = True
+                self.warn(str(exc))  # flight supervision carries on; the error is reported, not raised
+                continue
+            except CompanionError as exc:
+                self.stats.spool_errors += 1
+                self.warn(str(exc))
+                continue
+            if entry is None:
+                self.stats.already_spooled += 1
+                continue
+            self.stats.keyframes += 1
+            out.append(entry)
+            if self.on_keyframe:
+                self.on_keyframe(kf, entry)
+        return out

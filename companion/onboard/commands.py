@@ -1,0 +1,62 @@
+"""`companion cull`: the offline twin of live culling, for recorded flights (video/images + telemetry log)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from tqdm import tqdm
+
+from companion.capture.sources import open_source
+from companion.capture.tagging import FrameTagger
+from companion.capture.telemetry import ClockMap, buffer_from_log
+from companion.errors import CompanionError
+from companion.onboard.setup import build_chain
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("cull", help="cull a recorded flight into a keyframe spool (offline twin of live culling)")
+    p.add_argument("video", help="video file or image folder of the flight")
+    p.add_argument("--telemetry", type=Path, required=True, help="telemetry log (JSON lines from companion fly)")
+    p.add_argument("--out", type=Path, required=True, help="keyframe spool directory (resumable)")
+    p.add_argument("--mission", type=Path, help="mission YAML: overlap threshold, camera and facade for the spool")
+    p.add_argument("--model", type=Path, help="depth model (.onnx); default: the shipped model")
+    p.add_argument("--no-mask", action="store_true", help="skip background removal (whole frame is ROI)")
+    p.add_argument(
+        "--time-offset",
+        type=float,
+        default=0.0,
+        help="autopilot boot time (s) at video time 0; frame times + offset = telemetry t_boot_s",
+    )
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of an image folder without times.csv")
+    p.set_defaults(func=run_cull)
+
+
+def run_cull(args: argparse.Namespace) -> int:
+    from companion.flight.telemetry_log import read_telemetry_log
+
+    if not args.telemetry.is_file():
+        raise CompanionError(f"telemetry log {args.telemetry} does not exist", "pass the --telemetry-log of the flight")
+    rows = read_telemetry_log(args.telemetry)
+    buffer = buffer_from_log(rows)
+    if len(buffer) == 0:
+        raise CompanionError(f"telemetry log {args.telemetry} holds no usable samples", "check the file")
+    tagger = FrameTagger(buffer, ClockMap(fixed_offset_s=-args.time_offset))
+    chain = build_chain(args.out, tagger, mission_path=args.mission, model=args.model, mask=not args.no_mask)
+    source = open_source(args.video, fps=args.fps)
+    total = getattr(source, "files", None)
+    with source, tqdm(total=len(total) if total else None, unit="frame", desc="culling") as bar:
+        for frame in source:
+            chain.process(frame)
+            bar.update(1)
+            bar.set_postfix(keyframes=chain.stats.keyframes)
+        chain.finish()
+    chain.stats.corrupt = source.stats.corrupt
+    stats = chain.stats.as_dict()
+    (args.out / "cull_report.json").write_text(json.dumps(stats, indent=1))
+    print(
+        f"{stats['frames_in']} frames -> {chain.stats.keyframes} keyframes in {args.out} "
+        f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose)"
+    )
+    return 0

@@ -1,0 +1,63 @@
+"""Builds a CullChain from a mission and options (shared by `companion cull`, `companion fly --capture`, demo)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from companion.capture.tagging import FrameTagger
+from companion.keyframes.gate import GateConfig, KeyframeGate
+from companion.onboard.chain import CullChain
+from companion.spool import KeyframeSpool
+
+
+def spool_meta(mission) -> dict:
+    """spool.json for the stitching worker: camera, facade and standoff (docs/STITCH.md)."""
+    from companion.mission.geometry import wall_ends
+
+    start, end = wall_ends(mission)
+    cam = mission.camera
+    return {
+        "mission": mission.name,
+        "camera": {"width_px": cam.width_px, "height_px": cam.height_px, "hfov_deg": cam.hfov_deg},
+        "facade": {
+            "start": {"lat": start.lat, "lon": start.lon},
+            "end": {"lat": end.lat, "lon": end.lon},
+            "ground_alt_amsl_m": mission.facade.ground_alt_amsl_m,
+            "height_m": mission.facade.height_m,
+        },
+        "standoff_m": mission.standoff_m,
+    }
+
+
+def build_chain(
+    out: Path,
+    tagger: FrameTagger,
+    *,
+    mission_path: Path | None = None,
+    mission=None,
+    model: Path | None = None,
+    mask: bool = True,
+    clock_epoch_unix_s: float = 0.0,
+    on_keyframe=None,
+    on_warning=None,
+) -> CullChain:
+    if mission is None and mission_path is not None:
+        from companion.mission import load_mission
+
+        mission = load_mission(mission_path)
+    gate_cfg = GateConfig.for_mission(mission) if mission is not None else GateConfig()
+    masker = None
+    model_name = None
+    if mask:
+        from companion.depth.masker import Masker
+
+        masker = Masker(model)
+        model_name = str(model) if model is not None else "shipped default"
+    settings = {"rth": gate_cfg.rth, "depth_model": model_name, "mask": mask}
+    spool = KeyframeSpool(
+        out,
+        meta=spool_meta(mission) if mission is not None else None,
+        settings=settings,
+        clock_epoch_unix_s=clock_epoch_unix_s,
+    )
+    return CullChain(tagger, masker, KeyframeGate(gate_cfg), spool, on_keyframe=on_keyframe, on_warning=on_warning)

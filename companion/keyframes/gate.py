@@ -64,10 +64,6 @@ class GateEvent:
     R: float | None = None  # percent
 
 
-def _percent(est: OverlapEstimate) -> float:
-    return float(est.R)
-
-
 @dataclass(frozen=True)
 class Comparison:
     """One R(Ip, Iq) the gate computed (kept per step for evaluation against simulator truth)."""
@@ -199,7 +195,7 @@ class KeyframeGate:
             self._unusable(item, step, f"only {len(item.features)} features in the ROI")
             return
         est = self._compare(self._key, item, step)
-        if est.known and _percent(est) >= rth:
+        if est.known and est.percent >= rth:
             self._offer_candidate(item, est, step)
             return
         if est.known:
@@ -222,7 +218,7 @@ class KeyframeGate:
 
     def _after_promotion(self, item: _Held, step: GateStep) -> None:
         est = self._compare(self._key, item, step)
-        if est.known and _percent(est) >= self.rth_percent:
+        if est.known and est.percent >= self.rth_percent:
             self._offer_candidate(item, est, step)
         elif est.known:
             self._warn_if_falling(item, est, step)
@@ -242,7 +238,7 @@ class KeyframeGate:
 
     def _warn_if_falling(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
         rth = self.rth_percent
-        if self._prev_R >= rth and _percent(est) < rth - 100.0 * self.config.warn_margin:
+        if self._prev_R >= rth and est.percent < rth - 100.0 * self.config.warn_margin:
             step.events.append(
                 GateEvent(
                     GateEventKind.OVERLAP_WARNING,
@@ -311,7 +307,7 @@ class KeyframeGate:
                 "R_displacement": None if est is None else est.R_displacement,
                 "R_polygon": None if est is None else est.R_polygon,
                 "sharpness": item.sharpness,
-                "low_overlap": est is not None and est.known and _percent(est) < self.rth_percent,
+                "low_overlap": est is not None and est.known and est.percent < self.rth_percent,
             },
         )
         self._key = item

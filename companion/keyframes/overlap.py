@@ -76,6 +76,11 @@ class OverlapEstimate:
         return self.R is not None
 
     @property
+    def percent(self) -> float | None:
+        """Same as ``R`` (lower-case name for comparisons; linters read ``R`` as a constant)."""
+        return self.R
+
+    @property
     def ratio(self) -> float | None:
         """R as a fraction 0..1 (the unit of the mission's ``overlap`` and of simulator truth)."""
         return None if self.R is None else self.R / 100.0

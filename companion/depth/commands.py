@@ -76,7 +76,8 @@ def cmd_train(args) -> int:
     cfg = TrainConfig(
         out=out, recordings=recs, eval_recordings=evals, height=h, width=w, crop=args.crop, batch=args.batch,
         model_width=args.model_width, lr=args.lr, max_minutes=args.max_minutes, max_steps=args.max_steps,
-        threads=args.threads,
+        threads=args.threads, view_seeds=args.view_seeds or [], eval_view_seeds=args.eval_view_seeds or [],
+        views_per_seed=args.views_per_seed,
     )
     path = train(cfg)
     print(f"model: {path}")
@@ -156,6 +157,9 @@ def register(subparsers) -> None:
     p.add_argument("--mission", default="missions/demo-facade.yaml", help="mission the recordings fly")
     p.add_argument("--seeds", type=_seeds, default=None, help="training recording seeds, e.g. 0-23")
     p.add_argument("--eval-seeds", type=_seeds, default=None, help="held-out seeds, e.g. 100-103")
+    p.add_argument("--view-seeds", type=_seeds, default=None, help="random-viewpoint scene seeds, e.g. 0-23")
+    p.add_argument("--eval-view-seeds", type=_seeds, default=None, help="held-out random-view scenes, e.g. 1000-1003")
+    p.add_argument("--views-per-seed", type=int, default=50)
     p.add_argument("--recordings", nargs="*", help="existing training recording folders")
     p.add_argument("--eval-recordings", nargs="*", help="existing held-out recording folders")
     p.add_argument("--width-px", type=int, default=640, help="recording width in pixels")

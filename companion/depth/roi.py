@@ -97,9 +97,26 @@ def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     return float(edges[k + 1])
 
 
+def otsu_threshold_fast(values: np.ndarray) -> float:
+    """Otsu's threshold via OpenCV on values scaled to 0..255 (same result as ``otsu_threshold`` to 1/255)."""
+    hi = float(values.max())
+    if hi <= 1e-12:
+        return hi
+    u8 = np.clip(values * (255.0 / hi), 0, 255).astype(np.uint8)
+    t, _ = cv2.threshold(u8, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    return (t + 0.5) * hi / 255.0
+
+
+def _components(binary: np.ndarray, connectivity: int):
+    """Connected components (Spaghetti algorithm: ~2x faster than OpenCV's default for 4-connectivity)."""
+    return cv2.connectedComponentsWithStatsWithAlgorithm(
+        binary.astype(np.uint8), connectivity, cv2.CV_32S, cv2.CCL_SPAGHETTI
+    )
+
+
 def _remove_small(binary: np.ndarray, min_area: int, connectivity: int = 8) -> np.ndarray:
     """Drop connected components of a 0/1 image smaller than ``min_area`` pixels (pepper noise)."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary.astype(np.uint8), connectivity=connectivity)
+    n, labels, stats, _ = _components(binary, connectivity)
     if n <= 1:
         return binary.astype(bool)
     keep = stats[:, cv2.CC_STAT_AREA] >= min_area
@@ -110,11 +127,11 @@ def _remove_small(binary: np.ndarray, min_area: int, connectivity: int = 8) -> n
 def boundary_map(disparity: np.ndarray, params: RoiParams) -> tuple[np.ndarray, float]:
     """Binary boundary image (True = boundary) after Otsu and pepper-noise removal, and the threshold used."""
     d = disparity.astype(np.float32)
-    scale = float(np.median(d))
+    scale = float(np.median(d[::4, ::4]))  # subsampled: the scale need not be exact
     if not np.isfinite(scale) or scale <= 0:
         scale = float(np.max(d)) if np.max(d) > 0 else 1.0
     g = gradient_magnitude(d / scale)
-    thr = max(otsu_threshold(g), params.min_rel_gradient)
+    thr = max(otsu_threshold_fast(g), params.min_rel_gradient)
     edges = g > thr
     min_area = max(4, int(params.min_component_frac * d.size))
     edges = _remove_small(edges, min_area)
@@ -153,7 +170,7 @@ def extract_roi(
     out_w, out_h = out_size if out_size is not None else (w, h)
 
     edges, thr = boundary_map(d, params)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats((~edges).astype(np.uint8), connectivity=4)
+    n, labels, stats, _ = _components(~edges, 4)
     min_area = max(4, int(params.min_component_frac * d.size))
     region_ids = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area]
     if not region_ids:  # the boundary covers everything (pathological noise): treat the frame as one region
@@ -190,7 +207,9 @@ def extract_roi(
         # Pixels on the boundary (and tiny regions) go to the side their disparity is closer to; the same cut
         # also trims background that leaked into a kept region through a gap in the boundary.
         cut = 0.5 * (kept_mean + drop_mean)
-        in_dropped = np.isin(labels, dropped)
+        is_dropped = np.zeros(n, bool)
+        is_dropped[dropped] = True
+        in_dropped = is_dropped[labels]
         keep = (~in_dropped) & (d >= cut)
         min_island = max(4, int(params.min_component_frac * d.size))
         keep = _remove_small(keep, min_island, connectivity=4)

@@ -33,6 +33,9 @@ class TrainConfig:
     out: Path
     recordings: list[Path]
     eval_recordings: list[Path] = field(default_factory=list)
+    view_seeds: list[int] = field(default_factory=list)  # random-viewpoint scenes (training)
+    eval_view_seeds: list[int] = field(default_factory=list)  # random-viewpoint scenes (held out)
+    views_per_seed: int = 50
     height: int = 192
     width: int = 640
     crop: tuple[int, int] | None = (128, 320)
@@ -81,6 +84,16 @@ def total_loss(outputs: dict, x: torch.Tensor, depth_gt: torch.Tensor, cfg: Trai
     return loss / 4.0
 
 
+def init_disparity_bias(model: Monodepth2, cfg: TrainConfig, typical_depth_m: float) -> None:
+    """Start the sigmoid outputs at a typical scan depth instead of 0.5 (= 0.2 m), so that the lr 1e-4 steps go
+    to shapes, not to shifting every output by 4 logits first."""
+    min_disp, max_disp = 1.0 / cfg.max_depth, 1.0 / cfg.min_depth
+    p = (1.0 / typical_depth_m - min_disp) / (max_disp - min_disp)
+    logit = float(np.log(p / (1 - p)))
+    for s in model.depth.scales:
+        torch.nn.init.constant_(model.depth._conv("dispconv", s).conv.bias, logit)
+
+
 def _save_checkpoint(path: Path, model, opt, step: int, elapsed_s: float) -> None:
     tmp = path.with_suffix(".tmp")
     torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step, "elapsed_s": elapsed_s}, tmp)
@@ -96,7 +109,7 @@ def evaluate_torch(model: Monodepth2, frames: FrameSet, cfg: TrainConfig, batch:
         x = torch.from_numpy(
             np.stack([f[..., ::-1].transpose(2, 0, 1) for f in frames.images[i : i + batch]]).astype(np.float32) / 255
         )
-        d = torch.from_numpy(frames.depths[i : i + batch][:, None].copy())
+        d = torch.from_numpy(frames.depths[i : i + batch][:, None].astype(np.float32))
         out = model.forward_all(x)
         losses.append(float(total_loss(out, x, d, cfg)))
         _, depth = disp_to_depth(out[("disp", 0)], cfg.min_depth, cfg.max_depth)
@@ -106,18 +119,37 @@ def evaluate_torch(model: Monodepth2, frames: FrameSet, cfg: TrainConfig, batch:
     return {"loss": float(np.mean(losses)), "abs_rel_facade_and_near": float(np.mean(absrel))}
 
 
+def _frames(cfg: TrainConfig, recordings: list[Path], view_seeds: list[int], stride: int, n_views: int) -> FrameSet:
+    from companion.depth.training.views import cached_views
+
+    parts = []
+    if recordings:
+        parts.append(load_frames(recordings, cfg.height, cfg.width, cfg.max_depth, stride))
+    if view_seeds:
+        parts.append(cached_views(cfg.out / "data", view_seeds, n_views, cfg.height, cfg.width, cfg.max_depth))
+    # depth kept as float16 in memory (metres to 0.05 %): ~0.25 MB per frame instead of 0.5
+    return FrameSet(
+        np.concatenate([p.images for p in parts]),
+        np.concatenate([p.depths.astype(np.float16) for p in parts]),
+        np.concatenate([p.roi_masks for p in parts]),
+    )
+
+
 def train(cfg: TrainConfig) -> Path:
     """Train (or resume) into ``cfg.out``; returns the exported ONNX path. Bounded by ``cfg.max_minutes``."""
-    if not cfg.recordings:
-        raise CompanionError("no training recordings", "pass --seeds (generates recordings) or --recordings DIR ...")
+    if not cfg.recordings and not cfg.view_seeds:
+        raise CompanionError("no training data", "pass --seeds / --view-seeds (rendered here) or --recordings DIR ...")
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(cfg), default=str, indent=1))
-    frames = load_frames(cfg.recordings, cfg.height, cfg.width, cfg.max_depth, cfg.stride)
-    held = load_frames(cfg.eval_recordings, cfg.height, cfg.width, cfg.max_depth, 4) if cfg.eval_recordings else None
-    log.info("training on %d frames from %d recordings", len(frames), len(cfg.recordings))
+    frames = _frames(cfg, cfg.recordings, cfg.view_seeds, cfg.stride, cfg.views_per_seed)
+    held = None
+    if cfg.eval_recordings or cfg.eval_view_seeds:
+        held = _frames(cfg, cfg.eval_recordings, cfg.eval_view_seeds, 4, 30)
+    log.info("training on %d frames (%d recordings, %d view scenes)", len(frames), len(cfg.recordings),
+             len(cfg.view_seeds))
 
     model = Monodepth2(width=cfg.model_width)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -129,6 +161,8 @@ def train(cfg: TrainConfig) -> Path:
         opt.load_state_dict(state["opt"])
         step, elapsed0 = int(state["step"]), float(state["elapsed_s"])
         log.info("resumed from step %d (%.1f min)", step, elapsed0 / 60)
+    else:
+        init_disparity_bias(model, cfg, typical_depth_m=6.0)
     rng = np.random.default_rng(cfg.seed + step)
     budget_s = cfg.max_minutes * 60.0
     t_start = time.monotonic()
@@ -151,7 +185,7 @@ def train(cfg: TrainConfig) -> Path:
         opt.step()
         step += 1
         if step % 25 == 0:
-            rec = {"step": step, "minutes": round(elapsed / 60, 2), "lr": lr, "loss": round(float(loss), 5)}
+            rec = {"step": step, "minutes": round(elapsed / 60, 2), "lr": lr, "loss": round(loss.item(), 5)}
             if held is not None and step % 250 == 0:
                 rec["held_out"] = evaluate_torch(model, held, cfg)
             logf.write(json.dumps(rec) + "\n")
@@ -175,7 +209,8 @@ def finish(model: Monodepth2, cfg: TrainConfig, step: int, elapsed_s: float, hel
     torch.save(model.depth.state_dict(), out / "depth.pth")
     source = cfg.source or (
         f"companion depth train: Monodepth2 ResNet-18 layout at width {cfg.model_width}, "
-        f"{len(cfg.recordings)} simulator recordings, {step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
+        f"{len(cfg.recordings)} simulator recordings + {len(cfg.view_seeds)} random-view scenes, "
+        f"{step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
     )
     report = export_onnx(
         model, out / "model.onnx", height=cfg.height, width=cfg.width, min_depth=cfg.min_depth,

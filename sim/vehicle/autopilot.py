@@ -709,9 +709,12 @@ class SimVehicle:
             self._condition_yaw(p[0], p[2], p[3])
             return self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            return self._ack(msg, cmd, ok if self._set_interval(_int(p[0], -1), p[1]) else mavlink.MAV_RESULT_UNSUPPORTED)
+            accepted = self._set_interval(_int(p[0], -1), p[1])
+            return self._ack(msg, cmd, ok if accepted else mavlink.MAV_RESULT_UNSUPPORTED)
         if cmd in (mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
-            msg_id = _int(p[0], -1) if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE else mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+            msg_id = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+            if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
+                msg_id = _int(p[0], -1)
             reply = self._requested(msg_id)
             self._ack(msg, cmd, ok if reply is not None else mavlink.MAV_RESULT_UNSUPPORTED)
             if reply is not None:

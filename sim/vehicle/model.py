@@ -18,18 +18,21 @@ GRAVITY = 9.80665
 
 @dataclass(frozen=True)
 class Limits:
-    """Flight envelope and controller gains (defaults close to PX4 multicopter defaults)."""
+    """Flight envelope and controller gains (defaults: PX4 multicopter defaults, e.g. MPC_XY_P, MPC_XY_VEL_*)."""
 
     max_speed_h_m_s: float = 12.0
     max_climb_m_s: float = 3.0
     max_descent_m_s: float = 1.5
     max_accel_m_s2: float = 4.0
     max_yaw_rate_deg_s: float = 60.0
-    cross_track_gain: float = 2.0  # 1/s: velocity towards the line per metre off it
-    hold_gain: float = 1.2  # 1/s: velocity towards a hold point per metre away
-    vel_gain: float = 5.0  # 1/s: acceleration per m/s of velocity error
-    vel_int_gain: float = 3.0  # 1/s^2: integral term, cancels steady wind
-    drag: float = 0.25  # 1/s: air drag (wind pushes the vehicle through it)
+    cross_track_gain: float = 1.0  # 1/s: velocity towards the line per metre off it (MPC_XY_P ~ 0.95)
+    hold_gain: float = 1.0  # 1/s: velocity towards a hold point per metre away
+    vel_gain_xy: float = 1.8  # 1/s: MPC_XY_VEL_P_ACC
+    vel_int_xy: float = 0.4  # 1/s^2: MPC_XY_VEL_I_ACC (cancels drag and steady wind)
+    vel_gain_z: float = 4.0  # MPC_Z_VEL_P_ACC
+    vel_int_z: float = 2.0  # MPC_Z_VEL_I_ACC
+    tilt_lag_s: float = 0.15  # attitude loop: thrust direction follows the command with this time constant
+    drag_per_m: float = 0.05  # 1/m: quadratic air drag, a = -k |v_air| v_air (about 1.25 m/s^2 at 5 m/s)
 
 
 @dataclass
@@ -115,43 +118,50 @@ class Multirotor:
         self.limits = limits or Limits()
         self.state = state or VehicleState()
         self._vel_int = np.zeros(3)
+        self.thrust_accel = np.zeros(3)  # acceleration the tilted thrust delivers (lags the command)
+        lim = self.limits
+        self._kp = np.array([lim.vel_gain_xy, lim.vel_gain_xy, lim.vel_gain_z])
+        self._ki = np.array([lim.vel_int_xy, lim.vel_int_xy, lim.vel_int_z])
+
+    def _reset_on_ground(self) -> None:
+        st = self.state
+        st.vel[:] = 0.0
+        self._vel_int[:] = 0.0
+        self.thrust_accel[:] = 0.0
+        st.roll_deg = st.pitch_deg = 0.0
 
     def step(self, dt: float, v_cmd, yaw_target_deg: float | None, wind_ned=(0.0, 0.0, 0.0), motors_on=True):
-        """Advance ``dt`` seconds. With motors off (disarmed) the vehicle sits on the ground."""
+        """Advance ``dt`` seconds. With motors off (disarmed) or no climb command the vehicle sits on the ground."""
         st, lim = self.state, self.limits
-        if not motors_on:
-            st.vel[:] = 0.0
-            self._vel_int[:] = 0.0
-            st.roll_deg = st.pitch_deg = 0.0
-            st.pos[2] = max(st.pos[2], 0.0) if st.on_ground else st.pos[2]
-            return
         v_cmd = np.asarray(v_cmd, dtype=float)
+        if not motors_on or (st.on_ground and v_cmd[2] >= 0.0):
+            self._reset_on_ground()
+            return
         wind = np.asarray(wind_ned, dtype=float)
         err = v_cmd - st.vel
-        if st.on_ground and v_cmd[2] >= 0.0:
-            # Sitting on the ground: no lateral motion until it lifts off.
-            st.vel[:] = 0.0
-            self._vel_int[:] = 0.0
-            return
-        self._vel_int = np.clip(self._vel_int + err * dt, -3.0, 3.0)
-        # Feed-forward cancels drag at the commanded speed; the integral learns the steady wind.
-        a_cmd = lim.vel_gain * err + lim.vel_int_gain * self._vel_int + lim.drag * v_cmd
+        # PI velocity controller; the integral (bounded: anti-windup) supplies the drag and wind compensation.
+        self._vel_int = np.clip(self._vel_int + err * dt, -lim.max_accel_m_s2 / np.maximum(self._ki, 1e-6),
+                                lim.max_accel_m_s2 / np.maximum(self._ki, 1e-6))
+        a_cmd = self._kp * err + self._ki * self._vel_int
         norm = float(np.linalg.norm(a_cmd))
         if norm > lim.max_accel_m_s2:
             a_cmd *= lim.max_accel_m_s2 / norm
-        accel = a_cmd + lim.drag * (wind - st.vel)
+        alpha = dt / (lim.tilt_lag_s + dt) if lim.tilt_lag_s > 0 else 1.0
+        self.thrust_accel = self.thrust_accel + alpha * (a_cmd - self.thrust_accel)
+        v_air = st.vel - wind
+        accel = self.thrust_accel - lim.drag_per_m * float(np.linalg.norm(v_air)) * v_air
         st.vel = st.vel + accel * dt
         st.pos = st.pos + st.vel * dt
         st.on_ground = False
         if st.pos[2] >= 0.0 and st.vel[2] >= 0.0:  # touched the ground (down positive)
             st.pos[2] = 0.0
-            st.vel[:] = 0.0
-            self._vel_int[:] = 0.0
             st.on_ground = True
-        # Tilt follows the thrust needed for the commanded horizontal acceleration.
+            self._reset_on_ground()
+        # Tilt follows the thrust needed for the horizontal acceleration it delivers.
         yaw = math.radians(st.yaw_deg)
-        a_fwd = a_cmd[0] * math.cos(yaw) + a_cmd[1] * math.sin(yaw)
-        a_right = -a_cmd[0] * math.sin(yaw) + a_cmd[1] * math.cos(yaw)
+        a = self.thrust_accel
+        a_fwd = a[0] * math.cos(yaw) + a[1] * math.sin(yaw)
+        a_right = -a[0] * math.sin(yaw) + a[1] * math.cos(yaw)
         st.pitch_deg = -math.degrees(math.atan2(a_fwd, GRAVITY))
         st.roll_deg = math.degrees(math.atan2(a_right, GRAVITY))
         if yaw_target_deg is not None and math.isfinite(yaw_target_deg):

@@ -1,0 +1,128 @@
+"""Connecting to an autopilot through mavsdk and waiting until it is healthy enough to fly.
+
+Kept apart from mission supervision so the onboard pipeline can reuse the same connect/health logic.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+from dataclasses import dataclass
+
+from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync, MavlinkMessage
+from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+from companion.errors import CompanionError
+
+log = logging.getLogger(__name__)
+
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_DO_SET_MODE = 176
+MSG_ID_MISSION_CURRENT = 42
+HEALTH_FIELDS = {
+    "is_global_position_ok": "global position (GPS fix)",
+    "is_local_position_ok": "local position estimate",
+    "is_home_position_ok": "home position",
+    "is_armable": "pre-arm checks",
+}
+
+
+@dataclass
+class Vehicle:
+    """A connected autopilot and the mavsdk plugins the flight code uses."""
+
+    mavsdk: Mavsdk
+    system: object
+    telemetry: TelemetryAsync
+    action: ActionAsync
+    mission: MissionRawAsync
+    direct: MavlinkDirectAsync
+    autopilot: str  # 'px4' or 'ardupilot'
+    system_id: int
+
+    async def command_long(self, command: int, *params: float) -> int:
+        """Send a COMMAND_LONG through mavlink_direct; returns the MAV_RESULT of its final ACK."""
+        fields = {"target_system": self.system_id, "target_component": 1, "command": command, "confirmation": 0}
+        padded = list(params) + [0.0] * (7 - len(params))
+        fields.update({f"param{i + 1}": float(v) for i, v in enumerate(padded)})
+        msg = MavlinkMessage("COMMAND_LONG", 0, 0, self.system_id, 1, json.dumps(fields))
+        ack = await self.direct.send_command(msg)
+        try:
+            return int(json.loads(ack.fields_json).get("result", 0))
+        except (AttributeError, ValueError, TypeError):
+            return 0
+
+    def close(self) -> None:
+        self.mavsdk.destroy()
+
+
+async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto") -> Vehicle:
+    """Open ``url`` (e.g. ``udp://:14540``, ``tcpout://127.0.0.1:5760``) and wait for an autopilot heartbeat."""
+    cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+    mavsdk = Mavsdk(cfg)
+    try:
+        await mavsdk.add_any_connection(url)
+    except Exception as exc:
+        mavsdk.destroy()
+        raise CompanionError(f"cannot open MAVLink connection {url!r}: {exc}",
+                             "use udp://:14540 (PX4 SITL), udpin://0.0.0.0:PORT or tcpout://HOST:PORT") from exc
+    system = await mavsdk.first_autopilot(timeout_s=timeout_s)
+    if system is None:
+        mavsdk.destroy()
+        raise CompanionError(
+            f"no autopilot heartbeat on {url} within {timeout_s:g} s",
+            "start the vehicle or simulator (e.g. `companion sim`), and check the --connect address and port")
+    if autopilot == "auto":
+        kind = await system.autopilot_type()
+        autopilot = "ardupilot" if kind == Autopilot.ARDUPILOT else "px4"
+    vehicle = Vehicle(mavsdk, system, TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system),
+                      MavlinkDirectAsync(system), autopilot, await system.get_system_id())
+    log.info("connected to %s autopilot (system %d) on %s", autopilot, vehicle.system_id, url)
+    return vehicle
+
+
+async def request_rates(vehicle: Vehicle, rate_hz: float) -> None:
+    """Ask for the telemetry the flight needs. ArduPilot streams nothing but HEARTBEAT until asked; PX4 streams
+    by default, but asking makes the log density explicit. MISSION_CURRENT has no telemetry setter, so it is
+    requested with MAV_CMD_SET_MESSAGE_INTERVAL."""
+    t = vehicle.telemetry
+    setters = [(t.set_rate_position, rate_hz), (t.set_rate_attitude_euler, rate_hz),
+               (t.set_rate_velocity_ned, rate_hz), (t.set_rate_health, 1.0), (t.set_rate_gps_info, 1.0),
+               (t.set_rate_in_air, 2.0), (t.set_rate_battery, 1.0), (t.set_rate_home, 0.5)]
+    failed = []
+    for setter, hz in setters:
+        try:
+            await setter(hz)
+        except Exception as exc:  # one refused stream is not fatal; health checks catch what matters
+            failed.append(f"{setter.__name__}: {exc}")
+    with contextlib.suppress(Exception):
+        await vehicle.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID_MISSION_CURRENT, 1e6)
+    if failed:
+        log.warning("telemetry rate requests refused: %s", "; ".join(failed))
+
+
+async def wait_healthy(vehicle: Vehicle, timeout_s: float = 30.0) -> None:
+    """Wait until GPS, position estimate, home and pre-arm checks are all good; name what is missing if not."""
+    last = {}
+
+    async def _watch():
+        async for health in vehicle.telemetry.subscribe_health():
+            last.update({k: bool(getattr(health, k)) for k in HEALTH_FIELDS})
+            if all(last.values()):
+                return
+
+    try:
+        await asyncio.wait_for(_watch(), timeout_s)
+    except TimeoutError:
+        missing = [HEALTH_FIELDS[k] for k in HEALTH_FIELDS if not last.get(k, False)]
+        what = ", ".join(missing) if last else "no health (SYS_STATUS) telemetry at all"
+        raise CompanionError(
+            f"vehicle not ready to fly after {timeout_s:g} s: missing {what}",
+            "wait for a 3D GPS fix and home position, check pre-arm messages on the ground station, or raise "
+            "--health-timeout") from None
+    log.info("vehicle healthy: GPS, position estimate, home and pre-arm checks OK")

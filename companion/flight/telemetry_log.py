@@ -1,0 +1,114 @@
+"""Telemetry recorder: keeps the latest value of each telemetry stream and writes one JSON line per position
+sample, flushed as written, so a crash or a cut link loses nothing already received."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import IO
+
+log = logging.getLogger(__name__)
+
+
+def _num(x: float) -> float | None:
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
+
+class TelemetryRecorder:
+    """Subscribes to position, attitude, velocity, mode, armed, in-air and mission progress.
+
+    ``state`` holds the latest values; ``last_sample_wall`` the monotonic time of the last position sample
+    (used to notice a silent link).
+    """
+
+    def __init__(self, vehicle, path: Path | None = None):
+        self.vehicle = vehicle
+        self.path = Path(path) if path else None
+        self._file: IO[str] | None = None
+        self.state: dict = {"mission_item": -1, "mission_total": 0, "armed": None, "in_air": None,
+                            "flight_mode": None, "landed_state": None}
+        self.samples = 0
+        self.last_sample_wall: float | None = None
+        self.status_texts: list[str] = []
+        self._tasks: list[asyncio.Task] = []
+        self.progress_event = asyncio.Event()
+
+    async def __aenter__(self) -> TelemetryRecorder:
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = open(self.path, "a", buffering=1)  # noqa: SIM115 (closed in __aexit__)
+        t, m = self.vehicle.telemetry, self.vehicle.mission
+        for coro in (self._follow(t.subscribe_position(), self._on_position),
+                     self._follow(t.subscribe_attitude_euler(), self._on_attitude),
+                     self._follow(t.subscribe_velocity_ned(), self._on_velocity),
+                     self._follow(t.subscribe_flight_mode(), lambda v: self.state.update(flight_mode=v.name)),
+                     self._follow(t.subscribe_armed(), lambda v: self.state.update(armed=bool(v))),
+                     self._follow(t.subscribe_in_air(), lambda v: self.state.update(in_air=bool(v))),
+                     self._follow(t.subscribe_landed_state(), lambda v: self.state.update(landed_state=v.name)),
+                     self._follow(t.subscribe_status_text(), self._on_status_text),
+                     self._follow(m.subscribe_mission_progress(), self._on_progress)):
+            self._tasks.append(asyncio.create_task(coro))
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    @staticmethod
+    async def _follow(gen, handler) -> None:
+        async for value in gen:
+            handler(value)
+
+    def _on_attitude(self, a) -> None:
+        self.state.update(roll_deg=_num(a.roll_deg), pitch_deg=_num(a.pitch_deg), yaw_deg=_num(a.yaw_deg),
+                          t_boot_s=a.timestamp_us / 1e6 if a.timestamp_us else None)
+
+    def _on_velocity(self, v) -> None:
+        self.state.update(vn_m_s=_num(v.north_m_s), ve_m_s=_num(v.east_m_s), vd_m_s=_num(v.down_m_s))
+
+    def _on_progress(self, p) -> None:
+        self.state.update(mission_item=p.current, mission_total=p.total)
+        self.progress_event.set()
+
+    def _on_status_text(self, s) -> None:
+        text = f"{s.type.name}: {s.text}"
+        self.status_texts.append(text)
+        log.info("vehicle says %s", text)
+
+    def _on_position(self, p) -> None:
+        self.last_sample_wall = time.monotonic()
+        self.samples += 1
+        st = self.state
+        if self._file is None:
+            return
+        row = {
+            "t_wall": round(time.time(), 4), "t_boot_s": st.get("t_boot_s"),
+            "lat": _num(p.latitude_deg), "lon": _num(p.longitude_deg),
+            "alt_amsl_m": _num(p.absolute_altitude_m), "rel_alt_m": _num(p.relative_altitude_m),
+            "roll_deg": st.get("roll_deg"), "pitch_deg": st.get("pitch_deg"), "yaw_deg": st.get("yaw_deg"),
+            "vn_m_s": st.get("vn_m_s"), "ve_m_s": st.get("ve_m_s"), "vd_m_s": st.get("vd_m_s"),
+            "mission_item": st["mission_item"], "mission_total": st["mission_total"],
+            "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"],
+        }
+        self._file.write(json.dumps(row) + "\n")
+
+
+def read_telemetry_log(path: Path) -> list[dict]:
+    """All samples of a telemetry log (a torn last line from a crash is skipped)."""
+    rows = []
+    with open(path) as f:
+        for line in f:
+            with contextlib.suppress(json.JSONDecodeError):
+                rows.append(json.loads(line))
+    return rows

@@ -1,0 +1,104 @@
+"""Mission upload through the raw mission protocol, then download and compare (verify).
+
+MissionRaw, not the high-level Mission plugin: it keeps the planner's exact MISSION_ITEM_INTs (gimbal, speed,
+yaw commands, ArduPilot's seq-0 home placeholder) and its download works on both PX4 and ArduPilot.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from mavsdk.asyncio.plugins.mission_raw import MissionItem as RawItem
+from mavsdk.asyncio.plugins.mission_raw import MissionRawError
+
+from companion.errors import CompanionError
+from companion.mission.items import MissionItem
+
+log = logging.getLogger(__name__)
+
+_FRAME_EQUIV = {3: 6, 0: 5}  # ArduPilot reports the float-frame twins of the INT frames
+
+_UPLOAD_FIXES = {
+    "TOO_MANY_MISSION_ITEMS": "the vehicle has no room for this many items: shorten the scan or split it",
+    "UNSUPPORTED": "the vehicle refused a command or frame it does not support: check the plan's item list "
+                   "against the autopilot (see docs/FLIGHT.md)",
+    "INVALID_ARGUMENT": "an item has a parameter the vehicle refuses (e.g. NaN takeoff params on ArduPilot)",
+    "DENIED": "the vehicle refused the upload (busy or armed in a mission?): land, disarm and retry",
+    "TIMEOUT": "the vehicle stopped answering during the upload: check the link quality and retry",
+    "PROTOCOL_ERROR": "the vehicle answered out of protocol: check for a second ground station on the link",
+}
+
+
+def to_raw(items: Sequence[MissionItem]) -> list[RawItem]:
+    return [RawItem(it.seq, it.frame, it.command, 1 if i == 0 else 0, it.autocontinue, float(it.param1),
+                    float(it.param2), float(it.param3), float(it.param4), int(it.x), int(it.y), float(it.z),
+                    it.mission_type) for i, it in enumerate(items)]
+
+
+def from_raw(raw: Sequence[RawItem]) -> list[MissionItem]:
+    return [MissionItem(r.seq, r.frame, r.command, r.current, r.autocontinue, r.param1, r.param2, r.param3,
+                        r.param4, r.x, r.y, r.z, r.mission_type) for r in raw]
+
+
+def _same_float(a: float, b: float) -> bool:
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return float(np.float32(a)) == float(np.float32(b)) or abs(a - b) <= 1e-4 * max(1.0, abs(a))
+
+
+def compare_missions(sent: Sequence[MissionItem], got: Sequence[MissionItem], autopilot: str) -> list[str]:
+    """Differences between what was uploaded and what the vehicle holds (empty list: identical).
+
+    On ArduPilot seq 0 is the vehicle's home and frames come back as their float twins, so those are not
+    differences."""
+    problems = []
+    if len(sent) != len(got):
+        problems.append(f"vehicle holds {len(got)} items, {len(sent)} were uploaded")
+    for s, g in zip(sent, got, strict=False):
+        if autopilot == "ardupilot" and s.seq == 0:
+            continue
+        frame_s, frame_g = _FRAME_EQUIV.get(s.frame, s.frame), _FRAME_EQUIV.get(g.frame, g.frame)
+        diffs = []
+        if s.command != g.command:
+            diffs.append(f"command {g.command} != {s.command}")
+        if frame_s != frame_g:
+            diffs.append(f"frame {g.frame} != {s.frame}")
+        if s.x != g.x or s.y != g.y:
+            diffs.append(f"position {g.x},{g.y} != {s.x},{s.y}")
+        if not _same_float(s.z, g.z):
+            diffs.append(f"z {g.z} != {s.z}")
+        for k in ("param1", "param2", "param3", "param4"):
+            if not _same_float(getattr(s, k), getattr(g, k)):
+                diffs.append(f"{k} {getattr(g, k)} != {getattr(s, k)}")
+        if diffs:
+            problems.append(f"item {s.seq}: " + ", ".join(diffs))
+    return problems
+
+
+async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str) -> None:
+    """Upload ``items``, download them again and compare; raises CompanionError naming the problem."""
+    if not items:
+        raise CompanionError("the mission has no items", "plan the scan first (companion plan ...)")
+    seqs = [it.seq for it in items]
+    if seqs != list(range(len(items))):
+        raise CompanionError("mission items are not numbered 0..N-1 in order", "renumber the items (seq)")
+    try:
+        await mission_plugin.upload_mission(to_raw(items))
+    except MissionRawError as exc:
+        name = getattr(exc.result, "name", str(exc.result))
+        raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)",
+                             _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")) from exc
+    log.info("uploaded %d mission items", len(items))
+    try:
+        got = from_raw(await mission_plugin.download_mission())
+    except MissionRawError as exc:
+        raise CompanionError(f"could not download the mission back to verify it ({exc.result.name})",
+                             "check the link; the upload itself was accepted") from exc
+    problems = compare_missions(items, got, autopilot)
+    if problems:
+        raise CompanionError("the mission on the vehicle differs from the plan: " + "; ".join(problems[:5]),
+                             "re-upload; if it persists the autopilot rewrites items (see docs/FLIGHT.md)")
+    log.info("verified: the vehicle holds the planned %d items", len(items))

@@ -16,6 +16,7 @@ COMMAND_MODULES = [
     "companion.demo",
     "companion.onboard.commands",
     "companion.depth.commands",
+    "companion.keyframes.commands",
 ]
 
 

@@ -45,13 +45,14 @@ def patch_displacements(
     patch: int = 64,
     step: int | None = None,
     min_response: float = 0.2,
-) -> np.ndarray:
-    """Shift (px) of each fully valid, textured patch of ``image`` relative to ``truth`` (phase correlation)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(centres (N, 2), shifts (N, 2)) px of each fully valid, textured patch of ``image`` relative to
+    ``truth``, by phase correlation."""
     step = step or patch
     g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY).astype(np.float32) if image.ndim == 3 else image.astype(np.float32)
     g2 = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY).astype(np.float32) if truth.ndim == 3 else truth.astype(np.float32)
     win = cv2.createHanningWindow((patch, patch), cv2.CV_32F)
-    out = []
+    centres, shifts = [], []
     for y in range(0, g1.shape[0] - patch + 1, step):
         for x in range(0, g1.shape[1] - patch + 1, step):
             if valid[y : y + patch, x : x + patch].min() == 0:
@@ -61,8 +62,9 @@ def patch_displacements(
                 continue  # featureless: no measurable shift
             (dx, dy), resp = cv2.phaseCorrelate(b, a, win)
             if resp >= min_response:
-                out.append(np.hypot(dx, dy))
-    return np.asarray(out)
+                centres.append((x + patch / 2, y + patch / 2))
+                shifts.append((dx, dy))
+    return np.asarray(centres, float).reshape(-1, 2), np.asarray(shifts, float).reshape(-1, 2)
 
 
 def ssim(image: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float:
@@ -82,14 +84,50 @@ def ssim(image: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float:
 
 
 def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_per_px: float) -> dict:
+    """Absolute error (where on the wall things are drawn) and relative error (after removing the best affine
+    fit of the error field: what is left is seams, ghosting and warping, independent of telemetry offsets)."""
     valid = (coverage > 0) & (truth.max(axis=2) > 0 if truth.ndim == 3 else truth > 0)
-    d = patch_displacements(image, truth, valid.astype(np.uint8))
-    res = {"patches": int(d.size), "ssim": ssim(image, truth, valid)}
-    if d.size:
+    centres, shifts = patch_displacements(image, truth, valid.astype(np.uint8))
+    res: dict = {"patches": len(shifts), "ssim": ssim(image, truth, valid)}
+    if len(shifts) >= 3:
+        d = np.linalg.norm(shifts, axis=1)
+        A = np.column_stack((centres, np.ones(len(centres))))
+        coef, *_ = np.linalg.lstsq(A, shifts, rcond=None)
+        rel = np.linalg.norm(shifts - A @ coef, axis=1)
+        mm = m_per_px * 1000.0
         res.update(
             median_px=float(np.median(d)),
             p95_px=float(np.percentile(d, 95)),
-            median_mm=float(np.median(d)) * m_per_px * 1000,
-            p95_mm=float(np.percentile(d, 95)) * m_per_px * 1000,
+            median_mm=float(np.median(d)) * mm,
+            p95_mm=float(np.percentile(d, 95)) * mm,
+            rel_median_px=float(np.median(rel)),
+            rel_p95_px=float(np.percentile(rel, 95)),
+            rel_median_mm=float(np.median(rel)) * mm,
+            rel_p95_mm=float(np.percentile(rel, 95)) * mm,
         )
     return res
+
+
+def register_to_truth(image: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Best homography placement of a map with no known geometry (a peer stitcher's panorama) onto the truth
+    grid, by SIFT + RANSAC. Returns (warped image, warped coverage) or None when it cannot be registered."""
+    sift = cv2.SIFT_create(nfeatures=8000)
+    g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    g2 = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY)
+    k1, d1 = sift.detectAndCompute(g1, (g1 > 0).astype(np.uint8) * 255)
+    k2, d2 = sift.detectAndCompute(g2, None)
+    if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
+        return None
+    knn = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64}).knnMatch(d1, d2, k=2)
+    good = [m[0] for m in knn if len(m) == 2 and m[0].distance < 0.75 * m[1].distance]
+    if len(good) < 8:
+        return None
+    p1 = np.float32([k1[m.queryIdx].pt for m in good])
+    p2 = np.float32([k2[m.trainIdx].pt for m in good])
+    H, inl = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 3.0)
+    if H is None or inl.sum() < 8:
+        return None
+    size = (truth.shape[1], truth.shape[0])
+    warped = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR)
+    cov = cv2.warpPerspective((image.max(axis=2) > 0).astype(np.uint8) * 255, H, size, flags=cv2.INTER_NEAREST)
+    return warped, cv2.erode(cov, np.ones((5, 5), np.uint8))

@@ -19,6 +19,7 @@ class Features:
     keypoints: np.ndarray  # (N, 2) float32 full-resolution pixel coordinates
     descriptors: np.ndarray  # (N, 128) float32
     image_size: tuple[int, int]  # (width, height)
+    luminance: np.ndarray | None = None  # (N,) local mean grey level at each keypoint, for gain compensation
 
 
 def load_image_and_mask(kf: KeyframeInput) -> tuple[np.ndarray, np.ndarray]:
@@ -53,9 +54,13 @@ def detect(image: np.ndarray, mask: np.ndarray, *, work_width: int = 1600, max_f
     sift = cv2.SIFT_create(nfeatures=max_features)
     kps, desc = sift.detectAndCompute(gray, m)
     if desc is None or len(kps) == 0:
-        return Features(np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), (w, h))
-    pts = np.array([k.pt for k in kps], dtype=np.float32) / scale
-    return Features(pts, desc.astype(np.float32), (w, h))
+        return Features(np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), (w, h), np.zeros(0, np.float32))
+    pts = np.array([k.pt for k in kps], dtype=np.float32)
+    smooth = cv2.GaussianBlur(gray, (0, 0), 4.0)
+    xi = np.clip(np.round(pts[:, 0]).astype(int), 0, gray.shape[1] - 1)
+    yi = np.clip(np.round(pts[:, 1]).astype(int), 0, gray.shape[0] - 1)
+    lum = smooth[yi, xi].astype(np.float32)
+    return Features(pts / scale, desc.astype(np.float32), (w, h), lum)
 
 
 def feature_key(kf: KeyframeInput, settings: dict) -> str:
@@ -69,18 +74,18 @@ def feature_key(kf: KeyframeInput, settings: dict) -> str:
 
 def cached_features(kf: KeyframeInput, cache_dir: Path, *, work_width: int, max_features: int) -> Features:
     """Features from the on-disk cache when the image, mask and settings are unchanged (resumable runs)."""
-    key = feature_key(kf, {"w": work_width, "n": max_features})
+    key = feature_key(kf, {"w": work_width, "n": max_features, "v": 2})
     path = cache_dir / f"kf{kf.index:06d}-{key}.npz"
     if path.exists():
         try:
             z = np.load(path)
-            return Features(z["kp"], z["desc"], (int(z["size"][0]), int(z["size"][1])))
+            return Features(z["kp"], z["desc"], (int(z["size"][0]), int(z["size"][1])), z["lum"])
         except (OSError, ValueError, KeyError):
             path.unlink(missing_ok=True)  # torn write from an interrupted run: recompute
     img, mask = load_image_and_mask(kf)
     feats = detect(img, mask, work_width=work_width, max_features=max_features)
     cache_dir.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size))
+    np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size), lum=feats.luminance)
     tmp.replace(path)
     return feats

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pymap3d
 
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
@@ -231,14 +232,22 @@ def load_spool(spool: Path) -> StitchInput:
 
 
 def load_recording_input(
-    path: Path, *, stride: int = 1, frames: list[int] | None = None, use_poses: bool = True
+    path: Path,
+    *,
+    stride: int = 1,
+    frames: list[int] | None = None,
+    use_poses: bool = True,
+    pose_noise_m: float = 0.0,
+    attitude_noise_deg: float = 0.0,
+    seed: int = 0,
 ) -> StitchInput:
     """Keyframes straight from a simulator recording (sim.camera.recording), for evaluation.
 
-    ``frames`` picks frame indices (e.g. the gate's choice); otherwise every ``stride``-th frame.
+    ``frames`` picks frame indices (e.g. the gate's choice); otherwise every ``stride``-th frame. The recording's
+    poses are exact; ``pose_noise_m``/``attitude_noise_deg`` (Gaussian, seeded) make them telemetry-like.
     """
     try:
-        from sim.camera.recording import load_recording
+        from sim.camera.recording import frame_from_meta, load_recording
     except ImportError as exc:
         raise CompanionError("the simulator recording reader is not installed", "pip install -e . in the repo") from exc
     rec = load_recording(path)
@@ -246,32 +255,28 @@ def load_recording_input(
         raise CompanionError(f"recording {path} has no frames", "record a flight first")
     meta = rec.meta
     camera = CameraModel(np.asarray(rec.K, dtype=float), int(rec.width), int(rec.height))
-    facade = _facade_from_meta(meta)
+    frame = frame_from_meta(meta)
+    facade = FacadeGeometry(frame, float(meta["facade"]["height_m"]))
     indices = frames if frames is not None else list(range(0, len(rec), max(1, int(stride))))
+    rng = np.random.default_rng(seed)
+    o = frame.origin
     keyframes = []
     for i in indices:
         pose = None
         if use_poses:
             tp = rec.camera_pose(i)
-            pose = CameraPose(float(tp.lat), float(tp.lon), float(tp.alt), np.asarray(tp.R_world_from_cam, dtype=float))
+            enu = np.asarray(tp.position_enu, dtype=float) + rng.normal(0.0, pose_noise_m, 3) * (pose_noise_m > 0)
+            lat, lon, alt = pymap3d.enu2geodetic(enu[0], enu[1], enu[2], o.lat, o.lon, o.alt_amsl_m)
+            R = np.asarray(tp.R_world_from_cam, dtype=float)
+            if attitude_noise_deg > 0:
+                ypr = rng.normal(0.0, attitude_noise_deg, 3)
+                R = rotation_enu_from_cam(ypr[2], ypr[1], ypr[0]) @ _R_BODY_FROM_CAM.T @ _R_ENU_FROM_NED.T @ R
+            pose = CameraPose(float(lat), float(lon), float(alt), R)
         keyframes.append(
             KeyframeInput(i, Path(path) / "frames" / f"{i:06d}.jpg", Path(path) / "masks" / f"{i:06d}.png", pose)
         )
-    standoff = meta.get("standoff_m") or (meta.get("mission") or {}).get("standoff_m")
+    standoff = meta.get("standoff_m")
     return StitchInput(keyframes, camera, facade, float(standoff) if standoff else None, "recording")
-
-
-def _facade_from_meta(meta: dict) -> FacadeGeometry | None:
-    f = meta.get("facade")
-    if not f:
-        return None
-    try:
-        ground = float(f["ground_alt_amsl_m"])
-        start = GeoPoint(float(f["start"]["lat"]), float(f["start"]["lon"]), ground)
-        end = GeoPoint(float(f["end"]["lat"]), float(f["end"]["lon"]), ground)
-        return FacadeGeometry(FacadeFrame.from_wall(start, end), float(f["height_m"]))
-    except (KeyError, TypeError, ValueError):
-        return None
 
 
 def load_input(path: str | Path, **recording_options) -> StitchInput:

@@ -26,25 +26,52 @@ class UncoveredArea:
 
 
 def uncovered_areas(
-    coverage: np.ndarray, grid: MapGrid, region_px: tuple[int, int, int, int], *, min_area_m2: float = 0.02
+    coverage: np.ndarray,
+    grid: MapGrid,
+    region_px: tuple[int, int, int, int],
+    *,
+    cell_m: float = 0.1,
+    min_area_m2: float = 0.02,
 ) -> list[UncoveredArea]:
-    """Connected holes of ``coverage`` (0/255, possibly downscaled from the map by an integer-free factor)
-    inside ``region_px`` (x0, y0, x1, y1 in the coverage image's pixels, which span the whole map)."""
+    """Uncovered parts of ``region_px`` (x0, y0, x1, y1 in ``coverage`` pixels) as wall rectangles in metres.
+
+    ``coverage`` (0/255) spans the whole map, possibly downscaled. The region is cut into ``cell_m`` cells; a
+    cell at least half uncovered is a hole; holes are merged greedily into maximal rectangles (a thin ring of
+    missing edge and a missing window do not become one useless box covering the whole wall).
+    """
     sx = grid.width / coverage.shape[1]
-    sy = grid.height / coverage.shape[0]
     x0, y0, x1, y1 = region_px
-    hole = np.zeros(coverage.shape, np.uint8)
-    hole[y0:y1, x0:x1] = (coverage[y0:y1, x0:x1] == 0).astype(np.uint8)
-    n, _, stats, _ = cv2.connectedComponentsWithStats(hole, connectivity=8)
-    px_area_m2 = (grid.m_per_px * sx) * (grid.m_per_px * sy)
+    cell_px = max(1, int(round(cell_m / (grid.m_per_px * sx))))
+    nx, ny = -(-(x1 - x0) // cell_px), -(-(y1 - y0) // cell_px)
+    sub = (coverage[y0:y1, x0:x1] == 0).astype(np.float32)
+    pad = np.zeros((ny * cell_px, nx * cell_px), np.float32)
+    pad[: sub.shape[0], : sub.shape[1]] = sub
+    frac = pad.reshape(ny, cell_px, nx, cell_px).mean(axis=(1, 3))
+    # cells cut by the region edge count only their inside part
+    inside = np.zeros_like(pad)
+    inside[: sub.shape[0], : sub.shape[1]] = 1.0
+    frac = frac / np.maximum(inside.reshape(ny, cell_px, nx, cell_px).mean(axis=(1, 3)), 1e-9)
+    hole = frac >= 0.5
+    used = np.zeros_like(hole)
     out = []
-    for k in range(1, n):
-        bx, by, bw, bh, area = stats[k]
-        if area * px_area_m2 < min_area_m2:
-            continue
-        a0, up1 = grid.to_plane(np.array([bx * sx, by * sy]))
-        a1, up0 = grid.to_plane(np.array([(bx + bw) * sx, (by + bh) * sy]))
-        out.append(UncoveredArea(float(a0), float(a1), float(up0), float(up1), float(area * px_area_m2)))
+    for r in range(ny):
+        for c in range(nx):
+            if not hole[r, c] or used[r, c]:
+                continue
+            c1 = c
+            while c1 + 1 < nx and hole[r, c1 + 1] and not used[r, c1 + 1]:
+                c1 += 1
+            r1 = r
+            while r1 + 1 < ny and np.all(hole[r1 + 1, c : c1 + 1] & ~used[r1 + 1, c : c1 + 1]):
+                r1 += 1
+            used[r : r1 + 1, c : c1 + 1] = True
+            px0 = np.array([(x0 + c * cell_px) * sx, (y0 + r * cell_px) * sx])
+            px1 = np.array([min(x1, x0 + (c1 + 1) * cell_px) * sx, min(y1, y0 + (r1 + 1) * cell_px) * sx])
+            a0, up1 = grid.to_plane(px0)
+            a1, up0 = grid.to_plane(px1)
+            area = float((a1 - a0) * (up1 - up0))
+            if area >= min_area_m2:
+                out.append(UncoveredArea(float(a0), float(a1), float(up0), float(up1), area))
     return sorted(out, key=lambda u: (u.along_min_m, -u.up_max_m))
 
 

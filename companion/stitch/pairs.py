@@ -31,6 +31,7 @@ class PairResult:
     H: np.ndarray | None = None  # full-resolution pixels of i -> pixels of j
     pts_i: np.ndarray | None = None  # (N, 2) inlier points
     pts_j: np.ndarray | None = None
+    lum_ratio: float | None = None  # median log(grey_i / grey_j) at the inliers: relative exposure
 
     def summary(self) -> dict:
         d = asdict(self)
@@ -106,14 +107,17 @@ def match_pair(
     good = [m[0] for m in knn if len(m) == 2 and m[0].distance < settings.ratio * m[1].distance]
     if len(good) < settings.min_inliers_affine:
         return PairResult(i, j, False, "none", f"only {len(good)} distinctive matches", matches=len(good))
-    pi = fi.keypoints[[m.queryIdx for m in good]].astype(np.float64)
-    pj = fj.keypoints[[m.trainIdx for m in good]].astype(np.float64)
+    qi, tj = np.array([m.queryIdx for m in good]), np.array([m.trainIdx for m in good])
+    pi = fi.keypoints[qi].astype(np.float64)
+    pj = fj.keypoints[tj].astype(np.float64)
+    li = fi.luminance[qi].astype(np.float64)
+    lj = fj.luminance[tj].astype(np.float64)
     gated = prior_i is not None and prior_j is not None and pixel_to_norm is not None
     if gated:
         wi = apply_h(prior_i @ pixel_to_norm, pi)
         wj = apply_h(prior_j @ pixel_to_norm, pj)
         keep = np.linalg.norm(wi - wj, axis=1) < settings.pose_gate_m
-        pi, pj = pi[keep], pj[keep]
+        pi, pj, li, lj = pi[keep], pj[keep], li[keep], lj[keep]
         if len(pi) < settings.min_inliers_affine:
             return PairResult(
                 i,
@@ -145,6 +149,8 @@ def match_pair(
     if H is None:
         return PairResult(i, j, False, "none", "no consistent homography or affine model", matches=len(good))
     pi, pj = pi[inl], pj[inl]
+    ok = (li[inl] > 5) & (lj[inl] > 5)  # log of near-black is noise
+    lum_ratio = float(np.median(np.log(li[inl][ok] / lj[inl][ok]))) if ok.sum() >= 5 else None
     err = np.linalg.norm(apply_h(H, pi) - pj, axis=1)
     rms = float(np.sqrt(np.mean(err**2)))
     if gated:
@@ -156,7 +162,7 @@ def match_pair(
     if len(pi) > settings.max_points:
         sel = np.random.default_rng(i * 100003 + j).choice(len(pi), settings.max_points, replace=False)
         pi, pj = pi[sel], pj[sel]
-    return PairResult(i, j, True, model, "", len(good), int(inl.sum()), rms, H, pi, pj)
+    return PairResult(i, j, True, model, "", len(good), int(inl.sum()), rms, H, pi, pj, lum_ratio)
 
 
 def save_pair(path: Path, r: PairResult) -> None:

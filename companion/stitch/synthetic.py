@@ -15,6 +15,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pymap3d
 
 from companion.geo import FacadeFrame, GeoPoint
 from companion.stitch.inputs import CameraModel, rotation_enu_from_cam
@@ -92,15 +93,15 @@ def view(
     plane_from_tex = np.array([[s, 0, 0], [0, -s, wall.height_m], [0, 0, 1]])
     img_from_tex = camera.K @ R.T @ np.column_stack((a, up, -C)) @ plane_from_tex
     size = (camera.width, camera.height)
-    img = cv2.warpPerspective(texture, img_from_tex, size, flags=cv2.INTER_AREA if False else cv2.INTER_LINEAR)
+    img = cv2.warpPerspective(texture, img_from_tex, size, flags=cv2.INTER_LINEAR)
     ones = np.full(texture.shape[:2], 255, np.uint8)
     mask = cv2.warpPerspective(ones, img_from_tex, size, flags=cv2.INTER_NEAREST)
     if background is not None:
         # a far plane 40 m behind the wall, 20 m x 7.5 m per background image, tiled
         out = np.array([frame.out_enu[0], frame.out_enu[1], 0.0])
         bs = 20.0 / background.shape[1]
-        far_from_bg = np.array([[bs, 0, -10.0 + along_m * 0.0], [0, -bs, 7.5], [0, 0, 1]])
-        origin = -40.0 * out + a * (along_m - 10.0) * 0.0
+        far_from_bg = np.array([[bs, 0, -10.0], [0, -bs, 7.5], [0, 0, 1]])
+        origin = -40.0 * out
         img_from_bg = camera.K @ R.T @ np.column_stack((a, up, origin - C)) @ far_from_bg
         bgv = cv2.warpPerspective(background, img_from_bg, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
         img = np.where(mask[..., None] > 0, img, bgv)
@@ -130,7 +131,8 @@ def make_spool(
     rng = np.random.default_rng(seed)
     camera = CameraModel.from_hfov(width, height, hfov_deg)
     start = GeoPoint(37.56650, 126.97800, 30.0)
-    end_lon = start.lon + wall.length_m / (111320.0 * math.cos(math.radians(start.lat)))
+    _, end_lon, _ = pymap3d.enu2geodetic(wall.length_m, 0.0, 0.0, start.lat, start.lon, start.alt_amsl_m)
+    end_lon = float(end_lon)
     frame = FacadeFrame.from_wall(start, GeoPoint(start.lat, end_lon, 30.0))
     texture = make_texture(wall)
     bg = _background(seed) if background else None

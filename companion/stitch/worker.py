@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from companion.errors import CompanionError
 from companion.stitch.align import global_alignment
+from companion.stitch.exposure import apply_gain, solve_gains
 from companion.stitch.features import cached_features, feature_key, load_image_and_mask
 from companion.stitch.geometry import (
     apply_h,
@@ -52,8 +53,10 @@ class StitchConfig:
     tile_px: int = 1024
     max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
     feather_px: float = 4.0
+    gain_compensation: bool = True
     preview_width: int = 3000
     min_uncovered_m2: float = 0.02
+    uncovered_cell_m: float = 0.1  # holes are reported on this grid (re-fly planning, not pixel accuracy)
 
     def digest(self) -> str:
         return hashlib.sha1(json.dumps(asdict(self), sort_keys=True, default=str).encode()).hexdigest()[:10]
@@ -109,7 +112,7 @@ def stitch(
                 "all keyframes of one stitch must come from the same camera mode",
             )
         feats.append(f)
-        keys.append(feature_key(kf, {"w": cfg.work_width, "n": cfg.max_features}))
+        keys.append(feature_key(kf, {"w": cfg.work_width, "n": cfg.max_features, "v": 2}))
     t["features"] = time.perf_counter()
 
     # 2. telemetry priors
@@ -220,7 +223,13 @@ def stitch(
     t["mesh"] = time.perf_counter()
 
     # 7. render tiles
-    sources = SourceCache(lambda k: load_image_and_mask(kfs[k]))
+    gains = solve_gains(n, accepted) if cfg.gain_compensation else np.ones(n)
+
+    def load(k):
+        img, mask = load_image_and_mask(kfs[k])
+        return apply_gain(img, float(gains[k])), mask
+
+    sources = SourceCache(load)
     in_memory = gw * gh <= cfg.max_in_memory_px
     canvas = np.zeros((gh, gw, 3), np.uint8) if in_memory else None
     cov_full = np.zeros((gh, gw), np.uint8) if in_memory else None
@@ -228,10 +237,7 @@ def stitch(
     pw, ph = max(1, round(gw * ps)), max(1, round(gh * ps))
     preview = np.zeros((ph, pw, 3), np.uint8)
     cov_prev = np.zeros((ph, pw), np.uint8)
-    if use_poses:
-        reg = (0, 0, gw, gh)
-    else:
-        reg = (0, 0, gw, gh)
+    reg = (0, 0, gw, gh)  # the grid spans the facade (telemetry) or the content (no telemetry)
     covered_px = 0
     tiles_dir = out / "tiles"
     order = sorted(placed.values(), key=lambda p: p.bbox[0])
@@ -261,6 +267,7 @@ def stitch(
         cov_for_holes,
         grid,
         tuple(int(round(v * sc)) for v in reg),
+        cell_m=cfg.uncovered_cell_m if scale_known else 16 * m_per_px,
         min_area_m2=cfg.min_uncovered_m2 if scale_known else 0.0,
     )
     reg_px = (reg[2] - reg[0]) * (reg[3] - reg[1])
@@ -277,6 +284,7 @@ def stitch(
         out / "map_preview.jpg",
         draw_scale_bar(annotate_uncovered(preview, grid, holes), m_per_px / ps if scale_known else None),
     )
+    report_gains = {kfs[k].index: round(float(gains[k]), 4) for k in placed}
     report = _report(
         inp,
         cfg,
@@ -294,6 +302,7 @@ def stitch(
         use_poses,
         in_memory,
         files,
+        report_gains,
     )
     files["report"] = str(out / "report.json")
     tmp = out / "report.json.tmp"
@@ -332,7 +341,23 @@ def _stats(v: list[float] | np.ndarray) -> dict:
 
 
 def _report(
-    inp, cfg, results, al, placed, grid, mm, coverage, holes, t, to_norm, unit_m, ransac_px, use_poses, in_memory, files
+    inp,
+    cfg,
+    results,
+    al,
+    placed,
+    grid,
+    mm,
+    coverage,
+    holes,
+    t,
+    to_norm,
+    unit_m,
+    ransac_px,
+    use_poses,
+    in_memory,
+    files,
+    gains,
 ) -> dict:
     kfs = inp.keyframes
     W, H = inp.camera.width, inp.camera.height
@@ -399,6 +424,7 @@ def _report(
             "rectified_to_facade": use_poses,
         },
         "coverage_fraction": round(coverage, 4),
+        "gains": gains,
         "uncovered_areas_m": [a.as_dict() for a in holes],
         "timing_s": {k: round(t[k] - t[p], 3) for p, k in zip(list(t)[:-1], list(t)[1:], strict=True)},
         "files": files,

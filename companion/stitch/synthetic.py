@@ -9,7 +9,6 @@ spool format of docs/STITCH.md, so the worker is exercised exactly as in flight.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 

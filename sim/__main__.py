@@ -8,6 +8,7 @@ import sys
 # part name -> module with ``main(argv) -> int``
 PARTS = {
     "vehicle": "sim.vehicle.cli",
+    "camera": "sim.camera.live",
 }
 
 

@@ -202,7 +202,8 @@ def load_recording(path: str | Path) -> Recording:
     return Recording(path)
 
 
-def _mission(mission):
+def resolve_mission(mission):
+    """A Mission object as is, or a mission YAML path loaded and validated."""
     if isinstance(mission, str | Path):
         from companion.mission import load_mission
 
@@ -224,7 +225,7 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     from companion.mission import plan_scan
     from sim.camera.trajectory import KinematicFlight, scan_path
 
-    mission = _mission(mission)
+    mission = resolve_mission(mission)
     if stride < 1:
         raise CompanionError(f"stride={stride} must be >= 1", "use stride=1 for every camera frame")
     if max_frames is not None and max_frames < 1:

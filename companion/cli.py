@@ -17,6 +17,7 @@ COMMAND_MODULES = [
     "companion.onboard.commands",
     "companion.depth.commands",
     "companion.keyframes.commands",
+    "companion.stitch.commands",
 ]
 
 

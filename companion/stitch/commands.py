@@ -1,0 +1,98 @@
+"""`companion stitch SPOOL --out DIR`: the facade map from a keyframe spool (or a simulator recording)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from companion.errors import CompanionError
+from companion.stitch.follow import follow
+from companion.stitch.inputs import load_input
+from companion.stitch.worker import StitchConfig, StitchResult, stitch
+
+
+def _cells(text: str) -> tuple[int, int]:
+    try:
+        cx, cy = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--cells {text!r}: write it as CXxCY, e.g. 16x9") from None
+    if cx < 1 or cy < 1 or cx * cy > 4096:
+        raise argparse.ArgumentTypeError(f"--cells {text!r}: need 1..4096 cells in all")
+    return cx, cy
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "stitch",
+        help="stitch keyframes into the rectified facade map",
+        description=__doc__,
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    p.add_argument("spool", help="keyframe spool directory (manifest.jsonl) or a simulator recording")
+    p.add_argument("--out", required=True, help="output directory (map, coverage, report; cache for resuming)")
+    p.add_argument("--follow", action="store_true", help="keep updating the map while keyframes arrive")
+    p.add_argument("--poll-s", type=float, default=2.0, help="follow mode: manifest polling period")
+    p.add_argument("--idle-timeout-s", type=float, default=600.0, help="follow mode: stop after this long idle")
+    p.add_argument("--mm-per-px", type=float, default=None, help="map scale (default: keyframes' native)")
+    p.add_argument("--cells", type=_cells, default=(16, 9), help="APAP mesh Cx x Cy per keyframe")
+    p.add_argument(
+        "--rho-px", type=float, default=None, help="Eq. 4 scale rho in keyframe pixels (default 10%% of width)"
+    )
+    p.add_argument("--gamma", type=float, default=0.01, help="APAP weight floor (far cells -> global homography)")
+    p.add_argument("--global-only", action="store_true", help="no local mesh warps (one homography per keyframe)")
+    p.add_argument("--no-poses", action="store_true", help="ignore telemetry (image-only alignment)")
+    p.add_argument("--pose-gate-m", type=float, default=1.0, help="reject matches this far from telemetry")
+    p.add_argument("--stride", type=int, default=1, help="recording input: use every N-th frame")
+    p.add_argument("--tile-px", type=int, default=1024, help="render tile size (bounds memory)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def _config(args) -> StitchConfig:
+    if args.mm_per_px is not None and args.mm_per_px <= 0:
+        raise CompanionError(f"--mm-per-px {args.mm_per_px} must be positive", "e.g. --mm-per-px 5")
+    if args.tile_px < 64:
+        raise CompanionError(f"--tile-px {args.tile_px} is too small", "use at least 64 (default 1024)")
+    return StitchConfig(
+        mm_per_px=args.mm_per_px,
+        cells=args.cells,
+        rho_px=args.rho_px,
+        gamma=args.gamma,
+        local=not args.global_only,
+        use_poses=not args.no_poses,
+        pose_gate_m=args.pose_gate_m,
+        tile_px=args.tile_px,
+    )
+
+
+def _print(res: StitchResult) -> None:
+    r = res.report
+    print(f"map: {res.files.get('map') or res.files.get('tiles')}")
+    print(f"preview (scale bar, re-fly areas in red): {res.files['preview']}")
+    if res.mm_per_px:
+        print(f"scale: {res.mm_per_px:.2f} mm/px, {res.grid.width}x{res.grid.height} px")
+    print(
+        f"keyframes used: {len(r['keyframes_used'])}/{r['keyframes_in']}, pairs {r['pairs_accepted']}/"
+        f"{r['pairs_tried']} accepted ({r['pairs_affine_fallback']} affine)"
+    )
+    print(f"coverage: {100 * res.coverage_fraction:.1f} %, {len(res.uncovered)} uncovered area(s)")
+    for a in res.uncovered[:10]:
+        print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
+    print(f"report: {res.files['report']}")
+
+
+def run(args) -> int:
+    cfg = _config(args)
+    if args.follow:
+        res = follow(
+            args.spool, args.out, cfg, poll_s=args.poll_s, idle_timeout_s=args.idle_timeout_s, progress=not args.quiet
+        )
+        if res is None:
+            raise CompanionError("no map was made: fewer than 2 keyframes arrived", "check that the gate is running")
+    else:
+        inp = load_input(args.spool, **({"stride": args.stride} if args.stride != 1 else {}))
+        res = stitch(inp, args.out, cfg, progress=not args.quiet)
+    _print(res)
+    if args.quiet:
+        print(json.dumps({"coverage": res.coverage_fraction, "mm_per_px": res.mm_per_px}))
+    return 0

@@ -198,7 +198,7 @@ class FacadeTexture:
             col[:] = brick * (1 - m)[..., None] + np.array(s.mortar_bgr, np.float32) * m[..., None]
         elif s.material == "concrete":
             blot = fbm(a, u, 0.8, s.seed + 3, octaves=4, min_cell=px * 1.5)
-            col[:] = base * (1 + 0.10 * blot + 0.05 * grain)[..., None]
+            col[:] = base * (1 + 0.10 * blot + 0.09 * grain)[..., None]
             fa = np.mod(a, 1.2)
             fu = np.mod(u, 0.6)
             d = np.minimum(np.minimum(fa, 1.2 - fa), np.minimum(fu, 0.6 - fu))
@@ -211,12 +211,16 @@ class FacadeTexture:
             pa = np.floor(a / s.panel_w)
             pu = np.floor(u / s.panel_h)
             tone = hash2(pa.astype(np.int64), pu.astype(np.int64), s.seed + 5)
-            col[:] = base * (0.92 + 0.16 * tone + 0.03 * grain)[..., None]
+            col[:] = base * (0.92 + 0.16 * tone + 0.06 * grain)[..., None]
             fa = a - pa * s.panel_w
             fu = u - pu * s.panel_h
             d = np.minimum(np.minimum(fa, s.panel_w - fa), np.minimum(fu, s.panel_h - fu))
             m = _smooth_cover(d, 0.007, px)
             col[:] = col * (1 - m)[..., None] + np.array(s.mortar_bgr, np.float32) * m[..., None]
+        if s.material != "brick":
+            # pores, spatter and dirt specks: the small features real render and cladding give a matcher
+            sp = value_noise(a, u, 0.012, s.seed + 13) if px < 0.012 else np.full(a.shape, 0.5, np.float32)
+            col *= (1 - 0.35 * np.clip((sp - 0.82) * 6, 0, 1))[..., None]
         # plinth and parapet coping
         plinth = (u < 0.5).astype(np.float32)
         col *= (1 - 0.25 * plinth)[..., None]

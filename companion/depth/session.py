@@ -44,8 +44,11 @@ class ModelInfo:
 
 
 def default_threads() -> int:
-    """Intra-op threads: all cores but one is left for capture/gating, at least 1, at most 4."""
-    return max(1, min(4, (os.cpu_count() or 2) - 1)) if (os.cpu_count() or 1) > 2 else (os.cpu_count() or 1)
+    """Intra-op threads: all cores but one (left for capture and the gate), at least 1, at most 4.
+
+    On the 2-core reference machine 1 thread is also the fastest: 2 threads measured slower (bench/depth_latency.py).
+    """
+    return max(1, min(4, (os.cpu_count() or 2) - 1))
 
 
 class DepthSession:

@@ -34,6 +34,7 @@ class TelemetryRecorder:
                             "flight_mode": None, "landed_state": None}
         self.samples = 0
         self.last_sample_wall: float | None = None
+        self._last_position = None
         self.status_texts: list[str] = []
         self._tasks: list[asyncio.Task] = []
         self.progress_event = asyncio.Event()
@@ -47,8 +48,8 @@ class TelemetryRecorder:
                      self._follow(t.subscribe_attitude_euler(), self._on_attitude),
                      self._follow(t.subscribe_velocity_ned(), self._on_velocity),
                      self._follow(t.subscribe_flight_mode(), lambda v: self.state.update(flight_mode=v.name)),
-                     self._follow(t.subscribe_armed(), lambda v: self.state.update(armed=bool(v))),
-                     self._follow(t.subscribe_in_air(), lambda v: self.state.update(in_air=bool(v))),
+                     self._follow(t.subscribe_armed(), lambda v: self._on_state("armed", bool(v))),
+                     self._follow(t.subscribe_in_air(), lambda v: self._on_state("in_air", bool(v))),
                      self._follow(t.subscribe_landed_state(), lambda v: self.state.update(landed_state=v.name)),
                      self._follow(t.subscribe_status_text(), self._on_status_text),
                      self._follow(m.subscribe_mission_progress(), self._on_progress)):
@@ -86,8 +87,19 @@ class TelemetryRecorder:
         self.status_texts.append(text)
         log.info("vehicle says %s", text)
 
+    def _on_state(self, key: str, value: bool) -> None:
+        """Armed / in-air changes also get a row (with the last position), so the log ends in the final state."""
+        changed = self.state.get(key) != value
+        self.state[key] = value
+        if changed and self._last_position is not None:
+            self._write(self._last_position)
+
     def _on_position(self, p) -> None:
         self.last_sample_wall = time.monotonic()
+        self._last_position = p
+        self._write(p)
+
+    def _write(self, p) -> None:
         self.samples += 1
         st = self.state
         if self._file is None:

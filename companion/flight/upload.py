@@ -78,22 +78,39 @@ def compare_missions(sent: Sequence[MissionItem], got: Sequence[MissionItem], au
     return problems
 
 
-async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str) -> None:
+async def _with_retries(what: str, coro_fn, attempts: int):
+    """Run a mission transfer, starting it again after a TIMEOUT: mavsdk gives up on an item after a few lost
+    round trips, which a 20 % lossy link reaches now and then; a refusal (any other result) is final."""
+    for attempt in range(1, attempts + 1):
+        try:
+            return await coro_fn()
+        except MissionRawError as exc:
+            if getattr(exc.result, "name", "") != "TIMEOUT" or attempt == attempts:
+                raise
+            log.warning("%s timed out (attempt %d of %d), starting it again", what, attempt, attempts)
+    return None
+
+
+async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str, attempts: int = 4) -> None:
     """Upload ``items``, download them again and compare; raises CompanionError naming the problem."""
     if not items:
         raise CompanionError("the mission has no items", "plan the scan first (companion plan ...)")
     seqs = [it.seq for it in items]
     if seqs != list(range(len(items))):
         raise CompanionError("mission items are not numbered 0..N-1 in order", "renumber the items (seq)")
+    raw = to_raw(items)
     try:
-        await mission_plugin.upload_mission(to_raw(items))
+        await _with_retries("mission upload", lambda: mission_plugin.upload_mission(raw), attempts)
     except MissionRawError as exc:
         name = getattr(exc.result, "name", str(exc.result))
-        raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)",
-                             _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")) from exc
+        fix = _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")
+        if name == "TIMEOUT":
+            raise CompanionError(f"mission upload failed: the vehicle stopped answering ({name}, "
+                                 f"{attempts} attempts, {len(items)} items)", fix) from exc
+        raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)", fix) from exc
     log.info("uploaded %d mission items", len(items))
     try:
-        got = from_raw(await mission_plugin.download_mission())
+        got = from_raw(await _with_retries("mission download", mission_plugin.download_mission, attempts))
     except MissionRawError as exc:
         raise CompanionError(f"could not download the mission back to verify it ({exc.result.name})",
                              "check the link; the upload itself was accepted") from exc

@@ -118,6 +118,7 @@ class Multirotor:
         self.limits = limits or Limits()
         self.state = state or VehicleState()
         self._vel_int = np.zeros(3)
+        self._v_cmd_prev: np.ndarray | None = None
         self.thrust_accel = np.zeros(3)  # acceleration the tilted thrust delivers (lags the command)
         lim = self.limits
         self._kp = np.array([lim.vel_gain_xy, lim.vel_gain_xy, lim.vel_gain_z])
@@ -128,6 +129,7 @@ class Multirotor:
         st.vel[:] = 0.0
         self._vel_int[:] = 0.0
         self.thrust_accel[:] = 0.0
+        self._v_cmd_prev = None
         st.roll_deg = st.pitch_deg = 0.0
 
     def step(self, dt: float, v_cmd, yaw_target_deg: float | None, wind_ned=(0.0, 0.0, 0.0), motors_on=True):
@@ -142,7 +144,10 @@ class Multirotor:
         # PI velocity controller; the integral (bounded: anti-windup) supplies the drag and wind compensation.
         self._vel_int = np.clip(self._vel_int + err * dt, -lim.max_accel_m_s2 / np.maximum(self._ki, 1e-6),
                                 lim.max_accel_m_s2 / np.maximum(self._ki, 1e-6))
-        a_cmd = self._kp * err + self._ki * self._vel_int
+        # Feed-forward of the setpoint's own acceleration, as PX4's trajectory generator provides.
+        ff = np.zeros(3) if self._v_cmd_prev is None or dt <= 0 else (v_cmd - self._v_cmd_prev) / dt
+        self._v_cmd_prev = v_cmd.copy()
+        a_cmd = self._kp * err + self._ki * self._vel_int + np.clip(ff, -lim.max_accel_m_s2, lim.max_accel_m_s2)
         norm = float(np.linalg.norm(a_cmd))
         if norm > lim.max_accel_m_s2:
             a_cmd *= lim.max_accel_m_s2 / norm

@@ -12,6 +12,7 @@ from companion.errors import CompanionError
 # Each module here defines ``register(subparsers)`` adding its subcommands; a subcommand's parser sets
 # ``func`` (called with the parsed args; returns an exit code or None).
 COMMAND_MODULES = [
+    "companion.flight.commands",
     "companion.mission.commands",
     "companion.demo",
     "companion.onboard.commands",

@@ -97,3 +97,39 @@ def test_unsupported_item_is_rejected(tmp_path):
     with SitlVehicle(speedup=20, log_path=tmp_path / "sim.log") as v, pytest.raises(CompanionError) as err:
         _fly(items, v.url)
     assert "UNSUPPORTED" in err.value.problem
+
+
+def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):
+    """``companion fly --sitl`` as a user runs it; Ctrl-C in the middle of the scan."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    log = tmp_path / "telemetry.jsonl"
+    cmd = [sys.executable, "-m", "companion.cli", "fly", str(ROOT / "missions/demo-facade.yaml"), "--sitl",
+           "--speedup", "20", "--telemetry-log", str(log), "--no-progress"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    try:
+        deadline = time.monotonic() + 40
+        while time.monotonic() < deadline:  # wait until it is scanning (past the first scan leg)
+            if log.exists():
+                rows = [json.loads(x) for x in log.read_text().splitlines() if x.strip()]
+                if rows and rows[-1]["mission_item"] >= 8:
+                    break
+            time.sleep(0.2)
+        else:
+            pytest.fail("the flight never reached the scan")
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, out
+    assert "stopped by signal" in out and "landed, disarmed" in out
+    last = json.loads(log.read_text().splitlines()[-1])
+    assert last["armed"] is False and last["in_air"] is False
+    assert last["flight_mode"] == "RETURN_TO_LAUNCH"
+    assert abs(last["lat"] - 37.56638) < 5e-6 and abs(last["lon"] - 126.97815) < 5e-6  # back at home

@@ -1,0 +1,98 @@
+"""``companion fly`` (plan, upload, verify, fly, supervise) and ``companion sim`` (the SITL vehicle)."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import sys
+from pathlib import Path
+
+from companion.errors import CompanionError
+
+log = logging.getLogger(__name__)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("fly", help="upload, verify and fly a facade mission through mavsdk (PX4 or ArduPilot)")
+    p.add_argument("mission", type=Path, help="mission YAML (e.g. missions/demo-facade.yaml)")
+    p.add_argument("--connect", default="udp://:14540",
+                   help="MAVLink address: udp://:14540 (PX4 SITL), tcpout://127.0.0.1:5760 (ArduPilot SITL), "
+                        "serial:///dev/ttyACM0:921600")
+    p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
+                   help="autopilot behaviour to expect (auto: from its heartbeat)")
+    p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
+    p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to wait for a heartbeat")
+    p.add_argument("--health-timeout", type=float, default=30.0, help="seconds to wait for GPS/home/pre-arm")
+    p.add_argument("--link-loss", type=float, default=3.0, help="seconds without telemetry that count as lost")
+    p.add_argument("--timeout", type=float, default=1800.0, help="RTL if the flight takes longer (seconds)")
+    p.add_argument("--rate", type=float, default=10.0, help="telemetry rate to request, Hz")
+    p.add_argument("--end-action", choices=["rtl", "land"], default="rtl",
+                   help="if the mission ends in the air: return to launch or land there")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--sitl", action="store_true",
+                   help="start the simulated vehicle (python -m sim vehicle) on a free port, fly, stop it")
+    p.add_argument("--speedup", type=float, default=10.0, help="with --sitl: simulator speed-up")
+    p.add_argument("--sim-arg", action="append", default=[], metavar="OPT=VALUE",
+                   help="with --sitl: extra simulator option, e.g. --sim-arg gusts=5 (repeatable)")
+    p.set_defaults(func=_fly)
+
+    s = sub.add_parser("sim", help="run the simulated MAVLink vehicle (same options as `python -m sim vehicle`)")
+    from sim.vehicle.cli import add_arguments
+
+    add_arguments(s)
+    s.set_defaults(func=_sim)
+
+
+def _sim(args: argparse.Namespace) -> int:
+    from sim.vehicle.cli import run
+
+    return run(args)
+
+
+def _sim_options(pairs: list[str]) -> dict:
+    opts = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise CompanionError(f"--sim-arg {pair!r} is not OPT=VALUE", "write e.g. --sim-arg packet-loss=20")
+        opts[key.replace("-", "_")] = value
+    return opts
+
+
+def _fly(args: argparse.Namespace) -> int:
+    from companion.flight.fly import fly_mission_sync
+    from companion.flight.simulator import SimulatorProcess
+    from companion.mission import load_mission, plan_scan
+
+    mission = load_mission(args.mission)
+    plan = plan_scan(mission)
+    for warning in getattr(plan, "warnings", []) or []:
+        log.warning("plan: %s", warning)
+    url = args.connect
+    sim = None
+    if args.sitl:
+        home = plan.home
+        sim = SimulatorProcess(speedup=args.speedup, home=f"{home.lat},{home.lon},{home.alt_amsl_m}",
+                               **_sim_options(args.sim_arg)).start()
+        url = sim.url
+        log.info("started the simulated vehicle (speed-up %g) on %s", args.speedup, url)
+    try:
+        result = fly_mission_sync(
+            plan, url, telemetry_log=args.telemetry_log, autopilot=args.autopilot,
+            connect_timeout_s=args.connect_timeout, health_timeout_s=args.health_timeout,
+            link_loss_s=args.link_loss, flight_timeout_s=args.timeout, telemetry_rate_hz=args.rate,
+            end_action=args.end_action, progress=not args.no_progress)
+    finally:
+        if sim is not None:
+            with contextlib.suppress(Exception):
+                sim.stop()
+    state = "landed" if result.landed else "NOT landed"
+    state += ", disarmed" if result.disarmed else ", still ARMED"
+    print(f"{'mission complete' if result.completed else 'mission NOT complete'}: "
+          f"{result.items_reached}/{result.items_total} items, {state}, {result.duration_s:.0f} s, "
+          f"{result.telemetry_samples} telemetry samples, {len(result.link_losses)} link loss(es)"
+          + (f", stopped by {result.aborted}" if result.aborted else ""), file=sys.stderr)
+    if result.aborted == "signal":
+        return 130
+    return 0 if result.completed else 1

@@ -1,0 +1,80 @@
+"""Start the SITL vehicle (``python -m sim vehicle``) as a child process on free ports, and stop it again.
+
+Used by ``companion fly --sitl``, the demo and the tests: each run gets its own MAVLink port, so it never
+collides with a simulator or autopilot already using 14540.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from companion.errors import CompanionError
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class SimulatorProcess:
+    """``with SimulatorProcess(speedup=20, packet_loss=20) as sim: fly_mission(plan, sim.url)``.
+
+    Keyword options become ``python -m sim vehicle`` options (``packet_loss=20`` -> ``--packet-loss 20``).
+    ``pose_port`` defaults to a free port so a test run does not feed a camera simulator listening on 14660.
+    """
+
+    def __init__(self, *, speedup: float = 20.0, seed: int = 0, log_path: Path | None = None,
+                 mavlink_port: int | None = None, pose_port: int | None = None, **options):
+        self.port = mavlink_port or free_udp_port()
+        self.pose_port = pose_port if pose_port is not None else free_udp_port()
+        self.url = f"udpin://127.0.0.1:{self.port}"
+        self.args = [sys.executable, "-m", "sim", "vehicle", "--mavlink-port", str(self.port), "--pose-port",
+                     str(self.pose_port), "--speedup", str(speedup), "--seed", str(seed)]
+        for key, value in options.items():
+            flag = "--" + key.replace("_", "-")
+            if value is True:
+                self.args.append(flag)
+            elif value is not None and value is not False:
+                self.args += [flag, str(value)]
+        self.log_path = log_path
+        self.proc: subprocess.Popen | None = None
+        self._log = None
+
+    def start(self) -> SimulatorProcess:
+        self._log = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
+        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        self.proc = subprocess.Popen(self.args, cwd=ROOT, stdout=self._log, stderr=self._log, env=env)
+        time.sleep(0.3)
+        if self.proc.poll() is not None:
+            raise CompanionError(f"the simulator exited at start (code {self.proc.returncode})",
+                                 f"run it by hand to see why: {' '.join(self.args[1:])}")
+        return self
+
+    def stop(self) -> int | None:
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._log not in (None, subprocess.DEVNULL):
+            self._log.close()
+        return self.proc.returncode
+
+    def __enter__(self) -> SimulatorProcess:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -81,6 +81,7 @@ def global_alignment(
     *,
     sigma_match: float,
     sigma_prior_m: float = 0.5,
+    sigma_shape_m: float = 0.05,
     iterations: int = 30,
 ) -> Alignment:
     """``to_norm`` maps pixels to image-normalised coordinates; ``reference`` places keyframe 0 when no
@@ -110,12 +111,18 @@ def global_alignment(
     col = {k: c for c, k in enumerate(placed)}
     obs = [o for o in obs if o[0] in col and o[1] in col]
     anchor_pts = np.array([[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3], [0.0, 0.0]])
+    # prior residuals: the image centre (where the camera was: GNSS, metres off) and the corners relative to
+    # the centre (how the camera was turned: attitude, far better known). Keeping them apart stops position
+    # noise from tilting or keystoning the whole map.
+    D = np.eye(5)
+    D[:4, 4] = -1.0
     anchors = []
     for k in placed:
         if has_prior[k]:
-            anchors.append((k, apply_h(priors[k], anchor_pts), sigma_prior_m))
+            sig = np.array([sigma_shape_m] * 4 + [sigma_prior_m])
+            anchors.append((k, apply_h(priors[k], anchor_pts), sig))
         elif k in seeds:
-            anchors.append((k, apply_h(seeds[k], anchor_pts), 1e-6))  # gauge: pin the seed
+            anchors.append((k, apply_h(seeds[k], anchor_pts), np.full(5, 1e-6)))  # gauge: pin the seed
     params = np.concatenate([_to_params(G[k]) for k in placed]) if placed else np.zeros(0)
     m = len(placed)
 
@@ -163,10 +170,10 @@ def global_alignment(
         for k, target, sigma in anchors:
             ck = col[k]
             u, J = _jac(p[8 * ck : 8 * ck + 8], anchor_pts)
-            r = (u - target) / sigma
+            r = (D @ (u - target)) / sigma[:, None]
             cost += float(np.sum(r**2))
             if want_jac:
-                J = J / sigma
+                J = np.einsum("ab,bpi->api", D, J) / sigma[:, None, None]
                 s = slice(8 * ck, 8 * ck + 8)
                 JTJ[s, s] += np.einsum("npi,npj->ij", J, J)
                 JTr[s] += np.einsum("npi,np->i", J, r)

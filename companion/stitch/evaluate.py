@@ -84,27 +84,45 @@ def ssim(image: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float:
 
 
 def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_per_px: float) -> dict:
-    """Absolute error (where on the wall things are drawn) and relative error (after removing the best affine
-    fit of the error field: what is left is seams, ghosting and warping, independent of telemetry offsets)."""
+    """Absolute error (where on the wall things are drawn) and relative error (after removing the best single
+    homography between map and truth: what is left is seams, ghosting and warping; a global offset, tilt or
+    keystone from telemetry error is removed, the same way a peer stitcher's panorama is registered).
+
+    Two passes: patch shifts -> robust homography (RANSAC) -> map warped onto the truth by it -> patch shifts
+    again, now small, where phase correlation is reliable. Absolute error = fitted homography + residual.
+    """
     valid = (coverage > 0) & (truth.max(axis=2) > 0 if truth.ndim == 3 else truth > 0)
     centres, shifts = patch_displacements(image, truth, valid.astype(np.uint8))
     res: dict = {"patches": len(shifts), "ssim": ssim(image, truth, valid)}
-    if len(shifts) >= 3:
-        d = np.linalg.norm(shifts, axis=1)
-        A = np.column_stack((centres, np.ones(len(centres))))
-        coef, *_ = np.linalg.lstsq(A, shifts, rcond=None)
-        rel = np.linalg.norm(shifts - A @ coef, axis=1)
-        mm = m_per_px * 1000.0
-        res.update(
-            median_px=float(np.median(d)),
-            p95_px=float(np.percentile(d, 95)),
-            median_mm=float(np.median(d)) * mm,
-            p95_mm=float(np.percentile(d, 95)) * mm,
-            rel_median_px=float(np.median(rel)),
-            rel_p95_px=float(np.percentile(rel, 95)),
-            rel_median_mm=float(np.median(rel)) * mm,
-            rel_p95_mm=float(np.percentile(rel, 95)) * mm,
-        )
+    if len(shifts) < 8:
+        return res
+    H, _ = cv2.findHomography(centres + shifts, centres, cv2.RANSAC, 1.5)  # map position -> truth position
+    if H is None:
+        H = np.eye(3)
+    size = (truth.shape[1], truth.shape[0])
+    aligned = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR)
+    aligned_valid = cv2.warpPerspective(valid.astype(np.uint8), H, size, flags=cv2.INTER_NEAREST)
+    c2, s2 = patch_displacements(aligned, truth, aligned_valid & valid.astype(np.uint8))
+    if len(s2) == 0:
+        return res
+    # where the map draws the truth point c2: through H^-1, plus the residual shift
+    Hinv = np.linalg.inv(H)
+    drawn = cv2.perspectiveTransform((c2 + s2).reshape(-1, 1, 2), Hinv).reshape(-1, 2)
+    d = np.linalg.norm(drawn - c2, axis=1)
+    rel = np.linalg.norm(s2, axis=1)
+    mm = m_per_px * 1000.0
+    res.update(
+        patches=len(s2),
+        median_px=float(np.median(d)),
+        p95_px=float(np.percentile(d, 95)),
+        median_mm=float(np.median(d)) * mm,
+        p95_mm=float(np.percentile(d, 95)) * mm,
+        rel_median_px=float(np.median(rel)),
+        rel_p95_px=float(np.percentile(rel, 95)),
+        rel_median_mm=float(np.median(rel)) * mm,
+        rel_p95_mm=float(np.percentile(rel, 95)) * mm,
+        ssim_registered=ssim(aligned, truth, (aligned_valid > 0) & valid),
+    )
     return res
 
 

@@ -80,4 +80,4 @@ def is_sane_homography(H: np.ndarray, corners: np.ndarray, *, max_area_ratio: fl
         return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
 
     ratio = area(p) / max(area(corners), 1e-12)
-    return 1.0 / max_area_ratio < ratio < max_area_ratio
+    return bool(1.0 / max_area_ratio < ratio < max_area_ratio)

@@ -130,6 +130,7 @@ def match_pair(
     w, h = fi.image_size
     corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], dtype=float)
     model, H, inl = "none", None, None
+    cv2.setRNGSeed(1000003 * i + j)  # RANSAC draws: the same keyframes always give the same map
     if len(pi) >= settings.min_inliers:
         Hh, m = cv2.findHomography(pi, pj, cv2.USAC_MAGSAC, settings.ransac_px, maxIters=5000, confidence=0.999)
         if (

@@ -81,6 +81,7 @@ def view(
     yaw_offset_deg: float = 0.0,
     pitch_deg: float = 0.0,
     background: np.ndarray | None = None,
+    hole_m: tuple[float, float, float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(image, mask, R_enu_from_cam) of a camera at facade (along, standoff, up) looking at the wall."""
     R = rotation_enu_from_cam(0.0, pitch_deg, frame.yaw_facing_wall_deg + yaw_offset_deg)
@@ -94,6 +95,9 @@ def view(
     size = (camera.width, camera.height)
     img = cv2.warpPerspective(texture, img_from_tex, size, flags=cv2.INTER_LINEAR)
     ones = np.full(texture.shape[:2], 255, np.uint8)
+    if hole_m is not None:  # a wall region the masks call background (e.g. a tree in front of the wall)
+        a0, a1, u0, u1 = hole_m
+        ones[int((wall.height_m - u1) / s) : int((wall.height_m - u0) / s), int(a0 / s) : int(a1 / s)] = 0
     mask = cv2.warpPerspective(ones, img_from_tex, size, flags=cv2.INTER_NEAREST)
     if background is not None:
         # a far plane 40 m behind the wall, 20 m x 7.5 m per background image, tiled
@@ -123,6 +127,7 @@ def make_spool(
     with_poses: bool = True,
     seed: int = 0,
     jitter_deg: float = 0.0,
+    hole_m: tuple[float, float, float, float] | None = None,
 ) -> dict:
     """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views)."""
     out = Path(out_dir)
@@ -162,6 +167,7 @@ def make_spool(
                 yaw_offset_deg=yaw_off,
                 pitch_deg=pitch,
                 background=bg,
+                hole_m=hole_m,
             )
             name = f"frames/{k:06d}.jpg"
             cv2.imwrite(str(out / name), img, [cv2.IMWRITE_JPEG_QUALITY, 92])

@@ -43,7 +43,8 @@ class StitchConfig:
     min_inliers: int = 15
     pose_gate_m: float = 1.0  # matches/models landing further apart than this on the wall contradict telemetry
     use_poses: bool = True
-    sigma_prior_m: float = 0.5  # how far telemetry may be off (position and attitude, on the wall)
+    sigma_prior_m: float = 0.5  # how far GNSS may put an image centre off on the wall
+    sigma_shape_m: float = 0.05  # how far attitude/range errors may bend an image's corners (relative to centre)
     local: bool = True  # APAP mesh; False draws each keyframe with its global homography only
     cells: tuple[int, int] = (16, 9)  # Cx x Cy
     rho_px: float | None = None  # Eq. 4 scale; default 10 % of the image width
@@ -160,7 +161,14 @@ def stitch(
 
     # 4. global alignment onto the plane
     al = global_alignment(
-        n, results, to_norm, priors, reference, sigma_match=ransac_px / cam.focal_px, sigma_prior_m=cfg.sigma_prior_m
+        n,
+        results,
+        to_norm,
+        priors,
+        reference,
+        sigma_match=ransac_px / cam.focal_px,
+        sigma_prior_m=cfg.sigma_prior_m,
+        sigma_shape_m=cfg.sigma_shape_m,
     )
     placed_idx = [k for k in range(n) if al.G[k] is not None]
     t["alignment"] = time.perf_counter()
@@ -170,7 +178,8 @@ def stitch(
     for k in placed_idx:
         Gp = al.G[k] @ to_norm
         c = apply_h(Gp, np.array([[W / 2, H / 2], [W / 2 + 1, H / 2], [W / 2, H / 2 + 1]]))
-        gsd.append(math.sqrt(abs(np.cross(c[1] - c[0], c[2] - c[0]))))
+        u, v = c[1] - c[0], c[2] - c[0]
+        gsd.append(math.sqrt(abs(u[0] * v[1] - u[1] * v[0])))
     native = float(np.median(gsd))
     m_per_px = (cfg.mm_per_px / 1000.0) if (cfg.mm_per_px and scale_known) else native
     if use_poses:

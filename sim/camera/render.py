@@ -195,7 +195,6 @@ class Renderer:
         t, sid, P, D, obj = self.cast(pose)
         H, W = t.shape
         img = np.zeros((H, W, 3), np.float32)
-        fx = self.K[0, 0]
         dnorm = self._dnorm
         sun = sc.sun_dir
 
@@ -204,13 +203,17 @@ class Renderer:
 
         m = sid == TARGET
         if m.any():
-            gsd = t[m] * dnorm[m] / fx / np.maximum(np.abs(D[1][m]) / dnorm[m], 0.15)
-            img[m] = self._plane(sc.texture, P[0][m], P[2][m], gsd, sc.length_m) * lambert((0, 1, 0))
+            gsd = self._gsd(m, t, D[1], 0.15)
+            if m.mean() > 0.3:  # mostly wall: sample the full grid and copy, cheaper than gather + scatter
+                col = self._plane(sc.texture, P[0], P[2], gsd, sc.length_m, m)
+                np.copyto(img, col * lambert((0, 1, 0)), where=m[..., None])
+            else:
+                img[m] = self._plane(sc.texture, P[0][m], P[2][m], gsd, sc.length_m) * lambert((0, 1, 0))
         m = sid == SIDE
         if m.any():
             right_side = P[0][m] > sc.length_m / 2
             s = np.where(right_side, -P[1][m], P[1][m] + sc.depth_m)
-            gsd = t[m] * dnorm[m] / fx / np.maximum(np.abs(D[0][m]) / dnorm[m], 0.15)
+            gsd = self._gsd(m, t, D[0], 0.15)
             col = self._plane(sc.side_texture, s, P[2][m], gsd, sc.depth_m)
             shade = np.where(right_side, lambert((1, 0, 0)), lambert((-1, 0, 0))).astype(np.float32)
             img[m] = col * shade[:, None]
@@ -223,7 +226,7 @@ class Renderer:
         m = sid == GROUND
         if m.any():
             pa, po = P[0][m], P[1][m]
-            gsd = float(np.median(t[m] * dnorm[m] / fx / np.maximum(np.abs(D[2][m]) / dnorm[m], 0.05)))
+            gsd = self._gsd(m, t, D[2], 0.05)
             paved = (po > -sc.depth_m - 4) & (po < 8) & (pa > -6) & (pa < sc.length_m + 6)
             n1 = fbm(pa, po, 3.0, sc.seed + 71, octaves=5, min_cell=gsd * 2)
             grass = np.array([0.16, 0.36, 0.26], np.float32) * (1 + 0.35 * n1)[:, None]
@@ -248,15 +251,39 @@ class Renderer:
         depth = t.astype(np.float32)
         return img, depth, sid
 
-    def _plane(self, tex: FacadeTexture, s, u, gsd, extent):
-        """Sample a tiled texture at plane coordinates via one patch + bilinear remap."""
-        texel_mm = float(np.median(gsd)) * 1000.0 * 1.5
+    def _gsd(self, m, t, d_normal, min_cos) -> float:
+        """Median size (m) of a pixel's footprint on a plane, from a 1-in-16 subsample of the mask."""
+        sub = m[::4, ::4]
+        if not sub.any():
+            sub, sl = m, (slice(None), slice(None))
+        else:
+            sl = (slice(None, None, 4), slice(None, None, 4))
+        dn = self._dnorm[sl][sub]
+        cos = np.maximum(np.abs(d_normal[sl][sub]) / dn, min_cos)
+        return float(np.median(t[sl][sub] * dn / self.K[0, 0] / cos))
+
+    def _plane(self, tex: FacadeTexture, s, u, gsd: float, extent, mask=None):
+        """Sample a tiled texture at plane coordinates via one patch + bilinear remap. ``s``, ``u`` are the
+        selected pixels' coordinates (1-D), or full (H, W) grids with ``mask`` marking the pixels on the plane."""
+        texel_mm = gsd * 1000.0 * 1.5
         level = int(np.clip(math.floor(math.log2(max(texel_mm, 1.0))), 0, 10))
-        s0, s1 = max(float(s.min()), 0.0), min(float(s.max()), extent)
-        u0, u1 = max(float(u.min()), 0.0), min(float(u.max()), tex.style.height_m)
+        if mask is None:
+            s0, s1, u0, u1 = float(s.min()), float(s.max()), float(u.min()), float(u.max())
+        else:
+            s0, s1 = float(np.min(s, where=mask, initial=np.inf)), float(np.max(s, where=mask, initial=-np.inf))
+            u0, u1 = float(np.min(u, where=mask, initial=np.inf)), float(np.max(u, where=mask, initial=-np.inf))
+        s0, s1 = max(s0, 0.0), min(s1, extent)
+        u0, u1 = max(u0, 0.0), min(u1, tex.style.height_m)
         while ((s1 - s0) * 1000 / 2**level) * ((u1 - u0) * 1000 / 2**level) > 12e6 and level < 10:
             level += 1
         patch, so, uo, px = tex.patch(s0, u0, max(s1, s0 + 1e-3), max(u1, u0 + 1e-3), level)
+        if mask is not None and s.shape[1] < 32000:
+            mx = ((s - so) / px - 0.5).astype(np.float32)
+            my = ((u - uo) / px - 0.5).astype(np.float32)
+            out = cv2.remap(patch, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            return out.astype(np.float32) * np.float32(1 / 255)
+        if mask is not None:
+            s, u = s[mask], u[mask]
         n = len(s)
         cols = 1024
         rows = -(-n // cols)
@@ -379,8 +406,10 @@ class Renderer:
             rng = np.random.default_rng([self.seed, index, 17])
             # read noise 1.5 DN plus shot noise (variance 0.06 DN per DN of signal), in 0..1 units
             sigma = np.sqrt(np.float32(1.5**2) + np.float32(0.06 * 255) * np.clip(img, 0, 1)) / np.float32(255)
-            img += rng.standard_normal(img.shape, dtype=np.float32) * sigma
-        image = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
+            # unit-variance triangular noise from random bytes: 5x faster than Gaussian draws, same spectrum
+            b = np.frombuffer(rng.bytes(2 * img.size), dtype=np.uint8).reshape((2,) + img.shape)
+            img += (b[0].astype(np.float32) + b[1] - np.float32(255)) * np.float32(1 / 104.5) * sigma
+        image = cv2.convertScaleAbs(img, alpha=255.0)  # rounds and saturates to uint8
         roi = np.where(sid == TARGET, 255, 0).astype(np.uint8)
         return RenderedFrame(image, depth, roi, sid, pose, self.K.copy(), gain)
 

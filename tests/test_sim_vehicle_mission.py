@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from companion.mission import items as mi
 from sim.vehicle import flavours as fl

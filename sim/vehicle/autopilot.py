@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from companion.geo import GeoPoint
 from companion.mission import items as mi
@@ -545,6 +545,14 @@ class SimVehicle:
     def _extended_sys_state(self):
         return self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_MC, self.landed_state())
 
+    def _ekf_status(self):
+        """ArduPilot's estimator report; mavsdk reads position health from it on ArduPilot."""
+        flags = (mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ | mavlink.EKF_VELOCITY_VERT
+                 | mavlink.EKF_POS_HORIZ_REL | mavlink.EKF_POS_HORIZ_ABS | mavlink.EKF_POS_VERT_ABS
+                 | mavlink.EKF_PRED_POS_HORIZ_REL | mavlink.EKF_PRED_POS_HORIZ_ABS)
+        bad = 0.9 if self.gps.glitching(self.t) else 0.05
+        return self.mav.ekf_status_report_encode(flags, 0.05, bad, 0.05, 0.02, 0.0)
+
     def _autopilot_version(self):
         caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
@@ -560,7 +568,7 @@ class SimVehicle:
         "GLOBAL_POSITION_INT": "_global_position", "LOCAL_POSITION_NED": "_local_position",
         "ATTITUDE": "_attitude", "ATTITUDE_QUATERNION": "_attitude_q", "HOME_POSITION": "_home_position",
         "EXTENDED_SYS_STATE": "_extended_sys_state", "BATTERY_STATUS": "_battery_status",
-        "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud",
+        "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud", "EKF_STATUS_REPORT": "_ekf_status",
     }
 
     def send_streams(self) -> None:
@@ -733,6 +741,8 @@ class SimVehicle:
     def _set_interval(self, msg_id: int, interval_us: float) -> bool:
         cls = mavlink.mavlink_map.get(msg_id)
         if cls is None or cls.msgname not in self.STREAMS:
+            log.info("message interval for unsupported message %d (%s) refused", msg_id,
+                     getattr(cls, "msgname", "unknown"))
             return False
         name = cls.msgname
         if interval_us < 0:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import struct
 
-from pymavlink.dialects.v20 import common as mavlink
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from companion.mission import items as mi
 

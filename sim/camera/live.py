@@ -53,6 +53,7 @@ class LiveConfig:
     jpeg_quality: int = 88
     max_lag_frames: int = 3
     duration_s: float | None = None  # wall seconds, for tests and scripted runs
+    record_max_out_m: float | None = None  # record only frames taken this close to the wall plane (the scan)
 
 
 def interpolate_pose(a: dict, b: dict, t: float) -> dict:
@@ -327,9 +328,15 @@ class LiveCamera:
         header = {"index": k, "capture_time_s": t, "time_boot_ms": int(round(t * 1000)),
                   "width": self.camera.width, "height": self.camera.height, "encoding": "jpeg"}
         self.server.broadcast(encode_message(header, jpg.tobytes()))
-        if self.writer is not None:
+        if self.writer is not None and self._record_this(pose):
             self.writer.add(rendered, t, source_frame=k)
         self.sent += 1
+
+    def _record_this(self, pose: TruePose) -> bool:
+        if self.cfg.record_max_out_m is None:
+            return True
+        _, out, up = self.frame.enu_to_facade(*pose.position_enu)
+        return 0.0 < float(out) <= self.cfg.record_max_out_m and float(up) > 0.3
 
     def close(self):
         self.listener.close()
@@ -349,6 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fps", type=float, help="frame rate in simulated time (default: the mission camera's)")
     p.add_argument("--seed", type=int, default=0, help="scene seed (wall material, windows, background)")
     p.add_argument("--record", type=Path, help="also write a recording with ground truth to this directory")
+    p.add_argument("--record-max-out", type=float, metavar="M",
+                   help="record only frames taken within M metres of the wall plane (the scan, not the transit)")
     p.add_argument("--jpeg-quality", type=int, default=88)
     p.add_argument("--duration", type=float, help="stop after this many wall seconds")
     return p
@@ -359,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = LiveConfig(pose_port=args.pose_port, stream_host=args.stream_host, stream_port=args.stream_port,
                      width_px=args.width, fps=args.fps, seed=args.seed, record_dir=args.record,
-                     jpeg_quality=args.jpeg_quality, duration_s=args.duration)
+                     jpeg_quality=args.jpeg_quality, duration_s=args.duration, record_max_out_m=args.record_max_out)
     try:
         cam = LiveCamera(args.mission, cfg)
     except CompanionError as exc:

@@ -1,0 +1,128 @@
+"""A whole SITL rig in one object: the simulated camera and vehicle processes, wired by the true-pose channel.
+
+    with SitlRig("missions/demo-facade.yaml", speedup=2, fps=5) as rig:
+        fly_mission_sync(plan, rig.url)                 # MAVLink, as with a real vehicle
+        SimCameraSource(port=rig.stream_port)           # frames, as from a real camera
+
+The camera starts first (so it sees every pose), then the vehicle. Logs go to ``log_dir``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from companion.errors import CompanionError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class SitlRig:
+    def __init__(
+        self,
+        mission_path: str | Path,
+        *,
+        log_dir: str | Path,
+        seed: int = 0,
+        width_px: int = 640,
+        fps: float = 5.0,
+        speedup: float = 2.0,
+        autopilot: str = "px4",
+        record_dir: str | Path | None = None,
+        record_max_out_m: float | None = None,
+        truth_log: str | Path | None = None,
+        sim_options: dict | None = None,
+    ):
+        from companion.mission import load_mission, plan_scan
+
+        self.mission_path = Path(mission_path).resolve()
+        self.plan = plan_scan(load_mission(self.mission_path))
+        self.log_dir = Path(log_dir)
+        self.seed, self.width_px, self.fps, self.speedup = seed, width_px, fps, speedup
+        self.autopilot = autopilot
+        self.record_dir = Path(record_dir).resolve() if record_dir else None
+        self.record_max_out_m = record_max_out_m
+        self.truth_log = Path(truth_log).resolve() if truth_log else None
+        self.sim_options = dict(sim_options or {})
+        self.pose_port = free_port(socket.SOCK_DGRAM)
+        self.stream_port = free_port(socket.SOCK_STREAM)
+        self.camera: subprocess.Popen | None = None
+        self.vehicle = None
+        self._cam_log = None
+
+    @property
+    def url(self) -> str:
+        return self.vehicle.url
+
+    @property
+    def capture(self) -> str:
+        return f"sim://127.0.0.1:{self.stream_port}"
+
+    def start(self) -> SitlRig:
+        from companion.flight.simulator import SimulatorProcess
+
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        args = [sys.executable, "-m", "sim", "camera", str(self.mission_path), "--pose-port", str(self.pose_port),
+                "--stream-port", str(self.stream_port), "--width", str(self.width_px), "--fps", str(self.fps),
+                "--seed", str(self.seed)]  # fmt: skip
+        if self.record_dir is not None:
+            args += ["--record", str(self.record_dir)]
+            if self.record_max_out_m is not None:
+                args += ["--record-max-out", str(self.record_max_out_m)]
+        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        cam_log_path = self.log_dir / "camera.log"
+        self._cam_log = open(cam_log_path, "w")  # noqa: SIM115 (lives as long as the process)
+        self.camera = subprocess.Popen(args, cwd=ROOT, stdout=self._cam_log, stderr=subprocess.STDOUT, env=env)
+        deadline = time.monotonic() + 60.0
+        while "frames on tcp" not in cam_log_path.read_text():
+            if self.camera.poll() is not None or time.monotonic() > deadline:
+                self.stop()
+                raise CompanionError("the simulated camera did not start", f"see {cam_log_path}")
+            time.sleep(0.1)
+        home = self.plan.home
+        options = dict(self.sim_options)
+        if self.truth_log is not None:
+            options["truth_log"] = str(self.truth_log)
+        self.vehicle = SimulatorProcess(
+            speedup=self.speedup,
+            seed=self.seed,
+            pose_port=self.pose_port,
+            autopilot=self.autopilot,
+            home=f"{home.lat},{home.lon},{home.alt_amsl_m}",
+            log_path=self.log_dir / "vehicle.log",
+            **options,
+        ).start()
+        return self
+
+    def stop(self) -> None:
+        if self.vehicle is not None:
+            with contextlib.suppress(Exception):
+                self.vehicle.stop()
+        if self.camera is not None and self.camera.poll() is None:
+            self.camera.send_signal(signal.SIGTERM)
+            try:
+                self.camera.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.camera.kill()
+                self.camera.wait()
+        if self._cam_log is not None:
+            self._cam_log.close()
+            self._cam_log = None
+
+    def __enter__(self) -> SitlRig:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

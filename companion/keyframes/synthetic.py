@@ -27,12 +27,13 @@ def textured_wall(width: int, height: int, seed: int = 0) -> np.ndarray:
     # Panels with slightly different shades and dark joints, like cladding or brickwork at a coarse scale.
     pw, ph = 97, 61
     shade = rng.normal(0.0, 0.06, size=(height // ph + 2, width // pw + 2)).astype(np.float32)
-    yy, xx = np.mgrid[0:height, 0:width]
+    yy = np.arange(height, dtype=np.int32)[:, None]  # broadcast, not full-size index grids: big walls fit
+    xx = np.arange(width, dtype=np.int32)[None, :]
     offset = ((yy // ph) % 2) * (pw // 2)
     acc += shade[yy // ph, (xx + offset) // pw]
-    joints = ((yy % ph) < 3) | (((xx + offset) % pw) < 3)
-    acc[joints] -= 0.25
+    acc -= 0.25 * (((yy % ph) < 3) | (((xx + offset) % pw) < 3))
     acc += rng.normal(0.0, 0.03, size=acc.shape).astype(np.float32)
+    del yy, xx, offset
     gray = cv2.normalize(acc, None, 20, 235, cv2.NORM_MINMAX).astype(np.uint8)
     tint = np.array([0.92, 0.97, 1.0], np.float32)  # warm grey
     return np.clip(gray[:, :, None].astype(np.float32) * tint, 0, 255).astype(np.uint8)
@@ -101,3 +102,34 @@ def sweep(
         View(x0 + i * step_px + rng.normal(0, jitter_px), y0 + rng.normal(0, jitter_px), width, height)
         for i in range(n)
     ]
+
+
+def lawnmower(
+    n: int, step_px: float, width: int, height: int, texture_shape: tuple[int, ...], *, zoom: float = 1.0,
+    margin_px: float = 8.0,
+) -> list[View]:
+    """``n`` views in horizontal passes joined by vertical moves, each ``step_px`` texture px from the last.
+
+    A continuous serpentine path (no jumps), so a long pass fits a texture a few frames wide.
+    """
+    th, tw = texture_shape[:2]
+    half_w, half_h = zoom * width / 2 + margin_px, zoom * height / 2 + margin_px
+    x, y, direction = half_w, half_h, 1.0
+    row_target = None
+    views = []
+    for _ in range(n):
+        views.append(View(x, y, width, height, zoom=zoom))
+        if row_target is not None:  # moving down to the next pass
+            y = min(row_target, y + step_px)
+            if y >= row_target:
+                row_target, direction = None, -direction
+            continue
+        nx = x + direction * step_px
+        if half_w <= nx <= tw - half_w:
+            x = nx
+        else:
+            row_target = y + zoom * height * 0.5
+            if row_target > th - half_h:
+                raise ValueError("texture too small for this many views")
+            y = min(row_target, y + step_px)
+    return views

@@ -85,6 +85,17 @@ class Renderer:
         self._ry = ((v - self.K[1, 2]) / self.K[1, 1]).astype(np.float32)
         self._dnorm = np.sqrt(self._rx**2 + self._ry**2 + 1.0)
         self._pano: np.ndarray | None = None
+        # background objects: far buildings and trunks (boxes), then tree crowns (their bounding boxes)
+        los = [b.lo for b in scene.boxes]
+        his = [b.hi for b in scene.boxes]
+        for tr in scene.trees:
+            rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
+            los.append(tuple(np.array(tr.centre) - rad))
+            his.append(tuple(np.array(tr.centre) + rad))
+        self._n_boxes = len(scene.boxes)
+        self._obj_lo = np.array(los, float).reshape(-1, 3)
+        self._obj_hi = np.array(his, float).reshape(-1, 3)
+        self._obj_corners = np.array([_box_corners(a, b) for a, b in zip(los, his, strict=True)]).reshape(-1, 8, 3)
 
     # ---- geometry ----------------------------------------------------------------------------------------
     def cast(self, pose: TruePose):
@@ -116,52 +127,71 @@ class Renderer:
         # nearer than the object's closest point was hit already
         rng_t = t * self._dnorm
         obj = np.full((H, W), -1, np.int16)
-        for i, b in enumerate(sc.boxes):
-            sl = self._rect(orig, A, _box_corners(b.lo, b.hi))
+        rects, dist = self._object_rects(orig, A)
+        for j, (sl, near) in enumerate(zip(rects, dist, strict=True)):
             if sl is None:
                 continue
-            near = _aabb_distance(orig, b.lo, b.hi)
             cand = rng_t[sl] > near
             if not cand.any():
                 continue
-            tb, _ = _box_hit(orig, tuple(x[sl][cand] for x in Dc), b.lo, b.hi)
+            dsel = tuple(x[sl][cand] for x in Dc)
+            if j < self._n_boxes:
+                b = sc.boxes[j]
+                th, _ = _box_hit(orig, dsel, b.lo, b.hi)
+                surf, idx = (FAR if b.kind == "building" else TRUNK), j
+            else:
+                idx = j - self._n_boxes
+                tr = sc.trees[idx]
+                rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
+                th = _ellipsoid_hit(orig, dsel, np.array(tr.centre), rad)
+                surf = TREE
             sub_t, sub_s, sub_o, sub_r = t[sl], sid[sl], obj[sl], rng_t[sl]
             ct = sub_t[cand]
-            m = tb < ct
-            ct[m] = tb[m]
+            m = th < ct
+            if not m.any():
+                continue
+            ct[m] = th[m]
             sub_t[cand] = ct
             cs = sub_s[cand]
-            cs[m] = FAR if b.kind == "building" else TRUNK
+            cs[m] = surf
             sub_s[cand] = cs
             co = sub_o[cand]
-            co[m] = i
-            sub_o[cand] = co
-            sub_r[cand] = ct * self._dnorm[sl][cand]
-        for i, tr in enumerate(sc.trees):
-            c = np.array(tr.centre)
-            rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
-            sl = self._rect(orig, A, _box_corners(c - rad, c + rad))
-            if sl is None:
-                continue
-            cand = rng_t[sl] > _aabb_distance(orig, c - rad, c + rad)
-            if not cand.any():
-                continue
-            te = _ellipsoid_hit(orig, tuple(x[sl][cand] for x in Dc), c, rad)
-            sub_t, sub_s, sub_o, sub_r = t[sl], sid[sl], obj[sl], rng_t[sl]
-            ct = sub_t[cand]
-            m = te < ct
-            ct[m] = te[m]
-            sub_t[cand] = ct
-            cs = sub_s[cand]
-            cs[m] = TREE
-            sub_s[cand] = cs
-            co = sub_o[cand]
-            co[m] = i
+            co[m] = idx
             sub_o[cand] = co
             sub_r[cand] = ct * self._dnorm[sl][cand]
         tf = np.where(np.isfinite(t), t, 0.0)
         P = tuple(orig[k] + Dc[k] * tf for k in range(3))
         return t, sid, P, Dc, obj
+
+    def _object_rects(self, orig, A):
+        """Image rectangles of all background objects (boxes, then tree crowns) and their nearest distances,
+        projected in one go; objects straddling the camera's near plane fall back to exact clipping."""
+        corners = self._obj_corners  # (N, 8, 3)
+        lo, hi = self._obj_lo, self._obj_hi
+        dist = np.linalg.norm(np.maximum(np.maximum(lo - orig, 0.0), orig - hi), axis=1)
+        cam = (corners - orig) @ A
+        z = cam[..., 2]
+        H, W = self.camera.height, self.camera.width
+        front = z > 0.05
+        all_front = front.all(axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = cam[..., 0] / z * self.K[0, 0] + self.K[0, 2]
+            v = cam[..., 1] / z * self.K[1, 1] + self.K[1, 2]
+        u0 = np.floor(u.min(axis=1)) - 1
+        u1 = np.ceil(u.max(axis=1)) + 1
+        v0 = np.floor(v.min(axis=1)) - 1
+        v1 = np.ceil(v.max(axis=1)) + 1
+        rects: list = []
+        for j in range(len(corners)):
+            if not front[j].any():
+                rects.append(None)
+            elif not all_front[j]:
+                rects.append(self._rect(orig, A, corners[j]))
+            else:
+                a0, a1 = max(int(u0[j]), 0), min(int(u1[j]), W)
+                b0, b1 = max(int(v0[j]), 0), min(int(v1[j]), H)
+                rects.append((slice(b0, b1), slice(a0, a1)) if a0 < a1 and b0 < b1 else None)
+        return rects, dist
 
     def _rect(self, orig, A, corners):
         """Image rectangle (slices) covering the box with these 8 corners (facade coords), or None if unseen.
@@ -470,24 +500,28 @@ def _box_corners(lo, hi) -> np.ndarray:
 
 
 def _box_hit(orig, D, lo, hi):
-    """Slab test on ray components D = (d_along, d_out, d_up): entry distance (inf where missed) and entry
-    axis (0 along, 1 out, 2 up). Component-wise loops: numpy reductions over a length-3 axis are slow."""
-    tmin = tmax = axis = None
+    """First hit of rays D = (d_along, d_out, d_up) from outside a box: entry distance (inf where missed) and
+    entry axis (0 along, 1 out, 2 up). Only the (at most three) faces turned towards the camera can be entered
+    first, so each is a single plane intersection plus a bounds check on the other two coordinates."""
+    shape = D[0].shape
+    t = np.full(shape, np.inf, np.float32)
+    axis = np.zeros(shape, np.uint8)
     for k in range(3):
+        if lo[k] < orig[k] < hi[k]:
+            continue
+        plane = lo[k] if orig[k] <= lo[k] else hi[k]
         d = D[k]
-        inv = 1.0 / np.where(np.abs(d) < 1e-12, 1e-12, d)
-        t1 = (lo[k] - orig[k]) * inv
-        t2 = (hi[k] - orig[k]) * inv
-        tn = np.minimum(t1, t2)
-        tx = np.maximum(t1, t2)
-        if tmin is None:
-            tmin, tmax, axis = tn, tx, np.zeros(d.shape, np.uint8)
-        else:
-            axis[tn > tmin] = k
-            tmin = np.maximum(tmin, tn)
-            tmax = np.minimum(tmax, tx)
-    ok = (tmax >= tmin) & (tmin > _EPS)
-    return np.where(ok, tmin, np.inf), axis
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tk = (plane - orig[k]) / d
+        ok = tk > _EPS
+        for j in range(3):
+            if j != k:
+                c = orig[j] + D[j] * tk
+                ok &= (c >= lo[j]) & (c <= hi[j])
+        # a ray enters a convex box through exactly one face: no need to compare with the other faces
+        t[ok] = tk[ok]
+        axis[ok] = k
+    return t, axis
 
 
 def _ellipsoid_hit(orig, D, c, rad):

@@ -17,7 +17,9 @@ from companion.keyframes import (
     OverlapStatus,
     eq2_overlap,
     laplacian_variance,
+    polygon_overlap,
 )
+from companion.keyframes.overlap import convex_intersection_area
 from companion.keyframes.synthetic import View, render, textured_wall, true_overlap
 
 W, H = 480, 360
@@ -58,11 +60,21 @@ def test_translation_gives_true_overlap(tex, ex, dx, dy, method):
     assert est.dy == pytest.approx(-dy, abs=1.0)
 
 
-def test_identical_frames_are_full_overlap(tex, ex):
+@pytest.mark.parametrize("method", ["displacement", "polygon"])
+def test_identical_frames_are_full_overlap(tex, ex, method):
     a = View(700, 450, W, H)
-    est = _estimate(tex, ex, a, a)
+    est = _estimate(tex, ex, a, a, method)
     assert est.percent == pytest.approx(100.0, abs=0.05)
     assert est.inliers == est.matches
+
+
+def test_polygon_area_with_coincident_edges():
+    """cv2.intersectConvexConvex reported 53 % for two identical rectangles; ours must not."""
+    rect = np.array([[0, 0], [W, 0], [W, H], [0, H]], float)
+    assert convex_intersection_area(rect, rect) == pytest.approx(W * H)
+    assert polygon_overlap(np.eye(3), W, H) == pytest.approx(100.0)
+    shifted = np.array([[1, 0, W / 2], [0, 1, 0], [0, 0, 1.0]])
+    assert polygon_overlap(shifted, W, H) == pytest.approx(50.0)
 
 
 @pytest.mark.parametrize("angle,zoom", [(8.0, 1.0), (15.0, 1.0), (0.0, 1.15), (10.0, 0.9)])

@@ -91,6 +91,43 @@ def eq2_overlap(dx: float, dy: float, width: int, height: int) -> float:
     return 100.0 * max(0.0, height - abs(dy)) * max(0.0, width - abs(dx)) / (height * width)
 
 
+def _area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def convex_intersection_area(subject: np.ndarray, clip: np.ndarray) -> float:
+    """Area of subject polygon clipped by a convex polygon (Sutherland-Hodgman, float64).
+
+    Written out because cv2.intersectConvexConvex misreports coincident edges (identical frames gave 53 %).
+    """
+    clip = np.asarray(clip, dtype=np.float64)
+    if _area(clip) < 0:
+        clip = clip[::-1]
+    out = [tuple(p) for p in np.asarray(subject, dtype=np.float64)]
+    for k in range(len(clip)):
+        a, b = clip[k], clip[(k + 1) % len(clip)]
+        ex, ey = b - a
+
+        def inside(p, a=a, ex=ex, ey=ey):
+            return ex * (p[1] - a[1]) - ey * (p[0] - a[0]) >= -1e-9
+
+        src, out = out, []
+        for i, cur in enumerate(src):
+            prev = src[i - 1]
+            cin, pin = inside(cur), inside(prev)
+            if cin != pin:
+                dx, dy = cur[0] - prev[0], cur[1] - prev[1]
+                den = ex * dy - ey * dx
+                t = (ey * (prev[0] - a[0]) - ex * (prev[1] - a[1])) / den
+                out.append((prev[0] + t * dx, prev[1] + t * dy))
+            if cin:
+                out.append(cur)
+        if len(out) < 3:
+            return 0.0
+    return abs(_area(np.array(out)))
+
+
 def polygon_overlap(H: np.ndarray, width: int, height: int) -> float | None:
     """Percent of Ip's rectangle covered by Iq's rectangle, with H mapping Ip px -> Iq px. None if degenerate."""
     try:
@@ -101,11 +138,10 @@ def polygon_overlap(H: np.ndarray, width: int, height: int) -> float | None:
     homog = np.hstack([rect, np.ones((4, 1))]) @ Hinv.T
     if np.any(homog[:, 2] <= 1e-9):  # Iq's corner maps behind Ip's camera: not a plane-to-plane view
         return None
-    q_in_p = (homog[:, :2] / homog[:, 2:3]).astype(np.float32)
-    if not cv2.isContourConvex(q_in_p.reshape(-1, 1, 2)):
+    q_in_p = homog[:, :2] / homog[:, 2:3]
+    if not cv2.isContourConvex(q_in_p.astype(np.float32).reshape(-1, 1, 2)):
         return None
-    area, _ = cv2.intersectConvexConvex(rect.astype(np.float32), q_in_p)
-    return 100.0 * max(0.0, float(area)) / (width * height)
+    return 100.0 * convex_intersection_area(q_in_p, rect) / (width * height)
 
 
 def _plausible(H_work: np.ndarray, max_scale_change: float, work_w: float, work_h: float) -> bool:

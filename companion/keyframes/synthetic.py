@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from companion.keyframes.overlap import convex_intersection_area
 from companion.records import Frame, MaskedFrame, TaggedFrame
 
 
@@ -78,8 +79,8 @@ def render(texture: np.ndarray, view: View, blur_sigma: float = 0.0) -> np.ndarr
 
 def true_overlap(a: View, b: View) -> float:
     """Share (0..1) of A's wall footprint that B also shows."""
-    area, _ = cv2.intersectConvexConvex(a.corners(), b.corners())
-    return max(0.0, float(area)) / float(cv2.contourArea(a.corners()))
+    area = convex_intersection_area(b.corners(), a.corners())
+    return area / float(cv2.contourArea(a.corners()))
 
 
 def masked_frame(index: int, image: np.ndarray, mask: np.ndarray | None = None, t_s: float | None = None):

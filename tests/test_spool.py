@@ -48,8 +48,14 @@ def _dms_to_deg(dms) -> float:
 
 
 def test_keyframe_files_and_tags(tmp_path):
-    spool = KeyframeSpool(tmp_path, meta={"camera": {"width_px": 160, "height_px": 120, "hfov_deg": 69.0}})
+    spool = KeyframeSpool(tmp_path, meta={"camera": {"width_px": 3840, "height_px": 2160, "hfov_deg": 69.0}})
+    assert not (tmp_path / "spool.json").exists()  # written with the first keyframe, at its real size
     entry = spool.append(_keyframe(7))
+    assert json.loads((tmp_path / "spool.json").read_text())["camera"] == {
+        "width_px": 160,
+        "height_px": 120,
+        "hfov_deg": 69.0,
+    }
     jpeg = (tmp_path / entry.image).read_bytes()
     exif = piexif.load(jpeg)
     gps = exif["GPS"]

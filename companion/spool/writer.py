@@ -108,8 +108,9 @@ class KeyframeSpool:
             raise CompanionError(
                 f"cannot create spool directory {self.dir}: {exc.strerror}", "choose a writable --out"
             ) from None
-        if meta is not None and not (self.dir / META).exists():
-            _write_atomic(self.dir / META, json.dumps(meta, indent=1).encode())
+        # spool.json is written with the first keyframe, when the real image size is known (a camera may deliver
+        # a working resolution smaller than the mission's sensor size; the lens, hfov, is the same).
+        self._meta = dict(meta) if meta is not None else None
         self.entries: list[SpoolEntry] = self._recover()
         self._spooled = {e.index for e in self.entries}
 
@@ -132,6 +133,14 @@ class KeyframeSpool:
         for stale in self.dir.glob(".*.tmp"):
             stale.unlink(missing_ok=True)
         return entries
+
+    def _write_meta(self, width: int, height: int) -> None:
+        if self._meta is None or (self.dir / META).exists():
+            return
+        meta = dict(self._meta)
+        if "camera" in meta:
+            meta["camera"] = {**meta["camera"], "width_px": int(width), "height_px": int(height)}
+        _write_atomic(self.dir / META, json.dumps(meta, indent=1).encode())
 
     def __len__(self) -> int:
         return len(self.entries)
@@ -173,6 +182,7 @@ class KeyframeSpool:
             "gap_before": keyframe.gap_before,
         }
         try:
+            self._write_meta(frame.image.shape[1], frame.image.shape[0])
             jpeg = encode_tagged_jpeg(frame.image, pose, capture_utc, self.camera_tags)
             ok, mask_png = cv2.imencode(".png", keyframe.masked.mask)
             if not ok:

@@ -292,13 +292,14 @@ class LiveCamera:
         """Render and stream until stopped (or ``duration_s`` wall seconds); returns frames sent."""
         t_end = time.monotonic() + self.cfg.duration_s if self.cfg.duration_s else math.inf
         k: int | None = None
+        last_t = -math.inf
         try:
             while not self.stop.is_set() and time.monotonic() < t_end:
                 newest = self.listener.newest_time()
                 if newest is None:
                     self.listener.wait_newer(-math.inf, 0.2)
                     continue
-                if k is None or newest < k / self.fps - 1.0:  # first pose, or the vehicle restarted
+                if k is None or newest < last_t - 1.0:  # first pose, or the vehicle's clock restarted
                     k = int(math.ceil(newest * self.fps))
                 t = k / self.fps
                 if newest < t:
@@ -314,6 +315,7 @@ class LiveCamera:
                     continue
                 msg, rate = got
                 self._emit(k, t, msg, rate)
+                last_t = t
                 k += 1
         finally:
             self.close()

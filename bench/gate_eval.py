@@ -5,7 +5,7 @@ gate over it with the truth ROI masks and prints the figures; writes the R-vs-q 
 
     python bench/gate_eval.py                                       # paper-like pass: 118 raw frames
     python bench/gate_eval.py --stride 6 --max-frames 240           # longer: strip turns included
-    python bench/gate_eval.py --recording /tmp/rec --plot docs/img/gate_fig9.png
+    python bench/gate_eval.py --recording /tmp/rec --plot docs/img/gate_fig9.png --curve-p 12
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ def main() -> None:
     ap.add_argument("--long-side", type=int, default=960)
     ap.add_argument("--no-mask", action="store_true")
     ap.add_argument("--plot", default=None, help="PNG for the R-vs-q curve (paper Fig. 9)")
+    ap.add_argument("--curve-p", type=int, default=0, help="reference frame p of the R-vs-q curve")
     args = ap.parse_args()
 
     if args.recording:
@@ -59,7 +60,7 @@ def main() -> None:
     print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     print(f"recording {rec_dir}: {len(rec)} frames {rec.width}x{rec.height}, mission {rec.meta.get('mission')}, "
           f"generator {rec.meta.get('generator')}, masks {'off' if args.no_mask else 'truth'}")
-    ev = evaluate_gate(rec, cfg, use_masks=not args.no_mask)
+    ev = evaluate_gate(rec, cfg, use_masks=not args.no_mask, curve_p=args.curve_p)
     print(format_report(ev))
     if args.plot:
         Path(args.plot).parent.mkdir(parents=True, exist_ok=True)

@@ -25,30 +25,17 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilo
 from companion.geo import GeoPoint
 from companion.mission import items as mi
 from sim.vehicle import flavours as fl
+from sim.vehicle.commands import CommandHandler
 from sim.vehicle.environment import Battery, GpsError, Wind
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
 from sim.vehicle.model import Limits, Multirotor
 from sim.vehicle.tasks import Climb, Hold, Land, Line, ReturnHome, Task
+from sim.vehicle.telemetry import TelemetryStreams
 
 log = logging.getLogger(__name__)
 
 DT_S = 0.02  # 50 Hz simulated time
-WALL_CAP_HZ = 25.0  # no stream faster than this in wall time, whatever the speed-up (CPU is shared)
-SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
-           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
-           | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
-           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS
-           | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
-PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
-FORCE_MAGIC = 21196
-
-
-def _int(x: float, default: int = 0) -> int:
-    """Integer value of a float command parameter; NaN (\"unset\") gives ``default``."""
-    return int(x) if math.isfinite(x) else default
 
 
 @dataclass
@@ -82,14 +69,6 @@ class VehicleConfig:
     limits: Limits = field(default_factory=Limits)
 
 
-def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> list[float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy]
-
-
 class _LinkWriter:
     def __init__(self, link: FaultyUdpLink):
         self.link = link
@@ -98,7 +77,7 @@ class _LinkWriter:
         self.link.send(bytes(buf))
 
 
-class SimVehicle:
+class SimVehicle(TelemetryStreams, CommandHandler):
     """A MAVLink multirotor. ``run()`` blocks until ``stop()`` or ``duration_s`` of simulated time."""
 
     def __init__(self, cfg: VehicleConfig):
@@ -451,308 +430,6 @@ class SimVehicle:
                 self.pose_sock.sendto(line.encode(), ("127.0.0.1", self.cfg.pose_port))
         if self.truth_file is not None:
             self.truth_file.write(line + "\n")
-
-    # --- telemetry -----------------------------------------------------------------------------------------
-    def _heartbeat(self):
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
-        if self.mode in (fl.MISSION, fl.RTL, fl.LAND, fl.TAKEOFF, fl.HOLD):
-            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
-        if self.armed:
-            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
-        if self.link_failsafe or self.battery_failsafe:
-            status = mavlink.MAV_STATE_CRITICAL
-        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, self.flavour.autopilot, base,
-                                         self.flavour.custom_mode(self.mode), status)
-
-    def _sys_status(self):
-        health = SENSORS
-        if self.gps.glitching(self.t):
-            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
-        elif self.battery.remaining >= 0.2 or self.armed:
-            health |= PREARM
-        b = self.battery
-        return self.mav.sys_status_encode(SENSORS | PREARM, SENSORS | PREARM, health, 250,
-                                          int(b.voltage_v * 1000), int(b.current_a * 100), int(b.remaining * 100),
-                                          0, 0, 0, 0, 0, 0)
-
-    def _global_position(self):
-        lat, lon, alt = self.ned_to_geodetic(self.nav)
-        v = self.model.state.vel
-        return self.mav.global_position_int_encode(
-            int(self.t * 1000), round(lat * 1e7), round(lon * 1e7), int(alt * 1000), int(-self.nav[2] * 1000),
-            int(v[0] * 100), int(v[1] * 100), int(v[2] * 100), int(self.yaw_deg * 100) % 36000)
-
-    def _gps_raw(self):
-        lat, lon, alt = self.ned_to_geodetic(self.nav)
-        v = self.model.state.vel
-        cog = int((math.degrees(math.atan2(v[1], v[0])) % 360.0) * 100)
-        fix = 2 if self.gps.glitching(self.t) else 3
-        return self.mav.gps_raw_int_encode(int(self.t * 1e6), fix, round(lat * 1e7), round(lon * 1e7),
-                                           int(alt * 1000), 80, 120, int(math.hypot(v[0], v[1]) * 100), cog, 14)
-
-    def _attitude(self):
-        st = self.model.state
-        yaw = math.radians(((st.yaw_deg + 180.0) % 360.0) - 180.0)
-        return self.mav.attitude_encode(int(self.t * 1000), math.radians(st.roll_deg), math.radians(st.pitch_deg),
-                                         yaw, 0.0, 0.0, 0.0)
-
-    def _attitude_q(self):
-        st = self.model.state
-        q = quaternion_from_euler(math.radians(st.roll_deg), math.radians(st.pitch_deg), math.radians(st.yaw_deg))
-        return self.mav.attitude_quaternion_encode(int(self.t * 1000), *q, 0.0, 0.0, 0.0)
-
-    def _local_position(self):
-        v = self.model.state.vel
-        n = self.nav
-        return self.mav.local_position_ned_encode(int(self.t * 1000), n[0], n[1], n[2], v[0], v[1], v[2])
-
-    def _home_position(self):
-        h = self.cfg.home
-        return self.mav.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), int(h.alt_amsl_m * 1000),
-                                             0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.t * 1e6))
-
-    def _battery_status(self):
-        b = self.battery
-        cell_mv = int(b.voltage_v / b.cells * 1000)
-        volts = [cell_mv] * b.cells + [65535] * (10 - b.cells)
-        return self.mav.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
-                                              32767, volts, int(b.current_a * 100), int(b.consumed_mah), -1,
-                                              int(b.remaining * 100))
-
-    def _mission_current_msg(self):
-        total = len(self.mission)
-        if total == 0:
-            state = mavlink.MISSION_STATE_NO_MISSION
-        elif self.mission_finished:
-            state = mavlink.MISSION_STATE_COMPLETE
-        elif self.mode == fl.MISSION:
-            state = mavlink.MISSION_STATE_ACTIVE
-        else:
-            state = mavlink.MISSION_STATE_NOT_STARTED if self.reached_seq < 0 else mavlink.MISSION_STATE_PAUSED
-        return self.mav.mission_current_encode(self.mission_seq if total else 0, total, state,
-                                               1 if self.mode == fl.MISSION else 0)
-
-    def _send_mission_current(self) -> None:
-        self._send(self._mission_current_msg())
-
-    def _vfr_hud(self):
-        v = self.model.state.vel
-        lat, lon, alt = self.ned_to_geodetic(self.nav)
-        return self.mav.vfr_hud_encode(float(np.linalg.norm(v)), math.hypot(v[0], v[1]), int(self.yaw_deg),
-                                       50 if self.armed else 0, alt, -v[2])
-
-    def _extended_sys_state(self):
-        return self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_MC, self.landed_state())
-
-    def _ekf_status(self):
-        """ArduPilot's estimator report; mavsdk reads position health from it on ArduPilot."""
-        flags = (mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ | mavlink.EKF_VELOCITY_VERT
-                 | mavlink.EKF_POS_HORIZ_REL | mavlink.EKF_POS_HORIZ_ABS | mavlink.EKF_POS_VERT_ABS
-                 | mavlink.EKF_PRED_POS_HORIZ_REL | mavlink.EKF_PRED_POS_HORIZ_ABS)
-        bad = 0.9 if self.gps.glitching(self.t) else 0.05
-        return self.mav.ekf_status_report_encode(flags, 0.05, bad, 0.05, 0.02, 0.0)
-
-    def _autopilot_version(self):
-        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
-                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
-        caps |= (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.flavour.param_bytewise
-                 else mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
-        version = (1 << 24) | (15 << 16) | (0 << 8) | 255 if self.flavour.name == "px4" else (4 << 24) | (6 << 16) | 255
-        return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11,
-                                                 1000 + self.cfg.seed)
-
-    STREAMS = {
-        "HEARTBEAT": "_heartbeat", "SYS_STATUS": "_sys_status", "GPS_RAW_INT": "_gps_raw",
-        "GLOBAL_POSITION_INT": "_global_position", "LOCAL_POSITION_NED": "_local_position",
-        "ATTITUDE": "_attitude", "ATTITUDE_QUATERNION": "_attitude_q", "HOME_POSITION": "_home_position",
-        "EXTENDED_SYS_STATE": "_extended_sys_state", "BATTERY_STATUS": "_battery_status",
-        "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud", "EKF_STATUS_REPORT": "_ekf_status",
-    }
-
-    def send_streams(self) -> None:
-        floor = self.cfg.speedup / WALL_CAP_HZ
-        for name, rate in self.rates.items():
-            if rate <= 0 or name not in self.STREAMS:
-                continue
-            due = self._next_due.get(name, 0.0)
-            if self.t + 1e-9 < due:
-                continue
-            interval = max(1.0 / rate, floor)
-            if name == "HEARTBEAT":
-                interval = min(interval, self.cfg.speedup * 1.0)  # at least 1 Hz of wall time
-            self._next_due[name] = self.t + interval
-            self._send(getattr(self, self.STREAMS[name])())
-
-    # --- incoming ------------------------------------------------------------------------------------------
-    def handle(self, msg) -> None:
-        t = msg.get_type()
-        if t == "BAD_DATA" or msg.get_srcSystem() == self.cfg.system_id:
-            return
-        self.last_gcs_wall = time.monotonic()
-        if t == "HEARTBEAT":
-            if self.gcs is None:
-                log.info("GCS heartbeat from system %d component %d", msg.get_srcSystem(), msg.get_srcComponent())
-            self.gcs = (msg.get_srcSystem(), msg.get_srcComponent())
-            return
-        target = getattr(msg, "target_system", None)
-        if target not in (None, 0, self.cfg.system_id):
-            return
-        if self.missions.handle(msg):
-            return
-        if t == "COMMAND_LONG":
-            self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5,
-                                                msg.param6, msg.param7])
-        elif t == "COMMAND_INT":
-            self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.x / 1e7,
-                                                msg.y / 1e7, msg.z])
-        elif t == "MISSION_SET_CURRENT":
-            self._set_current(msg.seq)
-        elif t == "PARAM_REQUEST_LIST":
-            for i, name in enumerate(self.params):
-                self._send_param(name, i)
-        elif t == "PARAM_REQUEST_READ":
-            self._on_param_read(msg)
-        elif t == "PARAM_SET":
-            self._on_param_set(msg)
-        elif t == "TIMESYNC" and msg.tc1 == 0:
-            self._send(self.mav.timesync_encode(int(self.t * 1e9), msg.ts1))
-        elif t == "REQUEST_DATA_STREAM":
-            for name, rate in fl.Px4.default_rates_hz.items():
-                self.rates[name] = (rate if msg.req_message_rate <= 0 else max(rate, msg.req_message_rate)) \
-                    if msg.start_stop else (1.0 if name == "HEARTBEAT" else 0.0)
-
-    def _send_param(self, name: str, index: int) -> None:
-        value, ptype = self.flavour.encode_param(self.params[name])
-        self._send(self.mav.param_value_encode(name.encode(), value, ptype, len(self.params), index))
-
-    def _on_param_read(self, msg) -> None:
-        names = list(self.params)
-        pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
-        if msg.param_index >= 0:
-            if msg.param_index < len(names):
-                self._send_param(names[msg.param_index], msg.param_index)
-        elif pid in self.params:
-            self._send_param(pid, names.index(pid))
-
-    def _on_param_set(self, msg) -> None:
-        pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
-        if pid not in self.params:
-            return  # PX4 ignores unknown parameters; the client times out
-        self.params[pid] = self.flavour.decode_param(msg.param_value, msg.param_type, self.params[pid])
-        if pid == "MPC_XY_CRUISE":
-            self.cruise_m_s = float(self.params[pid])
-        self._send_param(pid, list(self.params).index(pid))
-
-    def _set_current(self, seq: int) -> bool:
-        if not self.flavour.first_seq <= seq < len(self.mission):
-            return False
-        self.mission_seq = seq
-        self.mission_task = None
-        self.mission_finished = False
-        self.mission_prev = self.nav.copy()
-        self._send_mission_current()
-        return True
-
-    def _ack(self, msg, command: int, result: int) -> None:
-        self._send(self.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
-
-    def _refused(self, msg, command: int, reason: str) -> None:
-        self.statustext(mavlink.MAV_SEVERITY_WARNING, reason)
-        self._ack(msg, command, mavlink.MAV_RESULT_DENIED)
-
-    def _on_command(self, msg, cmd: int, p: list[float]) -> None:
-        ok = mavlink.MAV_RESULT_ACCEPTED
-        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            force = _int(p[1]) == FORCE_MAGIC
-            reason = self.arm(force) if p[0] >= 0.5 else self.disarm(force)
-            if reason:
-                return self._refused(msg, cmd, reason)
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
-            if self.flavour.name == "ardupilot":
-                if self.mode != fl.GUIDED or not self.armed:
-                    return self._refused(msg, cmd, "Takeoff needs GUIDED and armed")
-                self.params["PILOT_TKOFF_ALT"] = float(p[6] if math.isfinite(p[6]) else 2.5) * 100.0
-            elif math.isfinite(p[6]):
-                self.params["MIS_TAKEOFF_ALT"] = float(p[6]) - self.cfg.home.alt_amsl_m
-            reason = self.set_mode(fl.TAKEOFF)
-            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
-            mode = self.flavour.mode_from_set_mode(p[0], p[1], p[2])
-            if mode is None:
-                return self._ack(msg, cmd, mavlink.MAV_RESULT_UNSUPPORTED)
-            if mode == self.mode and mode != fl.MISSION:
-                return self._ack(msg, cmd, ok)
-            reason = self.set_mode(mode)
-            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_MISSION_START:
-            if _int(p[0]) > 0 and not self._set_current(_int(p[0])):
-                return self._ack(msg, cmd, mavlink.MAV_RESULT_DENIED)
-            reason = self.set_mode(fl.MISSION)
-            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
-            reason = self.set_mode(fl.MISSION if p[0] >= 0.5 else fl.HOLD)
-            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            self.set_mode(fl.RTL)
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_NAV_LAND:
-            self.set_mode(fl.LAND)
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-            if p[1] > 0:
-                self.cruise_m_s = min(float(p[1]), self.limits.max_speed_h_m_s)
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
-            return self._ack(msg, cmd, ok if self._set_current(_int(p[0], -1)) else mavlink.MAV_RESULT_DENIED)
-        if cmd == mavlink.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
-            self._set_gimbal(p[0], p[1])
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_DO_MOUNT_CONTROL:
-            self._set_gimbal(p[0], p[2])
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_CONDITION_YAW:
-            self._condition_yaw(p[0], p[2], p[3])
-            return self._ack(msg, cmd, ok)
-        if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            accepted = self._set_interval(_int(p[0], -1), p[1])
-            return self._ack(msg, cmd, ok if accepted else mavlink.MAV_RESULT_UNSUPPORTED)
-        if cmd in (mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
-            msg_id = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
-            if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
-                msg_id = _int(p[0], -1)
-            reply = self._requested(msg_id)
-            self._ack(msg, cmd, ok if reply is not None else mavlink.MAV_RESULT_UNSUPPORTED)
-            if reply is not None:
-                self._send(reply)
-            return None
-        return self._ack(msg, cmd, mavlink.MAV_RESULT_UNSUPPORTED)
-
-    def _requested(self, msg_id: int):
-        if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            return self._autopilot_version()
-        cls = mavlink.mavlink_map.get(msg_id)
-        if cls is not None and cls.msgname in self.STREAMS:
-            return getattr(self, self.STREAMS[cls.msgname])()
-        return None
-
-    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
-        cls = mavlink.mavlink_map.get(msg_id)
-        if cls is None or cls.msgname not in self.STREAMS:
-            log.info("message interval for unsupported message %d (%s) refused", msg_id,
-                     getattr(cls, "msgname", "unknown"))
-            return False
-        name = cls.msgname
-        if interval_us < 0:
-            self.rates[name] = 0.0
-        elif interval_us == 0:
-            self.rates[name] = fl.Px4.default_rates_hz.get(name, 1.0)
-        else:
-            self.rates[name] = 1e6 / interval_us
-        self._next_due[name] = 0.0
-        return True
 
     # --- main loop -----------------------------------------------------------------------------------------
     def _update_outage(self) -> None:

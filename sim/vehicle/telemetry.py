@@ -1,0 +1,195 @@
+"""Telemetry of the simulated vehicle: the MAVLink messages it streams, their rates, and on-request messages.
+
+A mixin of ``SimVehicle`` (it reads the vehicle's state); kept apart so the message encodings, which must match
+what mavsdk decodes, sit in one place. Rates are simulated-time Hz, capped in wall time (the CPU is shared).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
+
+from sim.vehicle import flavours as fl
+
+log = logging.getLogger(__name__)
+
+WALL_CAP_HZ = 25.0  # no stream faster than this in wall time, whatever the speed-up
+SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+           | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS
+           | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
+PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+
+def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> list[float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy]
+
+
+class TelemetryStreams:
+    """Message builders and the stream scheduler (mixed into SimVehicle)."""
+
+    def _heartbeat(self):
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if self.mode in (fl.MISSION, fl.RTL, fl.LAND, fl.TAKEOFF, fl.HOLD):
+            base |= mavlink.MAV_MODE_FLAG_AUTO_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+        if self.armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
+        if self.link_failsafe or self.battery_failsafe:
+            status = mavlink.MAV_STATE_CRITICAL
+        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, self.flavour.autopilot, base,
+                                         self.flavour.custom_mode(self.mode), status)
+
+    def _sys_status(self):
+        health = SENSORS
+        if self.gps.glitching(self.t):
+            health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        elif self.battery.remaining >= 0.2 or self.armed:
+            health |= PREARM
+        b = self.battery
+        return self.mav.sys_status_encode(SENSORS | PREARM, SENSORS | PREARM, health, 250,
+                                          int(b.voltage_v * 1000), int(b.current_a * 100), int(b.remaining * 100),
+                                          0, 0, 0, 0, 0, 0)
+
+    def _global_position(self):
+        lat, lon, alt = self.ned_to_geodetic(self.nav)
+        v = self.model.state.vel
+        return self.mav.global_position_int_encode(
+            int(self.t * 1000), round(lat * 1e7), round(lon * 1e7), int(alt * 1000), int(-self.nav[2] * 1000),
+            int(v[0] * 100), int(v[1] * 100), int(v[2] * 100), int(self.yaw_deg * 100) % 36000)
+
+    def _gps_raw(self):
+        lat, lon, alt = self.ned_to_geodetic(self.nav)
+        v = self.model.state.vel
+        cog = int((math.degrees(math.atan2(v[1], v[0])) % 360.0) * 100)
+        fix = 2 if self.gps.glitching(self.t) else 3
+        return self.mav.gps_raw_int_encode(int(self.t * 1e6), fix, round(lat * 1e7), round(lon * 1e7),
+                                           int(alt * 1000), 80, 120, int(math.hypot(v[0], v[1]) * 100), cog, 14)
+
+    def _attitude(self):
+        st = self.model.state
+        yaw = math.radians(((st.yaw_deg + 180.0) % 360.0) - 180.0)
+        return self.mav.attitude_encode(int(self.t * 1000), math.radians(st.roll_deg), math.radians(st.pitch_deg),
+                                         yaw, 0.0, 0.0, 0.0)
+
+    def _attitude_q(self):
+        st = self.model.state
+        q = quaternion_from_euler(math.radians(st.roll_deg), math.radians(st.pitch_deg), math.radians(st.yaw_deg))
+        return self.mav.attitude_quaternion_encode(int(self.t * 1000), *q, 0.0, 0.0, 0.0)
+
+    def _local_position(self):
+        v = self.model.state.vel
+        n = self.nav
+        return self.mav.local_position_ned_encode(int(self.t * 1000), n[0], n[1], n[2], v[0], v[1], v[2])
+
+    def _home_position(self):
+        h = self.cfg.home
+        return self.mav.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), int(h.alt_amsl_m * 1000),
+                                             0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.t * 1e6))
+
+    def _battery_status(self):
+        b = self.battery
+        cell_mv = int(b.voltage_v / b.cells * 1000)
+        volts = [cell_mv] * b.cells + [65535] * (10 - b.cells)
+        return self.mav.battery_status_encode(0, mavlink.MAV_BATTERY_FUNCTION_ALL, mavlink.MAV_BATTERY_TYPE_LIPO,
+                                              32767, volts, int(b.current_a * 100), int(b.consumed_mah), -1,
+                                              int(b.remaining * 100))
+
+    def _mission_current_msg(self):
+        total = len(self.mission)
+        if total == 0:
+            state = mavlink.MISSION_STATE_NO_MISSION
+        elif self.mission_finished:
+            state = mavlink.MISSION_STATE_COMPLETE
+        elif self.mode == fl.MISSION:
+            state = mavlink.MISSION_STATE_ACTIVE
+        else:
+            state = mavlink.MISSION_STATE_NOT_STARTED if self.reached_seq < 0 else mavlink.MISSION_STATE_PAUSED
+        return self.mav.mission_current_encode(self.mission_seq if total else 0, total, state,
+                                               1 if self.mode == fl.MISSION else 0)
+
+    def _send_mission_current(self) -> None:
+        self._send(self._mission_current_msg())
+
+    def _vfr_hud(self):
+        v = self.model.state.vel
+        lat, lon, alt = self.ned_to_geodetic(self.nav)
+        return self.mav.vfr_hud_encode(float(np.linalg.norm(v)), math.hypot(v[0], v[1]), int(self.yaw_deg),
+                                       50 if self.armed else 0, alt, -v[2])
+
+    def _extended_sys_state(self):
+        return self.mav.extended_sys_state_encode(mavlink.MAV_VTOL_STATE_MC, self.landed_state())
+
+    def _ekf_status(self):
+        """ArduPilot's estimator report; mavsdk reads position health from it on ArduPilot."""
+        flags = (mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ | mavlink.EKF_VELOCITY_VERT
+                 | mavlink.EKF_POS_HORIZ_REL | mavlink.EKF_POS_HORIZ_ABS | mavlink.EKF_POS_VERT_ABS
+                 | mavlink.EKF_PRED_POS_HORIZ_REL | mavlink.EKF_PRED_POS_HORIZ_ABS)
+        bad = 0.9 if self.gps.glitching(self.t) else 0.05
+        return self.mav.ekf_status_report_encode(flags, 0.05, bad, 0.05, 0.02, 0.0)
+
+    def _autopilot_version(self):
+        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
+        caps |= (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.flavour.param_bytewise
+                 else mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
+        version = (1 << 24) | (15 << 16) | (0 << 8) | 255 if self.flavour.name == "px4" else (4 << 24) | (6 << 16) | 255
+        return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11,
+                                                 1000 + self.cfg.seed)
+
+    STREAMS = {
+        "HEARTBEAT": "_heartbeat", "SYS_STATUS": "_sys_status", "GPS_RAW_INT": "_gps_raw",
+        "GLOBAL_POSITION_INT": "_global_position", "LOCAL_POSITION_NED": "_local_position",
+        "ATTITUDE": "_attitude", "ATTITUDE_QUATERNION": "_attitude_q", "HOME_POSITION": "_home_position",
+        "EXTENDED_SYS_STATE": "_extended_sys_state", "BATTERY_STATUS": "_battery_status",
+        "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud", "EKF_STATUS_REPORT": "_ekf_status",
+    }
+
+    def send_streams(self) -> None:
+        floor = self.cfg.speedup / WALL_CAP_HZ
+        for name, rate in self.rates.items():
+            if rate <= 0 or name not in self.STREAMS:
+                continue
+            due = self._next_due.get(name, 0.0)
+            if self.t + 1e-9 < due:
+                continue
+            interval = max(1.0 / rate, floor)
+            if name == "HEARTBEAT":
+                interval = min(interval, self.cfg.speedup * 1.0)  # at least 1 Hz of wall time
+            self._next_due[name] = self.t + interval
+            self._send(getattr(self, self.STREAMS[name])())
+
+    def _requested(self, msg_id: int):
+        if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return self._autopilot_version()
+        cls = mavlink.mavlink_map.get(msg_id)
+        if cls is not None and cls.msgname in self.STREAMS:
+            return getattr(self, self.STREAMS[cls.msgname])()
+        return None
+
+    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
+        cls = mavlink.mavlink_map.get(msg_id)
+        if cls is None or cls.msgname not in self.STREAMS:
+            log.info("message interval for unsupported message %d (%s) refused", msg_id,
+                     getattr(cls, "msgname", "unknown"))
+            return False
+        name = cls.msgname
+        if interval_us < 0:
+            self.rates[name] = 0.0
+        elif interval_us == 0:
+            self.rates[name] = fl.Px4.default_rates_hz.get(name, 1.0)
+        else:
+            self.rates[name] = 1e6 / interval_us
+        self._next_due[name] = 0.0
+        return True

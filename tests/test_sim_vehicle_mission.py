@@ -144,3 +144,46 @@ def test_rtl_returns_home_and_disarms():
         assert np.hypot(*v.model.state.pos[:2]) < 0.5
     finally:
         v.close()
+
+
+def _hovering(cfg: VehicleConfig) -> SimVehicle:
+    v = SimVehicle(cfg)
+    v.arm()
+    v.set_mode(fl.TAKEOFF)
+    for _ in range(int(8 / 0.02)):
+        v.step()
+    assert v.mode == fl.HOLD
+    return v
+
+
+def test_gps_glitch_moves_the_real_vehicle_and_flags_gps_unhealthy():
+    v = _hovering(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), gps_glitch_at_s=10.0, gps_glitch_m=5.0,
+                                gps_glitch_s=4.0))
+    try:
+        start = v.model.state.pos.copy()
+        worst = 0.0
+        gps_ok_during = []
+        while v.t < 14.0:
+            v.step()
+            if 10.5 < v.t < 13.9:
+                worst = max(worst, float(np.linalg.norm(v.model.state.pos[:2] - start[:2])))
+                gps_ok_during.append(bool(v._sys_status().onboard_control_sensors_health
+                                          & mavlink.MAV_SYS_STATUS_SENSOR_GPS))
+        assert worst > 2.0  # the controller followed the jumped estimate
+        assert not any(gps_ok_during)
+        for _ in range(int(20 / 0.02)):
+            v.step()
+        assert np.linalg.norm(v.model.state.pos[:2] - start[:2]) < 0.3  # and came back when GPS recovered
+    finally:
+        v.close()
+
+
+def test_low_battery_triggers_rtl():
+    v = _hovering(VehicleConfig(pose_port=None, target=("127.0.0.1", 9)))
+    try:
+        v.battery.consumed_mah = v.battery.capacity_mah * 0.86
+        for _ in range(int(5 / 0.02)):
+            v.step()
+        assert v.mode == fl.RTL and v.battery_failsafe
+    finally:
+        v.close()

@@ -16,8 +16,10 @@ _M3 = np.uint32(0x9E3779B9)
 def hash2(ix: np.ndarray, iy: np.ndarray, seed: int) -> np.ndarray:
     """Integer lattice coordinates -> uniform floats in [0, 1)."""
     with np.errstate(over="ignore"):
-        h = ix.astype(np.int64).astype(np.uint32) * _M1
-        h ^= iy.astype(np.int64).astype(np.uint32) * _M2
+        ux = ix if ix.dtype == np.uint32 else ix.astype(np.int64).astype(np.uint32)
+        uy = iy if iy.dtype == np.uint32 else iy.astype(np.int64).astype(np.uint32)
+        h = ux * _M1
+        h ^= uy * _M2
         h ^= np.uint32((seed * 0x85EBCA6B) & 0xFFFFFFFF)
         h ^= h >> np.uint32(15)
         h *= _M3
@@ -35,14 +37,18 @@ def value_noise(x: np.ndarray, y: np.ndarray, cell: float, seed: int) -> np.ndar
     y0 = np.floor(ys)
     fx = (xs - x0).astype(np.float32)
     fy = (ys - y0).astype(np.float32)
-    ix = x0.astype(np.int64)
-    iy = y0.astype(np.int64)
+    # lattice indices as wrapped uint32 (what the hash consumes); +1 wraps the same way as int64 -> uint32
+    with np.errstate(over="ignore"):
+        ix = x0.astype(np.int64).astype(np.uint32)
+        iy = y0.astype(np.int64).astype(np.uint32)
+        ix1 = ix + np.uint32(1)
+        iy1 = iy + np.uint32(1)
     sx = fx * fx * (3 - 2 * fx)
     sy = fy * fy * (3 - 2 * fy)
     a = hash2(ix, iy, seed)
-    b = hash2(ix + 1, iy, seed)
-    c = hash2(ix, iy + 1, seed)
-    d = hash2(ix + 1, iy + 1, seed)
+    b = hash2(ix1, iy, seed)
+    c = hash2(ix, iy1, seed)
+    d = hash2(ix1, iy1, seed)
     top = a + (b - a) * sx
     bot = c + (d - c) * sx
     return top + (bot - top) * sy

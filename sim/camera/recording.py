@@ -9,6 +9,7 @@ Layout of a recording directory::
     masks/%06d.png     uint8 0/255, 255 = pixel sees the target facade
     truth.jsonl        one line per frame: index, capture_time_s, pose, K
     telemetry.jsonl    only when flown in SITL
+    texture/           cache of the true wall texture images (made on first facade_texture call)
 """
 
 from __future__ import annotations
@@ -194,7 +195,15 @@ class Recording:
             mm_per_px = max(2.0, math.ceil(L * 1000 / 4000))
         if mm_per_px <= 0:
             raise CompanionError(f"mm_per_px={mm_per_px} must be positive", "use e.g. 5 (mm per pixel)")
-        img = self.scene().texture.full_image(mm_per_px)
+        cache = self.path / "texture" / f"facade_{mm_per_px:g}mm.png"
+        img = cv2.imread(str(cache), cv2.IMREAD_COLOR) if cache.exists() else None
+        if img is None:
+            img = self.scene().texture.full_image(mm_per_px)  # seconds for a whole wall: cache it
+            try:
+                cache.parent.mkdir(exist_ok=True)
+                cv2.imwrite(str(cache), img)
+            except OSError:
+                pass  # read-only recording: recompute next time
         return FacadeTextureImage(img, float(mm_per_px), float(L), float(H))
 
 

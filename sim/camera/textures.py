@@ -178,7 +178,7 @@ class FacadeTexture:
         u = np.asarray(u, dtype=np.float64)
         base = np.array(s.base_bgr, dtype=np.float32)
         col = np.empty(a.shape + (3,), dtype=np.float32)
-        grain = fbm(a, u, 0.04, s.seed + 11, octaves=3, min_cell=px * 1.5)
+        grain = fbm(a, u, 0.08, s.seed + 11, octaves=4, min_cell=px * 1.5)
         if s.material == "brick":
             row = np.floor(u / s.course)
             ca = a + (row % 2) * (s.brick_len / 2)
@@ -198,7 +198,7 @@ class FacadeTexture:
             col[:] = brick * (1 - m)[..., None] + np.array(s.mortar_bgr, np.float32) * m[..., None]
         elif s.material == "concrete":
             blot = fbm(a, u, 0.8, s.seed + 3, octaves=4, min_cell=px * 1.5)
-            col[:] = base * (1 + 0.10 * blot + 0.09 * grain)[..., None]
+            col[:] = base * (1 + 0.10 * blot + 0.16 * grain)[..., None]
             fa = np.mod(a, 1.2)
             fu = np.mod(u, 0.6)
             d = np.minimum(np.minimum(fa, 1.2 - fa), np.minimum(fu, 0.6 - fu))
@@ -211,16 +211,22 @@ class FacadeTexture:
             pa = np.floor(a / s.panel_w)
             pu = np.floor(u / s.panel_h)
             tone = hash2(pa.astype(np.int64), pu.astype(np.int64), s.seed + 5)
-            col[:] = base * (0.92 + 0.16 * tone + 0.06 * grain)[..., None]
+            col[:] = base * (0.92 + 0.16 * tone + 0.10 * grain)[..., None]
             fa = a - pa * s.panel_w
             fu = u - pu * s.panel_h
             d = np.minimum(np.minimum(fa, s.panel_w - fa), np.minimum(fu, s.panel_h - fu))
             m = _smooth_cover(d, 0.007, px)
+            # fixings: a dark rivet 6 cm in from each panel corner
+            ra = np.minimum(np.abs(fa - 0.06), np.abs(s.panel_w - 0.06 - fa))
+            ru = np.minimum(np.abs(fu - 0.06), np.abs(s.panel_h - 0.06 - fu))
+            m = np.maximum(m, 0.8 * _smooth_cover(np.hypot(ra, ru), 0.008, px))
             col[:] = col * (1 - m)[..., None] + np.array(s.mortar_bgr, np.float32) * m[..., None]
         if s.material != "brick":
             # pores, spatter and dirt specks: the small features real render and cladding give a matcher
-            sp = value_noise(a, u, 0.012, s.seed + 13) if px < 0.012 else np.full(a.shape, 0.5, np.float32)
-            col *= (1 - 0.35 * np.clip((sp - 0.82) * 6, 0, 1))[..., None]
+            for cell, depth, k in ((0.012, 0.35, 13), (0.03, 0.3, 17)):
+                if px < cell:
+                    sp = value_noise(a, u, cell, s.seed + k)
+                    col *= (1 - depth * np.clip((sp - 0.8) * 6, 0, 1))[..., None]
         # plinth and parapet coping
         plinth = (u < 0.5).astype(np.float32)
         col *= (1 - 0.25 * plinth)[..., None]

@@ -111,3 +111,20 @@ def test_exposure_is_validated(scene):
     with pytest.raises(CompanionError):
         Renderer(scene, FRAME, CAM, exposure_s=-1)
     assert math.isfinite(Renderer(scene, FRAME, CAM).render(pose_at(5, 4, 5)).gain)
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3])  # concrete, panels, brick
+def test_every_material_gives_a_feature_matcher_texture(seed):
+    sc = Scene.build(L, H, seed=seed)
+    cam = CameraModel().scaled(640)
+    r = Renderer(sc, FRAME, cam)
+    a = r.render(pose_at(8.0, 4.0, 5.0), index=0)
+    b = r.render(pose_at(9.0, 4.0, 5.0), index=1)  # 1 m along: 82 % overlap
+    sift = cv2.SIFT_create()
+    ka, da = sift.detectAndCompute(cv2.cvtColor(a.image, cv2.COLOR_BGR2GRAY), None)
+    kb, db = sift.detectAndCompute(cv2.cvtColor(b.image, cv2.COLOR_BGR2GRAY), None)
+    assert len(ka) > 100, sc.style.material
+    good = [m for m, n in cv2.BFMatcher().knnMatch(da, db, k=2) if m.distance < 0.75 * n.distance]
+    shift = np.median([kb[m.trainIdx].pt[0] - ka[m.queryIdx].pt[0] for m in good])
+    assert len(good) > 30
+    assert shift == pytest.approx(-cam.K[0, 0] * 1.0 / 4.0, abs=2.0)  # image moves left by f * 1 m / 4 m

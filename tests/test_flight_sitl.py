@@ -24,6 +24,15 @@ def plan():
     return plan_scan(load_mission(ROOT / "missions/demo-facade.yaml"))
 
 
+@pytest.fixture(scope="module")
+def small_plan():
+    """The demo mission shrunk to an 8 m x 6 m wall (18 items, ~80 s simulated): for the slow lossy-link test."""
+    m = load_mission(ROOT / "missions/demo-facade.yaml")
+    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
+    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
+    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))
+
+
 def _fly(plan, url, **kw):
     kw.setdefault("progress", False)
     kw.setdefault("handle_signals", False)
@@ -51,10 +60,13 @@ def test_demo_mission_flies_to_completion(plan, tmp_path):
     assert scan and all(min(abs(r["yaw_deg"]), 360 - abs(r["yaw_deg"])) < 5.0 for r in scan)
 
 
-def test_twenty_percent_packet_loss_still_completes(plan, tmp_path):
-    with SitlVehicle(speedup=20, packet_loss=20, seed=4, log_path=tmp_path / "sim.log") as v:
-        result = _fly(plan, v.url, connect_timeout_s=15.0)
+def test_twenty_percent_packet_loss_still_completes(small_plan, tmp_path):
+    home = small_plan.home
+    with SitlVehicle(speedup=20, packet_loss=20, seed=4, log_path=tmp_path / "sim.log",
+                     home=f"{home.lat},{home.lon},{home.alt_amsl_m}") as v:
+        result = _fly(small_plan, v.url, connect_timeout_s=15.0)
     assert result.completed, result
+    assert result.items_reached == result.items_total == 18
 
 
 def test_five_second_link_outage_is_survived(plan, tmp_path):

@@ -147,6 +147,11 @@ class _Supervisor:
                         action = self.v.action.return_to_launch if self.end_action == "rtl" else self.v.action.land
                         await _retry(self.end_action, action)
                     if airborne and st["armed"] is False and st["in_air"] is False:
+                        if not done and ends_on_ground and self.max_reached >= total - 1:
+                            # Down and disarmed while executing the final LAND/RTL item: that item is complete
+                            # even if its MISSION_ITEM_REACHED was lost on the link.
+                            self.max_reached = total
+                            done = True
                         return None if done else "failsafe"
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self.signalled.wait(), 0.1)

@@ -126,6 +126,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self.mission_prev: np.ndarray | None = None
         self.mission_finished = False
         self.reached_seq = -1
+        self.reached_repeats = 0
         self.landed_since: float | None = None
         self.took_off = False
         self.gcs: tuple[int, int] | None = None
@@ -318,6 +319,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         elif task is not None:
             self.mission_prev = self.nav.copy()
         self.reached_seq = seq
+        self.reached_repeats = 0
         self._send(self.mav.mission_item_reached_encode(seq))
         self.mission_task = None
         self.mission_seq += 1

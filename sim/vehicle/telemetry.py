@@ -16,6 +16,7 @@ from sim.vehicle import flavours as fl
 
 log = logging.getLogger(__name__)
 
+REACHED_REPEATS = 3
 WALL_CAP_HZ = 25.0  # no stream faster than this in wall time, whatever the speed-up
 SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
            | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
@@ -169,6 +170,11 @@ class TelemetryStreams:
                 interval = min(interval, self.cfg.speedup * 1.0)  # at least 1 Hz of wall time
             self._next_due[name] = self.t + interval
             self._send(getattr(self, self.STREAMS[name])())
+            if name == "MISSION_CURRENT" and self.reached_seq >= 0 and self.reached_repeats < REACHED_REPEATS:
+                # Like PX4, repeat the last MISSION_ITEM_REACHED a few times: it is an event, and mavsdk only
+                # reports a mission as finished (current == total) once it has seen the last one.
+                self.reached_repeats += 1
+                self._send(self.mav.mission_item_reached_encode(self.reached_seq))
 
     def _requested(self, msg_id: int):
         if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:

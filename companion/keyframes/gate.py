@@ -238,6 +238,8 @@ class KeyframeGate:
 
     def _warn_if_falling(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
         rth = self.rth_percent
+        if step.overlap_warning:  # one warning per frame (the re-comparison after a promotion may repeat it)
+            return
         if self._prev_R >= rth and est.percent < rth - 100.0 * self.config.warn_margin:
             step.events.append(
                 GateEvent(

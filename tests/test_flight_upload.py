@@ -1,0 +1,75 @@
+"""Mission verify (compare uploaded vs downloaded items) and the fly command's option parsing; no processes."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from companion.errors import CompanionError
+from companion.flight.commands import _sim_options
+from companion.flight.fly import mission_items_for
+from companion.flight.upload import compare_missions, from_raw, to_raw
+from companion.mission.items import MissionItem
+
+
+def _items():
+    return [
+        MissionItem(0, 0, 16, 1, 1, 0.0, 0.0, 0.0, 0.0, 375663800, 1269781500, 30.0),
+        MissionItem(1, 6, 22, 0, 1, 0.0, 0.0, 0.0, math.nan, 375663800, 1269781500, 18.0),
+        MissionItem(2, 6, 16, 0, 1, 0.5, 0.3, 0.0, 359.9999, 375664640, 1269780085, 12.45),
+    ]
+
+
+def test_round_trip_through_mavsdk_items_is_identical():
+    items = _items()
+    back = from_raw(to_raw(items))
+    assert compare_missions(items, back, "px4") == []
+    assert to_raw(items)[0].current == 1 and to_raw(items)[1].current == 0
+
+
+def test_differences_are_named_per_item_and_field():
+    items = _items()
+    got = list(items)
+    got[2] = MissionItem(2, 6, 16, 0, 1, 0.5, 0.3, 0.0, 90.0, 375664640, 1269780086, 12.45)
+    problems = compare_missions(items, got, "px4")
+    assert len(problems) == 1 and problems[0].startswith("item 2:")
+    assert "param4" in problems[0] and "position" in problems[0]
+    assert compare_missions(items, got[:2], "px4")[0] == "vehicle holds 2 items, 3 were uploaded"
+
+
+def test_ardupilot_home_and_float_frames_are_not_differences():
+    items = _items()
+    got = [MissionItem(0, 0, 16, 1, 1, 0.0, 0.0, 0.0, 0.0, 375660000, 1269780000, 31.2)]  # the vehicle's home
+    got += [MissionItem(it.seq, 3, it.command, 0, 1, it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z)
+            for it in items[1:]]
+    assert compare_missions(items, got, "ardupilot") == []
+    assert compare_missions(items, got, "px4") != []  # on PX4 the same download would be wrong
+
+
+def test_float32_rounding_and_nan_compare_equal_but_real_changes_do_not():
+    items = _items()
+    got = list(items)
+    got[2] = MissionItem(2, 6, 16, 0, 1, 0.5, 0.3, 0.0, 359.99990844726562, 375664640, 1269780085, 12.449999809)
+    assert compare_missions(items, got, "px4") == []
+    got[1] = MissionItem(1, 6, 22, 0, 1, 0.0, 0.0, 0.0, 0.0, 375663800, 1269781500, 18.0)  # NaN became 0
+    assert "param4" in compare_missions(items, got, "px4")[0]
+
+
+def test_fly_accepts_a_plan_or_items_and_rejects_anything_else():
+    class _Plan:
+        def mavlink_items(self, flavour="px4"):
+            return _items()[1:] if flavour == "px4" else _items()
+
+    assert len(mission_items_for(_Plan(), "px4")) == 2
+    assert len(mission_items_for(_Plan(), "ardupilot")) == 3
+    assert mission_items_for(_items(), "px4") == _items()
+    with pytest.raises(CompanionError):
+        mission_items_for([1, 2, 3], "px4")
+
+
+def test_sim_arg_parsing():
+    assert _sim_options(["gusts=5", "packet-loss=20"]) == {"gusts": "5", "packet_loss": "20"}
+    with pytest.raises(CompanionError) as err:
+        _sim_options(["gusts"])
+    assert "OPT=VALUE" in err.value.problem

@@ -87,3 +87,14 @@ def test_bad_inputs_raise_companion_errors(rec, tmp_path):
         RecordingWriter(rec.path, {})
     with pytest.raises(CompanionError):
         generate_recording(MISSION, tmp_path / "x", stride=0)
+
+
+def test_companion_record_fast_cli(tmp_path, capsys):
+    from companion.cli import main
+
+    out = tmp_path / "cli"
+    assert main(["record", MISSION, "--out", str(out), "--fast", "--max-frames", "4", "--stride", "30",
+                 "--width", "160"]) == 0
+    assert "recorded 4 frames (160x90)" in capsys.readouterr().out
+    assert len(load_recording(out)) == 4
+    assert main(["record", MISSION, "--out", str(out), "--fast"]) == 2  # refuses to overwrite

@@ -29,6 +29,7 @@ class ChainStats:
     skipped_backlog: int = 0  # dropped before processing because the CPU could not keep up
     corrupt: int = 0
     stale_pose: int = 0
+    before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
     dropped_no_roi: int = 0
     keyframes: int = 0
     already_spooled: int = 0  # resumed run: keyframes found in the spool already
@@ -50,6 +51,9 @@ class ChainStats:
 
 
 class CullChain:
+    """Frames before the first telemetry sample are not culled (``require_telemetry``): they cannot be placed on
+    the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped."""
+
     def __init__(
         self,
         tagger: FrameTagger,
@@ -59,6 +63,7 @@ class CullChain:
         *,
         on_keyframe: Callable[[Keyframe, SpoolEntry], None] | None = None,
         on_warning: Callable[[str], None] | None = None,
+        require_telemetry: bool = True,
     ):
         self.tagger = tagger
         self.masker = masker
@@ -68,6 +73,8 @@ class CullChain:
         self.on_warning = on_warning or (lambda msg: log.warning(msg))
         self.stats = ChainStats()
         self.spool_disabled = False
+        self.require_telemetry = require_telemetry
+        self._seen_pose = False
 
     def warn(self, message: str) -> None:
         self.stats.warnings.append(message)
@@ -80,6 +87,10 @@ class CullChain:
         st.last_frame_wall_s = now
         st.frames_in += 1
         tagged = self.tagger.tag(frame)
+        if tagged.pose is None and not self._seen_pose and self.require_telemetry:
+            st.before_telemetry += 1
+            return []
+        self._seen_pose = self._seen_pose or tagged.pose is not None
         st.stale_pose += int(tagged.pose_stale)
         if self.masker is not None:
             masked = self.masker(tagged)

@@ -96,6 +96,9 @@ def run_live_scan(
     """
     from companion.flight.fly import fly_mission_sync
 
+    # Tagging interpolates between telemetry samples: denser samples, smaller errors on fast legs (takeoff).
+    fly_kwargs.setdefault("telemetry_rate_hz", 30.0)
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     telemetry_log = Path(telemetry_log) if telemetry_log else out / "telemetry.jsonl"

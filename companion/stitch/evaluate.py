@@ -13,9 +13,18 @@ from companion.stitch.render import MapGrid
 
 
 def truth_on_grid(
-    texture: np.ndarray, texture_m_per_px: float, height_m: float, grid: MapGrid, along0_m: float = 0.0
+    texture: np.ndarray,
+    texture_m_per_px: float,
+    height_m: float,
+    grid: MapGrid,
+    along0_m: float = 0.0,
+    pixel_centre: float = 0.0,
 ) -> np.ndarray:
-    """The texture (top-left = along ``along0_m``, up ``height_m``) resampled onto the map grid."""
+    """The texture (top-left = along ``along0_m``, up ``height_m``) resampled onto the map grid.
+
+    ``pixel_centre``: texture pixel i sits at (i + pixel_centre) * scale (0 for synthetic.py, 0.5 for the
+    simulator's texture).
+    """
     ratio = grid.m_per_px / texture_m_per_px
     src = texture
     if ratio > 1.0:  # anti-alias before downsampling
@@ -23,8 +32,8 @@ def truth_on_grid(
     # map px (u, v) -> texture px: tx = (along0 + u s - along0_t) / st, ty = (H - (top - v s)) / st
     A = np.array(
         [
-            [ratio, 0.0, (grid.along0_m - along0_m) / texture_m_per_px],
-            [0.0, ratio, (height_m - grid.up_top_m) / texture_m_per_px],
+            [ratio, 0.0, (grid.along0_m - along0_m) / texture_m_per_px - pixel_centre],
+            [0.0, ratio, (height_m - grid.up_top_m) / texture_m_per_px - pixel_centre],
         ]
     )
     return cv2.warpAffine(

@@ -48,6 +48,7 @@ class PairSettings:
     min_inliers_affine: int = 8
     pose_gate_m: float = 1.0
     max_points: int = 400  # inliers kept per pair for the global adjustment and the mesh
+    min_inlier_area: float = 0.01  # inliers' convex hull / image area: below this the model is extrapolation
 
 
 def candidate_pairs(
@@ -138,6 +139,7 @@ def match_pair(
             and m is not None
             and int(m.sum()) >= settings.min_inliers
             and is_sane_homography(Hh, corners)
+            and _spread(pi[m.ravel().astype(bool)], w, h) >= settings.min_inlier_area
         ):
             model, H, inl = "homography", Hh, m.ravel().astype(bool)
     if H is None:
@@ -145,7 +147,10 @@ def match_pair(
         A, m = cv2.estimateAffine2D(pi, pj, method=cv2.RANSAC, ransacReprojThreshold=settings.ransac_px)
         if A is not None and m is not None and int(m.sum()) >= settings.min_inliers_affine:
             Ha = np.vstack((A, [0.0, 0.0, 1.0]))
-            if is_sane_homography(Ha, corners):
+            if (
+                is_sane_homography(Ha, corners)
+                and _spread(pi[m.ravel().astype(bool)], w, h) >= settings.min_inlier_area
+            ):
                 model, H, inl = "affine", Ha, m.ravel().astype(bool)
     if H is None:
         return PairResult(i, j, False, "none", "no consistent homography or affine model", matches=len(good))
@@ -158,12 +163,23 @@ def match_pair(
         moved = np.linalg.norm(
             apply_h(prior_j @ pixel_to_norm, apply_h(H, pi)) - apply_h(prior_i @ pixel_to_norm, pi), axis=1
         )
-        if float(np.median(moved)) > settings.pose_gate_m:
+        # and where it puts the image corners (an extrapolating model, e.g. from a repeated ledge, fails here)
+        moved_c = np.linalg.norm(
+            apply_h(prior_j @ pixel_to_norm, apply_h(H, corners)) - apply_h(prior_i @ pixel_to_norm, corners), axis=1
+        )
+        if float(np.median(moved)) > settings.pose_gate_m or float(moved_c.max()) > 2 * settings.pose_gate_m:
             return PairResult(i, j, False, model, "model contradicts telemetry", len(good), len(pi), rms)
     if len(pi) > settings.max_points:
         sel = np.random.default_rng(i * 100003 + j).choice(len(pi), settings.max_points, replace=False)
         pi, pj = pi[sel], pj[sel]
     return PairResult(i, j, True, model, "", len(good), int(inl.sum()), rms, H, pi, pj, lum_ratio)
+
+
+def _spread(pts: np.ndarray, w: int, h: int) -> float:
+    """Area of the inliers' convex hull as a fraction of the image (collinear or clustered inliers ~ 0)."""
+    if len(pts) < 3:
+        return 0.0
+    return float(cv2.contourArea(cv2.convexHull(pts.astype(np.float32)))) / float(w * h)
 
 
 def save_pair(path: Path, r: PairResult) -> None:

@@ -41,6 +41,7 @@ class StitchConfig:
     ratio: float = 0.75
     ransac_px: float | None = None  # default: 0.4 % of the image width, at least 2 px
     min_inliers: int = 15
+    max_pair_residual_px: float = 8.0  # a pair still this far off after global alignment is an outlier
     pose_gate_m: float = 1.0  # matches/models landing further apart than this on the wall contradict telemetry
     use_poses: bool = True
     sigma_prior_m: float = 0.5  # how far GNSS may put an image centre off on the wall
@@ -151,26 +152,42 @@ def stitch(
             save_pair(path, r)
         r.i, r.j = i, j
         results.append(r)
-    accepted = [r for r in results if r.accepted]
     t["matching"] = time.perf_counter()
-    if not accepted and not use_poses:
+    if not any(r.accepted for r in results) and not use_poses:
         raise CompanionError(
             "no two keyframes could be registered (no shared features inside the ROI masks)",
             "check that keyframes overlap (gate threshold) and that the masks keep the facade",
         )
 
-    # 4. global alignment onto the plane
-    al = global_alignment(
-        n,
-        results,
-        to_norm,
-        priors,
-        reference,
-        sigma_match=ransac_px / cam.focal_px,
-        sigma_prior_m=cfg.sigma_prior_m,
-        sigma_shape_m=cfg.sigma_shape_m,
-    )
+    # 4. global alignment onto the plane; pairs that disagree with all the others are dropped and it is re-run
+    for _round in range(4):
+        al = global_alignment(
+            n,
+            results,
+            to_norm,
+            priors,
+            reference,
+            sigma_match=ransac_px / cam.focal_px,
+            sigma_prior_m=cfg.sigma_prior_m,
+            sigma_shape_m=cfg.sigma_shape_m,
+        )
+        errs = {}
+        for r in results:
+            if r.accepted and al.G[r.i] is not None and al.G[r.j] is not None:
+                M = np.linalg.inv(al.G[r.j]) @ al.G[r.i]
+                e = apply_h(M, apply_h(to_norm, r.pts_i)) - apply_h(to_norm, r.pts_j)
+                errs[id(r)] = float(np.median(np.linalg.norm(e, axis=1))) * cam.focal_px
+        if not errs:
+            break
+        limit = max(cfg.max_pair_residual_px, 6.0 * float(np.median(list(errs.values()))))
+        bad = [r for r in results if id(r) in errs and errs[id(r)] > limit]
+        if not bad:
+            break
+        for r in bad:
+            r.accepted = False
+            r.reason = f"inconsistent with the other pairs after global alignment ({errs[id(r)]:.1f} px)"
     placed_idx = [k for k in range(n) if al.G[k] is not None]
+    accepted = [r for r in results if r.accepted]
     t["alignment"] = time.perf_counter()
 
     # 5. map grid

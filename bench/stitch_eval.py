@@ -1,0 +1,202 @@
+"""Stitching benchmark against the simulator's ground truth, with peers side by side in one run.
+
+Prints (and writes as JSON) for each method: wall-clock time, alignment error of the map against the true
+facade texture (median / p95, px and mm; "absolute" = where on the wall, only for maps rectified to the facade;
+"registered" = after the best single homography onto the truth, the measure comparable across methods),
+structural similarity to the truth (ghosting), and facade coverage.
+
+Keyframes: the ideal gate on the recording (next keyframe = last frame whose TRUE overlap with the previous
+keyframe is still >= --overlap, paper Rth), so this measures stitching alone. Telemetry: the recording's exact
+camera poses plus Gaussian noise (--pose-noise-m, --attitude-noise-deg), as a GNSS/IMU would deliver them.
+
+    python bench/stitch_eval.py --mission missions/demo-facade.yaml --stride 10 --max-keyframes 40 \
+        --peers scans,panorama,stitching --out /tmp/stitch_eval
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.stitch import StitchConfig, stitch
+from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
+from companion.stitch.inputs import load_recording_input
+from companion.stitch.render import MapGrid
+
+
+def select_keyframes(rec, overlap: float, max_keyframes: int | None) -> list[int]:
+    """Ideal overlap gate on true footprints (Eq. 2's intent, measured exactly)."""
+    sel = [0]
+    j = 1
+    while j < len(rec):
+        if rec.true_overlap(sel[-1], j) < overlap:
+            sel.append(j - 1 if j - 1 > sel[-1] else j)
+            if max_keyframes and len(sel) >= max_keyframes:
+                break
+            j = sel[-1] + 1
+            continue
+        j += 1
+    return sel
+
+
+def truth_grid(rec, mm_per_px: float) -> tuple[np.ndarray, MapGrid]:
+    tex = rec.facade_texture()
+    L, H = tex.length_m, tex.height_m
+    s = mm_per_px / 1000.0
+    grid = MapGrid(0.0, H, s, int(np.ceil(L / s)), int(np.ceil(H / s)))
+    return truth_on_grid(tex.image, tex.mm_per_px / 1000.0, H, grid, pixel_centre=0.5), grid
+
+
+def section_mask(rec, frames: list[int], grid: MapGrid) -> np.ndarray:
+    """The part of the wall the chosen keyframes' true footprints cover (coverage is measured inside it)."""
+    m = np.zeros((grid.height, grid.width), np.uint8)
+    for i in frames:
+        poly = grid.to_px(np.asarray(rec.footprint(i), float))
+        cv2.fillPoly(m, [np.round(poly).astype(np.int32)], 255)
+    return m
+
+
+def peer_cv2(images, masks, mode: int):
+    st = cv2.Stitcher_create(mode)
+    status, pano = st.stitch(images, masks)
+    return (pano if status == cv2.Stitcher_OK else None), f"status {status}"
+
+
+def peer_stitching(images, masks, affine: bool):
+    try:
+        from stitching import AffineStitcher, Stitcher
+    except ImportError:
+        return None, "not installed (pip install --no-deps stitching largestinteriorrectangle numba)"
+    cls = AffineStitcher if affine else Stitcher
+    try:
+        st = cls(detector="sift", crop=False, confidence_threshold=0.2)
+        return st.stitch(images, masks), "ok"
+    except Exception as exc:  # the peer raises its own error types on failure; record them
+        return None, f"failed: {type(exc).__name__}: {str(exc)[:120]}"
+
+
+def score_registered(pano, truth, region, m_per_px):
+    reg = register_to_truth(pano, truth)
+    if reg is None:
+        return {"registered": False}
+    warped, cov = reg
+    cov = cv2.bitwise_and(cov, region)
+    acc = map_accuracy(warped, cov, truth, m_per_px)
+    acc["coverage"] = float(np.count_nonzero(cov & (warped.max(axis=2) > 0)) / max(1, np.count_nonzero(region)))
+    acc["registered"] = True
+    return acc
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--recording", help="existing recording directory")
+    ap.add_argument("--mission", default="missions/demo-facade.yaml", help="generate a recording from this mission")
+    ap.add_argument("--stride", type=int, default=10, help="generator: every N-th camera frame")
+    ap.add_argument("--width-px", type=int, default=640)
+    ap.add_argument("--overlap", type=float, default=0.8, help="keyframe overlap threshold (paper Rth)")
+    ap.add_argument("--max-keyframes", type=int, default=None)
+    ap.add_argument("--pose-noise-m", type=float, default=0.3)
+    ap.add_argument("--attitude-noise-deg", type=float, default=0.5)
+    ap.add_argument(
+        "--peers",
+        default="scans,panorama,stitching",
+        help="comma list: scans,panorama,stitching,stitching-affine, or none",
+    )
+    ap.add_argument("--no-image-only", action="store_true", help="skip our run without telemetry")
+    ap.add_argument("--out", default="/tmp/stitch_eval")
+    args = ap.parse_args(argv)
+    from sim.camera.recording import generate_recording, load_recording
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rec_dir = Path(args.recording) if args.recording else out / f"recording_s{args.stride}_w{args.width_px}"
+    if not (rec_dir / "meta.json").exists():
+        t0 = time.perf_counter()
+        generate_recording(args.mission, rec_dir, stride=args.stride, width_px=args.width_px)
+        print(f"recording generated in {time.perf_counter() - t0:.0f} s: {rec_dir}")
+    rec = load_recording(rec_dir)
+    frames = select_keyframes(rec, args.overlap, args.max_keyframes)
+    print(f"{len(rec)} frames -> {len(frames)} keyframes (true overlap >= {args.overlap})")
+    results: dict = {
+        "machine": f"{platform.node()} {platform.machine()} {platform.system()}, python {sys.version.split()[0]}, "
+        f"opencv {cv2.__version__}",
+        "recording": str(rec_dir),
+        "frames": len(rec),
+        "keyframes": len(frames),
+        "image_size": [rec.width, rec.height],
+        "pose_noise_m": args.pose_noise_m,
+        "attitude_noise_deg": args.attitude_noise_deg,
+        "methods": {},
+    }
+
+    ours_runs = [("ours", True)] + ([] if args.no_image_only else [("ours-image-only", False)])
+    truth = grid = region = None
+    for name, poses in ours_runs:
+        inp = load_recording_input(
+            rec_dir,
+            frames=frames,
+            use_poses=poses,
+            pose_noise_m=args.pose_noise_m,
+            attitude_noise_deg=args.attitude_noise_deg,
+        )
+        t0 = time.perf_counter()
+        res = stitch(inp, out / name, StitchConfig(), progress=False)
+        dt = time.perf_counter() - t0
+        entry = {
+            "time_s": dt,
+            "report_alignment": res.report["alignment"],
+            "pairs": res.report["pairs_accepted"],
+            "pairs_tried": res.report["pairs_tried"],
+            "map": res.files.get("map"),
+        }
+        if truth is None:
+            truth, grid = truth_grid(rec, res.grid.m_per_px * 1000 if poses else 8.5)
+            region = section_mask(rec, frames, grid)
+            cv2.imwrite(str(out / "truth.png"), truth)
+        if poses and res.map_image is not None and res.map_image.shape[:2] == truth.shape[:2]:
+            cov = cv2.bitwise_and(res.coverage, region)
+            acc = map_accuracy(res.map_image, cov, truth, grid.m_per_px)
+            acc["coverage"] = float(np.count_nonzero(cov) / max(1, np.count_nonzero(region)))
+        else:
+            acc = score_registered(res.map_image, truth, region, grid.m_per_px)
+        entry.update(acc)
+        results["methods"][name] = entry
+        print(name, json.dumps({k: v for k, v in entry.items() if k != "report_alignment"}, default=float))
+
+    images = [rec.image(i) for i in frames]
+    masks = [rec.roi_mask(i) for i in frames]
+    peers = [] if args.peers == "none" else args.peers.split(",")
+    for peer in peers:
+        t0 = time.perf_counter()
+        if peer == "scans":
+            pano, status = peer_cv2(images, masks, cv2.Stitcher_SCANS)
+        elif peer == "panorama":
+            pano, status = peer_cv2(images, masks, cv2.Stitcher_PANORAMA)
+        elif peer in ("stitching", "stitching-affine"):
+            pano, status = peer_stitching(images, masks, affine=peer.endswith("affine"))
+        else:
+            raise SystemExit(f"unknown peer {peer!r}")
+        dt = time.perf_counter() - t0
+        entry = {"time_s": dt, "status": status}
+        if pano is not None:
+            cv2.imwrite(str(out / f"peer_{peer}.jpg"), pano)
+            entry.update(score_registered(pano, truth, region, grid.m_per_px))
+        results["methods"][peer] = entry
+        print(peer, json.dumps(entry, default=float))
+    ours_t = results["methods"]["ours"]["time_s"]
+    for e in results["methods"].values():
+        e["time_ratio_vs_ours"] = e["time_s"] / ours_t
+    (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
+    print(f"results: {out / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -103,7 +103,8 @@ class Renderer:
         (H,W,3, camera z = 1) and the index of the box or tree hit (H,W; -1 for none)."""
         sc = self.scene
         A = self.M @ pose.R_world_from_cam  # facade <- camera
-        orig = self.M @ pose.position_enu
+        # float32 origin: a float64 scalar would silently promote every float32 ray array to float64
+        orig = (self.M @ pose.position_enu).astype(np.float32)
         rx, ry = self._rx, self._ry
         A32 = A.astype(np.float32)
         Dc = tuple(A32[k, 0] * rx + A32[k, 1] * ry + A32[k, 2] for k in range(3))
@@ -448,7 +449,8 @@ class Renderer:
         v = pose.R_world_from_cam.T @ np.asarray(pose.velocity_enu_m_s, dtype=float)
         w = np.asarray(pose.angular_rate_cam_rad_s, dtype=float)
         f = self.K[0, 0]
-        finite = depth[np.isfinite(depth) & (depth < 50)]
+        sub = depth[::4, ::4]
+        finite = sub[np.isfinite(sub) & (sub < 50)]
         z = float(np.median(finite)) if finite.size else math.inf
         rot = np.array([-w[1], w[0]]) * f * self.exposure_s
         trans = np.array([-v[0], -v[1]]) * f * self.exposure_s / z if math.isfinite(z) else np.zeros(2)
@@ -525,8 +527,8 @@ def _box_hit(orig, D, lo, hi):
 
 
 def _ellipsoid_hit(orig, D, c, rad):
-    o = [(orig[k] - c[k]) / rad[k] for k in range(3)]
-    d = [D[k] / rad[k] for k in range(3)]
+    o = [float((orig[k] - c[k]) / rad[k]) for k in range(3)]  # Python floats keep the float32 arrays float32
+    d = [D[k] * np.float32(1.0 / rad[k]) for k in range(3)]
     a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     b = 2 * (d[0] * o[0] + d[1] * o[1] + d[2] * o[2])
     cc = float(o[0] ** 2 + o[1] ** 2 + o[2] ** 2) - 1.0

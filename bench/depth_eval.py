@@ -1,9 +1,10 @@
 """Depth-mask accuracy on held-out simulator recordings: pixel error ratio vs the true ROI masks (mean, p95) and
 the fraction of frames whose ROI is nearer than the background (paper: 0.75 % mean error; ROI always nearer).
 
-Usage: python bench/depth_eval.py [--model M.onnx] [--seeds 100 101] [--stride 30] [--data DIR] [--json OUT]
+Usage: python bench/depth_eval.py [--model M.onnx] [--seeds 100 101] [--gen-stride 30] [--stride 1] [--data DIR]
+       [--save DIR] [--json OUT] [--near-ratio 0.6 ...] [--far-cut 0.5 ...]
 Recordings of missions/demo-facade.yaml with the given seeds are generated into --data if missing (seeds the
-shipped model never saw: it was trained on random-view scenes with seeds 0-23 and evaluated on 1000-1003).
+shipped model never saw: it was trained on random-view scenes 0-13, its ROI parameters checked on 1000-1003).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from companion.depth.evaluate import evaluate_recording
 from companion.depth.masker import Masker
+from companion.depth.roi import RoiParams
 from companion.depth.session import DEFAULT_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,16 +30,25 @@ def main() -> None:
     ap.add_argument("--model", default=str(DEFAULT_MODEL))
     ap.add_argument("--seeds", nargs="+", type=int, default=[100, 101])
     ap.add_argument("--mission", default=str(ROOT / "missions" / "demo-facade.yaml"))
-    ap.add_argument("--gen-stride", type=int, default=10, help="camera frames between recorded frames")
-    ap.add_argument("--stride", type=int, default=3, help="evaluate every n-th recorded frame")
+    ap.add_argument("--gen-stride", type=int, default=30, help="camera frames between recorded frames")
+    ap.add_argument("--stride", type=int, default=1, help="evaluate every n-th recorded frame")
     ap.add_argument("--data", default="/tmp/companion-depth-eval")
     ap.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--near-ratio", type=float, nargs="+", default=[RoiParams.near_ratio])
+    ap.add_argument("--far-cut", type=float, nargs="+", default=[RoiParams.far_cut_ratio])
     args = ap.parse_args()
+    for near in args.near_ratio:
+        for far in args.far_cut:
+            print(f"--- ROI parameters: near_ratio {near}, far_cut_ratio {far}")
+            run(args, RoiParams(near_ratio=near, far_cut_ratio=far))
+
+
+def run(args, params: RoiParams) -> None:
 
     from sim.camera.recording import generate_recording
 
-    masker = Masker(args.model)
+    masker = Masker(args.model, params=params)
     rows, all_frames = [], []
     for seed in args.seeds:
         path = Path(args.data) / f"demo_seed{seed:04d}_g{args.gen_stride}"

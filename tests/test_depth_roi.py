@@ -121,3 +121,25 @@ def test_bad_disparity_raises(bad):
 def test_otsu_splits_bimodal_values():
     v = np.concatenate([np.full(100, 1.0), np.full(50, 5.0)])
     assert 1.0 <= otsu_threshold(v) < 5.0
+
+
+def test_surface_running_into_the_distance_is_cut_by_depth():
+    # a roof seen from above: disparity falls smoothly from the wall top (row 60) to far away at the top edge,
+    # with no jump anywhere; what is more than 2x farther than the wall goes, the wall and near roof stay
+    yy, xx = _grid()
+    d = np.full((H, W), WALL, np.float32)
+    roof = yy < 60
+    d[roof] = (WALL * np.exp(-(60 - yy[roof]) / 15.0)).astype(np.float32)  # halves every ~10 rows
+    res = extract_roi(d)
+    assert not res.no_boundary
+    assert res.mask[60:].min() == 255 and res.mask[d > 0.8 * WALL].min() == 255
+    assert res.mask[d < 0.5 * WALL].max() == 0
+
+
+def test_far_cut_without_any_boundary():
+    # a gentle slope (no gradient above the floor, so no boundary) that still reaches 3x the wall's depth
+    d = np.tile(np.linspace(0.09, 0.27, W, dtype=np.float32), (H, 1))
+    res = extract_roi(d)
+    assert res.n_regions == 1
+    assert res.mask[:, d[0] >= 0.14].min() == 255 and res.mask[:, d[0] < 0.13].max() == 0
+    assert extract_roi(d, params=RoiParams(far_cut_ratio=0.0)).roi_fraction == 1.0  # the paper's method alone

@@ -32,6 +32,9 @@ class RoiParams:
     min_component_frac: float = 0.002
     # Closing kernel (pixels at model resolution) that bridges small gaps in the boundary.
     close_px: int = 3
+    # Pixels with disparity below far_cut_ratio x the facade's (95th percentile of the kept side) are cut even
+    # without a boundary (0.5: more than 2x farther than the facade). 0 disables (pure paper method).
+    far_cut_ratio: float = 0.5
     # Nearest region mean disparity below this: whole frame background (frame dropped). None: never.
     min_roi_disparity: float | None = None
 
@@ -40,7 +43,8 @@ class RoiParams:
             raise CompanionError(
                 f"near_ratio must be in (0, 1), got {self.near_ratio}", "use e.g. 0.6 (background >= 1.67x farther)"
             )
-        if self.min_rel_gradient < 0 or not 0 <= self.min_component_frac < 0.5 or self.close_px < 0:
+        if self.min_rel_gradient < 0 or not 0 <= self.min_component_frac < 0.5 or self.close_px < 0 \
+                or not 0 <= self.far_cut_ratio < 1:
             raise CompanionError("ROI parameters out of range", "use non-negative values (see RoiParams defaults)")
 
 
@@ -196,25 +200,28 @@ def extract_roi(
 
     kept = [i for i in region_ids if means[i] >= params.near_ratio * nearest]
     dropped = [i for i in region_ids if i not in kept]
-    if not dropped:
-        # No depth boundary separates near from far: the whole frame is facade.
-        keep = np.ones((h, w), bool)
-        no_boundary = True
-    else:
-        no_boundary = False
+    is_dropped = np.zeros(n, bool)
+    is_dropped[dropped] = True
+    in_dropped = is_dropped[labels]  # boundary pixels (label 0) are decided by the cut below
+    cut = 0.0
+    if dropped:
         kept_mean = float(sum(sums[i] for i in kept) / sum(counts[i] for i in kept))
         drop_mean = float(sum(sums[i] for i in dropped) / sum(counts[i] for i in dropped))
         # Pixels on the boundary (and tiny regions) go to the side their disparity is closer to; the same cut
         # also trims background that leaked into a kept region through a gap in the boundary.
         cut = 0.5 * (kept_mean + drop_mean)
-        is_dropped = np.zeros(n, bool)
-        is_dropped[dropped] = True
-        in_dropped = is_dropped[labels]
-        keep = (~in_dropped) & (d >= cut)
+    if params.far_cut_ratio > 0:
+        # Surfaces that run on continuously from the facade into the distance (a roof seen from above, the
+        # ground, a side wall) cross no boundary; their parts far behind the facade are cut by depth alone.
+        side = d[::2, ::2][~in_dropped[::2, ::2]]
+        near_ref = float(np.percentile(side if side.size else d[~in_dropped], 95))
+        cut = max(cut, params.far_cut_ratio * near_ref)
+    keep = (~in_dropped) & (d >= cut)
+    if not keep.all():
         min_island = max(4, int(params.min_component_frac * d.size))
         keep = _remove_small(keep, min_island, connectivity=4)
-        holes = _remove_small(~keep, min_island, connectivity=4)
-        keep = ~holes
+        keep = ~_remove_small(~keep, min_island, connectivity=4)  # fill pepper holes in the ROI
+    no_boundary = bool(keep.all())  # nothing cut: the whole frame is facade
 
     if (out_w, out_h) != (w, h):
         soft = cv2.resize(keep.astype(np.float32), (out_w, out_h), interpolation=cv2.INTER_LINEAR)

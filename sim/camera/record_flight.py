@@ -15,26 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
-import signal
-import socket
-import subprocess
 import sys
-import time
 from dataclasses import asdict
 from pathlib import Path
 
 from companion.errors import CompanionError
 from sim.camera.recording import resolve_mission
+from sim.rig import SitlRig
 
 log = logging.getLogger(__name__)
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _free_port(kind: int) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 0, width_px: int = 640,
@@ -42,7 +31,6 @@ def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 
                   sim_options: dict | None = None, flight_timeout_s: float = 1800.0) -> Path:
     """Fly ``mission_path`` in SITL and record the camera; returns the recording directory."""
     from companion.flight.fly import fly_mission_sync
-    from companion.flight.simulator import SimulatorProcess
     from companion.mission import plan_scan
 
     mission = resolve_mission(mission_path)
@@ -53,41 +41,13 @@ def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 
     if fps <= 0 or speedup <= 0:
         raise CompanionError(f"fps={fps} and speedup={speedup} must be positive", "use e.g. --fps 5 --speedup 2")
     out.mkdir(parents=True, exist_ok=True)
-    pose_port = _free_port(socket.SOCK_DGRAM)
-    stream_port = _free_port(socket.SOCK_STREAM)
-    cam_args = [sys.executable, "-m", "sim", "camera", str(Path(mission_path).resolve()), "--pose-port",
-                str(pose_port), "--stream-port", str(stream_port), "--width", str(width_px), "--fps", str(fps),
-                "--seed", str(seed), "--record", str(out.resolve()),
-                "--record-max-out", str(float(mission.standoff_m) * 1.5 + 1.0)]
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    cam_log = open(out / "camera.log", "w")  # noqa: SIM115 (kept open for the camera process's lifetime)
-    camera = subprocess.Popen(cam_args, cwd=ROOT, stdout=cam_log, stderr=subprocess.STDOUT, env=env)
-    home = plan.home
-    vehicle = None
-    try:
-        deadline = time.monotonic() + 30.0
-        while "frames on tcp" not in (out / "camera.log").read_text() and time.monotonic() < deadline:
-            if camera.poll() is not None:
-                raise CompanionError(f"the camera process exited at start (code {camera.returncode})",
-                                     f"see {out / 'camera.log'}")
-            time.sleep(0.1)
-        vehicle = SimulatorProcess(speedup=speedup, seed=seed, pose_port=pose_port, autopilot=autopilot,
-                                   home=f"{home.lat},{home.lon},{home.alt_amsl_m}", log_path=out / "vehicle.log",
-                                   **(sim_options or {})).start()
-        result = fly_mission_sync(plan, vehicle.url, telemetry_log=out / "telemetry.jsonl", progress=progress,
+    rig = SitlRig(mission_path, log_dir=out, seed=seed, width_px=width_px, fps=fps, speedup=speedup,
+                  autopilot=autopilot, record_dir=out, record_max_out_m=float(mission.standoff_m) * 1.5 + 1.0,
+                  sim_options=sim_options)
+    with rig:
+        result = fly_mission_sync(plan, rig.url, telemetry_log=out / "telemetry.jsonl", progress=progress,
                                   end_action=mission.end_action, flight_timeout_s=flight_timeout_s,
                                   handle_signals=False)
-    finally:
-        if camera.poll() is None:
-            camera.send_signal(signal.SIGTERM)
-            try:
-                camera.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                camera.kill()
-                camera.wait()
-        cam_log.close()
-        if vehicle is not None:
-            vehicle.stop()
     meta_p = out / "meta.json"
     if not meta_p.exists():
         raise CompanionError("the camera wrote no recording", f"see {out / 'camera.log'}")

@@ -145,3 +145,11 @@ def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):
     assert last["armed"] is False and last["in_air"] is False
     assert last["flight_mode"] == "RETURN_TO_LAUNCH"
     assert abs(last["lat"] - 37.56638) < 5e-6 and abs(last["lon"] - 126.97815) < 5e-6  # back at home
+
+
+def test_home_at_the_wrong_altitude_is_refused(plan, tmp_path):
+    # 8 m higher than the planned takeoff: every relative scan height would be 8 m off
+    sim = SitlVehicle(speedup=20, home="37.56638,126.97815,38.0", log_path=tmp_path / "sim.log")
+    with sim as v, pytest.raises(CompanionError) as err:
+        _fly(plan, v.url)
+    assert "+8.0 m from the planned takeoff altitude" in err.value.problem

@@ -9,8 +9,10 @@ import asyncio
 import contextlib
 import json
 import logging
+import math
 from dataclasses import dataclass
 
+import pymap3d
 from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync, MavlinkMessage
@@ -104,6 +106,25 @@ async def request_rates(vehicle: Vehicle, rate_hz: float) -> None:
         await vehicle.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID_MISSION_CURRENT, 1e6)
     if failed:
         log.warning("telemetry rate requests refused: %s", "; ".join(failed))
+
+
+async def check_home(vehicle: Vehicle, planned, *, max_alt_diff_m: float = 3.0, warn_distance_m: float = 50.0):
+    """Compare the vehicle's home with the plan's takeoff point. Scan heights are relative to home, so a home at a
+    different altitude shifts the whole scan up or down next to the wall: refuse that; warn about distance."""
+    home = await vehicle.telemetry.home()
+    if not all(map(math.isfinite, (home.latitude_deg, home.longitude_deg, home.absolute_altitude_m))):
+        raise CompanionError("the vehicle reports no home position", "wait for a GPS fix and home, then retry")
+    e, n, _ = pymap3d.geodetic2enu(home.latitude_deg, home.longitude_deg, 0.0, planned.lat, planned.lon, 0.0)
+    dist = math.hypot(e, n)
+    dalt = home.absolute_altitude_m - planned.alt_amsl_m
+    if abs(dalt) > max_alt_diff_m:
+        raise CompanionError(
+            f"the vehicle's home is {dalt:+.1f} m from the planned takeoff altitude ({home.absolute_altitude_m:.1f} "
+            f"vs {planned.alt_amsl_m:.1f} m AMSL): every scan height would be off by that much",
+            "take off from the planned point, or set takeoff/ground altitude in the mission to the real one")
+    if dist > warn_distance_m:
+        log.warning("the vehicle's home is %.0f m from the planned takeoff point", dist)
+    return dist, dalt
 
 
 async def wait_healthy(vehicle: Vehicle, timeout_s: float = 30.0) -> None:

@@ -23,7 +23,14 @@ from pathlib import Path
 from tqdm import tqdm
 
 from companion.errors import CompanionError
-from companion.flight.connection import MAV_CMD_DO_SET_MODE, Vehicle, connect, request_rates, wait_healthy
+from companion.flight.connection import (
+    MAV_CMD_DO_SET_MODE,
+    Vehicle,
+    check_home,
+    connect,
+    request_rates,
+    wait_healthy,
+)
 from companion.flight.telemetry_log import TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
@@ -197,6 +204,8 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
         await wait_healthy(vehicle, health_timeout_s)
+        if getattr(plan, "home", None) is not None:
+            await check_home(vehicle, plan.home)
         await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
         async with TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None) as rec:
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,

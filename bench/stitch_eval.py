@@ -136,18 +136,18 @@ def main(argv=None) -> int:
         "methods": {},
     }
 
-    ours_runs = [("ours", True)] + ([] if args.no_image_only else [("ours-image-only", False)])
+    ours_runs = [("ours", True, args.pose_noise_m, args.attitude_noise_deg)]
+    ours_runs.append(("ours-exact-poses", True, 0.0, 0.0))
+    if not args.no_image_only:
+        ours_runs.append(("ours-image-only", False, 0.0, 0.0))
     truth = grid = region = None
-    for name, poses in ours_runs:
+    for name, poses, noise_m, noise_deg in ours_runs:
         inp = load_recording_input(
-            rec_dir,
-            frames=frames,
-            use_poses=poses,
-            pose_noise_m=args.pose_noise_m,
-            attitude_noise_deg=args.attitude_noise_deg,
+            rec_dir, frames=frames, use_poses=poses, pose_noise_m=noise_m, attitude_noise_deg=noise_deg
         )
         t0 = time.perf_counter()
-        res = stitch(inp, out / name, StitchConfig(), progress=False)
+        cfg = StitchConfig() if grid is None else StitchConfig(mm_per_px=grid.m_per_px * 1000)  # same grid
+        res = stitch(inp, out / name, cfg, progress=False)
         dt = time.perf_counter() - t0
         entry = {
             "time_s": dt,

@@ -255,7 +255,8 @@ def stitch(
         img, mask = load_image_and_mask(kfs[k])
         return apply_gain(img, float(gains[k])), mask
 
-    sources = SourceCache(load)
+    # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB
+    sources = SourceCache(load, size=int(np.clip(6e8 / (W * H * 8), 3, 16)))
     in_memory = gw * gh <= cfg.max_in_memory_px
     canvas = np.zeros((gh, gw, 3), np.uint8) if in_memory else None
     cov_full = np.zeros((gh, gw), np.uint8) if in_memory else None

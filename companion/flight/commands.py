@@ -20,7 +20,7 @@ def register(sub) -> None:
                    help="MAVLink address: udp://:14540 (PX4 SITL), tcpout://127.0.0.1:5760 (ArduPilot SITL), "
                         "serial:///dev/ttyACM0:921600")
     p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
-                   help="autopilot behaviour to expect (auto: from its heartbeat)")
+                   help="autopilot behaviour to expect (auto: from its heartbeat); with --sitl also the simulator's")
     p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
     p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to wait for a heartbeat")
     p.add_argument("--health-timeout", type=float, default=30.0, help="seconds to wait for GPS/home/pre-arm")
@@ -73,8 +73,10 @@ def _fly(args: argparse.Namespace) -> int:
     sim = None
     if args.sitl:
         home = plan.home
+        options = {"autopilot": "ardupilot" if args.autopilot == "ardupilot" else "px4"}
+        options.update(_sim_options(args.sim_arg))
         sim = SimulatorProcess(speedup=args.speedup, home=f"{home.lat},{home.lon},{home.alt_amsl_m}",
-                               **_sim_options(args.sim_arg)).start()
+                               **options).start()
         url = sim.url
         log.info("started the simulated vehicle (speed-up %g) on %s", args.speedup, url)
     try:

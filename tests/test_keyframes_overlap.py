@@ -122,6 +122,18 @@ def test_mask_keeps_static_background_out(tex, ex):
     assert unmasked.R is None or abs(unmasked.R - truth) > 3.0
 
 
+@pytest.mark.parametrize("dx", [20, 45])
+def test_small_roi_at_frame_edge_still_measures(tex, ex, dx):
+    """A wall edge just entering view: features only in a narrow strip (where H alone is ill-posed)."""
+    a, b = View(700, 450, W, H), View(700 + dx, 450, W, H)
+    mask = np.zeros((H, W), np.uint8)
+    mask[:, -int(0.15 * W) :] = 255
+    est = OverlapEstimator().estimate(ex.extract(render(tex, a), mask), ex.extract(render(tex, b), mask))
+    assert est.status == OverlapStatus.OK
+    assert est.percent == pytest.approx(100 * true_overlap(a, b), abs=1.0)
+    assert est.model in ("homography", "similarity")
+
+
 def test_working_copy_reports_full_resolution_pixels(tex):
     small = FeatureExtractor(FeatureConfig(long_side_px=240))  # half of W
     a, b = View(700, 450, W, H), View(760, 430, W, H)

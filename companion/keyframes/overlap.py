@@ -70,6 +70,7 @@ class OverlapEstimate:
     H: np.ndarray | None = None  # full-resolution homography mapping Ip pixels to Iq pixels
     R_displacement: float | None = None
     R_polygon: float | None = None
+    model: str = ""  # "homography", or "similarity" when the homography was ill-posed
 
     @property
     def known(self) -> bool:
@@ -195,8 +196,22 @@ class OverlapEstimator:
             return OverlapEstimate(OverlapStatus.TOO_FEW_INLIERS, matches=len(good), inliers=n_in, **unknown)
         s = p.scale
         w, h = p.full_size
+        model = "homography"
         if not _plausible(H_work, cfg.max_scale_change, w * s, h * s):
-            return OverlapEstimate(OverlapStatus.DEGENERATE, matches=len(good), inliers=n_in, **unknown)
+            # Inliers bunched in a small ROI (a wall edge just entering view) leave the projective part of H
+            # unconstrained; a similarity (shift, rotation, scale) is well-posed there and is what a
+            # constant-standoff pass does between neighbouring frames.
+            A, sim_mask = cv2.estimateAffinePartial2D(
+                src, dst, method=cv2.RANSAC, ransacReprojThreshold=cfg.ransac_reproj_px, maxIters=2000
+            )
+            if A is None or sim_mask is None:
+                return OverlapEstimate(OverlapStatus.DEGENERATE, matches=len(good), inliers=n_in, **unknown)
+            H_work = np.vstack([A, [0.0, 0.0, 1.0]])
+            inl = sim_mask.ravel().astype(bool)
+            n_in = int(inl.sum())
+            model = "similarity"
+            if n_in < cfg.min_inliers or not _plausible(H_work, cfg.max_scale_change, w * s, h * s):
+                return OverlapEstimate(OverlapStatus.DEGENERATE, matches=len(good), inliers=n_in, **unknown)
         scale_m = np.diag([s, s, 1.0])
         H_full = np.linalg.inv(scale_m) @ H_work @ scale_m
         vectors = (dst[inl] - src[inl]) / s
@@ -217,4 +232,5 @@ class OverlapEstimator:
             H=H_full,
             R_displacement=r_disp,
             R_polygon=r_poly,
+            model=model,
         )

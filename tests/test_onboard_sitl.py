@@ -8,6 +8,7 @@ gate itself flagged the pair (low overlap / gap) during the flight.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -17,29 +18,11 @@ from sim.rig import SitlRig
 
 pytestmark = pytest.mark.sitl
 
-SMALL_WALL = """
-name: small-wall
-facade:
-  start: {lat: 37.56650, lon: 126.97800}
-  end:   {lat: 37.56650, lon: 126.97809}
-  ground_alt_amsl_m: 30.0
-  height_m: 5.0
-standoff_m: 4.0
-overlap: 0.80
-side_overlap: 0.5
-camera: {width_px: 3840, height_px: 2160, hfov_deg: 69.0, fps: 30, exposure_s: 0.002}
-pattern: vertical
-takeoff: {lat: 37.56642, lon: 126.97805}
-transit_alt_m: 9.0
-margins: {ends_m: 1.0, roof_m: 1.0, bottom_clearance_m: 1.5}
-end_action: land
-geofence: {max_alt_m: 40.0, max_distance_m: 100.0}
-"""
+SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
 
 def test_live_culling_in_sitl_meets_overlap_and_tagging_accuracy(tmp_path):
-    mission = tmp_path / "small.yaml"
-    mission.write_text(SMALL_WALL)
+    mission = SMALL_WALL
     rec_dir, truth_log, spool = tmp_path / "rec", tmp_path / "truth.jsonl", tmp_path / "spool"
     with SitlRig(
         mission, log_dir=tmp_path / "logs", speedup=1.5, fps=3, record_dir=rec_dir, truth_log=truth_log

@@ -35,6 +35,17 @@ def register(sub) -> None:
     p.add_argument("--speedup", type=float, default=10.0, help="with --sitl: simulator speed-up")
     p.add_argument("--sim-arg", action="append", default=[], metavar="OPT=VALUE",
                    help="with --sitl: extra simulator option, e.g. --sim-arg gusts=5 (repeatable)")
+    live = p.add_argument_group("live culling (keyframes chosen during the flight)")
+    live.add_argument("--capture", metavar="SOURCE",
+                      help="camera to cull while flying: /dev/videoN, rtsp://..., a video file, an image folder, "
+                           "sim://HOST:PORT, or 'sim' with --sitl (starts the simulated camera too)")
+    live.add_argument("--out", type=Path, help="keyframe spool directory (required with --capture; resumable)")
+    live.add_argument("--model", type=Path, help="depth model .onnx (default: the shipped model)")
+    live.add_argument("--no-mask", action="store_true", help="no background removal (whole frame is ROI)")
+    live.add_argument("--gcs-camera", metavar="URL",
+                      help="also appear as a MAVLink camera to a ground station here, e.g. udpout:127.0.0.1:14550")
+    live.add_argument("--sim-fps", type=float, default=3.0, help="with --capture sim: camera fps (simulated time)")
+    live.add_argument("--sim-width", type=int, default=640, help="with --capture sim: camera width in px")
     p.set_defaults(func=_fly)
 
     s = sub.add_parser("sim", help="run the simulated MAVLink vehicle (same options as `python -m sim vehicle`)")
@@ -69,22 +80,47 @@ def _fly(args: argparse.Namespace) -> int:
     plan = plan_scan(mission)
     for warning in getattr(plan, "warnings", []) or []:
         log.warning("plan: %s", warning)
+    if args.capture and args.out is None:
+        raise CompanionError("--capture needs --out DIR for the keyframe spool", "add --out out/spool")
+    if args.capture == "sim" and not args.sitl:
+        raise CompanionError("--capture sim needs --sitl (it starts the simulated camera)", "add --sitl")
     url = args.connect
+    capture = args.capture
     sim = None
     if args.sitl:
         home = plan.home
         options = {"autopilot": "ardupilot" if args.autopilot == "ardupilot" else "px4"}
         options.update(_sim_options(args.sim_arg))
-        sim = SimulatorProcess(speedup=args.speedup, home=f"{home.lat},{home.lon},{home.alt_amsl_m}",
-                               **options).start()
+        if capture == "sim":
+            from sim.rig import SitlRig
+
+            autopilot = options.pop("autopilot")
+            sim = SitlRig(args.mission, log_dir=args.out / "sim", speedup=args.speedup, fps=args.sim_fps,
+                          width_px=args.sim_width, autopilot=autopilot, sim_options=options).start()
+            capture = sim.capture
+        else:
+            sim = SimulatorProcess(speedup=args.speedup, home=f"{home.lat},{home.lon},{home.alt_amsl_m}",
+                                   **options).start()
         url = sim.url
         log.info("started the simulated vehicle (speed-up %g) on %s", args.speedup, url)
+    fly_kwargs = dict(autopilot=args.autopilot, connect_timeout_s=args.connect_timeout,
+                      health_timeout_s=args.health_timeout, link_loss_s=args.link_loss, flight_timeout_s=args.timeout,
+                      end_action=args.end_action, progress=not args.no_progress)
     try:
-        result = fly_mission_sync(
-            plan, url, telemetry_log=args.telemetry_log, autopilot=args.autopilot,
-            connect_timeout_s=args.connect_timeout, health_timeout_s=args.health_timeout,
-            link_loss_s=args.link_loss, flight_timeout_s=args.timeout, telemetry_rate_hz=args.rate,
-            end_action=args.end_action, progress=not args.no_progress)
+        if capture:
+            from companion.onboard.live import run_live_scan
+
+            scan = run_live_scan(plan, url, capture, args.out, telemetry_log=args.telemetry_log, model=args.model,
+                                 mask=not args.no_mask, gcs_camera_url=args.gcs_camera,
+                                 telemetry_rate_hz=max(args.rate, 30.0), **fly_kwargs)
+            result = scan.flight
+            st = scan.stats
+            print(f"culling: {st.frames_in} frames -> {st.keyframes} keyframes in {args.out} "
+                  f"({st.skipped_backlog} skipped for CPU, {st.dropped_no_roi} without facade, "
+                  f"{st.overlap_warnings} overlap warnings, {st.gaps} possible gaps)", file=sys.stderr)
+        else:
+            result = fly_mission_sync(plan, url, telemetry_log=args.telemetry_log, telemetry_rate_hz=args.rate,
+                                      **fly_kwargs)
     finally:
         if sim is not None:
             with contextlib.suppress(Exception):

@@ -9,6 +9,7 @@ import json
 import logging
 import math
 import time
+from collections import deque
 from pathlib import Path
 from typing import IO
 
@@ -17,6 +18,18 @@ log = logging.getLogger(__name__)
 
 def _num(x: float) -> float | None:
     return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
+
+
+def _attitude_at(a, b, t: float) -> tuple[float, float, float] | None:
+    """Attitude at time t from the two latest ATTITUDE samples (time, roll, pitch, yaw), linear in time
+    (yaw the short way round); None when the samples are missing or more than 0.5 s away."""
+    if b is None or abs(b[0] - t) > 0.5:
+        return None
+    if a is None or b[0] <= a[0]:
+        return b[1], b[2], b[3]
+    s = min(1.0, max(0.0, (t - a[0]) / (b[0] - a[0])))
+    dyaw = (b[3] - a[3] + 180.0) % 360.0 - 180.0
+    return a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2]), (a[3] + s * dyaw) % 360.0
 
 
 class TelemetryRecorder:
@@ -38,6 +51,10 @@ class TelemetryRecorder:
         self.status_texts: list[str] = []
         self._tasks: list[asyncio.Task] = []
         self.progress_event = asyncio.Event()
+        self._raw_att: tuple[float, float, float, float] | None = None
+        self._prev_att: tuple[float, float, float, float] | None = None
+        self._raw_pos: tuple | None = None
+        self._pending: deque[tuple] = deque()  # latest raw GLOBAL_POSITION_INT; once it flows, rows come from it
 
     async def __aenter__(self) -> TelemetryRecorder:
         if self.path is not None:
@@ -54,9 +71,15 @@ class TelemetryRecorder:
                      self._follow(t.subscribe_status_text(), self._on_status_text),
                      self._follow(m.subscribe_mission_progress(), self._on_progress)):
             self._tasks.append(asyncio.create_task(coro))
+        direct = getattr(self.vehicle, "direct", None)
+        if direct is not None:
+            for name, handler in (("ATTITUDE", self._on_raw_att), ("GLOBAL_POSITION_INT", self._on_raw_pos)):
+                self._tasks.append(asyncio.create_task(self._follow(direct.subscribe_message(name), handler)))
         return self
 
     async def __aexit__(self, *exc) -> None:
+        while self._pending:
+            self._write_row(*self._pending.popleft())
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -91,13 +114,64 @@ class TelemetryRecorder:
         """Armed / in-air changes also get a row (with the last position), so the log ends in the final state."""
         changed = self.state.get(key) != value
         self.state[key] = value
-        if changed and self._last_position is not None:
+        if changed and self._raw_pos is not None:
+            self._write_row(*self._raw_pos)
+        elif changed and self._last_position is not None:
             self._write(self._last_position)
 
     def _on_position(self, p) -> None:
         self.last_sample_wall = time.monotonic()
         self._last_position = p
-        self._write(p)
+        if self._raw_pos is None:
+            self._write(p)
+
+    def _on_raw_att(self, msg) -> None:
+        with contextlib.suppress(ValueError, TypeError, KeyError):
+            f = json.loads(msg.fields_json)
+            roll, pitch, yaw = (math.degrees(f[k]) for k in ("roll", "pitch", "yaw"))
+            self._prev_att, self._raw_att = self._raw_att, (f["time_boot_ms"] / 1000.0, roll, pitch, yaw % 360.0)
+            self._flush_positions()
+
+    def _on_raw_pos(self, msg) -> None:
+        """GLOBAL_POSITION_INT carries the autopilot's time_boot_ms: once it flows, rows are stamped with it, so
+        frames can be tagged by interpolation at their capture time (mavsdk's Position has no timestamp). A row
+        waits (about one attitude period) for the ATTITUDE after it, so its attitude is interpolated, not held."""
+        try:
+            f = json.loads(msg.fields_json)
+            self._raw_pos = (f["time_boot_ms"] / 1000.0, f["lat"] / 1e7, f["lon"] / 1e7, f["alt"] / 1000.0,
+                             f["relative_alt"] / 1000.0, (f["vx"] / 100.0, f["vy"] / 100.0, f["vz"] / 100.0))
+        except (ValueError, TypeError, KeyError):
+            return
+        self._pending.append(self._raw_pos)
+        self._flush_positions()
+
+    def _flush_positions(self) -> None:
+        att_t = self._raw_att[0] if self._raw_att is not None else None
+        while self._pending:
+            t = self._pending[0][0]
+            # write when the attitude after it has arrived, or when attitude is missing/stale (never hold rows long)
+            if att_t is not None and t > att_t and len(self._pending) < 4:
+                return
+            self._write_row(*self._pending.popleft())
+
+    def _write_row(self, t_boot, lat, lon, alt, rel, vel) -> None:
+        self.samples += 1
+        if self._file is None:
+            return
+        st = self.state
+        att = _attitude_at(self._prev_att, self._raw_att, t_boot)
+        if att is not None:
+            roll, pitch, yaw = att
+        else:
+            roll, pitch, yaw = st.get("roll_deg"), st.get("pitch_deg"), st.get("yaw_deg")
+        row = {
+            "t_wall": round(time.time(), 4), "t_boot_s": t_boot, "lat": lat, "lon": lon,
+            "alt_amsl_m": alt, "rel_alt_m": rel, "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw,
+            "vn_m_s": vel[0], "ve_m_s": vel[1], "vd_m_s": vel[2],
+            "mission_item": st["mission_item"], "mission_total": st["mission_total"],
+            "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"],
+        }
+        self._file.write(json.dumps(row) + "\n")
 
     def _write(self, p) -> None:
         self.samples += 1

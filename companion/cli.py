@@ -24,7 +24,11 @@ COMMAND_MODULES = [
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="companion", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="companion",
+        description="UAV facade inspection companion: plan and fly a constant-standoff facade scan, mask the "
+        "background with a depth network, keep keyframes with a SIFT overlap gate, stitch the facade map.",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:

@@ -186,3 +186,15 @@ def test_rth_from_mission():
 
     assert GateConfig.for_mission(M()).rth == 0.7
     assert GateConfig.for_mission(object()).rth == 0.80
+
+
+def test_one_feature_extraction_per_frame(tex):
+    """Keyframe and candidate features are cached: a promotion re-matches but never re-extracts."""
+    gate = _gate()
+    calls = []
+    real = gate._extractor.extract
+    gate._extractor.extract = lambda image, mask=None: calls.append(1) or real(image, mask)
+    views = sweep(tex, 14, 30.0, W, H, start_x=300)
+    kfs = _run(gate, tex, views)
+    assert len(kfs) >= 3  # promotions happened
+    assert len(calls) == len(views)

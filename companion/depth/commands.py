@@ -42,7 +42,7 @@ def _need_torch() -> None:
     except ImportError as exc:
         raise CompanionError(
             f"this command needs the training extra ({exc.name} is not installed)",
-            "pip install torch==2.13.0 --index-url <your CPU wheel index> && pip install -e '.[train]'",
+            "pip install torch==2.13.0 (a CPU build) && pip install -e '.[train]'",
         ) from exc
 
 

@@ -71,3 +71,12 @@ def test_eval_mask_command(held_out_recording, tmp_path, capsys):
 def test_eval_mask_command_bad_recording(tmp_path, capsys):
     assert main(["eval", "mask", str(tmp_path / "missing")]) == 2
     assert "recording not found" in capsys.readouterr().err
+
+
+def test_depth_run_command_writes_pictures(tmp_path, capsys):
+    code = main(["depth", "run", str(FIXTURES / "DJI_0981_rgb_640.jpg"), "--out", str(tmp_path)])
+    assert code == 0
+    assert "ROI" in capsys.readouterr().out
+    pic = cv2.imread(str(tmp_path / "DJI_0981_rgb_640.jpg"))
+    assert pic is not None and pic.shape[1] == 3 * 640  # frame | disparity | masked frame
+    assert main(["depth", "run", str(tmp_path / "nope.jpg"), "--out", str(tmp_path)]) == 2

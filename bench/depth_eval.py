@@ -37,11 +37,36 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--near-ratio", type=float, nargs="+", default=[RoiParams.near_ratio])
     ap.add_argument("--far-cut", type=float, nargs="+", default=[RoiParams.far_cut_ratio])
+    ap.add_argument("--oracle", action="store_true",
+                    help="also run the ROI extraction on the simulator's TRUE depth (isolates the model's error)")
     args = ap.parse_args()
     for near in args.near_ratio:
         for far in args.far_cut:
             print(f"--- ROI parameters: near_ratio {near}, far_cut_ratio {far}")
             run(args, RoiParams(near_ratio=near, far_cut_ratio=far))
+            if args.oracle:
+                oracle(args, RoiParams(near_ratio=near, far_cut_ratio=far))
+
+
+def oracle(args, params: RoiParams) -> None:
+    """ROI extraction on true disparity at the model's input size: the error the method has with a perfect model."""
+    import cv2
+
+    from companion.depth.roi import extract_roi, pixel_error_ratio
+    from sim.camera.recording import load_recording
+
+    errs = []
+    for seed in args.seeds:
+        rec = load_recording(Path(args.data) / f"demo_seed{seed:04d}_g{args.gen_stride}")
+        for i in range(0, len(rec), args.stride):
+            depth = rec.depth(i)
+            disp = np.where(np.isfinite(depth), 1.0 / np.maximum(depth, 1e-3), 0.0).astype(np.float32)
+            disp = cv2.resize(disp, (640, 192), interpolation=cv2.INTER_NEAREST)
+            roi = extract_roi(disp, out_size=(rec.width, rec.height), params=params)
+            errs.append(pixel_error_ratio(roi.mask, rec.roi_mask(i)))
+    e = np.array(errs)
+    print(f"ORACLE (true depth -> ROI extraction), {len(e)} frames: pixel error ratio mean {100 * e.mean():.2f} % "
+          f"p95 {100 * np.percentile(e, 95):.2f} %")
 
 
 def run(args, params: RoiParams) -> None:

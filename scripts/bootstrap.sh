@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# Creates .venv and installs companion with its dev extras; sourced by scripts/demo and scripts/test.
+# Creates .venv and installs companion; `bootstrap.sh train` also installs the torch export/training extra
+# (the tests need it for the Monodepth2 exporter round trip). Called by scripts/demo and scripts/test.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
+want="${1:-runtime}"
 py="${PYTHON:-python3}"
 if ! command -v "$py" >/dev/null; then
     echo "error: $py not found. fix: install Python 3.11+ (apt-get install python3 python3-venv)" >&2; exit 2
+fi
+if ! "$py" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
+    echo "error: $("$py" --version) is too old. fix: install Python 3.11+ (or set PYTHON=python3.11)" >&2; exit 2
 fi
 if [ ! -x .venv/bin/python ]; then
     if ! "$py" -m venv .venv 2>/dev/null; then
@@ -19,9 +24,15 @@ if [ ! -x .venv/bin/python ]; then
         fi
     fi
 fi
-stamp=.venv/.companion-installed
+stamp=".venv/.companion-installed-$want"
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip >/dev/null
-    .venv/bin/python -m pip install -q -e ".[dev]"
+    if [ "$want" = train ]; then
+        # The CPU build of torch (a plain `pip install torch` would pull GBs of CUDA wheels).
+        .venv/bin/python -m pip install -q "torch==2.13.0"
+        .venv/bin/python -m pip install -q -e ".[dev,train]"
+    else
+        .venv/bin/python -m pip install -q -e ".[dev]"
+    fi
     touch "$stamp"
 fi

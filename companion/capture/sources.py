@@ -173,10 +173,11 @@ def open_source(spec: str, *, start_time_s: float = 0.0, fps: float = 30.0) -> F
     ``udp://`` a stream; a directory an image folder; any other path a video file.
     """
     if spec.startswith("sim://"):
-        from companion.capture.simcam import SimCameraSource
+        from companion.capture.simcam import DEFAULT_PORT, SimCameraSource
 
         host, _, port = spec[len("sim://") :].partition(":")
-        return SimCameraSource(host or "127.0.0.1", int(port or 5600))
+        # A camera silent for 10 s has stopped: the iteration ends (counted as a stall) and the caller warns.
+        return SimCameraSource(host or "127.0.0.1", int(port or DEFAULT_PORT), idle_timeout_s=10.0)
     m = re.fullmatch(r"(?:v4l2:)?(?:/dev/video)?(\d+)", spec)
     if m and (spec.startswith(("v4l2:", "/dev/video"))):
         return VideoSource(int(m.group(1)), live=True, backend=cv2.CAP_V4L2)

@@ -48,11 +48,16 @@ def register(sub) -> None:
     live.add_argument("--sim-width", type=int, default=640, help="with --capture sim: camera width in px")
     p.set_defaults(func=_fly)
 
-    s = sub.add_parser("sim", help="run the simulated MAVLink vehicle (same options as `python -m sim vehicle`)")
+    s = sub.add_parser("sim", allow_abbrev=False,
+                       help="run the simulated MAVLink vehicle (same options as `python -m sim vehicle`)")
     from sim.vehicle.cli import add_arguments
 
     add_arguments(s)
     s.set_defaults(func=_sim)
+    # `companion sim record MISSION --out DIR`: fly in SITL with the simulated camera and write a recording.
+    from sim.camera.commands import register as register_record
+
+    register_record(s.add_subparsers(dest="sim_command", metavar="{record}", required=False))
 
 
 def _sim(args: argparse.Namespace) -> int:

@@ -64,9 +64,17 @@ class LiveRunner:
                 if self.stop_event.is_set():
                     break
                 self._put(frame)
+            if not self.stop_event.is_set():
+                stats = self.source.stats
+                self.chain.warn(
+                    f"camera {self.source.name} stopped delivering frames after {stats.delivered} "
+                    f"({stats.stalls} stall(s), {stats.corrupt} corrupt): no more keyframes; flight supervision "
+                    "continues"
+                )
         except BaseException as exc:  # reported by the caller; the worker still flushes
             self.error = exc
             log.error("capture stopped: %s", exc)
+            self.chain.warn(f"camera {self.source.name} failed: {exc}")
         finally:
             self.chain.stats.corrupt = self.source.stats.corrupt
             self.queue.put(_END)

@@ -23,6 +23,19 @@ COMMAND_MODULES = [
 ]
 
 
+def shared_group(subparsers, name: str, help: str):
+    """Subcommands of a group several areas add to (``companion eval mask``, ``companion eval gate``): the first
+    caller creates the group, later callers get the same sub-parser collection."""
+    parser = subparsers._name_parser_map.get(name)  # noqa: SLF001 - argparse offers no public lookup
+    if parser is None:
+        parser = subparsers.add_parser(name, help=help)
+    sub = getattr(parser, "_companion_sub", None)
+    if sub is None:
+        sub = parser.add_subparsers(dest=f"{name}_what", required=True)
+        parser._companion_sub = sub
+    return sub
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="companion",

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -19,6 +18,7 @@ import time
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.flight.simulator import SimulatorProcess, terminate
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -71,7 +71,6 @@ class SitlRig:
         return f"sim://127.0.0.1:{self.stream_port}"
 
     def start(self) -> SitlRig:
-        from companion.flight.simulator import SimulatorProcess
 
         self.log_dir.mkdir(parents=True, exist_ok=True)
         args = [sys.executable, "-m", "sim", "camera", str(self.mission_path), "--pose-port", str(self.pose_port),
@@ -110,13 +109,8 @@ class SitlRig:
         if self.vehicle is not None:
             with contextlib.suppress(Exception):
                 self.vehicle.stop()
-        if self.camera is not None and self.camera.poll() is None:
-            self.camera.send_signal(signal.SIGTERM)
-            try:
-                self.camera.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                self.camera.kill()
-                self.camera.wait()
+        if self.camera is not None:
+            terminate(self.camera, timeout_s=30.0)  # the camera finishes writing its recording on SIGTERM
         if self._cam_log is not None:
             self._cam_log.close()
             self._cam_log = None

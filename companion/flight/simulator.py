@@ -25,6 +25,18 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+def terminate(proc: subprocess.Popen, timeout_s: float) -> None:
+    """SIGTERM (a clean shutdown), then SIGKILL if the process has not exited within ``timeout_s``."""
+    if proc.poll() is not None:
+        return
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
 class SimulatorProcess:
     """``with SimulatorProcess(speedup=20, packet_loss=20) as sim: fly_mission(plan, sim.url)``.
 
@@ -62,13 +74,7 @@ class SimulatorProcess:
     def stop(self) -> int | None:
         if self.proc is None:
             return None
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc, timeout_s=5.0)
         if self._log not in (None, subprocess.DEVNULL):
             self._log.close()
         return self.proc.returncode

@@ -13,15 +13,9 @@ from companion.keyframes.overlap import METHODS, OverlapConfig
 
 
 def _eval_subparsers(subparsers):
-    """The shared ``eval`` command: reuse it when another area registered it first."""
-    parser = subparsers._name_parser_map.get("eval")  # noqa: SLF001 - argparse offers no public lookup
-    if parser is None:
-        parser = subparsers.add_parser("eval", help="measure a pipeline stage against simulator ground truth")
-    sub = getattr(parser, "_companion_sub", None)
-    if sub is None:
-        sub = parser.add_subparsers(dest="eval_what", required=True)
-        parser._companion_sub = sub
-    return sub
+    from companion.cli import shared_group
+
+    return shared_group(subparsers, "eval", "measure a pipeline stage against simulator ground truth")
 
 
 def gate_config_from_args(args) -> GateConfig:

@@ -58,6 +58,7 @@ def test_chain_keyframes_meet_overlap_target(tmp_path):
             assert true_overlap(views[a], views[b + 1]) < 0.80 + 0.03
     assert all(x["pose"] is not None for x in lines)
     assert chain.stats.keyframes == len(idx) and chain.stats.stale_pose == 0
+    assert (tmp_path / "CLOSED").exists()  # a following stitcher makes its final map
 
 
 def test_live_runner_skips_backlog_but_never_a_keyframe(tmp_path):

@@ -85,6 +85,10 @@ def test_resume_skips_duplicates_and_cuts_torn_line(tmp_path):
     assert [e.index for e in again.entries] == [1, 5, 9]
     assert again.append(_keyframe(5)) is None
     again.append(_keyframe(13))
+    again.close()
+    assert (tmp_path / "CLOSED").exists()
+    KeyframeSpool(tmp_path)  # reopening for a resumed flight: not closed any more
+    assert not (tmp_path / "CLOSED").exists()
     lines = (tmp_path / "manifest.jsonl").read_text().splitlines()
     assert [json.loads(x)["index"] for x in lines] == [1, 5, 9, 13]
 

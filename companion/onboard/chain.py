@@ -106,8 +106,14 @@ class CullChain:
         return out
 
     def finish(self) -> list[SpoolEntry]:
+        """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
         out = self._spool(self.gate.flush())
         self._events()
+        if not self.spool_disabled:
+            try:
+                self.spool.close()
+            except OSError as exc:
+                self.warn(f"cannot mark the spool closed: {exc}")
         return out
 
     def _events(self) -> None:

@@ -6,6 +6,7 @@ Layout (read by companion/stitch/inputs.py; format in docs/STITCH.md):
   kf_NNNNNN_mask.png      ROI mask (OpenDroneMap's <image>_mask.png naming)
   kf_NNNNNN.json          sidecar: telemetry, overlap, inliers, frame index, model and thresholds
   manifest.jsonl          one line per keyframe, appended + fsynced only after its files are durable
+  CLOSED                  written when the flight (or offline cull) is over
 
 A keyframe is "reported" once its manifest line is on disk; a crash at any moment loses none of those and never
 leaves a half-written file under a final name (files are written to a temp name, fsynced, then renamed).
@@ -31,6 +32,7 @@ from companion.spool.exif import CameraTags, encode_tagged_jpeg
 log = logging.getLogger(__name__)
 MANIFEST = "manifest.jsonl"
 META = "spool.json"
+CLOSED = "CLOSED"  # the flight is over: a following stitcher finishes (docs/STITCH.md)
 
 
 class SpoolFullError(CompanionError):
@@ -111,6 +113,7 @@ class KeyframeSpool:
         # spool.json is written with the first keyframe, when the real image size is known (a camera may deliver
         # a working resolution smaller than the mission's sensor size; the lens, hfov, is the same).
         self._meta = dict(meta) if meta is not None else None
+        (self.dir / CLOSED).unlink(missing_ok=True)  # reopened (a resumed flight): more keyframes may come
         self.entries: list[SpoolEntry] = self._recover()
         self._spooled = {e.index for e in self.entries}
 
@@ -133,6 +136,11 @@ class KeyframeSpool:
         for stale in self.dir.glob(".*.tmp"):
             stale.unlink(missing_ok=True)
         return entries
+
+    def close(self) -> None:
+        """Mark the spool complete (``CLOSED``) so a stitcher in follow mode makes its final map."""
+        _write_atomic(self.dir / CLOSED, b"")
+        _fsync_dir(self.dir)
 
     def _write_meta(self, width: int, height: int) -> None:
         if self._meta is None or (self.dir / META).exists():

@@ -20,8 +20,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="full SITL facade scan on the built-in demo mission: plan, fly, cull, stitch")
     p.add_argument("--mission", type=Path, default=DEFAULT_MISSION, help="mission YAML (default: the demo facade)")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default: out/demo)")
-    p.add_argument("--speedup", type=float, default=2.0, help="simulated seconds per wall second (default 2)")
-    p.add_argument("--fps", type=float, default=4.0, help="simulated camera frame rate, simulated time (default 4)")
+    # 3 frames/s is what the onboard chain sustains on a 2-core machine (docs/BENCHMARKS.md, Onboard pipeline).
+    p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall second (default 1)")
+    p.add_argument("--fps", type=float, default=3.0, help="simulated camera frame rate, simulated time (default 3)")
     p.add_argument("--width", type=int, default=640, help="simulated camera working width in px (default 640)")
     p.add_argument("--seed", type=int, default=0, help="scene and simulator seed")
     p.add_argument("--model", type=Path, help="depth model .onnx (default: the shipped model)")

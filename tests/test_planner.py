@@ -162,3 +162,13 @@ def test_rtl_end_action():
     m = load_mission(DEMO)
     plan = plan_scan(m.model_copy(update={"end_action": "rtl"}))
     assert plan.mavlink_items()[-1].command == mi.MAV_CMD_NAV_RETURN_TO_LAUNCH
+
+
+def test_onboard_processing_rate_limits_the_scan_speed():
+    m = load_mission(DEMO)
+    slow = plan_scan(m.model_copy(update={"onboard_fps": 3.0}))
+    assert slow.estimates.speed_limited_by == "frames per keyframe"
+    assert slow.estimates.frames_per_keyframe == pytest.approx(m.min_frames_per_keyframe)
+    assert slow.estimates.scan_speed_m_s == pytest.approx(3.0 * slow.estimates.keyframe_spacing_m / 10)
+    fast = plan_scan(m.model_copy(update={"onboard_fps": 60.0}))  # above the camera's 30 fps: the camera limits
+    assert fast.estimates.scan_speed_m_s == pytest.approx(plan_scan(m).estimates.scan_speed_m_s)

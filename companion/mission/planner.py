@@ -97,10 +97,18 @@ def camera_footprint(mission: Mission) -> Footprint:
     return Footprint(width_m=width, height_m=height, gsd_mm_per_px=1000.0 * width / cam.width_px)
 
 
+def effective_fps(mission: Mission) -> float:
+    """Frames per second that reach the gate: the camera's, or fewer if the companion processes fewer."""
+    if mission.onboard_fps is None:
+        return mission.camera.fps
+    return min(mission.camera.fps, mission.onboard_fps)
+
+
 def _scan_speed(mission: Mission, fp: Footprint, spacing_m: float) -> tuple[float, str]:
     """Fastest speed that keeps enough frames per keyframe, blur within budget, and under max speed."""
+    fps = effective_fps(mission)
     limits = {
-        "frames per keyframe": mission.camera.fps * spacing_m / mission.min_frames_per_keyframe,
+        "frames per keyframe": fps * spacing_m / mission.min_frames_per_keyframe,
         "motion blur": mission.motion_blur_budget_px * (fp.gsd_mm_per_px / 1000.0) / mission.camera.exposure_s,
         "max speed": mission.max_speed_m_s,
     }
@@ -257,7 +265,7 @@ def plan_scan(mission: Mission) -> ScanPlan:
         speed_limited_by=limited_by,
         keyframe_spacing_m=kf_spacing,
         expected_keyframes=expected_kf,
-        frames_per_keyframe=m.camera.fps * kf_spacing / v_scan,
+        frames_per_keyframe=effective_fps(m) * kf_spacing / v_scan,
         motion_blur_px=v_scan * m.camera.exposure_s / (fp.gsd_mm_per_px / 1000.0),
         gsd_mm_per_px=fp.gsd_mm_per_px,
         footprint_width_m=fp.width_m,

@@ -110,6 +110,9 @@ class Mission(_Strict):
     max_speed_m_s: float = Field(default=5.0, gt=0.0, le=20.0)
     motion_blur_budget_px: float = Field(default=1.0, gt=0.0, le=20.0)
     min_frames_per_keyframe: int = Field(default=10, ge=2, le=1000)
+    # Frames per second the companion can actually process (depth mask + gate); the speed limit uses the lower of
+    # this and the camera fps. About 3 on a 2-core companion at 640 px (docs/BENCHMARKS.md, Onboard pipeline).
+    onboard_fps: float | None = Field(default=None, gt=0.0, le=240.0)
     gimbal_pitch_deg: float = Field(default=0.0, ge=-90.0, le=30.0)
     end_action: Literal["land", "rtl"] = "land"
     geofence: Geofence = Geofence()

@@ -14,9 +14,8 @@ def ensure_recordings(
     mission_path: str | Path, seeds: list[int], data_dir: Path, *, width_px: int = 640, stride: int = 1
 ) -> list[Path]:
     """Paths of ``data_dir/seed_NNNN`` recordings of ``mission_path``, generating the missing ones."""
-    from sim.camera.recording import generate_recording
-
     from companion.mission import load_mission
+    from sim.camera.recording import generate_recording
 
     if not Path(mission_path).is_file():
         raise CompanionError(f"mission file not found: {mission_path}", "pass --mission missions/demo-facade.yaml")

@@ -7,7 +7,7 @@ Keyframes = the ideal overlap gate (true overlap >= 0.8) with the simulator's RO
 image-only (no telemetry), as in the paper; --with-poses adds our telemetry prior to both.
 
     python bench/stitch_paper.py --recording /tmp/rec640 --max-keyframes 40 --out /tmp/stitch_paper \
-        --docs docs/images
+        --docs docs/img
 """
 
 from __future__ import annotations

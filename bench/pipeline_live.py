@@ -77,6 +77,7 @@ def main() -> int:
         "keyframes_per_minute_flight_time": round(60.0 * st.keyframes / (flight_s * args.speedup), 1),
         "overlap_warnings": st.overlap_warnings,
         "gaps": st.gaps,
+        "telemetry_disagrees": st.telemetry_disagrees,
         "tagging_position_error_m": {
             "median": round(statistics.median(e.position_m for e in tag), 3),
             "p95": round(_pct([e.position_m for e in tag], 0.95), 3),

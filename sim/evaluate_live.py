@@ -65,7 +65,7 @@ class PairOverlap:
     cur: int
     true_overlap: float  # 0..1, from the geometry
     estimated_percent: float | None  # what the gate measured
-    flagged: bool  # the gate reported low overlap or a gap for this pair
+    flagged: bool  # the chain reported low overlap, a gap, or an overlap the telemetry contradicts
 
 
 def keyframe_overlaps(manifest: list[dict], recording_dir: Path, rth_percent: float = 80.0) -> list[PairOverlap]:
@@ -78,7 +78,7 @@ def keyframe_overlaps(manifest: list[dict], recording_dir: Path, rth_percent: fl
         if prev["index"] not in by_frame or cur["index"] not in by_frame:
             continue
         est = cur.get("overlap_to_previous")
-        flagged = bool(cur.get("gap_before")) or est is None or est < rth_percent
+        flagged = bool(cur.get("gap_before")) or bool(cur.get("overlap_suspect")) or est is None or est < rth_percent
         true = rec.true_overlap(by_frame[prev["index"]], by_frame[cur["index"]])
         out.append(PairOverlap(prev["index"], cur["index"], true, est, flagged))
     return out

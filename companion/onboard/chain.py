@@ -17,6 +17,7 @@ from companion.capture.tagging import FrameTagger
 from companion.depth.masker import Masker
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateEventKind, KeyframeGate
+from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.records import Frame, Keyframe, MaskedFrame
 from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 
@@ -36,6 +37,7 @@ class ChainStats:
     overlap_warnings: int = 0
     low_overlap_keyframes: int = 0
     gaps: int = 0
+    telemetry_disagrees: int = 0  # keyframes whose image overlap the poses contradict (flagged in the spool)
     spool_errors: int = 0
     busy_s: float = 0.0
     first_frame_wall_s: float | None = None
@@ -64,6 +66,7 @@ class CullChain:
         on_keyframe: Callable[[Keyframe, SpoolEntry], None] | None = None,
         on_warning: Callable[[str], None] | None = None,
         require_telemetry: bool = True,
+        crosscheck: OverlapCrossCheck | None = None,
     ):
         self.tagger = tagger
         self.masker = masker
@@ -74,6 +77,8 @@ class CullChain:
         self.stats = ChainStats()
         self.spool_disabled = False
         self.require_telemetry = require_telemetry
+        self.crosscheck = crosscheck
+        self._last_key_pose = None
         self._seen_pose = False
 
     def warn(self, message: str) -> None:
@@ -116,6 +121,22 @@ class CullChain:
                 self.warn(f"cannot mark the spool closed: {exc}")
         return out
 
+    def _cross_check(self, kf: Keyframe) -> None:
+        pose = kf.masked.tagged.pose
+        if self.crosscheck is not None and not kf.gap_before:
+            predicted = self.crosscheck.suspect(
+                kf.overlap_to_previous, self._last_key_pose, pose, self.gate.rth_percent
+            )
+            if predicted is not None:
+                kf.extra["overlap_suspect"] = True
+                kf.extra["overlap_telemetry"] = round(predicted, 2)
+                self.stats.telemetry_disagrees += 1
+                self.warn(
+                    f"keyframe {kf.masked.tagged.frame.index}: the images say {kf.overlap_to_previous:.1f} % overlap "
+                    f"but the telemetry says {predicted:.1f} %: possible gap (background in the mask?)"
+                )
+        self._last_key_pose = pose
+
     def _events(self) -> None:
         for ev in self.gate.pop_events():
             if ev.kind == GateEventKind.OVERLAP_WARNING:
@@ -131,6 +152,7 @@ class CullChain:
     def _spool(self, keyframes: list[Keyframe]) -> list[SpoolEntry]:
         out = []
         for kf in keyframes:
+            self._cross_check(kf)
             if self.spool_disabled:
                 continue
             try:

@@ -60,4 +60,22 @@ def build_chain(
         settings=settings,
         clock_epoch_unix_s=clock_epoch_unix_s,
     )
-    return CullChain(tagger, masker, KeyframeGate(gate_cfg), spool, on_keyframe=on_keyframe, on_warning=on_warning)
+    crosscheck = None
+    if mission is not None:
+        from companion.geo import FacadeFrame
+        from companion.mission.geometry import wall_ends
+        from companion.onboard.crosscheck import OverlapCrossCheck
+
+        cam = mission.camera
+        crosscheck = OverlapCrossCheck(
+            FacadeFrame.from_wall(*wall_ends(mission)), cam.hfov_deg, cam.height_px / cam.width_px
+        )
+    return CullChain(
+        tagger,
+        masker,
+        KeyframeGate(gate_cfg),
+        spool,
+        on_keyframe=on_keyframe,
+        on_warning=on_warning,
+        crosscheck=crosscheck,
+    )

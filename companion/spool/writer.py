@@ -188,6 +188,7 @@ class KeyframeSpool:
             "pose": pose_dict(pose),
             "overlap_to_previous": keyframe.overlap_to_previous,
             "gap_before": keyframe.gap_before,
+            "overlap_suspect": bool(keyframe.extra.get("overlap_suspect", False)),
         }
         try:
             self._write_meta(frame.image.shape[1], frame.image.shape[0])

@@ -6,6 +6,7 @@ Every frame carries its capture time in seconds; corrupt or missing frames are s
 
 from __future__ import annotations
 
+import abc
 import logging
 import re
 import time
@@ -31,7 +32,7 @@ class SourceStats:
     notes: list[str] = field(default_factory=list)
 
 
-class FrameSource:
+class FrameSource(abc.ABC):
     """Iterate to get frames; ``stats`` counts what was skipped. Use as a context manager."""
 
     name = "source"
@@ -39,8 +40,8 @@ class FrameSource:
     def __init__(self) -> None:
         self.stats = SourceStats()
 
-    def __iter__(self) -> Iterator[Frame]:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def __iter__(self) -> Iterator[Frame]: ...
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass

@@ -117,7 +117,7 @@ def run_live_scan(
         ).start()
 
     def on_keyframe(kf, entry) -> None:
-        log.info("keyframe %d saved (overlap to previous %s)", kf.masked.tagged.frame.index, kf.overlap_to_previous)
+        log.debug("keyframe %d saved (overlap to previous %s)", kf.masked.tagged.frame.index, kf.overlap_to_previous)
         if camera_component is not None:
             camera_component.publish(kf.masked.tagged.pose, entry.image)
 

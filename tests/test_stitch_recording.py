@@ -8,8 +8,8 @@ import pytest
 
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.evaluate import map_accuracy, truth_on_grid
+from sim.camera import recording
 
-recording = pytest.importorskip("sim.camera.recording")
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "demo-facade.yaml"
 
 

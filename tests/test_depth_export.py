@@ -92,3 +92,22 @@ def test_bad_checkpoints(tmp_path):
     (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
     with pytest.raises(CompanionError, match="cannot read"):
         load_official(tmp_path / "junk.pth", tmp_path / "depth.pth")
+
+
+def test_train_short_run_then_fine_tune_starts_from_its_weights(tmp_path):
+    """A few steps of the real training loop on rendered views export a verified ONNX; ``init_from`` carries the
+    weights into a new run (zero further steps: the same model), and a wrong ``init_from`` fails before any data."""
+    from companion.depth.training.train import TrainConfig, train
+
+    common = dict(recordings=[], view_seeds=[0], views_per_seed=3, crop=(64, 128), batch=2, threads=1)
+    first = train(TrainConfig(out=tmp_path / "a", max_steps=3, **common))
+    # another torch seed: without init_from its weights would differ
+    tuned = train(TrainConfig(out=tmp_path / "b", max_steps=0, init_from=tmp_path / "a", seed=1, **common))
+    fresh = train(TrainConfig(out=tmp_path / "d", max_steps=0, seed=1, **common))
+    image = np.random.default_rng(0).integers(0, 256, (192, 640, 3), dtype=np.uint8)
+    first_disp = DepthSession(first).disparity(image)
+    np.testing.assert_allclose(DepthSession(tuned).disparity(image), first_disp, atol=1e-6)
+    assert np.abs(DepthSession(fresh).disparity(image) - first_disp).max() > 1e-4
+    with pytest.raises(CompanionError, match="no training checkpoint"):
+        train(TrainConfig(out=tmp_path / "c", max_steps=1, init_from=tmp_path / "missing", **common))
+    assert not (tmp_path / "c" / "data").exists()

@@ -77,7 +77,7 @@ def cmd_train(args) -> int:
         out=out, recordings=recs, eval_recordings=evals, height=h, width=w, crop=args.crop, batch=args.batch,
         model_width=args.model_width, lr=args.lr, max_minutes=args.max_minutes, max_steps=args.max_steps,
         threads=args.threads, view_seeds=args.view_seeds or [], eval_view_seeds=args.eval_view_seeds or [],
-        views_per_seed=args.views_per_seed,
+        views_per_seed=args.views_per_seed, init_from=Path(args.init_from) if args.init_from else None,
     )
     path = train(cfg)
     print(f"model: {path}")
@@ -166,6 +166,7 @@ def register(subparsers) -> None:
     p.add_argument("--max-minutes", type=float, default=45.0, help="wall-time budget")
     p.add_argument("--max-steps", type=int, default=1_000_000)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
+    p.add_argument("--init-from", default=None, help="fine-tune: start from this run folder's weights")
     p.set_defaults(func=cmd_train)
 
     p = dsub.add_parser("run", help="mask image files; save frame | disparity | masked frame pictures")

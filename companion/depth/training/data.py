@@ -2,7 +2,10 @@
 
 Each sample is the frame resized to the model input (as the runtime does: whole frame, squashed to H x W), its
 true depth (metres, inf sky clipped to the model's max depth), and a random crop of both for cheaper CPU steps.
-Randomisation: colour/brightness/contrast/gamma, greyscale, light gradients, blur, sensor noise, JPEG, flips.
+Randomisation: colour/brightness/contrast/gamma, greyscale, light gradients, blur, sensor noise, JPEG, flips, and
+two scene-level ones that the simulator's textured walls and blue skies lack and real photos have: plain walls
+(texture suppressed on all or part of the facade, with uneven low-frequency light) and overcast or over-exposed
+sky (flat grey or white). Without them a small model learns "plain and bright = sky" and cuts plain cladding.
 Needs numpy + OpenCV only (torch is imported by the training loop).
 """
 
@@ -15,6 +18,8 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+
+SKY_DEPTH_FRACTION = 0.99  # true depth at or beyond this fraction of the clip depth is sky
 
 
 @dataclass
@@ -48,9 +53,65 @@ def load_frames(recordings: list[Path], height: int, width: int, max_depth: floa
     return FrameSet(np.stack(images), np.stack(depths), np.stack(masks))
 
 
-def randomise(image: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Photometric domain randomisation of one BGR uint8 image (geometry untouched)."""
+def _smooth_field(shape: tuple[int, int], rng: np.random.Generator, amplitude: float) -> np.ndarray:
+    """Low-frequency random field in [-amplitude, amplitude]: uneven light over a wall or a cloud deck."""
+    h, w = shape
+    coarse = rng.uniform(-1.0, 1.0, size=(int(rng.integers(2, 5)), int(rng.integers(2, 7)))).astype(np.float32)
+    return cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC).clip(-1, 1) * amplitude
+
+
+def _region_patch(region: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A random ellipse (10-60 % of the frame height) intersected with ``region``."""
+    h, w = region.shape
+    patch = np.zeros((h, w), np.uint8)
+    centre = (int(rng.integers(0, w)), int(rng.integers(0, h)))
+    axes = (int(rng.uniform(0.1, 0.6) * h * rng.uniform(1.0, 2.5)), int(rng.uniform(0.1, 0.6) * h))
+    cv2.ellipse(patch, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+    return region & (patch > 0)
+
+
+def plain_wall(img: np.ndarray, facade: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Suppress the texture of the facade pixels (float BGR in [0, 1], ``facade`` bool), whole or a patch.
+
+    Keeps 0-40 % of the local detail (seams, window outlines stay faintly) around the region's mean colour, lit by a
+    smooth random field and a brightness lift: what plain cladding or render looks like under soft light. The
+    region's outline is left sharp, as a real roof line or wall end is.
+    """
+    region = facade if rng.random() < 0.6 else _region_patch(facade, rng)
+    if region.sum() < 50:
+        return img
+    base = img[region].mean(axis=0)
+    detail = img - cv2.GaussianBlur(img, (0, 0), 3.0)
+    light = 1.0 + _smooth_field(region.shape, rng, rng.uniform(0.0, 0.3)) + rng.uniform(-0.1, 0.35)
+    flat = base[None, None, :] * light[..., None] + detail * rng.uniform(0.0, 0.4)
+    flat = flat + rng.normal(0, rng.uniform(0.002, 0.015), img.shape).astype(np.float32)
+    return np.where(region[..., None], flat, img).astype(np.float32)
+
+
+def overcast_sky(img: np.ndarray, sky: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Replace the sky pixels (float BGR, ``sky`` bool) with a flat grey-white cloud deck, never the wall's exact
+    shade (a roof line against a sky of the same colour has no visible edge for any model to find)."""
+    if sky.sum() < 50:
+        return img
+    wall_level = float(img[~sky].mean()) if (~sky).any() else 0.5
+    level = wall_level * (rng.uniform(1.15, 1.8) if rng.random() < 0.7 else rng.uniform(0.55, 0.85))
+    tint = np.array([1.0, 1.0, 1.0], np.float32) * rng.uniform(0.96, 1.04, size=3).astype(np.float32)
+    deck = level * tint[None, None, :] * (1.0 + _smooth_field(sky.shape, rng, rng.uniform(0.0, 0.12))[..., None])
+    return np.where(sky[..., None], np.clip(deck, 0, 1), img).astype(np.float32)
+
+
+def randomise(
+    image: np.ndarray, rng: np.random.Generator, *, facade: np.ndarray | None = None, sky: np.ndarray | None = None
+) -> np.ndarray:
+    """Domain randomisation of one BGR uint8 image (geometry untouched).
+
+    ``facade`` and ``sky`` (bool masks from the simulator's truth) enable the plain-wall and overcast-sky changes.
+    """
     img = image.astype(np.float32) / 255.0
+    if facade is not None and rng.random() < 0.4:
+        img = plain_wall(img, facade, rng)
+    if sky is not None and rng.random() < 0.3:
+        img = overcast_sky(img, sky, rng)
     if rng.random() < 0.2:  # greyscale: real facades are often colourless concrete / cladding
         g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         img = np.repeat(g[..., None], 3, axis=2)
@@ -83,9 +144,12 @@ def to_input(image_bgr: np.ndarray) -> np.ndarray:
 
 
 def sample_batch(
-    frames: FrameSet, batch: int, crop: tuple[int, int] | None, rng: np.random.Generator, augment: bool = True
+    frames: FrameSet, batch: int, crop: tuple[int, int] | None, rng: np.random.Generator, augment: bool = True,
+    max_depth: float = 100.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """A random batch: (B x 3 x h x w inputs, B x 1 x h x w true depth), cropped and randomised."""
+    """A random batch: (B x 3 x h x w inputs, B x 1 x h x w true depth), cropped and randomised.
+
+    ``max_depth`` is the clip depth of ``frames`` (sky is stored at it)."""
     n, h, w = frames.depths.shape
     ch, cw = crop or (h, w)
     xs, ds = [], []
@@ -95,7 +159,9 @@ def sample_batch(
         img = frames.images[idx, y0 : y0 + ch, x0 : x0 + cw]
         dep = frames.depths[idx, y0 : y0 + ch, x0 : x0 + cw]
         if augment:
-            img = randomise(img, rng)
+            facade = frames.roi_masks[idx, y0 : y0 + ch, x0 : x0 + cw] > 0
+            sky = np.asarray(dep, dtype=np.float32) >= SKY_DEPTH_FRACTION * max_depth
+            img = randomise(img, rng, facade=facade, sky=sky)
             if rng.random() < 0.5:
                 img, dep = img[:, ::-1], dep[:, ::-1]
         xs.append(to_input(np.ascontiguousarray(img)))

@@ -55,6 +55,7 @@ class TrainConfig:
     seed: int = 0
     stride: int = 1
     source: str = ""
+    init_from: Path | None = None  # fine-tune: start from this run's weights (fresh optimiser and clock)
 
 
 def silog_loss(disp: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
@@ -92,6 +93,18 @@ def init_disparity_bias(model: Monodepth2, cfg: TrainConfig, typical_depth_m: fl
     logit = float(np.log(p / (1 - p)))
     for s in model.depth.scales:
         torch.nn.init.constant_(model.depth._conv("dispconv", s).conv.bias, logit)
+
+
+def _initial_weights(path: Path) -> dict:
+    """Model weights of an earlier run (its folder or its checkpoint.pt), for fine-tuning on changed data."""
+    path = Path(path)
+    ckpt = path / "checkpoint.pt" if path.is_dir() else path
+    if not ckpt.is_file():
+        raise CompanionError(f"no training checkpoint at {ckpt}", "pass a run folder of companion depth train")
+    state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    if not isinstance(state, dict) or "model" not in state:
+        raise CompanionError(f"{ckpt} is not a companion depth train checkpoint", "pass a run folder's checkpoint.pt")
+    return state["model"]
 
 
 def _save_checkpoint(path: Path, model, opt, step: int, elapsed_s: float) -> None:
@@ -143,6 +156,9 @@ def train(cfg: TrainConfig) -> Path:
     torch.manual_seed(cfg.seed)
     out = cfg.out
     out.mkdir(parents=True, exist_ok=True)
+    ckpt = out / "checkpoint.pt"
+    # read before the (slow) data so that a wrong path fails at once
+    initial = _initial_weights(cfg.init_from) if cfg.init_from is not None and not ckpt.is_file() else None
     (out / "config.json").write_text(json.dumps(asdict(cfg), default=str, indent=1))
     frames = _frames(cfg, cfg.recordings, cfg.view_seeds, cfg.stride, cfg.views_per_seed)
     held = None
@@ -153,7 +169,6 @@ def train(cfg: TrainConfig) -> Path:
 
     model = Monodepth2(width=cfg.model_width)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
-    ckpt = out / "checkpoint.pt"
     step, elapsed0 = 0, 0.0
     if ckpt.is_file():
         state = torch.load(ckpt, map_location="cpu", weights_only=False)
@@ -161,6 +176,9 @@ def train(cfg: TrainConfig) -> Path:
         opt.load_state_dict(state["opt"])
         step, elapsed0 = int(state["step"]), float(state["elapsed_s"])
         log.info("resumed from step %d (%.1f min)", step, elapsed0 / 60)
+    elif initial is not None:
+        model.load_state_dict(initial)
+        log.info("fine-tuning from %s", cfg.init_from)
     else:
         init_disparity_bias(model, cfg, typical_depth_m=6.0)
     rng = np.random.default_rng(cfg.seed + step)
@@ -177,7 +195,7 @@ def train(cfg: TrainConfig) -> Path:
         lr = cfg.lr if progress < 1.0 - cfg.final_fraction else cfg.lr_final
         for group in opt.param_groups:
             group["lr"] = lr
-        xb, db = sample_batch(frames, cfg.batch, cfg.crop, rng)
+        xb, db = sample_batch(frames, cfg.batch, cfg.crop, rng, max_depth=cfg.max_depth)
         x, d = torch.from_numpy(xb), torch.from_numpy(db)
         loss = total_loss(model.forward_all(x), x, d, cfg)
         opt.zero_grad()

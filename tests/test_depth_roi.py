@@ -143,3 +143,19 @@ def test_far_cut_without_any_boundary():
     assert res.n_regions == 1
     assert res.mask[:, d[0] >= 0.14].min() == 255 and res.mask[:, d[0] < 0.13].max() == 0
     assert extract_roi(d, params=RoiParams(far_cut_ratio=0.0)).roi_fraction == 1.0  # the paper's method alone
+
+
+def test_small_wall_joined_to_the_sky_is_not_dropped_as_background():
+    # The start of a strip: a quarter of the frame is wall (bottom right), the rest far sky and ground. The wall's
+    # left end fades smoothly into the ground (no boundary there), so wall, ground and sky are one region whose
+    # mean disparity is the sky's. The frame must still be kept, and only the wall with it.
+    yy, xx = _grid()
+    d = np.full((H, W), 0.002, np.float32)  # sky / far ground: ~50x the wall's distance
+    wall = (yy >= 60) & (xx >= 200)
+    d[wall] = WALL
+    fade = (yy >= 60) & (xx >= 140) & (xx < 200)
+    d[fade] = (WALL * np.exp(-(200 - xx[fade]) / 8.0)).astype(np.float32)  # wall end into the ground, no jump
+    res = extract_roi(d, params=RoiParams(min_roi_disparity=0.05))
+    assert res.n_regions == 1  # one region, as described
+    assert not res.empty
+    assert res.mask[wall].min() == 255 and res.mask[d < 0.5 * WALL].max() == 0

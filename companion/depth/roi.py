@@ -185,19 +185,6 @@ def extract_roi(
     means = {i: sums[i] / max(counts[i], 1) for i in region_ids}
     nearest = max(means.values())
 
-    if params.min_roi_disparity is not None and nearest < params.min_roi_disparity:
-        return RoiResult(
-            mask=np.zeros((out_h, out_w), np.uint8),
-            empty=True,
-            no_boundary=False,
-            roi_fraction=0.0,
-            n_regions=len(region_ids),
-            n_kept=0,
-            roi_mean_disparity=float("nan"),
-            background_mean_disparity=float(np.mean(d)),
-            gradient_threshold=thr,
-        )
-
     kept = [i for i in region_ids if means[i] >= params.near_ratio * nearest]
     dropped = [i for i in region_ids if i not in kept]
     is_dropped = np.zeros(n, bool)
@@ -221,6 +208,20 @@ def extract_roi(
         min_island = max(4, int(params.min_component_frac * d.size))
         keep = _remove_small(keep, min_island, connectivity=4)
         keep = ~_remove_small(~keep, min_island, connectivity=4)  # fill pepper holes in the ROI
+    if params.min_roi_disparity is not None and (not keep.any() or float(d[keep].mean()) < params.min_roi_disparity):
+        # Judged on what is finally kept, not on the nearest region's mean: a wall joined to the sky through a
+        # gap in the boundary (a wall end fading into the ground) makes one region whose mean is the sky's.
+        return RoiResult(
+            mask=np.zeros((out_h, out_w), np.uint8),
+            empty=True,
+            no_boundary=False,
+            roi_fraction=0.0,
+            n_regions=len(region_ids),
+            n_kept=0,
+            roi_mean_disparity=float("nan"),
+            background_mean_disparity=float(np.mean(d)),
+            gradient_threshold=thr,
+        )
     no_boundary = bool(keep.all())  # nothing cut: the whole frame is facade
 
     if (out_w, out_h) != (w, h):

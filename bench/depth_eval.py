@@ -1,10 +1,13 @@
 """Depth-mask accuracy on held-out simulator recordings: pixel error ratio vs the true ROI masks (mean, p95) and
 the fraction of frames whose ROI is nearer than the background (paper: 0.75 % mean error; ROI always nearer).
 
-Usage: python bench/depth_eval.py [--model M.onnx] [--seeds 100 101] [--gen-stride 30] [--stride 1] [--data DIR]
-       [--save DIR] [--json OUT] [--near-ratio 0.6 ...] [--far-cut 0.5 ...]
+Usage: python bench/depth_eval.py [--model M.onnx [M2.onnx ...]] [--seeds 100 101] [--real-photos DIR]
+       [--gen-stride 30] [--stride 1] [--data DIR] [--save DIR] [--json OUT] [--near-ratio 0.6 ...] [--far-cut 0.5 ...]
 Recordings of missions/demo-facade.yaml with the given seeds are generated into --data if missing (seeds the
-shipped model never saw: it was trained on random-view scenes 0-13, its ROI parameters checked on 1000-1003).
+shipped model never saw: it was trained on random-view scenes 0-29, its ROI parameters chosen on seed 200).
+Several models are evaluated one after the other in the same run, for a side-by-side comparison. With
+--real-photos, each model also masks the real drone photos of a wall (../shared/data/real-uav-facade): the
+fraction of the frame kept, and of the plain wall (the photos' left 80 %; the right edge is a window).
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", default=str(DEFAULT_MODEL))
+    ap.add_argument("--model", nargs="+", default=[str(DEFAULT_MODEL)])
+    ap.add_argument("--real-photos", default=None, help="folder of real wall photos (*.JPG) to mask too")
     ap.add_argument("--seeds", nargs="+", type=int, default=[100, 101])
     ap.add_argument("--mission", default=str(ROOT / "missions" / "demo-facade.yaml"))
     ap.add_argument("--gen-stride", type=int, default=30, help="camera frames between recorded frames")
@@ -40,12 +44,39 @@ def main() -> None:
     ap.add_argument("--oracle", action="store_true",
                     help="also run the ROI extraction on the simulator's TRUE depth (isolates the model's error)")
     args = ap.parse_args()
-    for near in args.near_ratio:
-        for far in args.far_cut:
-            print(f"--- ROI parameters: near_ratio {near}, far_cut_ratio {far}")
-            run(args, RoiParams(near_ratio=near, far_cut_ratio=far))
-            if args.oracle:
+    results = []
+    for model in args.model:
+        for near in args.near_ratio:
+            for far in args.far_cut:
+                params = RoiParams(near_ratio=near, far_cut_ratio=far)
+                print(f"--- model {model}, ROI parameters: near_ratio {near}, far_cut_ratio {far}")
+                results.append({"model": model, "near_ratio": near, "far_cut_ratio": far,
+                                "seeds": run(args, model, params)})
+                if args.real_photos:
+                    real_photos(Path(args.real_photos), model, params)
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    if args.oracle:
+        for near in args.near_ratio:
+            for far in args.far_cut:
                 oracle(args, RoiParams(near_ratio=near, far_cut_ratio=far))
+
+
+def real_photos(folder: Path, model: str, params: RoiParams) -> None:
+    """Fraction of each real wall photo kept, and of its plain-wall part (left 80 %)."""
+    import cv2
+
+    from companion.records import Frame, TaggedFrame
+
+    masker = Masker(model, params=params)
+    photos = sorted(p for p in folder.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
+    for n, photo in enumerate(photos):
+        image = cv2.imread(str(photo), cv2.IMREAD_COLOR)
+        _, roi = masker.mask(TaggedFrame(Frame(n, 0.0, image), pose=None))
+        wall = roi.mask[:, : int(0.8 * roi.mask.shape[1])]
+        print(f"real photo {photo.name}: kept {100 * roi.roi_fraction:.1f} % of the frame, "
+              f"{100 * np.count_nonzero(wall) / wall.size:.1f} % of the plain wall (left 80 %), "
+              f"dropped={roi.empty}")
 
 
 def oracle(args, params: RoiParams) -> None:
@@ -69,11 +100,10 @@ def oracle(args, params: RoiParams) -> None:
           f"p95 {100 * np.percentile(e, 95):.2f} %")
 
 
-def run(args, params: RoiParams) -> None:
-
+def run(args, model: str, params: RoiParams) -> list[dict]:
     from sim.camera.recording import generate_recording
 
-    masker = Masker(args.model, params=params)
+    masker = Masker(model, params=params)
     rows, all_frames = [], []
     for seed in args.seeds:
         path = Path(args.data) / f"demo_seed{seed:04d}_g{args.gen_stride}"
@@ -95,14 +125,13 @@ def run(args, params: RoiParams) -> None:
     near = [f.roi_nearer for f in all_frames if f.roi_nearer is not None]
     tnear = [f.true_roi_nearer for f in all_frames if f.true_roi_nearer is not None]
     edge = np.array([f.error_ratio for f in all_frames if 0.0 < f.true_roi_fraction < 1.0])
-    print(f"ALL: model {Path(args.model).name}, {len(e)} frames: pixel error ratio mean {100 * e.mean():.2f} % "
+    print(f"ALL: model {Path(model).name}, {len(e)} frames: pixel error ratio mean {100 * e.mean():.2f} % "
           f"p95 {100 * np.percentile(e, 95):.2f} %; frames with background in truth ({len(edge)}): mean "
           f"{100 * edge.mean() if len(edge) else float('nan'):.2f} %; ROI nearer than background in "
           f"{100 * np.mean(near) if near else float('nan'):.1f} % of {len(near)} frames with both sides "
           f"(true masks: {100 * np.mean(tnear) if tnear else float('nan'):.1f} % of {len(tnear)})")
     print(f"machine: {platform.machine()} cores={__import__('os').cpu_count()}")
-    if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return rows
 
 
 if __name__ == "__main__":

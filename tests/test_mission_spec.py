@@ -148,3 +148,33 @@ def test_footprint_geojson_file_and_bad_face(tmp_path, demo):
     demo["facade"]["footprint"]["face"] = 0
     (tmp_path / "m.yaml").write_text(yaml.safe_dump(demo))
     assert plan_scan(load_mission(tmp_path / "m.yaml")).frame.length_m == pytest.approx(26.45, abs=0.1)
+
+
+def test_depth_model_is_resolved_next_to_the_mission_and_used_by_the_chain(tmp_path, demo):
+    from companion.capture.telemetry import ClockMap, TelemetryBuffer
+    from companion.capture.tagging import FrameTagger
+    from companion.depth.session import DEFAULT_MODEL
+    from companion.onboard.setup import build_chain
+
+    (tmp_path / "models").mkdir()
+    chosen = tmp_path / "models" / "my-depth.onnx"
+    chosen.write_bytes(DEFAULT_MODEL.read_bytes())
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump({**demo, "depth_model": "models/my-depth.onnx"}))
+    mission = load_mission(path)
+    assert Path(mission.depth_model) == chosen.resolve()
+    tagger = FrameTagger(TelemetryBuffer(), ClockMap(0.0))
+    chain = build_chain(tmp_path / "spool", tagger, mission=mission)
+    assert chain.masker.session.info.path == chosen.resolve()
+    # a command's --model wins over the mission's choice
+    chain = build_chain(tmp_path / "spool2", tagger, mission=mission, model=DEFAULT_MODEL)
+    assert chain.masker.session.info.path == DEFAULT_MODEL
+
+
+def test_missing_depth_model_names_the_field(tmp_path, demo):
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump({**demo, "depth_model": "nope.onnx"}))
+    with pytest.raises(CompanionError) as exc:
+        load_mission(path)
+    assert "depth_model" in exc.value.problem and "nope.onnx" in exc.value.problem
+    assert "relative to the mission file" in exc.value.fix

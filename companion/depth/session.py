@@ -61,7 +61,8 @@ class DepthSession:
         if not path.is_file():
             raise CompanionError(
                 f"depth model not found: {path}",
-                "set depth.model to an existing .onnx file, or omit it to use the shipped default model"
+                "pass --model (or set depth_model in the mission) to an existing .onnx file, or omit it to use "
+                "the shipped default model"
                 if model_path is not None
                 else "reinstall companion (pip install -e .): the shipped model file is missing",
             )

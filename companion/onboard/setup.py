@@ -46,6 +46,8 @@ def build_chain(
 
         mission = load_mission(mission_path)
     gate_cfg = GateConfig.for_mission(mission) if mission is not None else GateConfig()
+    if model is None and mission is not None and mission.depth_model is not None:
+        model = Path(mission.depth_model)  # the mission's choice; a command's --model wins
     masker = None
     model_name = None
     if mask:

@@ -111,3 +111,39 @@ def test_train_short_run_then_fine_tune_starts_from_its_weights(tmp_path):
     with pytest.raises(CompanionError, match="no training checkpoint"):
         train(TrainConfig(out=tmp_path / "c", max_steps=1, init_from=tmp_path / "missing", **common))
     assert not (tmp_path / "c" / "data").exists()
+
+
+def test_average_of_runs_is_the_mean_of_their_weights(tmp_path, capsys):
+    """``companion depth average`` writes the verified ONNX of the uniform weight average; runs of another width or
+    a single run are refused with the fix."""
+    from companion.depth.training.train import TrainConfig, initial_weights, train
+
+    common = dict(recordings=[], view_seeds=[0], views_per_seed=3, crop=(64, 128), batch=2, threads=1)
+    train(TrainConfig(out=tmp_path / "base", max_steps=2, **common))
+    train(TrainConfig(out=tmp_path / "tuned", max_steps=2, init_from=tmp_path / "base", seed=1, **common))
+    runs = [str(tmp_path / "base"), str(tmp_path / "tuned")]
+    assert main(["depth", "average", *runs, "--out", str(tmp_path / "avg")]) == 0
+    assert "average of 2 runs" in capsys.readouterr().out
+
+    a, b = initial_weights(tmp_path / "base"), initial_weights(tmp_path / "tuned")
+    model = Monodepth2(width=0.25)
+    model.load_state_dict({k: (a[k] + b[k]) / 2 if a[k].is_floating_point() else a[k] for k in a})
+    model.eval()
+    image = np.random.default_rng(3).integers(0, 256, (192, 640, 3), dtype=np.uint8)
+    session = DepthSession(tmp_path / "avg" / "model.onnx")
+    x = torch.from_numpy(session.preprocess(image))
+    with torch.no_grad():
+        expected = model(x).numpy()[0, 0]
+    np.testing.assert_allclose(session.disparity(image), expected, atol=1e-5)
+    assert session.info.metric and "base, tuned" in session.info.metadata["averaged_runs"]
+    # the official-layout checkpoints load back to the same network
+    reloaded, _ = load_official(tmp_path / "avg" / "encoder.pth", tmp_path / "avg" / "depth.pth")
+    assert reloaded.width == 0.25
+
+    train(TrainConfig(out=tmp_path / "wide", max_steps=0, **{**common, "model_width": 0.5}))
+    with pytest.raises(CompanionError, match="other settings"):
+        from companion.depth.training.average import average_runs
+
+        average_runs([tmp_path / "base", tmp_path / "wide"], tmp_path / "bad")
+    assert main(["depth", "average", str(tmp_path / "base"), "--out", str(tmp_path / "one")]) == 2
+    assert "at least two runs" in capsys.readouterr().err

@@ -16,10 +16,11 @@ from companion.records import Frame, TaggedFrame
 FIXTURES = Path(__file__).parent / "depth_fixtures"
 MISSION = Path(__file__).parents[1] / "missions" / "demo-facade.yaml"
 
-# Bounds with margin over what the shipped model measured: 6.3 % mean error on the 12 frames below (4.7 % on
-# 524 held-out frames, bench/depth_eval.py, docs/BENCHMARKS.md); 85 % and 89 % of the two real photos kept.
-MEAN_ERROR_BOUND = 0.10
-REAL_WALL_KEPT = 0.80
+# Bounds with margin over what the shipped model measured: 2.0 % mean error on the 12 frames below (1.2 % on
+# 524 held-out frames, bench/depth_eval.py, docs/BENCHMARKS.md); 89.9 % of both real photos kept (all of the plain
+# wall; the window at the right edge, which shows the room behind it and reflects trees and sky, is cut).
+MEAN_ERROR_BOUND = 0.05
+REAL_WALL_KEPT = 0.85
 
 
 @pytest.fixture(scope="module")
@@ -31,10 +32,10 @@ def masker():
 def held_out_recording(tmp_path_factory):
     from sim.camera.recording import generate_recording
 
-    # seed 7 of the demo mission: a scene the model never saw (trained on random-view scenes 0-13),
-    # frames spread over the whole scan (wall ends, roof line, ground, mid-wall)
-    out = tmp_path_factory.mktemp("rec") / "demo_seed7"
-    return generate_recording(MISSION, out, seed=7, stride=211, max_frames=12)
+    # seed 300 of the demo mission: a scene the model never saw (trained on scene seeds 0-29; 100, 101 and 200 are
+    # the benchmark and tuning seeds), frames spread over the whole scan (wall ends, roof line, ground, mid-wall)
+    out = tmp_path_factory.mktemp("rec") / "demo_seed300"
+    return generate_recording(MISSION, out, seed=300, stride=211, max_frames=12)
 
 
 def test_shipped_model_on_held_out_simulated_frames(masker, held_out_recording):
@@ -52,10 +53,10 @@ def test_real_wall_photo_keeps_almost_all_of_the_wall(masker, name):
     masked, roi = masker.mask(TaggedFrame(Frame(0, 0.0, image), pose=None))
     assert masked is not None and not roi.empty
     assert roi.roi_fraction >= REAL_WALL_KEPT, f"kept only {100 * roi.roi_fraction:.1f} % of a wall photo"
-    # the left 80 % of the photo is plain wall (the right edge is a window reflecting trees and sky): at least
-    # 90 % of it is kept, and all of its lower half (the model sees a featureless patch near the top as farther)
+    # the left 80 % of the photo is plain wall (the right edge is a window reflecting trees and sky): all of it is
+    # kept (the earlier model cut a featureless, lighter patch near the top as if it were sky)
     w, h = int(0.8 * image.shape[1]), image.shape[0]
-    assert np.count_nonzero(masked.mask[:, :w]) >= 0.9 * h * w
+    assert np.count_nonzero(masked.mask[:, :w]) >= 0.99 * h * w
     assert masked.mask[h // 2 :, :w].min() == 255
 
 

@@ -151,8 +151,8 @@ def test_footprint_geojson_file_and_bad_face(tmp_path, demo):
 
 
 def test_depth_model_is_resolved_next_to_the_mission_and_used_by_the_chain(tmp_path, demo):
-    from companion.capture.telemetry import ClockMap, TelemetryBuffer
     from companion.capture.tagging import FrameTagger
+    from companion.capture.telemetry import ClockMap, TelemetryBuffer
     from companion.depth.session import DEFAULT_MODEL
     from companion.onboard.setup import build_chain
 

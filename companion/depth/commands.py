@@ -1,4 +1,4 @@
-"""CLI: ``companion depth export|train|run`` and ``companion eval mask RECORDING``."""
+"""CLI: ``companion depth export|train|average|run`` and ``companion eval mask RECORDING``."""
 
 from __future__ import annotations
 
@@ -81,6 +81,16 @@ def cmd_train(args) -> int:
     )
     path = train(cfg)
     print(f"model: {path}")
+    return 0
+
+
+def cmd_average(args) -> int:
+    _need_torch()
+    from companion.depth.training.average import average_runs
+
+    rep = average_runs([Path(r) for r in args.runs], Path(args.out))
+    print(f"model: {rep.onnx} (average of {len(rep.runs)} runs; torch vs onnxruntime max abs diff "
+          f"{rep.max_abs_diff:.3g})")
     return 0
 
 
@@ -168,6 +178,11 @@ def register(subparsers) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
     p.add_argument("--init-from", default=None, help="fine-tune: start from this run folder's weights")
     p.set_defaults(func=cmd_train)
+
+    p = dsub.add_parser("average", help="uniform weight average of training runs (a model soup) -> verified ONNX")
+    p.add_argument("runs", nargs="+", help="run folders of companion depth train (one architecture, one ancestor)")
+    p.add_argument("--out", required=True, help="output folder (model.onnx, encoder.pth, depth.pth, summary.json)")
+    p.set_defaults(func=cmd_average)
 
     p = dsub.add_parser("run", help="mask image files; save frame | disparity | masked frame pictures")
     p.add_argument("images", nargs="+")

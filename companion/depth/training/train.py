@@ -95,7 +95,7 @@ def init_disparity_bias(model: Monodepth2, cfg: TrainConfig, typical_depth_m: fl
         torch.nn.init.constant_(model.depth._conv("dispconv", s).conv.bias, logit)
 
 
-def _initial_weights(path: Path) -> dict:
+def initial_weights(path: Path) -> dict:
     """Model weights of an earlier run (its folder or its checkpoint.pt), for fine-tuning on changed data."""
     path = Path(path)
     ckpt = path / "checkpoint.pt" if path.is_dir() else path
@@ -158,7 +158,7 @@ def train(cfg: TrainConfig) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     ckpt = out / "checkpoint.pt"
     # read before the (slow) data so that a wrong path fails at once
-    initial = _initial_weights(cfg.init_from) if cfg.init_from is not None and not ckpt.is_file() else None
+    initial = initial_weights(cfg.init_from) if cfg.init_from is not None and not ckpt.is_file() else None
     (out / "config.json").write_text(json.dumps(asdict(cfg), default=str, indent=1))
     frames = _frames(cfg, cfg.recordings, cfg.view_seeds, cfg.stride, cfg.views_per_seed)
     held = None

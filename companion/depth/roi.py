@@ -5,7 +5,7 @@ regions between boundaries -> keep the nearer (higher disparity) regions -> mask
 
 Monocular disparity is only defined up to scale, so every decision here is relative (ratios of disparities,
 gradients normalised by the median disparity) except the optional ``min_roi_disparity`` that flags a frame
-whose nearest region is still too far to be the facade (the whole frame is background).
+whose kept ROI is on average still too far to be the facade (the whole frame is background).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ class RoiParams:
     # Pixels with disparity below far_cut_ratio x the facade's (95th percentile of the kept side) are cut even
     # without a boundary (0.5: more than 2x farther than the facade). 0 disables (pure paper method).
     far_cut_ratio: float = 0.5
-    # Nearest region mean disparity below this: whole frame background (frame dropped). None: never.
+    # Mean disparity of the finally kept ROI below this: whole frame background (frame dropped). None: never.
     min_roi_disparity: float | None = None
 
     def __post_init__(self) -> None:

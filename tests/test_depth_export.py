@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -119,11 +121,14 @@ def test_average_of_runs_is_the_mean_of_their_weights(tmp_path, capsys):
     from companion.depth.training.train import TrainConfig, initial_weights, train
 
     common = dict(recordings=[], view_seeds=[0], views_per_seed=3, crop=(64, 128), batch=2, threads=1)
-    train(TrainConfig(out=tmp_path / "base", max_steps=2, **common))
+    train(TrainConfig(out=tmp_path / "base", max_steps=2, eval_view_seeds=[1000], **common))
     train(TrainConfig(out=tmp_path / "tuned", max_steps=2, init_from=tmp_path / "base", seed=1, **common))
     runs = [str(tmp_path / "base"), str(tmp_path / "tuned")]
     assert main(["depth", "average", *runs, "--out", str(tmp_path / "avg")]) == 0
-    assert "average of 2 runs" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "average of 2 runs" in printed and "held-out scenes: loss" in printed
+    held = json.loads((tmp_path / "avg" / "summary.json").read_text())["held_out"]
+    assert held["loss"] > 0 and 0 < held["abs_rel_facade_and_near"] < 10
 
     a, b = initial_weights(tmp_path / "base"), initial_weights(tmp_path / "tuned")
     model = Monodepth2(width=0.25)

@@ -43,6 +43,7 @@ def test_shipped_model_on_held_out_simulated_frames(masker, held_out_recording):
     s = ev.summary()
     assert s["frames"] >= 8
     assert s["error_mean"] < MEAN_ERROR_BOUND, s
+    assert s["dropped_with_facade"] == 0, s  # a frame that shows facade is never lost as "all background"
     # wherever the truth has both facade and background, the model sees the facade nearer
     assert s["true_roi_nearer_fraction"] == 1.0 or np.isnan(s["true_roi_nearer_fraction"])
 

@@ -91,6 +91,9 @@ def cmd_average(args) -> int:
     rep = average_runs([Path(r) for r in args.runs], Path(args.out))
     print(f"model: {rep.onnx} (average of {len(rep.runs)} runs; torch vs onnxruntime max abs diff "
           f"{rep.max_abs_diff:.3g})")
+    if rep.held_out is not None:
+        print(f"held-out scenes: loss {rep.held_out['loss']:.4f}, abs. rel. depth error (facade and near) "
+              f"{rep.held_out['abs_rel_facade_and_near']:.3f}")
     return 0
 
 
@@ -130,7 +133,8 @@ def cmd_eval_mask(args) -> int:
         print(f"{rec}: {s['frames']} frames, pixel error ratio mean {100 * s['error_mean']:.2f} % "
               f"p95 {100 * s['error_p95']:.2f} % max {100 * s['error_max']:.2f} %; ROI nearer than background in "
               f"{100 * s['roi_nearer_fraction']:.0f} % of {s['frames_with_both_sides']} frames with both; "
-              f"dropped {s['dropped_empty']} (true empty {s['true_empty']})")
+              f"dropped {s['dropped_empty']} (true empty {s['true_empty']}, "
+              f"dropped with facade {s['dropped_with_facade']})")
     if args.json:
         Path(args.json).write_text(json.dumps(summaries, indent=1))
     return 0

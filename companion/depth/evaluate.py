@@ -49,6 +49,8 @@ class MaskEval:
             "error_max": float(e.max()) if len(e) else float("nan"),
             "dropped_empty": sum(f.empty for f in self.frames),
             "true_empty": sum(f.true_roi_fraction == 0.0 for f in self.frames),
+            # the costly mistake: a frame that shows facade dropped as all-background (lost for the map)
+            "dropped_with_facade": sum(f.empty and f.true_roi_fraction > 0.0 for f in self.frames),
             "no_boundary": sum(f.no_boundary for f in self.frames),
             "frames_with_both_sides": len(nearer),
             "roi_nearer_fraction": float(np.mean(nearer)) if nearer else float("nan"),

@@ -31,14 +31,26 @@ class AverageReport:
     onnx: Path
     runs: list[Path]
     max_abs_diff: float
+    held_out: dict | None = None  # loss and abs. rel. depth error on the first run's held-out scenes
 
 
-def _run_settings(run: Path) -> dict:
+def _run_config(run: Path) -> dict:
     config = Path(run) / "config.json"
     if not config.is_file():
         raise CompanionError(f"{run} has no config.json", "pass run folders written by companion depth train")
-    data = json.loads(config.read_text())
-    return {k: data.get(k) for k in SHARED_SETTINGS}
+    return json.loads(config.read_text())
+
+
+def _held_out(model: Monodepth2, run: Path, config: dict) -> dict | None:
+    """The held-out loss and depth error of the average on the first run's held-out scenes (as training reports
+    them for each run), so the three can be compared; None when that run had no held-out scenes."""
+    from companion.depth.training.train import TrainConfig, evaluate_torch, training_frames
+
+    seeds = config.get("eval_view_seeds") or []
+    if not seeds:
+        return None
+    cfg = TrainConfig(out=Path(run), recordings=[], **{k: config[k] for k in SHARED_SETTINGS})
+    return evaluate_torch(model, training_frames(cfg, [], seeds, 4, 30), cfg)
 
 
 def average_state_dicts(states: list[dict]) -> dict:
@@ -67,7 +79,8 @@ def average_runs(runs: list[Path], out: Path) -> AverageReport:
     runs = [Path(r) for r in runs]
     if len(runs) < 2:
         raise CompanionError("averaging needs at least two runs", "pass two or more run folders")
-    settings = [_run_settings(r) for r in runs]
+    configs = [_run_config(r) for r in runs]
+    settings = [{k: c.get(k) for k in SHARED_SETTINGS} for c in configs]
     for run, s in zip(runs[1:], settings[1:], strict=True):
         if s != settings[0]:
             diff = {k: (settings[0][k], s[k]) for k in SHARED_SETTINGS if s[k] != settings[0][k]}
@@ -91,6 +104,10 @@ def average_runs(runs: list[Path], out: Path) -> AverageReport:
         extra_metadata={"metric_depth": "true", "encoder_width": str(cfg["model_width"]), "averaged_runs": names},
     )
     summary = {"runs": [str(r) for r in runs], "onnx": str(report.path), "onnx_max_abs_diff": report.max_abs_diff}
+    held = _held_out(model, runs[0], configs[0])
+    if held is not None:
+        summary["held_out"] = held
+        log.info("held-out scenes %s: %s", configs[0]["eval_view_seeds"], held)
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     log.info("averaged %d runs into %s", len(runs), report.path)
-    return AverageReport(report.path, runs, report.max_abs_diff)
+    return AverageReport(report.path, runs, report.max_abs_diff, held)

@@ -132,7 +132,10 @@ def evaluate_torch(model: Monodepth2, frames: FrameSet, cfg: TrainConfig, batch:
     return {"loss": float(np.mean(losses)), "abs_rel_facade_and_near": float(np.mean(absrel))}
 
 
-def _frames(cfg: TrainConfig, recordings: list[Path], view_seeds: list[int], stride: int, n_views: int) -> FrameSet:
+def training_frames(
+    cfg: TrainConfig, recordings: list[Path], view_seeds: list[int], stride: int, n_views: int
+) -> FrameSet:
+    """Frames of recordings and random-view scenes (rendered once into ``cfg.out/data``), depth as float16."""
     from companion.depth.training.views import cached_views
 
     parts = []
@@ -160,10 +163,10 @@ def train(cfg: TrainConfig) -> Path:
     # read before the (slow) data so that a wrong path fails at once
     initial = initial_weights(cfg.init_from) if cfg.init_from is not None and not ckpt.is_file() else None
     (out / "config.json").write_text(json.dumps(asdict(cfg), default=str, indent=1))
-    frames = _frames(cfg, cfg.recordings, cfg.view_seeds, cfg.stride, cfg.views_per_seed)
+    frames = training_frames(cfg, cfg.recordings, cfg.view_seeds, cfg.stride, cfg.views_per_seed)
     held = None
     if cfg.eval_recordings or cfg.eval_view_seeds:
-        held = _frames(cfg, cfg.eval_recordings, cfg.eval_view_seeds, 4, 30)
+        held = training_frames(cfg, cfg.eval_recordings, cfg.eval_view_seeds, 4, 30)
     log.info("training on %d frames (%d recordings, %d view scenes)", len(frames), len(cfg.recordings),
              len(cfg.view_seeds))
 

@@ -144,7 +144,7 @@ class _Supervisor:
                     self.max_reached = max(self.max_reached, min(current, total))
                     bar.n = self.max_reached
                     bar.refresh()
-                    if st["in_air"]:
+                    if st["in_air"] or self.rec.was_in_air:  # latched: the flight may predate this loop
                         airborne = True
                     done = self.max_reached >= total
                     if done and st["in_air"] and not ends_on_ground and not end_sent:

@@ -45,6 +45,9 @@ class TelemetryRecorder:
         self._file: IO[str] | None = None
         self.state: dict = {"mission_item": -1, "mission_total": 0, "armed": None, "in_air": None,
                             "flight_mode": None, "landed_state": None}
+        # latched: the vehicle was seen in the air at some point while recording (a short flight can start and end
+        # while the companion is still waiting for a slow command acknowledgement on a lossy link)
+        self.was_in_air = False
         self.samples = 0
         self.last_sample_wall: float | None = None
         self._last_position = None
@@ -114,6 +117,8 @@ class TelemetryRecorder:
         """Armed / in-air changes also get a row (with the last position), so the log ends in the final state."""
         changed = self.state.get(key) != value
         self.state[key] = value
+        if key == "in_air" and value:
+            self.was_in_air = True
         if changed and self._raw_pos is not None:
             self._write_row(*self._raw_pos)
         elif changed and self._last_position is not None:

@@ -225,16 +225,18 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
             reason = await sup.run()
             if reason == "signal":
                 await sup._rtl_and_wait(timeout_s=max(60.0, flight_timeout_s / 4))
-            st = rec.state
-            landed, disarmed = st["in_air"] is False, st["armed"] is False
-            total = len(items)
-            return FlightResult(
-                completed=reason is None and landed and disarmed and sup.max_reached >= total,
-                landed=landed, disarmed=disarmed, aborted=reason, items_total=total,
-                items_reached=sup.max_reached, autopilot=vehicle.autopilot,
-                duration_s=time.monotonic() - sup.t0, telemetry_samples=rec.samples,
-                link_losses=sup.link_losses, telemetry_log=Path(telemetry_log) if telemetry_log else None,
-                status_texts=list(rec.status_texts))
+            duration_s = time.monotonic() - sup.t0
+        # read after the recorder has closed: its exit flushes the last rows, and the count must match the file
+        st = rec.state
+        landed, disarmed = st["in_air"] is False, st["armed"] is False
+        total = len(items)
+        return FlightResult(
+            completed=reason is None and landed and disarmed and sup.max_reached >= total,
+            landed=landed, disarmed=disarmed, aborted=reason, items_total=total,
+            items_reached=sup.max_reached, autopilot=vehicle.autopilot,
+            duration_s=duration_s, telemetry_samples=rec.samples,
+            link_losses=sup.link_losses, telemetry_log=Path(telemetry_log) if telemetry_log else None,
+            status_texts=list(rec.status_texts))
     finally:
         for sig in installed:
             loop.remove_signal_handler(sig)

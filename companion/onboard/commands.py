@@ -6,13 +6,12 @@ import argparse
 import json
 from pathlib import Path
 
-from tqdm import tqdm
-
 from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, buffer_from_log
 from companion.errors import CompanionError
 from companion.onboard.setup import build_chain
+from companion.progress import progress_bar
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,7 +45,7 @@ def run_cull(args: argparse.Namespace) -> int:
     chain = build_chain(args.out, tagger, mission_path=args.mission, model=args.model, mask=not args.no_mask)
     source = open_source(args.video, fps=args.fps)
     total = getattr(source, "files", None)
-    with source, tqdm(total=len(total) if total else None, unit="frame", desc="culling") as bar:
+    with source, progress_bar(total=len(total) if total else None, unit="frame", desc="culling") as bar:
         for frame in source:
             chain.process(frame)
             bar.update(1)

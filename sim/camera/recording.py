@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
+from companion.progress import progress_bar
 from companion.records import Frame
 from sim.camera.model import CameraModel, TruePose
 from sim.camera.overlap import clip_to_rect, footprint_on_wall, overlap_ratio
@@ -261,13 +261,11 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     }
     writer = RecordingWriter(out_dir, meta, jpeg_quality=jpeg_quality)
     ae = AutoExposure(seed=seed)
-    t0 = time.perf_counter()
+    times = list(flight.times(fps, stride=stride, max_frames=max_frames))
     try:
-        for k, t in flight.times(fps, stride=stride, max_frames=max_frames):
+        for k, t in progress_bar(times, desc="rendering", unit="frame", disable=not progress):
             rendered = renderer.render(flight.pose(t), index=k, time_s=t, exposure=ae)
             writer.add(rendered, t, source_frame=k)
-            if progress and writer.count % 50 == 0:
-                print(f"{writer.count} frames, {time.perf_counter() - t0:.1f} s", flush=True)
     finally:
         path = writer.close()
     return path

@@ -64,8 +64,12 @@ class LiveRunner:
                 if self.stop_event.is_set():
                     break
                 self._put(frame)
-            if not self.stop_event.is_set():
-                stats = self.source.stats
+            stats = self.source.stats
+            for note in stats.notes:
+                self.chain.warn(note)
+            if stats.ended is not None:
+                log.info("%s", stats.ended)  # a recording reached its end: not a camera fault
+            elif not self.stop_event.is_set():
                 self.chain.warn(
                     f"camera {self.source.name} stopped delivering frames after {stats.delivered} "
                     f"({stats.stalls} stall(s), {stats.corrupt} corrupt): no more keyframes; flight supervision "

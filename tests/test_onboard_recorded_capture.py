@@ -133,7 +133,9 @@ def test_recording_older_than_the_flight_is_an_error_not_zero_keyframes(tmp_path
     assert "kept no keyframe" in text and "older than the flight's first telemetry sample" in text, text
     assert "t = 0.00 .. 0.97 s" in text and "t = 20.00 s" in text and "fix:" in text
     assert err.value.result.flight.completed
-    assert (tmp_path / "spool" / "cull_report.json").exists()
+    report = json.loads((tmp_path / "spool" / "cull_report.json").read_text())
+    assert any("older than the flight's first telemetry sample" in w and "; fix:" in w for w in report["warnings"])
+    assert all("\n" not in w for w in report["warnings"])  # warnings stay one log line each
     assert len((tmp_path / "spool" / "telemetry.jsonl").read_text().splitlines()) == 21  # nothing lost
 
 

@@ -13,7 +13,7 @@ import threading
 import time
 
 from companion.capture.sources import FrameSource
-from companion.onboard.chain import CullChain
+from companion.onboard.chain import CullChain, one_line
 from companion.records import Frame
 
 log = logging.getLogger(__name__)
@@ -77,7 +77,7 @@ class LiveRunner:
                 )
         except BaseException as exc:  # reported by the caller; the worker still flushes
             self.error = exc
-            log.error("capture stopped: %s", exc)
+            log.error("capture stopped: %s", one_line(exc))
             self.chain.warn(f"camera {self.source.name} failed: {exc}")
         finally:
             self.chain.stats.corrupt = self.source.stats.corrupt

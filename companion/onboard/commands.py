@@ -57,7 +57,8 @@ def run_cull(args: argparse.Namespace) -> int:
     (args.out / "cull_report.json").write_text(json.dumps(stats, indent=1))
     print(
         f"{stats['frames_in']} frames -> {chain.stats.keyframes} keyframes in {args.out} "
-        f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose)"
+        f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose, "
+        f"{stats['before_telemetry']} not placed in the telemetry)"
     )
     empty = explain_empty_cull(chain.stats, tagger)
     if empty is not None:

@@ -108,6 +108,16 @@ def test_horizontal_strips_need_no_px4_parameters():
     assert fw.flight_parameters(plan, "px4") == {}
 
 
+def test_a_fast_vertical_scan_also_raises_px4s_descent_cap():
+    m = load_mission(f"{ROOT}/missions/demo-facade.yaml")
+    plan = plan_scan(m.model_copy(update={"motion_blur_budget_px": 3.0}))
+    v = plan.estimates.scan_speed_m_s
+    assert 1.5 < v < 3.0
+    params = fw.flight_parameters(plan, "px4")
+    assert params["MPC_Z_V_AUTO_DN"] == params["MPC_Z_VEL_MAX_DN"] == pytest.approx(v, abs=1e-3)
+    assert "MPC_Z_VEL_MAX_UP" not in params  # 3 m/s default already allows it
+
+
 def test_a_vertical_scan_speed_px4_cannot_take_is_refused_with_a_fix():
     m = load_mission(f"{ROOT}/missions/demo-facade.yaml")
     plan = plan_scan(m.model_copy(update={"motion_blur_budget_px": 0.3}))

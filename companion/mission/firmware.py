@@ -46,6 +46,8 @@ SPEED_TYPE_DESCENT = 3
 # PX4 parameter ranges (multicopter_autonomous_params.c at 02e73e3b6f).
 PX4_Z_V_AUTO_UP_RANGE = (0.5, 8.0)
 PX4_Z_V_AUTO_DN_RANGE = (0.5, 4.0)
+PX4_Z_VEL_MAX_UP_DEFAULT = 3.0  # multicopter_position_control_limits_params.c (range 0.5..8)
+PX4_Z_VEL_MAX_DN_DEFAULT = 1.5  # (range 0.5..4)
 
 COMMAND_NAMES = {
     mi.MAV_CMD_NAV_WAYPOINT: "NAV_WAYPOINT", mi.MAV_CMD_NAV_RETURN_TO_LAUNCH: "NAV_RETURN_TO_LAUNCH",
@@ -116,7 +118,8 @@ def flight_parameters(plan, autopilot: str) -> dict[str, float]:
       cruise speed), so without them vertical strips fly at 3 m/s up, 1.5 m/s down (defaults; 2.66/1.77 m/s
       measured on PX4 SIH), several times the planned speed and the motion-blur budget. They also slow the
       descent of a landing above MPC_LAND_ALT1 and of an RTL to the scan speed, which is safe. PX4 honours
-      NAV_WAYPOINT param4, so yaw needs no parameter.
+      NAV_WAYPOINT param4, so yaw needs no parameter. PX4 caps the auto speeds at MPC_Z_VEL_MAX_UP/DN: when the
+      scan speed is above their defaults (3 / 1.5 m/s) they are raised to it too.
 
     Raises CompanionError when a needed value lies outside the range the firmware accepts.
     """
@@ -135,4 +138,10 @@ def flight_parameters(plan, autopilot: str) -> dict[str, float]:
                 "fly pattern: horizontal, whose speed PX4 takes from the mission items",
             )
         params[name] = round(v, 3)
+    # PX4 caps the auto speeds at MPC_Z_VEL_MAX_UP/DN (MulticopterPositionControl.cpp): raise a cap only when the
+    # scan speed is above its default, so a pilot taking over keeps the vehicle's normal limits otherwise.
+    for name, default, (lo, hi) in (("MPC_Z_VEL_MAX_UP", PX4_Z_VEL_MAX_UP_DEFAULT, PX4_Z_V_AUTO_UP_RANGE),
+                                    ("MPC_Z_VEL_MAX_DN", PX4_Z_VEL_MAX_DN_DEFAULT, PX4_Z_V_AUTO_DN_RANGE)):
+        if v > default:
+            params[name] = round(min(max(v, lo), hi), 3)
     return params

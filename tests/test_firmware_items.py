@@ -132,3 +132,19 @@ def test_unknown_autopilot_is_refused(plan):
         fw.flight_parameters(plan, "inav")
     with pytest.raises(CompanionError):
         plan.mavlink_items("inav")
+
+
+def test_plan_summary_lists_the_flight_parameters_or_why_not():
+    import json
+
+    from companion.mission.commands import format_estimates
+    from companion.mission.exports import summary_json
+
+    m = load_mission(f"{ROOT}/missions/demo-facade.yaml")
+    plan = plan_scan(m)
+    summary = json.loads(summary_json(plan))["flight_parameters"]
+    assert summary == {"px4": fw.flight_parameters(plan, "px4"), "ardupilot": {"WP_YAW_BEHAVIOR": 0.0}}
+    slow = plan_scan(m.model_copy(update={"motion_blur_budget_px": 0.3}))
+    summary = json.loads(summary_json(slow))["flight_parameters"]
+    assert "MPC_Z_V_AUTO_UP range" in summary["px4"]["error"] and summary["px4"]["fix"]
+    assert "px4: cannot be flown as planned" in format_estimates(slow)

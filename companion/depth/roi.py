@@ -261,3 +261,10 @@ def pixel_error_ratio(mask: np.ndarray, truth: np.ndarray) -> float:
     if mask.shape != truth.shape:
         truth = cv2.resize(truth, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_NEAREST)
     return float(np.count_nonzero((mask > 127) != (truth > 127))) / mask.size
+
+
+# Named ROI rules, so an evaluation can compare them side by side on the same disparity (bench/depth_real_passes.py).
+ROI_RULES: dict[str, RoiParams] = {
+    "default": RoiParams(),
+    "paper": RoiParams(far_cut_ratio=0.0),  # the paper's regions only, no far cut
+}

@@ -35,6 +35,9 @@ class RoiParams:
     # Pixels with disparity below far_cut_ratio x the facade's (95th percentile of the kept side) are cut even
     # without a boundary (0.5: more than 2x farther than the facade). 0 disables (pure paper method).
     far_cut_ratio: float = 0.5
+    # Which percentile of the kept side's disparity is the facade's reference for the far cut (95: its nearest
+    # part; 50: its typical depth, less pulled by a model that reads the bottom of the frame too near).
+    far_ref_percentile: float = 95.0
     # Mean disparity of the finally kept ROI below this: whole frame background (frame dropped). None: never.
     min_roi_disparity: float | None = None
 
@@ -201,7 +204,7 @@ def extract_roi(
         # Surfaces that run on continuously from the facade into the distance (a roof seen from above, the
         # ground, a side wall) cross no boundary; their parts far behind the facade are cut by depth alone.
         side = d[::2, ::2][~in_dropped[::2, ::2]]
-        near_ref = float(np.percentile(side if side.size else d[~in_dropped], 95))
+        near_ref = float(np.percentile(side if side.size else d[~in_dropped], params.far_ref_percentile))
         cut = max(cut, params.far_cut_ratio * near_ref)
     keep = (~in_dropped) & (d >= cut)
     if not keep.all():
@@ -267,4 +270,8 @@ def pixel_error_ratio(mask: np.ndarray, truth: np.ndarray) -> float:
 ROI_RULES: dict[str, RoiParams] = {
     "default": RoiParams(),
     "paper": RoiParams(far_cut_ratio=0.0),  # the paper's regions only, no far cut
+    "n4f4": RoiParams(near_ratio=0.4, far_cut_ratio=0.4),
+    "n4f4m": RoiParams(near_ratio=0.4, far_cut_ratio=0.4, far_ref_percentile=50.0),
+    "n5f5m": RoiParams(near_ratio=0.5, far_cut_ratio=0.5, far_ref_percentile=50.0),
+    "n3f3m": RoiParams(near_ratio=0.3, far_cut_ratio=0.3, far_ref_percentile=50.0),
 }

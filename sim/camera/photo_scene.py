@@ -69,7 +69,7 @@ class PhotoPass:
     jpeg_quality: int = 90
 
     def __post_init__(self) -> None:
-        if not 0 < self.standoff_m < self.background_distance_m + self.standoff_m:
+        if not self.standoff_m > 0:
             raise CompanionError(f"pass {self.name}: standoff {self.standoff_m} m", "use a positive standoff")
         if self.background_distance_m <= 0:
             raise CompanionError(f"pass {self.name}: background at {self.background_distance_m} m",

@@ -20,11 +20,13 @@ from companion.errors import CompanionError
 
 @dataclass(frozen=True)
 class RoiParams:
-    """Tuning of the ROI extraction. Defaults were chosen on simulator frames (see docs/DEPTH.md)."""
+    """Tuning of the ROI extraction, chosen on simulator frames and real-texture passes (see docs/DEPTH.md)."""
 
     # A region is background when its mean disparity is below ``near_ratio`` x the nearest region's mean
-    # (0.6 means: more than 1.67x farther away than the facade).
-    near_ratio: float = 0.6
+    # (0.4 means: more than 2.5x farther away than the facade). Windows, recesses and balconies a metre or two
+    # off the wall plane are at most ~1.5x farther at a 4 m standoff; a background at 20 m or more is 5x.
+    # 0.6 (chosen on the simulator alone) cut windows that real photos' depth reads 1.7-2.5x farther.
+    near_ratio: float = 0.4
     # Gradients below this (relative to the median disparity, per pixel) are never a boundary, so a smooth,
     # boundary-free disparity map is not cut by Otsu thresholding its noise.
     min_rel_gradient: float = 0.02
@@ -33,11 +35,8 @@ class RoiParams:
     # Closing kernel (pixels at model resolution) that bridges small gaps in the boundary.
     close_px: int = 3
     # Pixels with disparity below far_cut_ratio x the facade's (95th percentile of the kept side) are cut even
-    # without a boundary (0.5: more than 2x farther than the facade). 0 disables (pure paper method).
-    far_cut_ratio: float = 0.5
-    # Which percentile of the kept side's disparity is the facade's reference for the far cut (95: its nearest
-    # part; 50: its typical depth, less pulled by a model that reads the bottom of the frame too near).
-    far_ref_percentile: float = 95.0
+    # without a boundary (0.4: more than 2.5x farther than the facade). 0 disables (pure paper method).
+    far_cut_ratio: float = 0.4
     # Mean disparity of the finally kept ROI below this: whole frame background (frame dropped). None: never.
     min_roi_disparity: float | None = None
 
@@ -204,7 +203,7 @@ def extract_roi(
         # Surfaces that run on continuously from the facade into the distance (a roof seen from above, the
         # ground, a side wall) cross no boundary; their parts far behind the facade are cut by depth alone.
         side = d[::2, ::2][~in_dropped[::2, ::2]]
-        near_ref = float(np.percentile(side if side.size else d[~in_dropped], params.far_ref_percentile))
+        near_ref = float(np.percentile(side if side.size else d[~in_dropped], 95))
         cut = max(cut, params.far_cut_ratio * near_ref)
     keep = (~in_dropped) & (d >= cut)
     if not keep.all():
@@ -268,10 +267,7 @@ def pixel_error_ratio(mask: np.ndarray, truth: np.ndarray) -> float:
 
 # Named ROI rules, so an evaluation can compare them side by side on the same disparity (bench/depth_real_passes.py).
 ROI_RULES: dict[str, RoiParams] = {
-    "default": RoiParams(),
+    "default": RoiParams(),  # near 0.4, far cut 0.4: keep what is within 2.5x the facade's distance
+    "sim-0.6-0.5": RoiParams(near_ratio=0.6, far_cut_ratio=0.5),  # the rules chosen on the simulator alone
     "paper": RoiParams(far_cut_ratio=0.0),  # the paper's regions only, no far cut
-    "n4f4": RoiParams(near_ratio=0.4, far_cut_ratio=0.4),
-    "n4f4m": RoiParams(near_ratio=0.4, far_cut_ratio=0.4, far_ref_percentile=50.0),
-    "n5f5m": RoiParams(near_ratio=0.5, far_cut_ratio=0.5, far_ref_percentile=50.0),
-    "n3f3m": RoiParams(near_ratio=0.3, far_cut_ratio=0.3, far_ref_percentile=50.0),
 }

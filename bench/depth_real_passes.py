@@ -43,9 +43,11 @@ def photo_pass_frames(name: str, args) -> Iterator[tuple[int, np.ndarray, np.nda
           f"{spec.background.name} at {spec.background_distance_m:.0f} m, {spec.frames} frames "
           f"{spec.camera.width}x{spec.camera.height} at {spec.standoff_m} m")
     renderer = PhotoPassRenderer(spec)
+    # camera axes in facade coordinates (along, out, up): x along the wall, y down, z into the wall
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
     for i in range(len(renderer)):
         f = renderer.render(i)
-        yield i, f.image, f.roi_mask
+        yield i, f.image, f.roi_mask, (np.array([f.along_m, spec.standoff_m, f.up_m]), R, spec.camera.fx)
 
 
 def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
@@ -58,16 +60,48 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
             generate_recording(str(ROOT / "missions" / "demo-facade.yaml"), path, seed=seed, stride=30)
         rec = load_recording(path)
         print(f"pass sim: simulator recording {path} ({len(rec)} frames, every {args.sim_stride})")
+        fx = float(rec.K[0, 0])
         for i in range(0, len(rec), args.sim_stride):
-            yield n, rec.image(i), rec.roi_mask(i)
+            pose = rec.camera_pose(i)
+            yield n, rec.image(i), rec.roi_mask(i), (pose.position_enu, pose.R_world_from_cam, fx)
             n += 1
 
 
-def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], save: Path | None):
-    """Run every model once per frame and every ROI rule on its disparity; MaskEval per (model, rule)."""
+def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], save: Path | None,
+                  parallax: bool = False):
+    """Run every model once per frame and every ROI rule on its disparity; MaskEval per (model, rule).
+
+    With ``parallax``: also each (model, rule) corrected by motion parallax against an earlier frame of the pass
+    (true camera positions as telemetry), and parallax alone (model "-", untrusted pixels background).
+    """
+    from companion.depth.parallax import (
+        ParallaxParams,
+        camera_translation,
+        fuse_with_network,
+        parallax_depth,
+        pick_reference,
+    )
+
     maskers = {(m, r): Masker(session=s, params=ROI_RULES[r]) for m, s in sessions.items() for r in rules}
     evals = {key: MaskEval(recording=f"{key[0]} / {key[1]}") for key in maskers}
-    for i, image, truth in frames:
+    if parallax:
+        for m, r in list(maskers):
+            evals[(m, f"{r}+parallax")] = MaskEval(recording=f"{m} / {r}+parallax")
+        evals[("-", "parallax alone")] = MaskEval(recording="parallax alone")
+    history: list[tuple[np.ndarray, np.ndarray]] = []  # (image, camera position) of recent frames
+    pp = ParallaxParams()
+    for i, image, truth, (pos, R, fx) in frames:
+        par = None
+        if parallax and fx:
+            k = pick_reference([h[1] for h in history], pos, pp)
+            if k is not None:
+                par = parallax_depth(history[k][0], image, camera_translation(R, history[k][1], R, pos), fx, pp)
+            history = (history + [(image, pos)])[-12:]
+        if parallax:
+            zero = np.zeros(image.shape[:2], np.uint8)
+            alone, dropped = fuse_with_network(zero, par) if par is not None else (zero, False)
+            evals[("-", "parallax alone")].frames.append(frame_eval(i, truth, np.zeros((8, 8), np.float32),
+                                                                    _as_roi(alone, dropped)))
         for model, session in sessions.items():
             t0 = time.perf_counter()
             disp = session.disparity(image)
@@ -78,9 +112,21 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                 roi = masker.roi_from_disparity(disp, image.shape[:2])
                 ev = frame_eval(i, truth, disp, roi, depth_ms=depth_ms, mask_ms=(time.perf_counter() - t1) * 1e3)
                 evals[(model, rule)].frames.append(ev)
+                if parallax:
+                    fused, dropped = fuse_with_network(roi.mask, par) if par is not None else (roi.mask, roi.empty)
+                    evals[(model, f"{rule}+parallax")].frames.append(frame_eval(i, truth, disp,
+                                                                                _as_roi(fused, dropped)))
                 if save is not None and i % 10 == 0:
                     save_visual(save / f"{Path(model).stem}_{rule}" / f"{i:04d}.jpg", image, disp, roi.mask, truth)
     return evals
+
+
+def _as_roi(mask: np.ndarray, dropped: bool):
+    """A fused mask in the RoiResult shape frame_eval reads (disparity statistics do not apply)."""
+    from companion.depth.roi import RoiResult
+
+    share = float(np.count_nonzero(mask)) / mask.size
+    return RoiResult(mask, dropped, share == 1.0, share, 0, 0, float("nan"), float("nan"), float("nan"))
 
 
 def print_table(name: str, evals: dict) -> list[dict]:
@@ -113,6 +159,8 @@ def main() -> None:
     ap.add_argument("--sim-stride", type=int, default=1)
     ap.add_argument("--data", default="/tmp/companion-depth-eval", help="where simulator recordings are cached")
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--parallax", action="store_true",
+                    help="also correct each mask by motion parallax with the true camera positions as telemetry")
     ap.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures (every 10th)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
@@ -122,7 +170,7 @@ def main() -> None:
     for name in args.passes:
         frames = sim_frames(args) if name == "sim" else photo_pass_frames(name, args)
         save = Path(args.save) / name if args.save else None
-        rows += print_table(name, evaluate_pass(frames, sessions, args.roi, save))
+        rows += print_table(name, evaluate_pass(frames, sessions, args.roi, save, args.parallax))
     print(f"\nmachine: {platform.machine()} {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; "
           f"{time.perf_counter() - t0:.0f} s")
     if args.json:

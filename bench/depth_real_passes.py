@@ -141,7 +141,8 @@ def print_table(name: str, evals: dict) -> list[dict]:
               f"{100 * s['error_wall_only_mean']:.2f} % ({s['wall_only_frames']}) | "
               f"{100 * s['facade_lost_mean']:.1f} % | {100 * s['background_kept_mixed_mean']:.1f} % "
               f"({s['mixed_frames']}) | {s['dropped_empty'] - s['dropped_with_facade']} of {s['true_empty']} | "
-              f"{s['dropped_with_facade']} | {s['frames']} frames, depth {s['depth_ms_median']:.0f} ms median")
+              f"{s['dropped_with_facade']} (most wall {100 * s['dropped_with_facade_max_share']:.1f} %) | "
+              f"{s['frames']} frames, depth {s['depth_ms_median']:.0f} ms median")
     return rows
 
 

@@ -97,6 +97,9 @@ class MaskEval:
             "true_empty": sum(f.true_roi_fraction == 0.0 for f in self.frames),
             # the costly mistake: a frame that shows facade dropped as all-background (lost for the map)
             "dropped_with_facade": sum(f.empty and f.true_roi_fraction > 0.0 for f in self.frames),
+            # how much wall the worst of those showed (a sliver at the wall's end costs the map nothing)
+            "dropped_with_facade_max_share": max((f.true_roi_fraction for f in self.frames
+                                                  if f.empty and f.true_roi_fraction > 0.0), default=0.0),
             "no_boundary": sum(f.no_boundary for f in self.frames),
             "frames_with_both_sides": len(nearer),
             "roi_nearer_fraction": float(np.mean(nearer)) if nearer else float("nan"),

@@ -67,3 +67,34 @@ def test_no_motion_is_refused_and_reference_needs_a_baseline(renderer):
     assert pick_reference(positions, np.array([0.15, 4.0, 2.0])) == 1  # the latest at least 8 cm back: 0.05
     assert pick_reference(positions[2:], np.array([0.15, 4.0, 2.0])) is None  # 5 cm or less: network alone
     assert pick_reference([np.zeros(3)], np.array([5.0, 0.0, 0.0])) is None  # too far to track
+
+
+def test_masker_with_telemetry_parallax_drops_the_real_background_the_network_keeps():
+    """Held-out real photos (ornate-entry pass), poses as telemetry: past the wall's end the shipped network keeps
+    part of the 120 m background as facade; with parallax the frame is dropped, and a frame with wall is kept."""
+    import pymap3d
+
+    from companion.depth.masker import Masker
+    from companion.depth.parallax import SequenceParallax
+    from companion.records import Frame, Pose, TaggedFrame
+    from sim.camera.photo_passes import RECIPES, build_pass
+
+    r = PhotoPassRenderer(build_pass(RECIPES["ornate-entry"], frames=60, background_frames=6))
+    masker = Masker(parallax=SequenceParallax(hfov_deg=69.0))
+    results = {}
+    for i in range(40, 60):
+        f = r.render(i)
+        # wall along east, drone on its south side 4 m out, camera looking north (yaw 0)
+        lat, lon, alt = pymap3d.enu2geodetic(f.along_m, -4.0, f.up_m, 47.0, 8.0, 400.0)
+        pose = Pose(time_s=i * 0.1, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=f.up_m, roll_deg=0.0,
+                    pitch_deg=0.0, yaw_deg=0.0)
+        masked, roi = masker.mask(TaggedFrame(Frame(i, i * 0.1, f.image), pose))
+        results[i] = (f, masked, roi)
+    assert masker.stats.parallax_frames >= 10
+    f, masked, roi = results[59]
+    assert f.wall_fraction == 0.0 and masked is None and roi.empty
+    f, masked, roi = results[46]
+    assert f.wall_fraction > 0.2 and masked is not None
+    wall = f.roi_mask > 0
+    # the network alone keeps 50 % of this wall and 15 % of the last frame: parallax corrects both
+    assert (masked.mask[wall] > 0).mean() > 0.75 and (masked.mask[~wall] > 0).mean() < 0.2

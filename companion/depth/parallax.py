@@ -139,3 +139,51 @@ def pick_reference(positions: list[np.ndarray], current: np.ndarray,
         if d >= p.min_baseline_m:
             return k if d <= p.max_baseline_m else None
     return None
+
+
+def camera_axes_enu(yaw_deg: float, pitch_deg: float) -> np.ndarray:
+    """R_world_from_cam (ENU) of a level camera (gimbal: no roll) heading ``yaw_deg`` clockwise from north,
+    pitched ``pitch_deg`` up; columns are the camera's x (right), y (down), z (forward) axes."""
+    psi, th = np.radians(yaw_deg), np.radians(pitch_deg)
+    fwd = np.array([np.sin(psi) * np.cos(th), np.cos(psi) * np.cos(th), np.sin(th)])
+    right = np.array([np.cos(psi), -np.sin(psi), 0.0])
+    return np.column_stack([right, np.cross(fwd, right), fwd])
+
+
+class SequenceParallax:
+    """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
+
+    Keeps the last few frames; each new frame is compared with the latest one at least ``min_baseline_m`` away.
+    Returns None (the network alone decides) without a pose, while hovering, or at the start of a pass.
+    """
+
+    def __init__(self, hfov_deg: float, params: ParallaxParams | None = None, keep: int = 12):
+        if not 1.0 < hfov_deg < 179.0:
+            raise CompanionError(f"camera hfov {hfov_deg} deg is out of range", "give the horizontal field of view")
+        self.hfov_deg = hfov_deg
+        self.params = params or ParallaxParams()
+        self.keep = keep
+        self._origin: tuple[float, float, float] | None = None
+        self._history: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def _enu(self, pose) -> np.ndarray:
+        import pymap3d
+
+        if self._origin is None:
+            self._origin = (pose.lat, pose.lon, pose.alt_amsl_m)
+        return np.array(pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, *self._origin), float)
+
+    def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
+        if pose is None:
+            return None
+        pos = self._enu(pose)
+        k = pick_reference([h[1] for h in self._history], pos, self.params)
+        result = None
+        if k is not None and self._history[k][0].shape == image.shape:
+            R = camera_axes_enu(pose.yaw_deg, pose.gimbal_pitch_deg)  # the gimbal holds the camera level
+            t = camera_translation(R, self._history[k][1], R, pos)
+            if np.hypot(t[0], t[1]) > 1e-6:
+                fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
+                result = parallax_depth(self._history[k][0], image, t, fx, self.params)
+        self._history = (self._history + [(image, pos)])[-self.keep:]
+        return result

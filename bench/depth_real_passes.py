@@ -10,7 +10,8 @@ pixel error mean and p95 over all frames, mean error on wall-only frames, facade
 cut, mean over frames with wall), background kept (share of the true background kept, mean over mixed frames),
 all-background frames dropped (of how many) and frames with wall wrongly dropped.
 Passes (sim/camera/photo_passes.py): ornate-entry, cmp-balconies, dji-plain-wall, cmp-roofline-40m; ``sim`` is
-the demo mission's simulator recordings (seeds 100, 101: never trained on).
+the demo mission's simulator recordings (seeds 100, 101: never trained on); or your own photos:
+``--passes mine:/photos/wall.jpg:15:/photos/park.jpg:120`` (wall 15 m wide, background 120 m behind).
 """
 
 from __future__ import annotations
@@ -34,10 +35,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def photo_pass_frames(name: str, args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
-    from sim.camera.photo_passes import RECIPES, build_pass
+    from sim.camera.photo_passes import RECIPES, build_pass, parse_recipe
     from sim.camera.photo_scene import PhotoPassRenderer
 
-    spec = build_pass(RECIPES[name], frames=args.frames, background_frames=args.background_frames,
+    recipe = RECIPES[name] if name in RECIPES else parse_recipe(name)
+    spec = build_pass(recipe, frames=args.frames, background_frames=args.background_frames,
                       background_distance_m=args.bg_distance)
     print(f"pass {name}: wall {spec.wall.name} {spec.wall.width_m:.1f} x {spec.wall.height_m:.1f} m, background "
           f"{spec.background.name} at {spec.background_distance_m:.0f} m, {spec.frames} frames "
@@ -151,7 +153,9 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", nargs="+", default=[str(DEFAULT_MODEL)], help="ONNX models, side by side")
-    ap.add_argument("--passes", nargs="+", default=[*DEFAULT_PASSES, "sim"])
+    ap.add_argument("--passes", nargs="+", default=[*DEFAULT_PASSES, "sim"],
+                    help="named passes, 'sim', or NAME:WALL_PHOTO:WALL_WIDTH_M:BACKGROUND_PHOTO[:DISTANCE_M] with "
+                         "photos by file name in ../shared/data (held-out only) or by path (your own photos)")
     ap.add_argument("--roi", nargs="+", default=["default"], choices=sorted(ROI_RULES), help="ROI rules to compare")
     ap.add_argument("--bg-distance", type=float, default=None, help="override every pass's background distance (m)")
     ap.add_argument("--frames", type=int, default=250)

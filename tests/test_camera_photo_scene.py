@@ -77,3 +77,20 @@ def test_passes_use_held_out_photos_only():
     assert spec.wall.alpha is not None and 0.8 < (spec.wall.alpha > 0).mean() < 1.0
     with pytest.raises(CompanionError, match="training split"):
         build_pass(PassRecipe("x", "cmp_b0001.jpg", 10.0, RECIPES["cmp-balconies"].background_photo))
+
+
+def test_custom_pass_from_photo_files(tmp_path):
+    import cv2
+
+    from sim.camera.photo_passes import parse_recipe
+
+    cv2.imwrite(str(tmp_path / "wall.png"), _checker(300, 400, 10))
+    cv2.imwrite(str(tmp_path / "bg.png"), np.full((200, 300, 3), 90, np.uint8))
+    recipe = parse_recipe(f"mine:{tmp_path / 'wall.png'}:8:{tmp_path / 'bg.png'}:300")
+    spec = build_pass(recipe, frames=10, background_frames=2)
+    assert spec.wall.width_m == 8.0 and spec.wall.height_m == 6.0 and spec.background_distance_m == 300.0
+    assert spec.wall.alpha is None  # no labels: the whole photo is wall
+    with pytest.raises(CompanionError, match="NAME:WALL_PHOTO"):
+        parse_recipe("mine:wall.png")
+    with pytest.raises(CompanionError, match="not found"):
+        build_pass(parse_recipe("x:nope.png:8:bg.png"))

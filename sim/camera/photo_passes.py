@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import cv2
+
 from companion.depth.realdata import RealPhoto, facade_mask, list_real_photos, load_image
 from companion.errors import CompanionError
 from sim.camera.photo_scene import PhotoPass, PhotoTexture
@@ -52,25 +54,49 @@ RECIPES: dict[str, PassRecipe] = {r.name: r for r in (
 DEFAULT_PASSES = ("ornate-entry", "cmp-balconies", "dji-plain-wall", "cmp-roofline-40m")
 
 
-def _find(name: str, photos: list[RealPhoto]) -> RealPhoto:
+def _find(name: str, photos: list[RealPhoto]) -> RealPhoto | Path:
+    """The indexed photo of that file name (refused when it is a training photo), or a photo file outside the
+    index given by its path (anyone's photos: the split cannot be checked, so that is the caller's promise)."""
     for p in photos:
         if p.image.name == name:
             if p.split != "heldout":
                 raise CompanionError(f"{name} is in the training split",
                                      "report figures only on held-out photos (companion.depth.realdata)")
             return p
-    raise CompanionError(f"photo {name} not found in the real photo index",
-                         "put the project's shared data beside the checkout (../shared/data)")
+    if Path(name).is_file():
+        return Path(name)
+    raise CompanionError(f"photo {name} not found in the real photo index nor as a file",
+                         "give a file name from ../shared/data (held-out split) or the path of a photo")
+
+
+def _texture(photo: RealPhoto | Path, width_m: float) -> PhotoTexture:
+    if isinstance(photo, Path):
+        image = cv2.imread(str(photo), cv2.IMREAD_COLOR)
+        if image is None:
+            raise CompanionError(f"cannot read {photo} as an image", "pass a JPEG/PNG photo")
+        return PhotoTexture(photo.name, image, width_m)  # no labels: the whole photo is wall (or background)
+    return PhotoTexture(photo.image.name, load_image(photo), width_m, facade_mask(photo))
+
+
+def parse_recipe(text: str) -> PassRecipe:
+    """``NAME:WALL:WIDTH_M:BACKGROUND[:DISTANCE_M]`` (photos by index file name or path) -> a recipe."""
+    parts = text.split(":")
+    try:
+        name, wall, width, background = parts[:4]
+        distance = float(parts[4]) if len(parts) > 4 else 120.0
+        return PassRecipe(name, wall, float(width), background, distance,
+                          description=f"custom pass: {wall} ({width} m wide), {background} at {distance:.0f} m")
+    except (ValueError, IndexError) as exc:
+        raise CompanionError(f"bad pass {text!r}", "use NAME:WALL_PHOTO:WALL_WIDTH_M:BACKGROUND_PHOTO[:DISTANCE_M]") \
+            from exc
 
 
 def build_pass(recipe: PassRecipe, *, root: Path | None = None, frames: int = 250, background_frames: int = 22,
                background_distance_m: float | None = None) -> PhotoPass:
     """The :class:`PhotoPass` of a recipe (wall photo with its facade labels as alpha, background photo)."""
     photos = list_real_photos(root)
-    wall_photo = _find(recipe.wall_photo, photos)
-    bg_photo = _find(recipe.background_photo, photos)
-    wall = PhotoTexture(wall_photo.image.name, load_image(wall_photo), recipe.wall_width_m, facade_mask(wall_photo))
-    background = PhotoTexture(bg_photo.image.name, load_image(bg_photo), 1.0)
+    wall = _texture(_find(recipe.wall_photo, photos), recipe.wall_width_m)
+    background = _texture(_find(recipe.background_photo, photos), 1.0)
     distance = background_distance_m if background_distance_m is not None else recipe.background_distance_m
     spec = PhotoPass(recipe.name, wall, background, background_distance_m=distance, frames=frames,
                      background_frames=background_frames)

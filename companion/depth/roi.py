@@ -25,7 +25,7 @@ class RoiParams:
     # A region is background when its mean disparity is below ``near_ratio`` x the nearest region's mean
     # (0.4 means: more than 2.5x farther away than the facade). Windows, recesses and balconies a metre or two
     # off the wall plane are at most ~1.5x farther at a 4 m standoff; a background at 20 m or more is 5x.
-    # 0.6 (chosen on the simulator alone) cut windows that real photos' depth reads 1.7-2.5x farther.
+    # 0.6 (chosen on the simulator alone) cut the windows and balconies a network reads too far on real facades.
     near_ratio: float = 0.4
     # Gradients below this (relative to the median disparity, per pixel) are never a boundary, so a smooth,
     # boundary-free disparity map is not cut by Otsu thresholding its noise.

@@ -141,7 +141,8 @@ def test_far_cut_without_any_boundary():
     d = np.tile(np.linspace(0.09, 0.27, W, dtype=np.float32), (H, 1))
     res = extract_roi(d)
     assert res.n_regions == 1
-    assert res.mask[:, d[0] >= 0.14].min() == 255 and res.mask[:, d[0] < 0.13].max() == 0
+    cut = RoiParams().far_cut_ratio * 0.27  # the default: more than 2.5x farther than the facade is cut
+    assert res.mask[:, d[0] >= cut + 0.005].min() == 255 and res.mask[:, d[0] < cut - 0.005].max() == 0
     assert extract_roi(d, params=RoiParams(far_cut_ratio=0.0)).roi_fraction == 1.0  # the paper's method alone
 
 
@@ -158,4 +159,4 @@ def test_small_wall_joined_to_the_sky_is_not_dropped_as_background():
     res = extract_roi(d, params=RoiParams(min_roi_disparity=0.05))
     assert res.n_regions == 1  # one region, as described
     assert not res.empty
-    assert res.mask[wall].min() == 255 and res.mask[d < 0.5 * WALL].max() == 0
+    assert res.mask[wall].min() == 255 and res.mask[d < (RoiParams().far_cut_ratio - 0.02) * WALL].max() == 0

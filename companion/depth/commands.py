@@ -1,4 +1,4 @@
-"""CLI: ``companion depth export|train|average|run`` and ``companion eval mask RECORDING``."""
+"""CLI: ``companion depth export|train|average|run``, ``companion mask IMAGES``, ``companion eval mask REC``."""
 
 from __future__ import annotations
 
@@ -120,6 +120,21 @@ def cmd_run(args) -> int:
     return 0
 
 
+def cmd_mask(args) -> int:
+    """Write ``<stem>_mask.png`` (255 facade, 0 background) for each photo and print its ROI share."""
+    from companion.depth.masker import Masker
+    from companion.depth.photomask import mask_photos
+
+    def report(m) -> None:
+        what = "no near surface: all-zero mask" if m.no_near_surface else f"ROI {100 * m.roi_fraction:.1f} %"
+        print(f"{m.image}: {what} -> {m.mask_path}", flush=True)
+
+    results = mask_photos(args.images, args.out, Masker(args.model, threads=args.threads), on_mask=report)
+    dropped = sum(m.no_near_surface for m in results)
+    print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
+    return 0
+
+
 def cmd_eval_mask(args) -> int:
     from companion.depth.evaluate import evaluate_recording
     from companion.depth.masker import Masker
@@ -193,6 +208,14 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="folder for the pictures")
     p.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     p.set_defaults(func=cmd_run)
+
+    p = subparsers.add_parser(
+        "mask", help="write <image stem>_mask.png (255 facade, 0 background) for photos, for OpenDroneMap/Metashape")
+    p.add_argument("images", nargs="+", help="photo files or folders of photos (jpg, png, tif)")
+    p.add_argument("--out", required=True, help="folder for the masks (created if missing)")
+    p.add_argument("--model", default=None, help="ONNX depth model (default: the shipped one)")
+    p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: cores - 1)")
+    p.set_defaults(func=cmd_mask)
 
     p = _eval_subparsers(subparsers).add_parser("mask", help="depth mask error ratio against simulator masks")
     p.add_argument("recordings", nargs="+", help="recording folder(s) (held-out seeds)")

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from companion.depth.masker import Masker
-from companion.depth.roi import pixel_error_ratio
+from companion.depth.roi import RoiResult
 from companion.errors import CompanionError
 from companion.records import Frame, TaggedFrame
 
@@ -26,6 +26,52 @@ class FrameEval:
     true_roi_nearer: bool | None  # model disparity, true masks: facade's mean > background's
     depth_ms: float
     mask_ms: float
+    # share of the true facade pixels the mask calls background (nan: no facade in the frame)
+    facade_lost: float = float("nan")
+    # share of the true background pixels the mask keeps as facade (nan: no background in the frame)
+    background_kept: float = float("nan")
+
+    @property
+    def wall_only(self) -> bool:
+        return self.true_roi_fraction >= 1.0
+
+    @property
+    def background_only(self) -> bool:
+        return self.true_roi_fraction <= 0.0
+
+
+def frame_eval(index: int, truth: np.ndarray, disparity: np.ndarray, roi: RoiResult, *,
+               depth_ms: float = float("nan"), mask_ms: float = float("nan")) -> FrameEval:
+    """Compare one frame's ROI (at the frame's size) with its true mask (255 = facade)."""
+    if truth.shape != roi.mask.shape:
+        truth = cv2.resize(truth, (roi.mask.shape[1], roi.mask.shape[0]), interpolation=cv2.INTER_NEAREST)
+    true_wall = truth > 127
+    kept = roi.mask > 127
+    n_wall = int(np.count_nonzero(true_wall))
+    n_bg = true_wall.size - n_wall
+    t_small = cv2.resize(truth, (disparity.shape[1], disparity.shape[0]), interpolation=cv2.INTER_NEAREST) > 127
+    true_nearer = None
+    if t_small.any() and not t_small.all():
+        true_nearer = bool(disparity[t_small].mean() > disparity[~t_small].mean())
+    return FrameEval(
+        index=index,
+        error_ratio=float(np.count_nonzero(kept != true_wall)) / kept.size,
+        roi_fraction=roi.roi_fraction,
+        true_roi_fraction=n_wall / true_wall.size,
+        empty=roi.empty,
+        no_boundary=roi.no_boundary,
+        roi_nearer=roi.roi_nearer,
+        true_roi_nearer=true_nearer,
+        depth_ms=depth_ms,
+        mask_ms=mask_ms,
+        facade_lost=float(np.count_nonzero(true_wall & ~kept)) / n_wall if n_wall else float("nan"),
+        background_kept=float(np.count_nonzero(kept & ~true_wall)) / n_bg if n_bg else float("nan"),
+    )
+
+
+def _mean(values) -> float:
+    v = [x for x in values if not np.isnan(x)]
+    return float(np.mean(v)) if v else float("nan")
 
 
 @dataclass
@@ -51,10 +97,20 @@ class MaskEval:
             "true_empty": sum(f.true_roi_fraction == 0.0 for f in self.frames),
             # the costly mistake: a frame that shows facade dropped as all-background (lost for the map)
             "dropped_with_facade": sum(f.empty and f.true_roi_fraction > 0.0 for f in self.frames),
+            # how much wall the worst of those showed (a sliver at the wall's end costs the map nothing)
+            "dropped_with_facade_max_share": max((f.true_roi_fraction for f in self.frames
+                                                  if f.empty and f.true_roi_fraction > 0.0), default=0.0),
             "no_boundary": sum(f.no_boundary for f in self.frames),
             "frames_with_both_sides": len(nearer),
             "roi_nearer_fraction": float(np.mean(nearer)) if nearer else float("nan"),
             "true_roi_nearer_fraction": float(np.mean(true_nearer)) if true_nearer else float("nan"),
+            # what the real-texture passes report (issue 13): wall-only frames, facade lost, background kept
+            "wall_only_frames": sum(f.wall_only for f in self.frames),
+            "error_wall_only_mean": _mean([f.error_ratio for f in self.frames if f.wall_only]),
+            "facade_lost_mean": _mean([f.facade_lost for f in self.frames]),
+            "mixed_frames": sum(not f.wall_only and not f.background_only for f in self.frames),
+            "background_kept_mixed_mean": _mean([f.background_kept for f in self.frames
+                                                 if not f.wall_only and not f.background_only]),
             "depth_ms_median": float(np.median([f.depth_ms for f in self.frames])) if self.frames else float("nan"),
             "mask_ms_median": float(np.median([f.mask_ms for f in self.frames])) if self.frames else float("nan"),
         }
@@ -85,24 +141,8 @@ def evaluate_recording(
         masked, roi = masker.mask(tagged)
         truth = rec.roi_mask(i)
         disp = masker.session.disparity(image) if masked is None else masked.disparity
-        t_small = cv2.resize(truth, (disp.shape[1], disp.shape[0]), interpolation=cv2.INTER_NEAREST) > 127
-        true_nearer = None
-        if t_small.any() and not t_small.all():
-            true_nearer = bool(disp[t_small].mean() > disp[~t_small].mean())
-        result.frames.append(
-            FrameEval(
-                index=i,
-                error_ratio=pixel_error_ratio(roi.mask, truth),
-                roi_fraction=roi.roi_fraction,
-                true_roi_fraction=float(np.count_nonzero(truth > 127)) / truth.size,
-                empty=roi.empty,
-                no_boundary=roi.no_boundary,
-                roi_nearer=roi.roi_nearer,
-                true_roi_nearer=true_nearer,
-                depth_ms=masker.stats.depth_ms[-1],
-                mask_ms=masker.stats.mask_ms[-1],
-            )
-        )
+        result.frames.append(frame_eval(i, truth, disp, roi, depth_ms=masker.stats.depth_ms[-1],
+                                        mask_ms=masker.stats.mask_ms[-1]))
         if save_dir is not None:
             save_visual(Path(save_dir) / f"{i:06d}.jpg", image, disp, roi.mask, truth)
     return result

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+
+import numpy as np
 
 from companion.depth.roi import RoiParams, RoiResult, extract_roi
 from companion.depth.session import DepthSession
@@ -16,6 +18,7 @@ class MaskerStats:
     frames: int = 0
     dropped_empty: int = 0  # whole frame background: no ROI, frame dropped
     no_boundary: int = 0  # whole frame facade
+    parallax_frames: int = 0  # frames whose mask parallax confirmed or corrected (the rest: network alone)
     depth_ms: list[float] = field(default_factory=list)
     mask_ms: list[float] = field(default_factory=list)
 
@@ -27,6 +30,11 @@ class Masker:
     depth (metadata ``metric_depth=true``, as the shipped one): a frame whose nearest region is farther is
     entirely background and is dropped. Scale-free models (e.g. official KITTI weights) never drop a frame
     for distance, only cut the far side of depth boundaries.
+
+    ``parallax`` (a :class:`companion.depth.parallax.SequenceParallax`, off by default): frames arriving in
+    capture order with telemetry poses are also compared with an earlier frame; where the motion parallax is
+    trusted it overrides the network's near/far answer, and it drops frames whose trusted pixels are all far
+    (docs/DEPTH.md). Frames without a pose or a baseline keep the network's mask.
     """
 
     def __init__(
@@ -37,7 +45,9 @@ class Masker:
         params: RoiParams | None = None,
         max_roi_depth_m: float | None = 15.0,
         threads: int | None = None,
+        parallax=None,
     ):
+        self.parallax = parallax
         self.session = session or DepthSession(model_path, threads=threads)
         params = params or RoiParams()
         info = self.session.info
@@ -52,7 +62,9 @@ class Masker:
         t0 = time.perf_counter()
         disp = self.session.disparity(image)
         t1 = time.perf_counter()
-        roi = extract_roi(disp, out_size=(image.shape[1], image.shape[0]), params=self.params)
+        roi = self.roi_from_disparity(disp, image.shape[:2])
+        if self.parallax is not None:
+            roi = self._with_parallax(image, tagged, roi)
         t2 = time.perf_counter()
         st = self.stats
         st.frames += 1
@@ -63,6 +75,25 @@ class Masker:
             st.dropped_empty += 1
             return None, roi
         return MaskedFrame(tagged=tagged, mask=roi.mask, disparity=disp), roi
+
+    def _with_parallax(self, image, tagged: TaggedFrame, roi: RoiResult) -> RoiResult:
+        from companion.depth.parallax import fuse_with_network
+
+        par = self.parallax.update(image, None if tagged.pose_stale else tagged.pose)
+        if par is None:
+            return roi
+        self.stats.parallax_frames += 1
+        network = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
+        mask, dropped = fuse_with_network(network, par)
+        share = float(np.count_nonzero(mask)) / mask.size
+        return replace(roi, mask=mask, empty=dropped or share == 0.0, no_boundary=share == 1.0, roi_fraction=share)
+
+    def roi_from_disparity(self, disparity, frame_shape: tuple[int, int]) -> RoiResult:
+        """The ROI of a disparity this masker's model produced, at the frame's (height, width); not counted.
+
+        Lets an evaluation run the model once per frame and compare several ROI rules on the same disparity.
+        """
+        return extract_roi(disparity, out_size=(frame_shape[1], frame_shape[0]), params=self.params)
 
     def __call__(self, tagged: TaggedFrame) -> MaskedFrame | None:
         return self.mask(tagged)[0]

@@ -20,11 +20,13 @@ from companion.errors import CompanionError
 
 @dataclass(frozen=True)
 class RoiParams:
-    """Tuning of the ROI extraction. Defaults were chosen on simulator frames (see docs/DEPTH.md)."""
+    """Tuning of the ROI extraction, chosen on simulator frames and real-texture passes (see docs/DEPTH.md)."""
 
     # A region is background when its mean disparity is below ``near_ratio`` x the nearest region's mean
-    # (0.6 means: more than 1.67x farther away than the facade).
-    near_ratio: float = 0.6
+    # (0.4 means: more than 2.5x farther away than the facade). Windows, recesses and balconies a metre or two
+    # off the wall plane are at most ~1.5x farther at a 4 m standoff; a background at 20 m or more is 5x.
+    # 0.6 (chosen on the simulator alone) cut the windows and balconies a network reads too far on real facades.
+    near_ratio: float = 0.4
     # Gradients below this (relative to the median disparity, per pixel) are never a boundary, so a smooth,
     # boundary-free disparity map is not cut by Otsu thresholding its noise.
     min_rel_gradient: float = 0.02
@@ -33,8 +35,8 @@ class RoiParams:
     # Closing kernel (pixels at model resolution) that bridges small gaps in the boundary.
     close_px: int = 3
     # Pixels with disparity below far_cut_ratio x the facade's (95th percentile of the kept side) are cut even
-    # without a boundary (0.5: more than 2x farther than the facade). 0 disables (pure paper method).
-    far_cut_ratio: float = 0.5
+    # without a boundary (0.4: more than 2.5x farther than the facade). 0 disables (pure paper method).
+    far_cut_ratio: float = 0.4
     # Mean disparity of the finally kept ROI below this: whole frame background (frame dropped). None: never.
     min_roi_disparity: float | None = None
 
@@ -261,3 +263,11 @@ def pixel_error_ratio(mask: np.ndarray, truth: np.ndarray) -> float:
     if mask.shape != truth.shape:
         truth = cv2.resize(truth, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_NEAREST)
     return float(np.count_nonzero((mask > 127) != (truth > 127))) / mask.size
+
+
+# Named ROI rules, so an evaluation can compare them side by side on the same disparity (bench/depth_real_passes.py).
+ROI_RULES: dict[str, RoiParams] = {
+    "default": RoiParams(),  # near 0.4, far cut 0.4: keep what is within 2.5x the facade's distance
+    "sim-0.6-0.5": RoiParams(near_ratio=0.6, far_cut_ratio=0.5),  # the rules chosen on the simulator alone
+    "paper": RoiParams(far_cut_ratio=0.0),  # the paper's regions only, no far cut
+}

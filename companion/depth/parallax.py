@@ -1,0 +1,189 @@
+"""Geometry where the network is unsure: motion parallax between two frames with a known (telemetry) baseline.
+
+During a scan the camera translates along the wall. A static point at depth Z moves f * |t| / Z pixels between
+two frames whose camera centres are t apart (translation across the optical axis): a wall at 4 m moves about 30
+times more than a background at 120 m. Dense optical flow (OpenCV's DIS) between the frames, projected on the
+direction the baseline predicts, gives Z wherever the image has texture to track. That answer does not depend on
+what the network learnt, so it confirms or corrects the network's mask where it is sure, and it is the better
+judge of a frame with no near surface at all (every textured pixel moves like the far background).
+
+Limits: it needs a translation (no answer while hovering or at the first frame: the network alone decides);
+rotation between the frames is not compensated (the camera is gimballed and the frames are close in time);
+plain surfaces have no trackable texture and are left to the network.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+
+
+@dataclass(frozen=True)
+class ParallaxParams:
+    work_width: int = 480  # flow is computed at this width (frames are resized, aspect kept)
+    max_near_depth_m: float = 15.0  # nearer than this is near surface (the masker's all-background limit)
+    min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
+    max_fb_error_px: float = 0.6  # forward-backward flow disagreement above which a pixel is not trusted
+    min_confident_share: float = 0.15  # a frame judged by parallax needs this share of trusted pixels
+    drop_max_near_share: float = 0.01  # ... and at most this share of trusted near pixels to be all background
+    # ... and the network keeps at most this share of the frame where parallax cannot see (plain wall, sky)
+    drop_max_untrusted_kept: float = 0.10
+    min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
+    max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
+
+
+@dataclass(frozen=True)
+class ParallaxResult:
+    """Per pixel at work resolution: depth from parallax (inf: no motion), trusted, near and far (both trusted)."""
+
+    depth_m: np.ndarray
+    trusted: np.ndarray
+    near: np.ndarray
+    far: np.ndarray
+    params: ParallaxParams
+
+    @property
+    def trusted_share(self) -> float:
+        return float(self.trusted.mean())
+
+    @property
+    def all_background(self) -> bool:
+        """Enough trusted pixels and (almost) none of them near: the frame shows no near surface."""
+        p = self.params
+        return self.trusted_share >= p.min_confident_share and float(self.near.mean()) <= p.drop_max_near_share
+
+
+def camera_translation(R_world_from_cam_ref: np.ndarray, pos_ref: np.ndarray, R_world_from_cam_cur: np.ndarray,
+                       pos_cur: np.ndarray) -> np.ndarray:
+    """Translation of the camera from the reference to the current frame, in the current camera's axes (metres)."""
+    del R_world_from_cam_ref  # rotation between the frames is not compensated (see the module notes)
+    return np.asarray(R_world_from_cam_cur, float).T @ (np.asarray(pos_cur, float) - np.asarray(pos_ref, float))
+
+
+def _grey(image: np.ndarray, width: int) -> np.ndarray:
+    h, w = image.shape[:2]
+    size = (width, max(8, round(h * width / w)))
+    g = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY) if image.ndim == 3 else image
+    return cv2.resize(g, size, interpolation=cv2.INTER_AREA)
+
+
+def parallax_depth(ref_image: np.ndarray, cur_image: np.ndarray, translation_cam_m: np.ndarray, fx_px: float,
+                   params: ParallaxParams | None = None) -> ParallaxResult:
+    """Depth from the parallax of ``cur_image`` against ``ref_image`` (same camera; ``fx_px`` at full width)."""
+    p = params or ParallaxParams()
+    t = np.asarray(translation_cam_m, float)
+    base = float(np.hypot(t[0], t[1]))
+    if base <= 1e-6:
+        raise CompanionError("no sideways camera motion between the two frames",
+                             "use the network alone for hovering frames, or a reference frame further back")
+    if ref_image.shape != cur_image.shape:
+        raise CompanionError(f"frames differ in size: {ref_image.shape} vs {cur_image.shape}",
+                             "compare frames of the same camera")
+    cur, ref = _grey(cur_image, p.work_width), _grey(ref_image, p.work_width)
+    f = fx_px * p.work_width / cur_image.shape[1]
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
+    fwd = dis.calc(cur, ref, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
+    bwd = dis.calc(ref, cur, None)
+    h, w = cur.shape
+    xx, yy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    back = cv2.remap(bwd, xx + fwd[..., 0], yy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    fb_err = np.hypot(fwd[..., 0] + back[..., 0], fwd[..., 1] + back[..., 1])
+    direction = np.array([t[0], t[1]]) / base
+    along = fwd[..., 0] * direction[0] + fwd[..., 1] * direction[1]
+    with np.errstate(divide="ignore"):
+        depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
+    gx = cv2.Sobel(cur, cv2.CV_32F, 1, 0, ksize=3) / 4.0
+    gy = cv2.Sobel(cur, cv2.CV_32F, 0, 1, ksize=3) / 4.0
+    texture = cv2.boxFilter(np.hypot(gx, gy), -1, (7, 7))
+    tx, ty = xx + fwd[..., 0], yy + fwd[..., 1]
+    inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # tracked to a point inside the reference
+    trusted = (texture >= p.min_texture) & (fb_err <= p.max_fb_error_px) & inside
+    near = trusted & (depth < p.max_near_depth_m)
+    far = trusted & ~near
+    return ParallaxResult(depth, trusted, near, far, p)
+
+
+def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult) -> tuple[np.ndarray, bool]:
+    """The network's mask (uint8 0/255 at frame size) corrected by parallax where parallax is trusted.
+
+    Returns (mask, dropped). A frame whose trusted pixels are (almost) all far is dropped unless the network
+    keeps 10 % of the frame where parallax cannot see; elsewhere trusted near pixels are kept and trusted far
+    pixels cut, smoothed over 5 work pixels so single mistracked pixels do not punch holes; untrusted pixels
+    (plain wall, sky) keep the network's answer.
+    """
+    h, w = network_mask.shape[:2]
+    ph, pw = parallax.near.shape
+    net = cv2.resize(network_mask, (pw, ph), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    # all background: the trusted pixels say so, and what the network keeps is not hiding in untrusted (plain)
+    # parts of the frame, such as a plain strip of wall parallax cannot track
+    untrusted_kept = float((net[~parallax.trusted] >= 0.5).sum()) / net.size
+    if parallax.all_background and untrusted_kept <= parallax.params.drop_max_untrusted_kept:
+        return np.zeros((h, w), np.uint8), True
+    vote = np.where(parallax.near, 1.0, np.where(parallax.far, 0.0, net)).astype(np.float32)
+    vote = cv2.medianBlur(vote, 5)
+    fused = cv2.resize(vote, (w, h), interpolation=cv2.INTER_LINEAR)
+    return np.where(fused >= 0.5, 255, 0).astype(np.uint8), False
+
+
+def pick_reference(positions: list[np.ndarray], current: np.ndarray,
+                   params: ParallaxParams | None = None) -> int | None:
+    """Index (into ``positions``, oldest first) of the latest earlier camera position at least ``min_baseline_m``
+    from ``current`` and at most ``max_baseline_m``; None when there is none (hover, first frames)."""
+    p = params or ParallaxParams()
+    for k in range(len(positions) - 1, -1, -1):
+        d = float(np.linalg.norm(np.asarray(current, float) - np.asarray(positions[k], float)))
+        if d >= p.min_baseline_m:
+            return k if d <= p.max_baseline_m else None
+    return None
+
+
+def camera_axes_enu(yaw_deg: float, pitch_deg: float) -> np.ndarray:
+    """R_world_from_cam (ENU) of a level camera (gimbal: no roll) heading ``yaw_deg`` clockwise from north,
+    pitched ``pitch_deg`` up; columns are the camera's x (right), y (down), z (forward) axes."""
+    psi, th = np.radians(yaw_deg), np.radians(pitch_deg)
+    fwd = np.array([np.sin(psi) * np.cos(th), np.cos(psi) * np.cos(th), np.sin(th)])
+    right = np.array([np.cos(psi), -np.sin(psi), 0.0])
+    return np.column_stack([right, np.cross(fwd, right), fwd])
+
+
+class SequenceParallax:
+    """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
+
+    Keeps the last few frames; each new frame is compared with the latest one at least ``min_baseline_m`` away.
+    Returns None (the network alone decides) without a pose, while hovering, or at the start of a pass.
+    """
+
+    def __init__(self, hfov_deg: float, params: ParallaxParams | None = None, keep: int = 12):
+        if not 1.0 < hfov_deg < 179.0:
+            raise CompanionError(f"camera hfov {hfov_deg} deg is out of range", "give the horizontal field of view")
+        self.hfov_deg = hfov_deg
+        self.params = params or ParallaxParams()
+        self.keep = keep
+        self._origin: tuple[float, float, float] | None = None
+        self._history: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def _enu(self, pose) -> np.ndarray:
+        import pymap3d
+
+        if self._origin is None:
+            self._origin = (pose.lat, pose.lon, pose.alt_amsl_m)
+        return np.array(pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, *self._origin), float)
+
+    def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
+        if pose is None:
+            return None
+        pos = self._enu(pose)
+        k = pick_reference([h[1] for h in self._history], pos, self.params)
+        result = None
+        if k is not None and self._history[k][0].shape == image.shape:
+            R = camera_axes_enu(pose.yaw_deg, pose.gimbal_pitch_deg)  # the gimbal holds the camera level
+            t = camera_translation(R, self._history[k][1], R, pos)
+            if np.hypot(t[0], t[1]) > 1e-6:
+                fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
+                result = parallax_depth(self._history[k][0], image, t, fx, self.params)
+        self._history = (self._history + [(image, pos)])[-self.keep:]
+        return result

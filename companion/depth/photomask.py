@@ -1,0 +1,112 @@
+"""Masks for anyone's photos: ``<image stem>_mask.png`` beside nothing else, in OpenDroneMap's naming.
+
+OpenDroneMap (and Metashape's mask import with the ``{filename}_mask`` template) read an 8-bit single-channel
+PNG per photo: 255 where the photo may be used, 0 where it must be ignored. Ours is the depth mask: 255 = the
+near facade, 0 = background; a photo with no near surface gets an all-zero mask (nothing of it is used) rather
+than no file, so the tools never fall back to using the whole photo.
+
+Images are read with OpenCV's default EXIF orientation handling, as OpenSfM reads them, so each mask lines up
+with the photo as those tools see it. One unreadable photo does not stop the others: every readable photo gets
+its mask, then the unreadable ones are reported together.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+
+
+@dataclass(frozen=True)
+class PhotoMask:
+    """What was written for one photo."""
+
+    image: Path
+    mask_path: Path
+    roi_fraction: float  # share of the photo kept as facade (0 for a photo with no near surface)
+    no_near_surface: bool  # the masker found only far background: the mask is all zero
+
+
+def mask_name(image: Path) -> str:
+    """OpenDroneMap's mask file name for a photo: ``DJI_0001.JPG`` -> ``DJI_0001_mask.png``."""
+    return f"{Path(image).stem}_mask.png"
+
+
+def expand_images(paths: Iterable[str | Path]) -> list[Path]:
+    """Files as given, folders expanded to their image files (sorted); a path that does not exist is an error."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out += sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES)
+        elif p.exists():
+            out.append(p)
+        else:
+            raise CompanionError(f"{p} does not exist", "pass existing photo files or folders of photos")
+    if not out:
+        raise CompanionError("no photos to mask", f"pass image files ({', '.join(IMAGE_SUFFIXES)}) or folders of them")
+    return out
+
+
+def _write_png(path: Path, mask: np.ndarray) -> None:
+    """Write via a temporary name and rename, so a mask file is either complete or absent."""
+    ok, buf = cv2.imencode(".png", mask)
+    if not ok:  # pragma: no cover - PNG encoding of a uint8 image does not fail
+        raise CompanionError(f"could not encode {path}", "report this as a bug")
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(buf.tobytes())
+    os.replace(tmp, path)
+
+
+def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
+                on_mask: Callable[[PhotoMask], None] | None = None) -> list[PhotoMask]:
+    """Mask each photo with the depth masker (default: the shipped model) and write ``<stem>_mask.png``.
+
+    Raises CompanionError before writing anything when two photos would get the same mask name or ``out_dir``
+    is a file, and after writing every readable photo's mask when some photos could not be read.
+    """
+    from companion.depth.masker import Masker
+    from companion.records import Frame, TaggedFrame
+
+    paths = expand_images(images)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise CompanionError(f"--out {out} is a file", "give a folder for the masks (it is created if missing)")
+    seen: dict[str, Path] = {}
+    for p in paths:
+        other = seen.setdefault(mask_name(p), p)
+        if other != p:
+            raise CompanionError(f"{other} and {p} would both get the mask {mask_name(p)}",
+                                 "mask photos with the same name into separate --out folders")
+    out.mkdir(parents=True, exist_ok=True)
+    masker = masker or Masker()
+    results: list[PhotoMask] = []
+    unreadable: list[Path] = []
+    for n, path in enumerate(paths):
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        if image is None:
+            unreadable.append(path)
+            continue
+        _, roi = masker.mask(TaggedFrame(Frame(index=n, capture_time_s=0.0, image=image), pose=None))
+        mask = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
+        target = out / mask_name(path)
+        _write_png(target, mask)
+        result = PhotoMask(path, target, 0.0 if roi.empty else roi.roi_fraction, roi.empty)
+        results.append(result)
+        if on_mask is not None:
+            on_mask(result)
+    if unreadable:
+        names = ", ".join(str(p) for p in unreadable)
+        raise CompanionError(
+            f"{len(unreadable)} of {len(paths)} photos could not be read as images: {names}",
+            f"check that they are complete JPEG/PNG/TIFF files and rerun on them; the masks of the other "
+            f"{len(results)} photos were written to {out}",
+        )
+    return results

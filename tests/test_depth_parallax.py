@@ -1,0 +1,100 @@
+"""Motion parallax with a telemetry baseline: near wall and far background told apart by how far they move."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from companion.depth.parallax import camera_translation, fuse_with_network, parallax_depth, pick_reference
+from companion.errors import CompanionError
+from sim.camera.model import CameraModel
+from sim.camera.photo_scene import PhotoPass, PhotoPassRenderer, PhotoTexture
+
+CAM = CameraModel(width=640, height=360, hfov_deg=69.0)
+R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])  # camera axes in (along, out, up)
+
+
+def _texture(h: int, w: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 255, (h // 8, w // 8, 3), dtype=np.uint8)
+    import cv2
+
+    return cv2.GaussianBlur(cv2.resize(small, (w, h), interpolation=cv2.INTER_NEAREST), (5, 5), 0)
+
+
+@pytest.fixture(scope="module")
+def renderer() -> PhotoPassRenderer:
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 12.0)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    return PhotoPassRenderer(PhotoPass("t", wall, bg, camera=CAM, frames=120, background_frames=10))
+
+
+def _pair(renderer, i, back=2):
+    a, b = renderer.render(i - back), renderer.render(i)
+    t = camera_translation(R, np.array([a.along_m, 4.0, a.up_m]), R, np.array([b.along_m, 4.0, b.up_m]))
+    return a, b, parallax_depth(a.image, b.image, t, CAM.fx)
+
+
+def test_wall_is_near_and_background_far(renderer):
+    _, b, par = _pair(renderer, 95)  # the wall's right end in view, background beside it
+    assert 0.2 < b.wall_fraction < 0.8
+    import cv2
+
+    truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert par.trusted.mean() > 0.5
+    assert par.near[truth].mean() > 0.7 and par.far[~truth].mean() > 0.7
+    wrong = (par.near & ~truth) | (par.far & truth)
+    assert wrong.sum() / par.trusted.sum() < 0.05
+    assert np.median(par.depth_m[par.near & truth]) == pytest.approx(4.0, rel=0.15)
+    fused, dropped = fuse_with_network(np.zeros_like(b.roi_mask), par)  # a network that lost the whole wall
+    assert not dropped and ((fused > 0) == (b.roi_mask > 0)).mean() > 0.9
+
+
+def test_frame_of_only_background_is_dropped_even_if_the_network_keeps_it(renderer):
+    _, b, par = _pair(renderer, len(renderer) - 1)
+    assert b.wall_fraction == 0.0 and par.all_background
+    network_says_near = np.zeros_like(b.roi_mask)
+    network_says_near[: 360 // 10] = 255  # the network keeps a strip: parallax sees it move like the background
+    fused, dropped = fuse_with_network(network_says_near, par)
+    assert dropped and not fused.any()
+
+
+def test_no_motion_is_refused_and_reference_needs_a_baseline(renderer):
+    a = renderer.render(0)
+    with pytest.raises(CompanionError, match="no sideways camera motion"):
+        parallax_depth(a.image, a.image, np.zeros(3), CAM.fx)
+    positions = [np.array([x, 4.0, 2.0]) for x in (0.0, 0.05, 0.1, 0.12)]
+    assert pick_reference(positions, np.array([0.15, 4.0, 2.0])) == 1  # the latest at least 8 cm back: 0.05
+    assert pick_reference(positions[2:], np.array([0.15, 4.0, 2.0])) is None  # 5 cm or less: network alone
+    assert pick_reference([np.zeros(3)], np.array([5.0, 0.0, 0.0])) is None  # too far to track
+
+
+def test_masker_with_telemetry_parallax_drops_the_real_background_the_network_keeps():
+    """Held-out real photos (ornate-entry pass), poses as telemetry: past the wall's end the shipped network keeps
+    part of the 120 m background as facade; with parallax the frame is dropped, and a frame with wall is kept."""
+    import pymap3d
+
+    from companion.depth.masker import Masker
+    from companion.depth.parallax import SequenceParallax
+    from companion.records import Frame, Pose, TaggedFrame
+    from sim.camera.photo_passes import RECIPES, build_pass
+
+    r = PhotoPassRenderer(build_pass(RECIPES["ornate-entry"], frames=60, background_frames=6))
+    masker = Masker(parallax=SequenceParallax(hfov_deg=69.0))
+    results = {}
+    for i in range(40, 60):
+        f = r.render(i)
+        # wall along east, drone on its south side 4 m out, camera looking north (yaw 0)
+        lat, lon, alt = pymap3d.enu2geodetic(f.along_m, -4.0, f.up_m, 47.0, 8.0, 400.0)
+        pose = Pose(time_s=i * 0.1, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=f.up_m, roll_deg=0.0,
+                    pitch_deg=0.0, yaw_deg=0.0)
+        masked, roi = masker.mask(TaggedFrame(Frame(i, i * 0.1, f.image), pose))
+        results[i] = (f, masked, roi)
+    assert masker.stats.parallax_frames >= 10
+    f, masked, roi = results[59]
+    assert f.wall_fraction == 0.0 and masked is None and roi.empty
+    f, masked, roi = results[46]
+    assert f.wall_fraction > 0.2 and masked is not None
+    wall = f.roi_mask > 0
+    # the network alone keeps 50 % of this wall and 15 % of the last frame: parallax corrects both
+    assert (masked.mask[wall] > 0).mean() > 0.75 and (masked.mask[~wall] > 0).mean() < 0.2

@@ -20,6 +20,7 @@ from companion.capture.telemetry import ClockMap, TelemetryBuffer, pose_from_log
 from companion.onboard.chain import ChainStats
 from companion.onboard.runner import LiveRunner
 from companion.onboard.setup import build_chain
+from companion.spool.clock import TelemetryWallClock, UnixCaptureClock
 
 log = logging.getLogger(__name__)
 
@@ -27,9 +28,17 @@ log = logging.getLogger(__name__)
 class TelemetryLogTailer(threading.Thread):
     """Follows a growing telemetry log and feeds each complete line to the buffer (and the clock map)."""
 
-    def __init__(self, path: Path, buffer: TelemetryBuffer, clock: ClockMap | None = None, poll_s: float = 0.02):
+    def __init__(
+        self,
+        path: Path,
+        buffer: TelemetryBuffer,
+        clock: ClockMap | None = None,
+        poll_s: float = 0.02,
+        wall_clock: TelemetryWallClock | None = None,
+    ):
         super().__init__(name="telemetry-tail", daemon=True)
         self.path, self.buffer, self.clock, self.poll_s = Path(path), buffer, clock, poll_s
+        self.wall_clock = wall_clock  # learns the autopilot boot -> Unix offset for the images' capture times
         self._halt = threading.Event()
         self.rows = 0
 
@@ -62,6 +71,8 @@ class TelemetryLogTailer(threading.Thread):
                 pose = pose_from_log_row(row)
                 if pose is None:
                     continue
+                if self.wall_clock is not None and row.get("t_wall") is not None:  # before the pose can tag a frame
+                    self.wall_clock.observe(float(row["t_wall"]), pose.time_s)
                 self.buffer.add(pose)
                 if self.clock is not None and row.get("t_wall") is not None:
                     self.clock.observe(float(row["t_wall"]), pose.time_s)
@@ -105,7 +116,12 @@ def run_live_scan(
     sim_camera = capture.startswith("sim://")
     buffer = TelemetryBuffer()
     clock = ClockMap(fixed_offset_s=0.0) if sim_camera else ClockMap()
-    tailer = TelemetryLogTailer(telemetry_log, buffer, None if sim_camera else clock)
+    # The simulator camera stamps frames on the autopilot clock: their Unix time comes from the telemetry's t_wall.
+    # Other cameras stamp with the companion's Unix clock already.
+    capture_clock = TelemetryWallClock(clock) if sim_camera else UnixCaptureClock()
+    tailer = TelemetryLogTailer(
+        telemetry_log, buffer, None if sim_camera else clock, wall_clock=capture_clock if sim_camera else None
+    )
 
     camera_component = None
     if gcs_camera_url:
@@ -127,7 +143,7 @@ def run_live_scan(
         mission=plan.mission,
         model=model,
         mask=mask,
-        clock_epoch_unix_s=time.time() if sim_camera else 0.0,
+        capture_clock=capture_clock,
         on_keyframe=on_keyframe,
     )
     source = open_source(capture)

@@ -97,7 +97,8 @@ def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
     if pose is None:
         return b""
     camera = camera or CameraTags()
-    cam_yaw = pose.yaw_deg % 360.0  # the gimbal yaw follows the body in our missions: camera heading = body heading
+    # the gimbal yaw follows the body in our missions: camera heading = body heading (rounded first: 359.999 -> 0.00)
+    cam_yaw = round(pose.yaw_deg, 2) % 360.0
     fields = {
         "drone-dji:GpsLatitude": f"{pose.lat:.9f}",
         "drone-dji:GpsLongitude": f"{pose.lon:.9f}",

@@ -335,3 +335,19 @@ def test_pycolmap_registers_every_keyframe_with_the_exif_focal(tmp_path):
     (camera,) = best.cameras.values()
     assert camera.has_prior_focal_length  # taken from the EXIF, not guessed
     assert camera.focal_length == pytest.approx(cam.focal_px, rel=0.05)
+
+
+def test_a_cropped_stream_is_spooled_without_a_wrong_focal(tmp_path, caplog):
+    """A 4:3 stream from a camera modelled 16:9 is a crop: its focal is unknown, so none is written (and no stop)."""
+    import piexif
+
+    tags = CameraTags("companion", "sim-pinhole", Intrinsics.from_hfov(3840, 2160, HFOV))
+    spool = KeyframeSpool(tmp_path, meta={"camera": {"width_px": 3840, "height_px": 2160, "hfov_deg": HFOV}},
+                          camera_tags=tags)
+    kf = _keyframe(1, FLIGHT_UNIX)
+    kf.masked.tagged.frame.image = kf.masked.tagged.frame.image[:, :1440]  # 1440 x 1080: 4:3
+    entry = spool.append(kf)
+    exif = piexif.load((tmp_path / entry.image).read_bytes())["Exif"]
+    assert piexif.ExifIFD.FocalLength not in exif and exif[piexif.ExifIFD.PixelXDimension] == 1440
+    assert "another aspect ratio" in caplog.text and "without a focal length" in caplog.text
+    assert "K" not in json.loads((tmp_path / "spool.json").read_text())["camera"]

@@ -20,7 +20,7 @@ import errno
 import json
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -145,6 +145,19 @@ class KeyframeSpool:
         _write_atomic(self.dir / CLOSED, b"")
         _fsync_dir(self.dir)
 
+    def _check_camera_size(self, width: int, height: int) -> None:
+        """A camera delivering another aspect ratio than its model (a crop) keeps spooling, without a focal: the
+        flight must not stop for it, and a wrong focal in the images would mislead every photogrammetry tool."""
+        intr = self.camera_tags.intrinsics
+        if intr is None:
+            return
+        try:
+            intr.scaled_to(width, height)
+        except CompanionError as exc:
+            log.warning("spool %s: %s; %s. The keyframes are saved without a focal length.", self.dir, exc.problem,
+                        exc.fix)
+            self.camera_tags = replace(self.camera_tags, intrinsics=None)
+
     def _write_meta(self, width: int, height: int) -> None:
         if self._meta is None or (self.dir / META).exists():
             return
@@ -207,6 +220,7 @@ class KeyframeSpool:
             "overlap_suspect": bool(keyframe.extra.get("overlap_suspect", False)),
         }
         try:
+            self._check_camera_size(frame.image.shape[1], frame.image.shape[0])
             self._write_meta(frame.image.shape[1], frame.image.shape[0])
             jpeg = encode_tagged_jpeg(frame.image, pose, capture_utc, self.camera_tags)
             ok, mask_png = cv2.imencode(".png", keyframe.masked.mask)

@@ -351,3 +351,11 @@ def test_a_cropped_stream_is_spooled_without_a_wrong_focal(tmp_path, caplog):
     assert piexif.ExifIFD.FocalLength not in exif and exif[piexif.ExifIFD.PixelXDimension] == 1440
     assert "another aspect ratio" in caplog.text and "without a focal length" in caplog.text
     assert "K" not in json.loads((tmp_path / "spool.json").read_text())["camera"]
+
+
+def test_a_camera_without_make_and_model_still_gets_both():
+    """COLMAP shares one camera only among images with a Make and Model: a mission without them still needs them."""
+    from companion.mission.spec import Camera
+
+    tags = camera_tags_for_mission(Camera(width_px=3840, height_px=2160, hfov_deg=69, fps=30, exposure_s=0.002))
+    assert tags.make == "companion" and tags.model == "mission camera 3840x2160 hfov 69 deg"

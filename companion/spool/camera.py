@@ -188,9 +188,15 @@ def camera_tags_for_mission(camera) -> CameraTags:
         intr = intr.scaled_to(camera.width_px, camera.height_px)  # also refuses a calibration of another aspect
     else:
         intr = Intrinsics.from_hfov(camera.width_px, camera.height_px, camera.hfov_deg)
+    # Always a make and model: COLMAP shares one camera among images of the same Make, Model, focal and size (a
+    # per-image camera lets the focal drift on a flat wall), and ODM groups its cameras by them too.
+    make = getattr(camera, "make", None) or "companion"
+    model = getattr(camera, "model", None) or (
+        f"mission camera {camera.width_px}x{camera.height_px} hfov {camera.hfov_deg:g} deg"
+    )
     return CameraTags(
-        make=getattr(camera, "make", None),
-        model=getattr(camera, "model", None),
+        make=make,
+        model=model,
         intrinsics=intr,
         sensor_width_mm=getattr(camera, "sensor_width_mm", None),
     )

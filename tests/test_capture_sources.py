@@ -35,13 +35,16 @@ def test_image_folder_skips_and_counts_corrupt_files(tmp_path):
     for i in range(5):
         cv2.imwrite(str(tmp_path / f"f{i:03d}.jpg"), _image(i))
     (tmp_path / "f002.jpg").write_bytes(b"\xff\xd8 not really a jpeg")
-    (tmp_path / "times.csv").write_text("f000.jpg,10.0\nf001.jpg,10.5\n")
     src = open_source(str(tmp_path), fps=4.0)
     assert isinstance(src, ImageFolderSource)
     frames = list(src)
     assert [f.index for f in frames] == [0, 1, 3, 4]
-    assert [f.capture_time_s for f in frames] == [10.0, 10.5, 0.75, 1.0]
+    assert [f.capture_time_s for f in frames] == [0.0, 0.25, 0.75, 1.0]  # index / fps without times.csv
     assert src.stats.corrupt == 1
+    (tmp_path / "times.csv").write_text("name,seconds\n" + "".join(f"f{i:03d}.jpg,{10 + i / 2}\n" for i in range(5)))
+    src = open_source(str(tmp_path), fps=4.0)
+    assert [f.capture_time_s for f in src] == [10.0, 10.5, 11.5, 12.0]
+    assert src.time_span() == (10.0, 12.0)
 
 
 def test_bad_sources_are_clear_errors(tmp_path):

@@ -3,6 +3,7 @@ companion.flight handles them (rates requested, seq-0 home, GUIDED before arming
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import socket
 import time
@@ -36,13 +37,18 @@ def test_ardupilot_streams_only_heartbeat_until_asked():
         with SitlVehicle(speedup=5, autopilot="ardupilot", mavlink_port=port):
             parser = mavlink.MAVLink(None)
             seen: set[str] = set()
-            end = time.monotonic() + 1.5
-            while time.monotonic() < end:
+            start_by = time.monotonic() + 20.0  # a loaded machine may take seconds to start the process
+            end = None
+            while end is None or time.monotonic() < end:
+                if end is None and time.monotonic() > start_by:
+                    break
                 try:
                     data = sock.recv(65535)
                 except TimeoutError:
                     continue
                 seen.update(m.get_type() for m in parser.parse_buffer(data) or [])
+                if seen and end is None:
+                    end = time.monotonic() + 1.5  # 1.5 s of wall time (7.5 s simulated) after the first message
     assert seen == {"HEARTBEAT"}
 
 
@@ -61,4 +67,17 @@ def test_ardupilot_refuses_nan_takeoff_params(tmp_path):
     with sim as v, pytest.raises(CompanionError) as err:
         fly_mission_sync(_mission(nan), v.url, progress=False, handle_signals=False)
     assert "rejected the mission upload (INVALID_ARGUMENT" in err.value.problem
-    assert "NaN takeoff" in err.value.fix
+    assert "item 1 (NAV_TAKEOFF) has param1 = nan" in err.value.problem
+    assert "plan.mavlink_items('ardupilot')" in err.value.fix
+
+
+def test_ardupilot_refusal_names_the_real_offending_item(tmp_path):
+    """ArduCopter 4.7 refused our first missions at the gimbal item's NaN rates (seq 2), not at NAV_TAKEOFF."""
+    nan_rates = mi.MissionItem(2, 2, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, 0, 1, 0.0, 0.0, math.nan, math.nan, 0, 0,
+                               0.0)
+    items = _mission()[:2] + [nan_rates] + [dataclasses.replace(it, seq=it.seq + 1) for it in _mission()[2:]]
+    sim = SitlVehicle(speedup=20, autopilot="ardupilot", log_path=tmp_path / "sim.log")
+    with sim as v, pytest.raises(CompanionError) as err:
+        fly_mission_sync(items, v.url, progress=False, handle_signals=False)
+    assert "item 2 (DO_GIMBAL_MANAGER_PITCHYAW) has param3 = nan" in err.value.problem
+    assert "NAV_TAKEOFF" not in err.value.problem

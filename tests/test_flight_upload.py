@@ -33,16 +33,16 @@ def test_differences_are_named_per_item_and_field():
     got = list(items)
     got[2] = MissionItem(2, 6, 16, 0, 1, 0.5, 0.3, 0.0, 90.0, 375664640, 1269780086, 12.45)
     problems = compare_missions(items, got, "px4")
-    assert len(problems) == 1 and problems[0].startswith("item 2:")
-    assert "param4" in problems[0] and "position" in problems[0]
-    assert compare_missions(items, got[:2], "px4")[0] == "vehicle holds 2 items, 3 were uploaded"
+    assert len(problems) == 2 and all(p.startswith("item 2 (NAV_WAYPOINT)") for p in problems)
+    assert "y (longitude e7)" in problems[0] and "param4" in problems[1]
+    assert compare_missions(items, got[:2], "px4")[0] == "the vehicle holds 2 items, 3 were uploaded"
 
 
 def test_ardupilot_home_and_float_frames_are_not_differences():
     items = _items()
     got = [MissionItem(0, 0, 16, 1, 1, 0.0, 0.0, 0.0, 0.0, 375660000, 1269780000, 31.2)]  # the vehicle's home
-    got += [MissionItem(it.seq, 3, it.command, 0, 1, it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z)
-            for it in items[1:]]
+    got += [MissionItem(1, 3, 22, 0, 1, 0.0, 0.0, 0.0, 0.0, 375663800, 1269781500, 18.0),
+            MissionItem(2, 3, 16, 0, 1, 0.0, 0.0, 0.0, 0.0, 375664640, 1269780085, 12.449999809)]
     assert compare_missions(items, got, "ardupilot") == []
     assert compare_missions(items, got, "px4") != []  # on PX4 the same download would be wrong
 

@@ -274,13 +274,13 @@ def test_live_tailer_teaches_the_sim_camera_clock_the_wall_time(tmp_path):
 
     log = tmp_path / "telemetry.jsonl"
     boot_to_unix = FLIGHT_UNIX - 300.0
+    wall = TelemetryWallClock(ClockMap(fixed_offset_s=0.0))
+    buffer = TelemetryBuffer()
+    tailer = TelemetryLogTailer(log, buffer, None, wall_clock=wall)  # before the flight writes its rows
     log.write_text("".join(
         json.dumps({"t_wall": 300.0 + i * 0.1 + boot_to_unix + 0.004 * (1 + i % 2), "t_boot_s": 300.0 + i * 0.1,
                     "lat": 37.0, "lon": 127.0, "alt_amsl_m": 40.0, "roll_deg": 0.0, "pitch_deg": 0.0,
                     "yaw_deg": 0.0}) + "\n" for i in range(20)))
-    wall = TelemetryWallClock(ClockMap(fixed_offset_s=0.0))
-    buffer = TelemetryBuffer()
-    tailer = TelemetryLogTailer(log, buffer, None, wall_clock=wall)
     tailer.start()
     deadline = time.monotonic() + 30.0
     while len(buffer) < 20 and time.monotonic() < deadline:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import math
 import re
 import time
 from collections.abc import Iterator
@@ -29,19 +30,29 @@ class SourceStats:
     delivered: int = 0
     corrupt: int = 0
     stalls: int = 0
-    notes: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # things the user should hear about (warnings)
+    ended: str | None = None  # set when a recording reached its own end (not a camera that stopped delivering)
 
 
 class FrameSource(abc.ABC):
-    """Iterate to get frames; ``stats`` counts what was skipped. Use as a context manager."""
+    """Iterate to get frames; ``stats`` counts what was skipped. Use as a context manager.
+
+    ``recorded`` sources (video files, image folders) hold frames taken earlier, with capture times on the clock
+    they were recorded with; live sources (devices, streams, the simulator camera) deliver frames as they are taken.
+    """
 
     name = "source"
+    recorded = False
 
     def __init__(self) -> None:
         self.stats = SourceStats()
 
     @abc.abstractmethod
     def __iter__(self) -> Iterator[Frame]: ...
+
+    def time_span(self) -> tuple[float, float] | None:
+        """First and last capture time of a recorded source (None when unknown or live)."""
+        return None
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
@@ -83,6 +94,7 @@ class VideoSource(FrameSource):
         self.stall_timeout_s = stall_timeout_s
         self.give_up_s = give_up_s
         self.name = str(target)
+        self.recorded = not live
         self.cap = cv2.VideoCapture(target, backend)
         if not self.cap.isOpened():
             raise CompanionError(
@@ -90,6 +102,12 @@ class VideoSource(FrameSource):
                 "check the path, device (/dev/videoN) or stream URL, and that FFmpeg can read it",
             )
         self.fps = self.cap.get(cv2.CAP_PROP_FPS) or 0.0
+
+    def time_span(self) -> tuple[float, float] | None:
+        count = self.cap.get(cv2.CAP_PROP_FRAME_COUNT) if self.recorded else 0
+        if count <= 0 or self.fps <= 0:
+            return None
+        return self.start_time_s, self.start_time_s + (count - 1) / self.fps
 
     def __iter__(self) -> Iterator[Frame]:
         index = 0
@@ -106,6 +124,7 @@ class VideoSource(FrameSource):
                     frame_count = self.cap.get(cv2.CAP_PROP_FRAME_COUNT)
                     pos = self.cap.get(cv2.CAP_PROP_POS_FRAMES)
                     if not ok and (consecutive_failures > 25 or (frame_count > 0 and pos >= frame_count)):
+                        self.stats.ended = f"video {self.name} ended after {self.stats.delivered} frames"
                         return
                     self.stats.corrupt += 1
                     index += 1
@@ -136,7 +155,11 @@ class VideoSource(FrameSource):
 
 
 class ImageFolderSource(FrameSource):
-    """Images in name order. Capture time from ``times.csv`` (name,seconds) if present, else index / fps."""
+    """Images in name order. Capture times from ``times.csv`` (``name,seconds`` per line, an optional header
+    line), which must then list every image: a folder half on one clock and half on ``index / fps`` would tag
+    frames with poses from the wrong moment. Without ``times.csv``: ``start_time_s + index / fps``."""
+
+    recorded = True
 
     def __init__(self, folder: Path, fps: float = 30.0, start_time_s: float = 0.0):
         super().__init__()
@@ -145,15 +168,26 @@ class ImageFolderSource(FrameSource):
         self.files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not self.files:
             raise CompanionError(f"no images in {folder}", f"put {', '.join(sorted(IMAGE_SUFFIXES))} files there")
-        self.times: dict[str, float] = {}
-        csv = self.folder / "times.csv"
-        if csv.exists():
-            for line in csv.read_text().splitlines():
-                parts = line.strip().split(",")
-                if len(parts) == 2 and parts[1].replace(".", "", 1).replace("-", "", 1).isdigit():
-                    self.times[parts[0]] = float(parts[1])
+        if fps <= 0:
+            raise CompanionError(f"frame rate {fps} is not positive", "give the image folder's frame rate, e.g. 30")
         self.fps = fps
         self.start_time_s = start_time_s
+        csv = self.folder / "times.csv"
+        self.times: dict[str, float] = _read_times_csv(csv) if csv.exists() else {}
+        if self.times:
+            missing = [p.name for p in self.files if p.name not in self.times]
+            if missing:
+                raise CompanionError(
+                    f"{csv} gives no time for {len(missing)} of {len(self.files)} images (first: {missing[0]})",
+                    "add a line 'name,seconds' for every image, or remove times.csv to use index / fps",
+                )
+
+    def time_of(self, index: int, path: Path) -> float:
+        return self.times[path.name] if self.times else self.start_time_s + index / self.fps
+
+    def time_span(self) -> tuple[float, float]:
+        times = [self.time_of(i, p) for i, p in enumerate(self.files)]
+        return min(times), max(times)
 
     def __iter__(self) -> Iterator[Frame]:
         for index, path in enumerate(self.files):
@@ -162,9 +196,30 @@ class ImageFolderSource(FrameSource):
                 self.stats.corrupt += 1
                 log.warning("skipping unreadable image %s", path.name)
                 continue
-            t = self.times.get(path.name, self.start_time_s + index / self.fps)
             self.stats.delivered += 1
-            yield Frame(index=index, capture_time_s=t, image=image)
+            yield Frame(index=index, capture_time_s=self.time_of(index, path), image=image)
+        self.stats.ended = f"image folder {self.name} ended after {self.stats.delivered} frames"
+
+
+def _read_times_csv(path: Path) -> dict[str, float]:
+    """``name,seconds`` lines; a first line that is not a number is a header. Anything else unreadable is an error
+    (a frame silently left without its time would be tagged from another clock)."""
+    times: dict[str, float] = {}
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        name, _, value = (part.strip() for part in line.partition(","))
+        try:
+            t = float(value)
+        except ValueError:
+            if number == 1:
+                continue  # header
+            t = math.nan
+        if not name or not math.isfinite(t):
+            raise CompanionError(f"{path} line {number} is not 'name,seconds': {line.strip()!r}",
+                                 "write one 'image name,capture time in seconds' per line")
+        times[name] = t
+    return times
 
 
 def open_source(spec: str, *, start_time_s: float = 0.0, fps: float = 30.0) -> FrameSource:

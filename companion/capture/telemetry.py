@@ -94,6 +94,7 @@ class TelemetryBuffer:
         self.max_extrapolation_s = max_extrapolation_s
         self._times: deque[float] = deque(maxlen=max_samples)
         self._poses: deque[Pose] = deque(maxlen=max_samples)
+        self._first_time_s: float | None = None  # the first sample ever (the ring forgets it on long flights)
         self._lock = threading.Lock()
 
     def __len__(self) -> int:
@@ -106,7 +107,15 @@ class TelemetryBuffer:
                 return False
             self._times.append(pose.time_s)
             self._poses.append(pose)
+            if self._first_time_s is None:
+                self._first_time_s = pose.time_s
             return True
+
+    @property
+    def first_time_s(self) -> float | None:
+        """Autopilot time of the first sample this buffer received."""
+        with self._lock:
+            return self._first_time_s
 
     @property
     def newest_time_s(self) -> float | None:

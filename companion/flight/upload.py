@@ -7,25 +7,24 @@ yaw commands, ArduPilot's seq-0 home placeholder) and its download works on both
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Sequence
 
-import numpy as np
 from mavsdk.asyncio.plugins.mission_raw import MissionItem as RawItem
 from mavsdk.asyncio.plugins.mission_raw import MissionRawError
 
 from companion.errors import CompanionError
+from companion.flight.stored_form import mismatches
+from companion.mission.firmware import ardupilot_param_refusal, check_autopilot
 from companion.mission.items import MissionItem
 
 log = logging.getLogger(__name__)
-
-_FRAME_EQUIV = {3: 6, 0: 5}  # ArduPilot reports the float-frame twins of the INT frames
 
 _UPLOAD_FIXES = {
     "TOO_MANY_MISSION_ITEMS": "the vehicle has no room for this many items: shorten the scan or split it",
     "UNSUPPORTED": "the vehicle refused a command or frame it does not support: check the plan's item list "
                    "against the autopilot (see docs/FLIGHT.md)",
-    "INVALID_ARGUMENT": "an item has a parameter the vehicle refuses (e.g. NaN takeoff params on ArduPilot)",
+    "INVALID_ARGUMENT": "an item has a parameter value the vehicle refuses: plan for this autopilot "
+                        "(plan.mavlink_items('ardupilot') sends no NaN where ArduPilot refuses it)",
     "DENIED": "the vehicle refused the upload (busy or armed in a mission?): land, disarm and retry",
     "TIMEOUT": "the vehicle stopped answering during the upload: check the link quality and retry",
     "PROTOCOL_ERROR": "the vehicle answered out of protocol: check for a second ground station on the link",
@@ -43,39 +42,29 @@ def from_raw(raw: Sequence[RawItem]) -> list[MissionItem]:
                         r.param4, r.x, r.y, r.z, r.mission_type) for r in raw]
 
 
-def _same_float(a: float, b: float) -> bool:
-    if math.isnan(a) or math.isnan(b):
-        return math.isnan(a) and math.isnan(b)
-    return float(np.float32(a)) == float(np.float32(b)) or abs(a - b) <= 1e-4 * max(1.0, abs(a))
-
-
 def compare_missions(sent: Sequence[MissionItem], got: Sequence[MissionItem], autopilot: str) -> list[str]:
-    """Differences between what was uploaded and what the vehicle holds (empty list: identical).
+    """Differences in meaning between what was uploaded and what the vehicle holds (empty list: the same mission).
 
-    On ArduPilot seq 0 is the vehicle's home and frames come back as their float twins, so those are not
-    differences."""
+    Each firmware stores some fields in its own form (``companion.flight.stored_form``, checked against real
+    downloads); those forms are not differences. Another command, coordinate, order or count is."""
+    check_autopilot(autopilot)
     problems = []
     if len(sent) != len(got):
-        problems.append(f"vehicle holds {len(got)} items, {len(sent)} were uploaded")
+        problems.append(f"the vehicle holds {len(got)} items, {len(sent)} were uploaded")
     for s, g in zip(sent, got, strict=False):
-        if autopilot == "ardupilot" and s.seq == 0:
-            continue
-        frame_s, frame_g = _FRAME_EQUIV.get(s.frame, s.frame), _FRAME_EQUIV.get(g.frame, g.frame)
-        diffs = []
-        if s.command != g.command:
-            diffs.append(f"command {g.command} != {s.command}")
-        if frame_s != frame_g:
-            diffs.append(f"frame {g.frame} != {s.frame}")
-        if s.x != g.x or s.y != g.y:
-            diffs.append(f"position {g.x},{g.y} != {s.x},{s.y}")
-        if not _same_float(s.z, g.z):
-            diffs.append(f"z {g.z} != {s.z}")
-        for k in ("param1", "param2", "param3", "param4"):
-            if not _same_float(getattr(s, k), getattr(g, k)):
-                diffs.append(f"{k} {getattr(g, k)} != {getattr(s, k)}")
-        if diffs:
-            problems.append(f"item {s.seq}: " + ", ".join(diffs))
+        problems += [m.describe() for m in mismatches(s, g, autopilot)]
     return problems
+
+
+def _culprit(items: Sequence[MissionItem], autopilot: str, result: str) -> str:
+    """Which item the refusal is about. mavsdk reports only the result, so name the item the firmware's own
+    per-command check refuses (ArduPilot: NaN/inf params), when there is one."""
+    if result != "INVALID_ARGUMENT":
+        return ""
+    refusal = ardupilot_param_refusal(items) if autopilot == "ardupilot" else None
+    if refusal is None:
+        return ": mavsdk does not say which item; no item holds a value this firmware is known to refuse"
+    return ": " + refusal.describe()
 
 
 async def _with_retries(what: str, coro_fn, attempts: int):
@@ -107,7 +96,8 @@ async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopi
         if name == "TIMEOUT":
             raise CompanionError(f"mission upload failed: the vehicle stopped answering ({name}, "
                                  f"{attempts} attempts, {len(items)} items)", fix) from exc
-        raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)", fix) from exc
+        raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)"
+                             + _culprit(items, autopilot, name), fix) from exc
     log.info("uploaded %d mission items", len(items))
     try:
         got = from_raw(await _with_retries("mission download", mission_plugin.download_mission, attempts))
@@ -116,6 +106,8 @@ async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopi
                              "check the link; the upload itself was accepted") from exc
     problems = compare_missions(items, got, autopilot)
     if problems:
-        raise CompanionError("the mission on the vehicle differs from the plan: " + "; ".join(problems[:5]),
-                             "re-upload; if it persists the autopilot rewrites items (see docs/FLIGHT.md)")
+        more = f" (and {len(problems) - 5} more)" if len(problems) > 5 else ""
+        raise CompanionError("the mission on the vehicle differs from the plan: " + "; ".join(problems[:5]) + more,
+                             "do not fly it: re-upload; if it persists, the autopilot stores items in a form "
+                             "docs/FLIGHT.md does not list (check its firmware version against the tables there)")
     log.info("verified: the vehicle holds the planned %d items", len(items))

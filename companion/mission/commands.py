@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from companion.mission.exports import render_outputs, write_outputs
+from companion.mission.exports import flight_parameters_by_autopilot, render_outputs, write_outputs
 from companion.mission.planner import ScanPlan, plan_scan
 from companion.mission.spec import load_mission
 
@@ -33,6 +33,12 @@ def format_estimates(plan: ScanPlan) -> str:
         f"  path {e.path_length_m:.0f} m, flight time ~{e.flight_time_s / 60:.1f} min, "
         f"~{e.expected_keyframes} keyframes at {plan.mission.overlap:.0%} overlap",
     ]
+    for autopilot, params in flight_parameters_by_autopilot(plan).items():
+        if "error" in params:
+            lines.append(f"  {autopilot}: cannot be flown as planned: {params['error']}")
+        elif params:
+            listed = ", ".join(f"{k}={v:g}" for k, v in params.items())
+            lines.append(f"  {autopilot} flight parameters: {listed} (see docs/FLIGHT.md)")
     lines += [f"  warning: {w}" for w in plan.warnings]
     return "\n".join(lines)
 

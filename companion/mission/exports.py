@@ -18,6 +18,7 @@ import simplekml
 
 from companion.errors import CompanionError
 from companion.mission import items as mi
+from companion.mission.firmware import AUTOPILOTS, flight_parameters
 from companion.mission.planner import ScanPlan
 
 QGC_FIRMWARE = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT numbers QGroundControl stores
@@ -291,6 +292,17 @@ def kml_text(plan: ScanPlan) -> str:
     return kml.kml()
 
 
+def flight_parameters_by_autopilot(plan: ScanPlan) -> dict[str, dict]:
+    """Per autopilot, the parameters the flight needs (``firmware.flight_parameters``), or why it cannot be flown."""
+    out: dict[str, dict] = {}
+    for autopilot in AUTOPILOTS:
+        try:
+            out[autopilot] = flight_parameters(plan, autopilot)
+        except CompanionError as exc:
+            out[autopilot] = {"error": exc.problem, "fix": exc.fix}
+    return out
+
+
 def summary_json(plan: ScanPlan) -> str:
     return json.dumps(
         {
@@ -302,6 +314,7 @@ def summary_json(plan: ScanPlan) -> str:
             "home": {"lat": plan.home.lat, "lon": plan.home.lon, "alt_amsl_m": plan.home.alt_amsl_m},
             "waypoints": len(plan.waypoints),
             "estimates": plan.estimates.as_dict(),
+            "flight_parameters": flight_parameters_by_autopilot(plan),
             "warnings": plan.warnings,
         },
         indent=1,

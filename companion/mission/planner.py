@@ -10,6 +10,7 @@ import pymap3d
 
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
+from companion.mission import firmware as fw
 from companion.mission import items as mi
 from companion.mission.geometry import footprint_enu, polyline_clearance, wall_ends
 from companion.mission.spec import Mission
@@ -332,71 +333,59 @@ def _check_geofence(m: Mission, home: GeoPoint, wps: list[Waypoint]) -> None:
 
 
 def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.MissionItem]:
-    """Raw MAVLink mission. ``ardupilot`` puts the home placeholder at seq 0 (ArduPilot keeps home there)."""
-    if flavour not in ("px4", "ardupilot"):
-        raise CompanionError(f"unknown autopilot flavour {flavour!r}", "use 'px4' or 'ardupilot'")
+    """Raw MAVLink mission, in the form each firmware accepts and honours (see ``companion.mission.firmware``).
+
+    * ``px4``: NAV_WAYPOINT param4 holds the wall-facing yaw (PX4 honours it); NaN marks "no change" where MAVLink
+      allows it; DO_CHANGE_SPEED type 1 only (PX4 reads any type as horizontal speed: climb/descent speed is a
+      parameter, see ``firmware.flight_parameters``).
+    * ``ardupilot``: a home placeholder at seq 0 (ArduPilot keeps home there); no NaN outside the params ArduPilot
+      allows (the gimbal's rates become 0); holds in whole seconds, rounded up; a CONDITION_YAW facing the wall
+      before every waypoint (Copter ignores NAV_WAYPOINT param4, so params 2-4 are sent as the 0 it stores);
+      DO_CHANGE_SPEED types 2 and 3 give the planned climb/descent speed wherever a leg moves vertically.
+    """
+    fw.check_autopilot(flavour)
+    ardupilot = flavour == "ardupilot"
     nan = float("nan")
     rows: list[tuple] = []  # (frame, command, p1, p2, p3, p4, lat, lon, z)
-    if flavour == "ardupilot":
+    if ardupilot:
         h = plan.home
         rows.append((mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, h.lat, h.lon, h.alt_amsl_m))
     pitch = plan.mission.gimbal_pitch_deg
+    rate = 0.0 if ardupilot else nan  # gimbal rates: NaN = "not used" (PX4); ArduPilot refuses NaN here
+    wps = plan.waypoints
     speed = None
-    for k, wp in enumerate(plan.waypoints):
+    for k, wp in enumerate(wps):
         if wp.kind == "takeoff":
-            yaw_p = nan if flavour == "px4" else 0.0
-            rows.append(
-                (
-                    mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                    mi.MAV_CMD_NAV_TAKEOFF,
-                    0,
-                    0,
-                    0,
-                    yaw_p,
-                    wp.lat,
-                    wp.lon,
-                    wp.rel_alt_m,
-                )
-            )
+            yaw_p = 0.0 if ardupilot else nan
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, yaw_p, wp.lat, wp.lon,
+                         wp.rel_alt_m))
             # Camera level and forward; gimbal manager first (PX4, ArduPilot 4.3+), mount control for older stacks.
-            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, pitch, 0, nan, nan, 0, 0, 0))
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, pitch, 0, rate, rate, 0, 0, 0))
             rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_MOUNT_CONTROL, pitch, 0, 0, 0, 0, 0, 2))
             continue
         if wp.kind == "land":
-            rows.append(
-                (
-                    mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                    mi.MAV_CMD_NAV_LAND,
-                    0,
-                    0,
-                    0,
-                    nan if flavour == "px4" else 0,
-                    wp.lat,
-                    wp.lon,
-                    0.0,
-                )
-            )
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_LAND, 0, 0, 0, 0 if ardupilot else nan,
+                         wp.lat, wp.lon, 0.0))
             continue
         if speed is None or abs(wp.speed_m_s - speed) > 1e-6:
-            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_CHANGE_SPEED, 1, wp.speed_m_s, -1, 0, 0, 0, 0))
             speed = wp.speed_m_s
-        is_last_before_land = k + 1 < len(plan.waypoints) and plan.waypoints[k + 1].kind == "land"
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_CHANGE_SPEED, fw.SPEED_TYPE_GROUND, speed, -1, 0, 0, 0,
+                         0))
+            if ardupilot and _segment_moves_vertically(wps, k):
+                for speed_type in (fw.SPEED_TYPE_CLIMB, fw.SPEED_TYPE_DESCENT):
+                    rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_CHANGE_SPEED, speed_type, speed, -1, 0, 0, 0, 0))
+        is_last_before_land = k + 1 < len(wps) and wps[k + 1].kind == "land"
         if is_last_before_land and plan.mission.end_action == "rtl":
             rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0))
             break
-        rows.append(
-            (
-                mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
-                mi.MAV_CMD_NAV_WAYPOINT,
-                wp.hold_s,
-                wp.acceptance_m,
-                0,
-                wp.yaw_deg,
-                wp.lat,
-                wp.lon,
-                wp.rel_alt_m,
-            )
-        )
+        if ardupilot:
+            # absolute heading (param4 0), shortest turn (param3 0), default slew rate (param2 0)
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_CONDITION_YAW, wp.yaw_deg % 360.0, 0, 0, 0, 0, 0, 0))
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, fw.whole_seconds(wp.hold_s),
+                         0, 0, 0, wp.lat, wp.lon, wp.rel_alt_m))
+        else:
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, wp.hold_s, wp.acceptance_m, 0,
+                         wp.yaw_deg, wp.lat, wp.lon, wp.rel_alt_m))
     items = []
     for seq, (frm, cmd, p1, p2, p3, p4, lat, lon, z) in enumerate(rows):
         items.append(
@@ -416,3 +405,13 @@ def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.Mission
             )
         )
     return items
+
+
+def _segment_moves_vertically(wps: list[Waypoint], k: int) -> bool:
+    """Whether any leg flown at waypoint ``k``'s speed (up to the next speed change) climbs or descends."""
+    j = k
+    while j < len(wps) and wps[j].kind != "land" and abs(wps[j].speed_m_s - wps[k].speed_m_s) <= 1e-6:
+        if j > 0 and abs(wps[j].rel_alt_m - wps[j - 1].rel_alt_m) > 0.05:
+            return True
+        j += 1
+    return False

@@ -52,6 +52,11 @@ class ChainStats:
         return d
 
 
+def one_line(text: str) -> str:
+    """A warning as one log line (an error's "problem / fix:" lines joined), so logs stay one record per line."""
+    return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
 class CullChain:
     """Frames before the first telemetry sample are not culled (``require_telemetry``): they cannot be placed on
     the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped."""
@@ -82,6 +87,7 @@ class CullChain:
         self._seen_pose = False
 
     def warn(self, message: str) -> None:
+        message = one_line(message)
         self.stats.warnings.append(message)
         self.on_warning(message)
 

@@ -6,13 +6,13 @@ import argparse
 import json
 from pathlib import Path
 
-from tqdm import tqdm
-
 from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, buffer_from_log
 from companion.errors import CompanionError
+from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.setup import build_chain
+from companion.progress import progress_bar
 from companion.spool.clock import TelemetryWallClock
 
 
@@ -62,7 +62,7 @@ def run_cull(args: argparse.Namespace) -> int:
     )
     source = open_source(args.video, fps=args.fps)
     total = getattr(source, "files", None)
-    with source, tqdm(total=len(total) if total else None, unit="frame", desc="culling") as bar:
+    with source, progress_bar(total=len(total) if total else None, unit="frame", desc="culling") as bar:
         for frame in source:
             chain.process(frame)
             bar.update(1)
@@ -73,6 +73,24 @@ def run_cull(args: argparse.Namespace) -> int:
     (args.out / "cull_report.json").write_text(json.dumps(stats, indent=1))
     print(
         f"{stats['frames_in']} frames -> {chain.stats.keyframes} keyframes in {args.out} "
-        f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose)"
+        f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose, "
+        f"{stats['before_telemetry']} not placed in the telemetry)"
     )
+    empty = explain_empty_cull(chain.stats, tagger)
+    if empty is not None:
+        raise CompanionError(f"culling {args.video} kept no keyframe: {empty.problem}", _cull_fix(empty, args))
     return 0
+
+
+def _cull_fix(empty: EmptyCull, args: argparse.Namespace) -> str:
+    if empty.shift_s is not None:
+        return (
+            "frame times + --time-offset must fall inside the telemetry log's t_boot_s: e.g. --time-offset "
+            f"{args.time_offset + empty.shift_s:.2f} puts the first frame on the first telemetry sample; or give the "
+            "image folder a times.csv (name,seconds) on the autopilot clock, or use the log of this recording's flight"
+        )
+    if empty.cause is EmptyCause.NO_USABLE_FRAME:
+        return "check that the frames show the facade at the standoff; try --no-mask or another --model"
+    if empty.cause is EmptyCause.NO_FRAMES:
+        return f"check {args.video}: its frames are unreadable (see the warnings above)"
+    return "see the warnings above"

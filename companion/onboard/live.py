@@ -14,13 +14,16 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from companion.capture.pacing import RECORDED_TIME_FIX, AutopilotPacedSource, check_recorded_times
 from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer, pose_from_log_row
+from companion.errors import CompanionError
 from companion.onboard.chain import ChainStats
+from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.runner import LiveRunner
 from companion.onboard.setup import build_chain
-from companion.spool.clock import TelemetryWallClock, UnixCaptureClock
+from companion.spool.clock import CaptureClock, TelemetryWallClock, UnixCaptureClock
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +44,9 @@ class TelemetryLogTailer(threading.Thread):
         self.wall_clock = wall_clock  # learns the autopilot boot -> Unix offset for the images' capture times
         self._halt = threading.Event()
         self.rows = 0
+        # The flight appends to its log: rows already there are an earlier flight's (another boot clock), and
+        # feeding them first would make the buffer refuse this flight's earlier times.
+        self.start_offset = self.path.stat().st_size if self.path.exists() else 0
 
     def stop(self) -> None:
         self._halt.set()
@@ -52,6 +58,7 @@ class TelemetryLogTailer(threading.Thread):
             return
         pending = ""
         with open(self.path) as fh:
+            fh.seek(self.start_offset)
             while True:
                 chunk = fh.readline()
                 if not chunk:
@@ -87,6 +94,14 @@ class LiveScanResult:
     capture_error: str | None = None
 
 
+class NoKeyframesError(CompanionError):
+    """A flight with live culling ended without a single keyframe; ``result`` holds what the run did record."""
+
+    def __init__(self, problem: str, fix: str, result: LiveScanResult):
+        super().__init__(problem, fix)
+        self.result = result
+
+
 def run_live_scan(
     plan,
     connect_url: str,
@@ -98,12 +113,19 @@ def run_live_scan(
     mask: bool = True,
     gcs_camera_url: str | None = None,
     queue_size: int = 3,
+    capture_time_offset_s: float = 0.0,
     **fly_kwargs,
 ) -> LiveScanResult:
     """Fly ``plan`` and cull ``capture`` into the spool ``out`` at the same time.
 
     ``capture`` is a source spec (see ``open_source``). Frames from the simulator camera are stamped on the
-    vehicle's clock; other sources on the companion's wall clock, mapped to the autopilot clock from telemetry.
+    vehicle's clock; live cameras and streams on the companion's wall clock, mapped to the autopilot clock from
+    telemetry. A recording (video file, image folder) is replayed paced on the autopilot clock: its frame times
+    + ``capture_time_offset_s`` are autopilot seconds, and each frame is released once the flight's telemetry
+    reaches it (``companion.capture.pacing``); times it can never reach are refused before the flight.
+
+    A run that ends without a keyframe raises ``NoKeyframesError`` (after the flight, with the report written),
+    saying why: a flight with a camera and no keyframe is a failed capture, never a silent success.
     """
     from companion.flight.fly import fly_mission_sync
 
@@ -115,14 +137,67 @@ def run_live_scan(
     telemetry_log = Path(telemetry_log) if telemetry_log else out / "telemetry.jsonl"
     sim_camera = capture.startswith("sim://")
     buffer = TelemetryBuffer()
-    clock = ClockMap(fixed_offset_s=0.0) if sim_camera else ClockMap()
-    # The simulator camera stamps frames on the autopilot clock: their Unix time comes from the telemetry's t_wall.
-    # Other cameras stamp with the companion's Unix clock already.
-    capture_clock = TelemetryWallClock(clock) if sim_camera else UnixCaptureClock()
+    source = open_source(capture)
+    paced = None
+    if source.recorded:
+        try:
+            check_recorded_times(source, capture_time_offset_s)
+        except CompanionError:
+            source.close()
+            raise
+        source = paced = AutopilotPacedSource(source, buffer, offset_s=capture_time_offset_s)
+    on_autopilot_clock = sim_camera or paced is not None
+    clock = ClockMap(fixed_offset_s=0.0) if on_autopilot_clock else ClockMap()
+    # Frames on the autopilot clock get their Unix time from the telemetry's t_wall beside t_boot_s; live cameras
+    # stamp with the companion's Unix clock already.
+    capture_clock = TelemetryWallClock(clock) if on_autopilot_clock else UnixCaptureClock()
     tailer = TelemetryLogTailer(
-        telemetry_log, buffer, None if sim_camera else clock, wall_clock=capture_clock if sim_camera else None
+        telemetry_log,
+        buffer,
+        None if on_autopilot_clock else clock,
+        wall_clock=capture_clock if on_autopilot_clock else None,
     )
 
+    try:
+        chain, camera_component = _build(out, FrameTagger(buffer, clock), plan, model=model, mask=mask,
+                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock)
+    except BaseException:
+        source.close()
+        raise
+    tagger = chain.tagger
+    runner = LiveRunner(source, chain, queue_size=queue_size)
+    tailer.start()
+    runner.start()
+    try:
+        flight = fly_mission_sync(plan, connect_url, telemetry_log=telemetry_log, **fly_kwargs)
+    finally:
+        tailer.stop()
+        tailer.join(timeout=5.0)  # reads the log to its end: the buffer holds all the flight's telemetry
+        if paced is not None:
+            paced.finish()  # releases the frames the telemetry reached, then the recording ends
+        else:
+            runner.stop()
+        if not runner.join(timeout=5.0):
+            source.close()  # unblocks a capture thread waiting on a silent camera
+            runner.join(timeout=120.0)
+        source.close()
+        if camera_component is not None:
+            camera_component.close()
+    stats = chain.stats
+    (out / "cull_report.json").write_text(json.dumps(stats.as_dict(), indent=1))
+    error = str(runner.error) if runner.error else None
+    result = LiveScanResult(flight, stats, out, telemetry_log, error)
+    empty = explain_empty_cull(stats, tagger)
+    if empty is not None:
+        raise NoKeyframesError(f"{_flight_summary(flight)}, but live culling of {capture} kept no keyframe: "
+                               f"{_problem(empty, runner.error, paced)}", _live_fix(empty, paced is not None), result)
+    return result
+
+
+def _build(
+    out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, capture_clock: CaptureClock
+):
+    """The chain (and the MAVLink camera component that announces its keyframes, when asked for)."""
     camera_component = None
     if gcs_camera_url:
         from companion.onboard.camera_protocol import CameraDescription, MavlinkCamera
@@ -137,32 +212,35 @@ def run_live_scan(
         if camera_component is not None:
             camera_component.publish(kf.masked.tagged.pose, entry.image)
 
-    chain = build_chain(
-        out,
-        FrameTagger(buffer, clock),
-        mission=plan.mission,
-        model=model,
-        mask=mask,
-        capture_clock=capture_clock,
-        on_keyframe=on_keyframe,
-    )
-    source = open_source(capture)
-    runner = LiveRunner(source, chain, queue_size=queue_size)
-    tailer.start()
-    runner.start()
-    try:
-        flight = fly_mission_sync(plan, connect_url, telemetry_log=telemetry_log, **fly_kwargs)
-    finally:
-        runner.stop()
-        if not runner.join(timeout=5.0):
-            source.close()  # unblocks a capture thread waiting on a silent camera
-            runner.join(timeout=120.0)
-        source.close()
-        tailer.stop()
-        tailer.join(timeout=5.0)
-        if camera_component is not None:
-            camera_component.close()
-    stats = chain.stats
-    (out / "cull_report.json").write_text(json.dumps(stats.as_dict(), indent=1))
-    error = str(runner.error) if runner.error else None
-    return LiveScanResult(flight, stats, out, telemetry_log, error)
+    chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, capture_clock=capture_clock,
+                        on_keyframe=on_keyframe)
+    return chain, camera_component
+
+
+def _flight_summary(flight) -> str:
+    done = "the mission completed" if getattr(flight, "completed", False) else "the mission did NOT complete"
+    reached, total = getattr(flight, "items_reached", None), getattr(flight, "items_total", None)
+    return f"{done} ({reached}/{total} items)" if total else done
+
+
+def _problem(empty: EmptyCull, capture_error: BaseException | None, paced: AutopilotPacedSource | None) -> str:
+    problem = empty.problem
+    if empty.cause is EmptyCause.NO_FRAMES and capture_error is not None:
+        problem = f"the camera failed: {getattr(capture_error, 'problem', capture_error)}"
+    elif empty.cause is EmptyCause.NO_FRAMES and paced is not None and paced.unreached:
+        problem = f"no frame of the recording was reached: {'; '.join(paced.stats.notes)}"
+    return problem
+
+
+def _live_fix(empty: EmptyCull, recorded: bool) -> str:
+    if recorded and (empty.shift_s is not None or empty.cause is EmptyCause.NO_FRAMES):
+        return RECORDED_TIME_FIX
+    if empty.shift_s is not None or empty.cause in (EmptyCause.NO_CLOCK, EmptyCause.NO_TELEMETRY):
+        return ("the camera's frames must be stamped on a clock the telemetry can be matched to: check that the "
+                "telemetry log gets rows (with t_wall) while the camera runs and that the companion's clock is "
+                "steady (NTP steps during a flight break the mapping)")
+    if empty.cause is EmptyCause.NO_USABLE_FRAME:
+        return "check that the camera faces the facade at the standoff; try --no-mask or another --model"
+    if empty.cause is EmptyCause.NO_FRAMES:
+        return "check the camera (cable, device, stream URL): see the warnings above"
+    return "see the warnings above"

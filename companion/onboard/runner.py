@@ -13,7 +13,7 @@ import threading
 import time
 
 from companion.capture.sources import FrameSource
-from companion.onboard.chain import CullChain
+from companion.onboard.chain import CullChain, one_line
 from companion.records import Frame
 
 log = logging.getLogger(__name__)
@@ -64,8 +64,12 @@ class LiveRunner:
                 if self.stop_event.is_set():
                     break
                 self._put(frame)
-            if not self.stop_event.is_set():
-                stats = self.source.stats
+            stats = self.source.stats
+            for note in stats.notes:
+                self.chain.warn(note)
+            if stats.ended is not None:
+                log.info("%s", stats.ended)  # a recording reached its end: not a camera fault
+            elif not self.stop_event.is_set():
                 self.chain.warn(
                     f"camera {self.source.name} stopped delivering frames after {stats.delivered} "
                     f"({stats.stalls} stall(s), {stats.corrupt} corrupt): no more keyframes; flight supervision "
@@ -73,7 +77,7 @@ class LiveRunner:
                 )
         except BaseException as exc:  # reported by the caller; the worker still flushes
             self.error = exc
-            log.error("capture stopped: %s", exc)
+            log.error("capture stopped: %s", one_line(exc))
             self.chain.warn(f"camera {self.source.name} failed: {exc}")
         finally:
             self.chain.stats.corrupt = self.source.stats.corrupt

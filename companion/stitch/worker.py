@@ -12,9 +12,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from tqdm import tqdm
 
 from companion.errors import CompanionError
+from companion.progress import progress_bar
 from companion.stitch.align import global_alignment
 from companion.stitch.exposure import apply_gain, solve_gains
 from companion.stitch.features import cached_features, feature_key, load_image_and_mask
@@ -78,7 +78,7 @@ class StitchResult:
 
 
 def _progress(it, desc, enabled, total=None):
-    return tqdm(it, desc=desc, total=total, disable=not enabled, leave=False, unit="it")
+    return progress_bar(it, desc=desc, total=total, disable=not enabled, leave=False, unit="it")
 
 
 def stitch(

@@ -5,10 +5,12 @@ Layout of a recording directory::
 
     meta.json          mission name, seed, camera (size, K, fps, exposure), facade geometry, scene truth
     frames/%06d.jpg    what the camera delivered (JPEG)
+    frames/times.csv   name,capture_time_s per frame (autopilot clock): the image folder `companion cull` reads
     depth/%06d.npy     float16 z-depth in metres, inf for sky
     masks/%06d.png     uint8 0/255, 255 = pixel sees the target facade
     truth.jsonl        one line per frame: index, capture_time_s, pose, K
-    telemetry.jsonl    only when flown in SITL
+    telemetry.jsonl    the format of `companion fly --telemetry-log`: written by the flight code in SITL, sampled
+                       from the kinematic flight by the fast generator (sim/camera/telemetry_log.py)
     texture/           cache of the true wall texture images (made on first facade_texture call)
 """
 
@@ -25,6 +27,7 @@ import numpy as np
 
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
+from companion.progress import progress_bar
 from companion.records import Frame
 from sim.camera.model import CameraModel, TruePose
 from sim.camera.overlap import clip_to_rect, footprint_on_wall, overlap_ratio
@@ -63,6 +66,7 @@ class RecordingWriter:
         self.meta = dict(meta, format_version=FORMAT_VERSION)
         self.jpeg_quality = int(jpeg_quality)
         self._truth = open(self.dir / "truth.jsonl", "w", encoding="utf-8")  # noqa: SIM115 (open until close)
+        self._times = open(self.dir / "frames" / "times.csv", "w", encoding="utf-8")  # noqa: SIM115
         self.count = 0
 
     def add(self, rendered: RenderedFrame, capture_time_s: float, *, source_frame: int | None = None) -> int:
@@ -86,11 +90,14 @@ class RecordingWriter:
         }
         self._truth.write(json.dumps(line) + "\n")
         self._truth.flush()
+        self._times.write(f"{i:06d}.jpg,{float(capture_time_s)!r}\n")  # exact round trip
+        self._times.flush()
         self.count += 1
         return i
 
     def close(self) -> Path:
         self._truth.close()
+        self._times.close()
         self.meta["frames"] = self.count
         (self.dir / "meta.json").write_text(json.dumps(self.meta, indent=1), encoding="utf-8")
         return self.dir
@@ -228,10 +235,12 @@ def camera_from_mission(mission, width_px: int | None) -> CameraModel:
 
 def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px: int = 640,
                        max_frames: int | None = None, stride: int = 1, jpeg_quality: int = 92,
-                       n_cracks: int | None = None, progress: bool = False) -> Path:
+                       n_cracks: int | None = None, progress: bool = False, telemetry_rate_hz: float = 10.0) -> Path:
     """Fast recording: kinematic flight along the planner's scan path (first to last scan waypoint), frames at
-    the mission camera's fps (every ``stride``-th, at most ``max_frames``), rendered at ``width_px`` wide."""
+    the mission camera's fps (every ``stride``-th, at most ``max_frames``), rendered at ``width_px`` wide, and
+    the telemetry log of the recorded span at ``telemetry_rate_hz`` (``companion fly``'s default rate)."""
     from companion.mission import plan_scan
+    from sim.camera.telemetry_log import telemetry_rows, write_telemetry_log
     from sim.camera.trajectory import KinematicFlight, scan_path
 
     mission = resolve_mission(mission)
@@ -251,7 +260,7 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
         "mission": mission.name,
         "seed": seed,
         "generator": {"kind": "kinematic", "stride": stride, "max_frames": max_frames,
-                      "flight_duration_s": flight.duration_s},
+                      "flight_duration_s": flight.duration_s, "telemetry_rate_hz": telemetry_rate_hz},
         "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg, "K": cam.K.tolist(),
                    "fps": fps, "exposure_s": exposure_s, "native_width": int(mission.camera.width_px),
                    "jpeg_quality": jpeg_quality},
@@ -261,13 +270,15 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     }
     writer = RecordingWriter(out_dir, meta, jpeg_quality=jpeg_quality)
     ae = AutoExposure(seed=seed)
-    t0 = time.perf_counter()
+    times = list(flight.times(fps, stride=stride, max_frames=max_frames))
     try:
-        for k, t in flight.times(fps, stride=stride, max_frames=max_frames):
+        for k, t in progress_bar(times, desc="rendering", unit="frame", disable=not progress):
             rendered = renderer.render(flight.pose(t), index=k, time_s=t, exposure=ae)
             writer.add(rendered, t, source_frame=k)
-            if progress and writer.count % 50 == 0:
-                print(f"{writer.count} frames, {time.perf_counter() - t0:.1f} s", flush=True)
     finally:
         path = writer.close()
+    if times:
+        rows = telemetry_rows(flight, times[0][1], times[-1][1], home_alt_amsl_m=plan.home.alt_amsl_m,
+                              rate_hz=telemetry_rate_hz, epoch_unix_s=round(time.time(), 3))
+        write_telemetry_log(path / "telemetry.jsonl", rows)
     return path

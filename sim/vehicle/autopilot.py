@@ -9,6 +9,7 @@ request, parameters, message intervals, the mission protocol and the commands be
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -26,6 +27,7 @@ from companion.geo import GeoPoint
 from companion.mission import items as mi
 from sim.vehicle import flavours as fl
 from sim.vehicle.commands import CommandHandler
+from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
@@ -66,6 +68,7 @@ class VehicleConfig:
     duration_s: float | None = None
     max_mission_items: int = 500
     system_id: int = 1
+    params: dict[str, float] = field(default_factory=dict)  # parameter values at boot, over the flavour's defaults
     limits: Limits = field(default_factory=Limits)
 
 
@@ -101,6 +104,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self.mav = mavlink.MAVLink(_LinkWriter(self.link), srcSystem=cfg.system_id, srcComponent=1)
         self.mav.robust_parsing = True
         self.params = dict(self.flavour.params)
+        self.params.update({name: type(self.params.get(name, 0.0))(value) for name, value in cfg.params.items()})
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due: dict[str, float] = {}
         self.home_item = mi.MissionItem(0, mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
@@ -118,6 +122,9 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self.task: Task = Hold(self.model.state.pos)
         self.yaw_target: float | None = None
         self.cruise_m_s = self.param("MPC_XY_CRUISE", 5.0)
+        self.climb_override_m_s: float | None = None  # DO_CHANGE_SPEED type 2 (ArduCopter)
+        self.descent_override_m_s: float | None = None  # DO_CHANGE_SPEED type 3 (ArduCopter)
+        self.copter_yaw = CopterAutoYaw()
         self.gimbal_pitch_deg = 0.0
         self.gimbal_yaw_deg = 0.0
         self.mission: list[mi.MissionItem] = []
@@ -147,6 +154,32 @@ class SimVehicle(TelemetryStreams, CommandHandler):
     @property
     def yaw_deg(self) -> float:
         return self.model.state.yaw_deg
+
+    @property
+    def auto_climb_m_s(self) -> float:
+        """Climb speed of mission legs: ArduCopter WPNAV_SPEED_UP (or DO_CHANGE_SPEED type 2), PX4
+        MPC_Z_V_AUTO_UP (capped by MPC_Z_VEL_MAX_UP); never above the airframe's envelope."""
+        if self.flavour.name == "ardupilot":
+            v = self.climb_override_m_s or self.param("WPNAV_SPEED_UP", 250.0) / 100.0
+        else:
+            v = min(self.param("MPC_Z_V_AUTO_UP", 3.0), self.param("MPC_Z_VEL_MAX_UP", 3.0))
+        return min(v, self.limits.max_climb_m_s)
+
+    @property
+    def auto_descent_m_s(self) -> float:
+        """Descent speed of mission legs: ArduCopter WPNAV_SPEED_DN (or DO_CHANGE_SPEED type 3), PX4
+        MPC_Z_V_AUTO_DN (capped by MPC_Z_VEL_MAX_DN)."""
+        if self.flavour.name == "ardupilot":
+            v = self.descent_override_m_s or self.param("WPNAV_SPEED_DN", 150.0) / 100.0
+        else:
+            v = min(self.param("MPC_Z_V_AUTO_DN", 1.5), self.param("MPC_Z_VEL_MAX_DN", 1.5))
+        return min(v, self.limits.max_descent_m_s)
+
+    @property
+    def auto_limits(self) -> Limits:
+        """The envelope with the autopilot's current climb/descent speeds, for mission legs."""
+        return dataclasses.replace(self.limits, max_climb_m_s=self.auto_climb_m_s,
+                                   max_descent_m_s=self.auto_descent_m_s)
 
     @property
     def land_speed_m_s(self) -> float:
@@ -253,6 +286,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self.mission_task = None
         self.mission_finished = False
         self.reached_seq = -1
+        self.climb_override_m_s = self.descent_override_m_s = None
         if self.mode == fl.MISSION and self.armed:
             self.set_mode(fl.HOLD)
         self._send_mission_current()
@@ -263,19 +297,30 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         nav = self.nav
         cmd = item.command
         prev = self.mission_prev if self.mission_prev is not None else nav.copy()
+        copter = self.flavour.name == "ardupilot"
         if cmd == mi.MAV_CMD_NAV_TAKEOFF:
             target = self.item_ned(item)
             self.mission_task = Climb(nav[:2], min(target[2], nav[2]))
+            if copter:
+                self.copter_yaw.hold()
             return False
         if cmd == mi.MAV_CMD_NAV_WAYPOINT:
             target = self.item_ned(item)
-            yaw = item.param4 if math.isfinite(item.param4) else None
-            if yaw is None and math.hypot(*(target[:2] - nav[:2])) > 2.0 and self.param("MIS_YAWMODE", 0) == 0:
-                yaw = math.degrees(math.atan2(target[1] - nav[1], target[0] - nav[0])) % 360.0
-            radius = item.param2 if item.param2 > 0 else self.param("NAV_ACC_RAD", 2.0)
+            if copter:  # Copter does not use param4: its auto_yaw decides (see copter_yaw.py)
+                yaw = None
+                self.copter_yaw.wp_start(int(self.param("WP_YAW_BEHAVIOR", 2)), tuple(target[:2] - prev[:2]))
+            else:
+                yaw = item.param4 if math.isfinite(item.param4) else None
+                if yaw is None and math.hypot(*(target[:2] - nav[:2])) > 2.0 and self.param("MIS_YAWMODE", 0) == 0:
+                    yaw = math.degrees(math.atan2(target[1] - nav[1], target[0] - nav[0])) % 360.0
+            radius = self.flavour.waypoint_reached_m
+            if radius is None:
+                radius = item.param2 if item.param2 > 0 else self.param("NAV_ACC_RAD", 2.0)
             self.mission_task = Line(prev, target, radius, max(item.param1, 0.0), yaw)
             return False
         if cmd == mi.MAV_CMD_NAV_LAND:
+            if copter:
+                self.copter_yaw.hold()
             xy = None if item.x == 0 and item.y == 0 else self.item_ned(item)[:2]
             self.mission_task = Land(xy)
             return False
@@ -283,15 +328,30 @@ class SimVehicle(TelemetryStreams, CommandHandler):
             self.mission_task = ReturnHome(nav, self.param("RTL_RETURN_ALT", 15.0))
             return False
         if cmd == mi.MAV_CMD_DO_CHANGE_SPEED:
-            if item.param2 > 0:
-                self.cruise_m_s = min(float(item.param2), self.limits.max_speed_h_m_s)
+            self._mission_change_speed(int(item.param1) if math.isfinite(item.param1) else -1, item.param2)
         elif cmd == mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
             self._set_gimbal(item.param1, item.param2)
         elif cmd == mi.MAV_CMD_DO_MOUNT_CONTROL:
             self._set_gimbal(item.param1, item.param3)
         elif cmd == mi.MAV_CMD_CONDITION_YAW:
-            self._condition_yaw(item.param1, item.param3, item.param4)
+            if copter:
+                self.copter_yaw.condition_yaw(item.param1, item.param3, item.param4, self.yaw_deg)
+            else:
+                self._condition_yaw(item.param1, item.param3, item.param4)
         return True
+
+    def _mission_change_speed(self, speed_type: int, speed: float) -> None:
+        """DO_CHANGE_SPEED in a mission. ArduCopter: types 0/1 horizontal, 2 climb, 3 descent
+        (ModeAuto::do_change_speed). PX4 takes param2 of any type as the horizontal cruise speed
+        (navigator_main.cpp): its climb/descent speeds are parameters only."""
+        if not (math.isfinite(speed) and speed > 0):
+            return
+        if self.flavour.name == "ardupilot" and speed_type == 2:
+            self.climb_override_m_s = float(speed)
+        elif self.flavour.name == "ardupilot" and speed_type == 3:
+            self.descent_override_m_s = float(speed)
+        else:
+            self.cruise_m_s = min(float(speed), self.limits.max_speed_h_m_s)
 
     def _set_gimbal(self, pitch: float, yaw: float) -> None:
         if math.isfinite(pitch):
@@ -339,7 +399,10 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 continue
             assert self.mission_task is not None
             v = self.mission_task.command(self.nav, on_ground, dt, self)
-            if self.mission_task.yaw_deg is not None:
+            if self.flavour.name == "ardupilot":
+                self.yaw_target = self.copter_yaw.target(self.yaw_deg, (float(self.model.state.vel[0]),
+                                                                        float(self.model.state.vel[1])))
+            elif self.mission_task.yaw_deg is not None:
                 self.yaw_target = self.mission_task.yaw_deg
             if self.mission_task.done:
                 self._item_done()

@@ -25,6 +25,19 @@ def _home(text: str) -> GeoPoint:
     return GeoPoint(*parts)
 
 
+def _params(text: str) -> dict[str, float]:
+    out = {}
+    for part in filter(None, (p.strip() for p in text.split(","))):
+        name, sep, value = part.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not name.strip():
+            raise argparse.ArgumentTypeError(f"--params wants NAME=VALUE[,NAME=VALUE...], got {part!r}")
+    return out
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--home", type=_home, default=GeoPoint(37.56638, 126.97815, 30.0),
                    help="home LAT,LON,ALT_AMSL (default: the demo mission's takeoff point)")
@@ -51,6 +64,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gps-glitch-s", type=float, default=3.0, help="GPS glitch length, simulated seconds")
     p.add_argument("--max-mission-items", type=int, default=500, help="larger uploads are refused (NO_SPACE)")
     p.add_argument("--duration", type=float, help="exit after this much simulated time, s")
+    p.add_argument("--params", type=_params, default={}, metavar="NAME=VALUE,...",
+                   help="parameter values at boot, over the flavour's defaults (e.g. WP_YAW_BEHAVIOR=0)")
     p.add_argument("--max-speed", type=float, default=12.0, help="max horizontal speed, m/s")
     p.add_argument("--max-accel", type=float, default=4.0, help="max acceleration, m/s^2")
 
@@ -68,7 +83,7 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
         gps_noise_m=args.gps_noise, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
         outage_at_s=args.outage_at, outage_s=args.outage_s if args.outage_at is not None else 0.0,
         gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,
-        duration_s=args.duration, max_mission_items=args.max_mission_items,
+        duration_s=args.duration, max_mission_items=args.max_mission_items, params=dict(args.params),
         limits=Limits(max_speed_h_m_s=args.max_speed, max_accel_m_s2=args.max_accel),
     )
 

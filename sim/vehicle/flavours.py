@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import struct
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from companion.mission import items as mi
@@ -37,6 +38,14 @@ NAV_COMMANDS = {mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_
 GLOBAL_FRAMES = {mi.MAV_FRAME_GLOBAL, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT, mi.MAV_FRAME_GLOBAL_INT,
                  mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 SUPPORTED_FRAMES = GLOBAL_FRAMES | {mi.MAV_FRAME_MISSION}
+
+# ArduPilot's per-command NaN mask (AP_Mission::sanity_check_params, ArduCopter 4.7): 1-based params that may be NaN.
+_COPTER_NAN_OK = {16: {4}, 17: {4}, 21: {4}, 22: {4}, 84: {4}, 85: {3, 4}}
+_COPTER_INVALID_PARAM = {1: mavlink.MAV_MISSION_INVALID_PARAM1, 2: mavlink.MAV_MISSION_INVALID_PARAM2,
+                         3: mavlink.MAV_MISSION_INVALID_PARAM3, 4: mavlink.MAV_MISSION_INVALID_PARAM4}
+# Commands ArduPilot stores with a location (AP_Mission::stored_in_location; the ones the simulator flies).
+_COPTER_LOCATED = {mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_LAND}
+_F32 = np.float32
 
 
 def _validate_common(item: mi.MissionItem) -> int | None:
@@ -72,8 +81,10 @@ class Px4:
         "MIS_TAKEOFF_ALT": 2.5, "RTL_RETURN_ALT": 15.0, "RTL_DESCEND_ALT": 10.0, "MPC_XY_CRUISE": 5.0,
         "MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5, "MPC_LAND_SPEED": 0.7,
         "MPC_ACC_HOR": 4.0, "MPC_YAWRAUTO_MAX": 60.0, "NAV_ACC_RAD": 2.0, "COM_DL_LOSS_T": 10, "NAV_DLL_ACT": 2,
-        "COM_DISARM_LAND": 2.0, "BAT_LOW_THR": 0.15, "MIS_YAWMODE": 0,
+        "COM_DISARM_LAND": 2.0, "BAT_LOW_THR": 0.15, "MIS_YAWMODE": 0, "MPC_Z_V_AUTO_UP": 3.0,
+        "MPC_Z_V_AUTO_DN": 1.5,
     }
+    waypoint_reached_m: float | None = None  # None: the item's acceptance radius (param2), else NAV_ACC_RAD
 
     def custom_mode(self, mode: str) -> int:
         main, sub = _PX4_MODES[mode]
@@ -101,10 +112,10 @@ class Px4:
         return None
 
     def transform_upload(self, items: list, home_item: mi.MissionItem) -> list:
-        return items
+        return [px4_stored_item(it) for it in items]
 
     def transform_download(self, items: list, home_item: mi.MissionItem) -> list:
-        return items
+        return [_with_current(it, 1 if k == 0 else 0) for k, it in enumerate(items)]
 
     def encode_param(self, value) -> tuple[float, int]:
         if isinstance(value, int):
@@ -128,10 +139,14 @@ class ArduCopter(Px4):
     param_bytewise = False
     default_rates_hz = {"HEARTBEAT": 1.0}
     params = {
-        "WPNAV_SPEED": 500.0, "WPNAV_SPEED_UP": 300.0, "WPNAV_SPEED_DN": 150.0, "WPNAV_RADIUS": 200.0,
+        "WPNAV_SPEED": 500.0, "WPNAV_SPEED_UP": 250.0, "WPNAV_SPEED_DN": 150.0, "WPNAV_RADIUS": 200.0,
+        "WP_YAW_BEHAVIOR": 2,
         "WPNAV_ACCEL": 400.0, "LAND_SPEED": 70.0, "RTL_ALT": 1500.0, "PILOT_TKOFF_ALT": 250.0, "FS_GCS_ENABLE": 1,
         "FS_GCS_TIMEOUT": 10.0, "SR0_POSITION": 0, "SR0_EXTRA1": 0, "SR0_EXT_STAT": 0,
     }
+    # Copter keeps no acceptance radius per waypoint; its S-curve target reaches the waypoint and the vehicle trails
+    # it by a few decimetres before the next leg starts.
+    waypoint_reached_m = 0.3
 
     def custom_mode(self, mode: str) -> int:
         return _COPTER_MODES[mode]
@@ -142,11 +157,9 @@ class ArduCopter(Px4):
         return _COPTER_FROM_NUMBER.get(int(main) if math.isfinite(main) else -1)
 
     def validate(self, item: mi.MissionItem, index: int) -> int | None:
-        if index == 0:
-            return None  # seq 0 is replaced by home whatever it holds
-        if item.command == mi.MAV_CMD_NAV_TAKEOFF and any(math.isnan(p) for p in (item.param1, item.param2,
-                                                                                   item.param3)):
-            return mavlink.MAV_MISSION_INVALID_PARAM1
+        refusal = copter_param_check(item)  # every item goes through the conversion, seq 0 too
+        if refusal is not None or index == 0:
+            return refusal  # seq 0 is otherwise replaced by home whatever it holds
         return _validate_common(item)
 
     def arm_refusal(self, mode: str) -> str | None:
@@ -162,19 +175,78 @@ class ArduCopter(Px4):
         return None
 
     def transform_upload(self, items: list, home_item: mi.MissionItem) -> list:
-        return [home_item] + list(items[1:])
+        """What Copter keeps: home at seq 0, every other item in its stored form (which it then flies)."""
+        return [home_item] + [copter_stored_item(it) for it in items[1:]]
 
     def transform_download(self, items: list, home_item: mi.MissionItem) -> list:
-        out = [home_item]
-        for it in items[1:]:
-            frame = it.frame
-            if frame == mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT:
-                frame = mi.MAV_FRAME_GLOBAL_RELATIVE_ALT
-            elif frame == mi.MAV_FRAME_GLOBAL_INT:
-                frame = mi.MAV_FRAME_GLOBAL
-            out.append(mi.MissionItem(it.seq, frame, it.command, it.current, it.autocontinue, it.param1, it.param2,
-                                      it.param3, it.param4, it.x, it.y, it.z, it.mission_type))
-        return out
+        return [_with_current(home_item, 0)] + [_with_current(it, 0) for it in items[1:]]
 
 
 FLAVOURS = {"px4": Px4, "ardupilot": ArduCopter}
+
+
+# --- what each firmware stores (checked against ../shared/data/real-firmware/ downloads) ----------------------------
+def _with_current(item: mi.MissionItem, current: int) -> mi.MissionItem:
+    return mi.MissionItem(item.seq, item.frame, item.command, current, item.autocontinue, item.param1, item.param2,
+                          item.param3, item.param4, item.x, item.y, item.z, item.mission_type)
+
+
+def copter_param_check(item: mi.MissionItem) -> int | None:
+    """MAV_MISSION_INVALID_PARAMn for the first NaN param the command does not allow, or any inf; else None."""
+    allowed = _COPTER_NAN_OK.get(item.command, set())
+    for k, value in enumerate((item.param1, item.param2, item.param3, item.param4), start=1):
+        if math.isinf(value) or (math.isnan(value) and k not in allowed):
+            return _COPTER_INVALID_PARAM[k]
+    return None
+
+
+def _trunc(value: float) -> float:
+    return float(math.trunc(value)) if math.isfinite(value) else 0.0
+
+
+def copter_stored_item(it: mi.MissionItem) -> mi.MissionItem:
+    """The item as ArduCopter 4.7 stores it (AP_Mission's 15-byte command) and hands it back on download.
+
+    Located commands: altitude in whole centimetres (float32 arithmetic, truncated), frame 6/5 as the float twins
+    3/0, NAV_WAYPOINT keeping only the hold (uint16 seconds), NAV_TAKEOFF/LAND only param1 (and LAND a direction
+    flag in param4). Other commands come back in frame 0; CONDITION_YAW and DO_CHANGE_SPEED keep integer fields as
+    integers."""
+    p = [it.param1, it.param2, it.param3, it.param4]
+    frame, z = it.frame, it.z
+    if it.command in _COPTER_LOCATED:
+        frame = {mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mi.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                 mi.MAV_FRAME_GLOBAL_INT: mi.MAV_FRAME_GLOBAL}.get(frame, frame)
+        cm = int(_F32(z) * _F32(100.0))
+        z = float(_F32(cm) * _F32(0.01))
+        land_flag = -1.0 if it.command == mi.MAV_CMD_NAV_LAND and p[3] < 0 else 1.0
+        p = [float(min(max(_trunc(p[0]), 0.0), 65535.0)), 0.0, 0.0,
+             land_flag if it.command == mi.MAV_CMD_NAV_LAND else 0.0]
+    else:
+        frame = mi.MAV_FRAME_GLOBAL
+        if it.command == mi.MAV_CMD_CONDITION_YAW:
+            p = [p[0], p[1], _trunc(p[2]), _trunc(p[3])]
+        elif it.command == mi.MAV_CMD_DO_CHANGE_SPEED:
+            p = [_trunc(p[0]), p[1], p[2], 0.0]
+    return mi.MissionItem(it.seq, frame, it.command, it.current, it.autocontinue, *(float(v) for v in p), it.x, it.y,
+                          z, it.mission_type)
+
+
+def _px4_yaw(deg: float) -> float:
+    """PX4 keeps a mission yaw in radians (float32 arithmetic) wrapped to [0, 2pi) and hands it back in degrees."""
+    if not math.isfinite(deg):
+        return deg
+    two_pi = _F32(2.0 * math.pi)
+    rad = _F32(deg) * (_F32(math.pi) / _F32(180.0))  # matrix::radians/degrees in float: pi and 180 as floats
+    while rad < 0:
+        rad = _F32(rad + two_pi)
+    while rad >= two_pi:
+        rad = _F32(rad - two_pi)
+    return float(rad * (_F32(180.0) / _F32(math.pi)))
+
+
+def px4_stored_item(it: mi.MissionItem) -> mi.MissionItem:
+    """The item as PX4 main stores it: as sent, except the yaw of NAV_WAYPOINT/TAKEOFF/LAND (see ``_px4_yaw``)."""
+    if it.command not in NAV_COMMANDS:
+        return it
+    return mi.MissionItem(it.seq, it.frame, it.command, it.current, it.autocontinue, it.param1, it.param2, it.param3,
+                          _px4_yaw(it.param4), it.x, it.y, it.z, it.mission_type)

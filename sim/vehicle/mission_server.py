@@ -37,11 +37,18 @@ def item_from_msg(msg) -> MissionItem:
                        param4=msg.param4, x=msg.x, y=msg.y, z=msg.z, mission_type=msg.mission_type)
 
 
+def _current_is_first(items: list[MissionItem]) -> list[MissionItem]:
+    return [MissionItem(it.seq, it.frame, it.command, 1 if k == 0 else 0, it.autocontinue, it.param1, it.param2,
+                        it.param3, it.param4, it.x, it.y, it.z, it.mission_type) for k, it in enumerate(items)]
+
+
 class MissionServer:
     """Holds the vehicle's mission, geofence and rally lists and serves the transfer protocol.
 
     ``validate(item, index)`` returns None or a MAV_MISSION_RESULT error code; ``on_new_mission(items)`` is
     called when an upload of the mission list completes (also for a clear, with an empty list).
+    ``transform_upload`` turns the uploaded list into what the firmware stores (and flies);
+    ``transform_download`` into what it hands back, ``current`` flags included.
     """
 
     def __init__(self, mav: mavlink.MAVLink, send: Callable[[object], None],
@@ -54,7 +61,7 @@ class MissionServer:
         self.on_new_mission = on_new_mission
         self.max_items = max_items
         self.transform_upload = transform_upload or (lambda items: items)
-        self.transform_download = transform_download or (lambda items: items)
+        self.transform_download = transform_download or _current_is_first
         self.lists: dict[int, list[MissionItem]] = {0: [], 1: [], 2: []}
         self._upload: _Upload | None = None
         self._completed: tuple[tuple[int, int], int, int] | None = None  # partner, count, type of last upload
@@ -153,7 +160,7 @@ class MissionServer:
             return
         it = items[msg.seq]
         self.send(self.mav.mission_item_int_encode(
-            src[0], src[1], msg.seq, it.frame, it.command, 1 if msg.seq == 0 else 0, it.autocontinue,
+            src[0], src[1], msg.seq, it.frame, it.command, it.current, it.autocontinue,
             it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z, msg.mission_type))
 
     # --- timers ------------------------------------------------------------------------------------

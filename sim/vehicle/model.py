@@ -61,8 +61,10 @@ def limit_velocity(v: np.ndarray, limits: Limits, cruise_m_s: float | None = Non
 
 
 def _path_speed_limit(u: np.ndarray, limits: Limits, cruise_m_s: float) -> float:
-    """Fastest speed along unit direction ``u`` allowed by the horizontal and vertical limits."""
-    s = cruise_m_s
+    """Fastest speed along unit direction ``u``: the cruise speed limits the horizontal part only, the climb and
+    descent limits the vertical part (as both PX4 and ArduCopter apply their speeds), so a vertical leg flies at the
+    climb/descent speed whatever the cruise speed."""
+    s = math.inf
     uh = math.hypot(u[0], u[1])
     if uh > 1e-9:
         s = min(s, min(cruise_m_s, limits.max_speed_h_m_s) / uh)

@@ -67,7 +67,8 @@ class Line(Task):
             if self._held >= self.hold_s:
                 self.done = True
             return hold_point(nav, self.b, ctx.limits, ctx.cruise_m_s)
-        return track_line(nav, self.a, self.b, ctx.cruise_m_s, ctx.limits)
+        # climb/descent at the autopilot's current auto speeds (a context without them: the envelope's)
+        return track_line(nav, self.a, self.b, ctx.cruise_m_s, getattr(ctx, "auto_limits", ctx.limits))
 
 
 class Land(Task):

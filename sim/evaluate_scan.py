@@ -1,0 +1,77 @@
+"""How a flown scan compares with its plan on the scan legs: heading against wall-facing, speed along each leg.
+
+Works on the simulator's true poses (``--truth-log`` lines or ``SimVehicle.true_pose()`` dicts: NED metres from
+home, velocities, yaw). Only the middle of each leg counts for speed (``core``: the vehicle accelerates and brakes
+at its ends); the heading counts over the whole leg except the first and last 2 %.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+
+
+@dataclass(frozen=True)
+class LegReport:
+    leg: int
+    length_m: float
+    vertical: bool
+    planned_speed_m_s: float
+    median_speed_m_s: float  # along the leg, in its middle
+    max_yaw_error_deg: float  # against the wall-facing heading, anywhere on the leg
+    samples: int
+
+    @property
+    def speed_error(self) -> float:
+        return abs(self.median_speed_m_s - self.planned_speed_m_s) / self.planned_speed_m_s
+
+
+def read_truth_log(path: Path) -> list[dict]:
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+def _wrap(deg: float) -> float:
+    return (deg + 180.0) % 360.0 - 180.0
+
+
+def scan_leg_reports(plan, poses: Iterable[dict], core: float = 0.6, max_cross_m: float = 0.5) -> list[LegReport]:
+    """One report per scan leg of ``plan`` from true ``poses`` (home = ``plan.home``)."""
+    rows = [p for p in poses if p.get("in_air", True)]
+    if not rows:
+        return []
+    pos = np.array([[p["north_m"], p["east_m"], p["down_m"]] for p in rows])
+    vel = np.array([[p["vn_m_s"], p["ve_m_s"], p["vd_m_s"]] for p in rows])
+    yaw = np.array([p["yaw_deg"] for p in rows])
+    h = plan.home
+    wall_yaw = plan.frame.yaw_facing_wall_deg
+    out = []
+    for k, (i, j) in enumerate(plan.scan_legs):
+        a, b = (np.array(pymap3d.geodetic2ned(w.lat, w.lon, h.alt_amsl_m + w.rel_alt_m, h.lat, h.lon, h.alt_amsl_m))
+                for w in (plan.waypoints[i], plan.waypoints[j]))
+        d = b - a
+        length = float(np.linalg.norm(d))
+        u = d / length
+        s = (pos - a) @ u
+        cross = np.linalg.norm(pos - a - np.outer(s, u), axis=1)
+        on_leg = (cross < max_cross_m) & (s > 0.02 * length) & (s < 0.98 * length)
+        middle = on_leg & (np.abs(s - length / 2.0) <= core * length / 2.0)
+        speeds = vel[middle] @ u
+        errors = [abs(_wrap(y - wall_yaw)) for y in yaw[on_leg]]
+        out.append(LegReport(
+            leg=k, length_m=length, vertical=abs(u[2]) > 0.9, planned_speed_m_s=plan.waypoints[j].speed_m_s,
+            median_speed_m_s=float(np.median(speeds)) if len(speeds) else math.nan,
+            max_yaw_error_deg=max(errors) if errors else math.nan, samples=int(middle.sum())))
+    return out
+
+
+def worst(reports: Sequence[LegReport]) -> tuple[float, float]:
+    """(largest relative speed error, largest heading error in degrees) over all legs; NaN if a leg was missed."""
+    if not reports or any(r.samples == 0 for r in reports):
+        return math.nan, math.nan
+    return max(r.speed_error for r in reports), max(r.max_yaw_error_deg for r in reports)

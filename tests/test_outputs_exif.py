@@ -359,3 +359,22 @@ def test_a_camera_without_make_and_model_still_gets_both():
 
     tags = camera_tags_for_mission(Camera(width_px=3840, height_px=2160, hfov_deg=69, fps=30, exposure_s=0.002))
     assert tags.make == "companion" and tags.model == "mission camera 3840x2160 hfov 69 deg"
+
+
+def test_wall_clock_follows_a_simulator_running_faster_than_real_time():
+    """SITL at 1.5x: boot time runs 1.5x faster than the Unix clock. Keyframes are dated while the flight goes on,
+    some seconds after their exposure (a backlog): their times must stay right and in order."""
+    rng = np.random.default_rng(0)
+    boot = np.arange(0.0, 120.0, 1 / 30)
+    wall = FLIGHT_UNIX + boot / 1.5 + rng.uniform(0.002, 0.030, boot.size)  # rows written 2-30 ms late
+    clock = TelemetryWallClock(ClockMap(fixed_offset_s=0.0))
+    keyframes = [(float(t), 0.5 if k % 2 else 12.0) for k, t in enumerate(np.arange(20.0, 100.0, 5.0))]
+    dated, seen = [], 0
+    for t, lag in keyframes:  # dated once the telemetry has reached t + lag
+        while seen < boot.size and boot[seen] <= t + lag:
+            clock.observe(wall[seen], boot[seen])
+            seen += 1
+        dated.append(clock.unix_time(t))
+    for (t, _), unix in zip(keyframes, dated, strict=True):
+        assert unix == pytest.approx(FLIGHT_UNIX + t / 1.5 + 0.002, abs=0.01)
+    assert all(a < b for a, b in zip(dated, dated[1:], strict=False))

@@ -47,7 +47,7 @@ def run_cull(args: argparse.Namespace) -> int:
     tagger = FrameTagger(buffer, camera_to_autopilot)
     # EXIF capture times: video time -> autopilot boot time -> Unix time from the log's t_wall beside t_boot_s
     wall_clock = TelemetryWallClock.from_log_rows(rows, camera_to_autopilot)
-    if wall_clock.boot_to_unix_offset_s is None:
+    if not wall_clock.has_wall_time:
         print(
             f"warning: telemetry log {args.telemetry} has no t_wall times, so keyframe images carry no capture date "
             "(logs from companion fly --telemetry-log have them)"

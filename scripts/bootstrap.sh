@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
 # Creates .venv and installs companion; `bootstrap.sh train` also installs the torch export/training extra
 # (the tests need it for the Monodepth2 exporter round trip). Called by scripts/demo and scripts/test.
+# `bootstrap.sh train test-tools` (scripts/test) also installs the Debian readers the output tests run (exiftool,
+# gdalinfo) when it runs as root with apt-get (CI); anyone else is told the command and the tests that need them fail
+# with the same fix.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 want="${1:-runtime}"
+extra="${2:-}"
 py="${PYTHON:-python3}"
 if ! command -v "$py" >/dev/null; then
     echo "error: $py not found. fix: install Python 3.11+ (apt-get install python3 python3-venv)" >&2; exit 2
@@ -35,4 +39,17 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
         .venv/bin/python -m pip install -q -e ".[dev]"
     fi
     touch "$stamp"
+fi
+if [ "$extra" = test-tools ]; then
+    missing=""
+    command -v exiftool >/dev/null || missing="$missing libimage-exiftool-perl"
+    command -v gdalinfo >/dev/null || missing="$missing gdal-bin"
+    if [ -n "$missing" ]; then
+        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+            echo "installing the output readers the tests use:$missing" >&2
+            apt-get update -qq && apt-get install -y -qq $missing >/dev/null
+        else
+            echo "warning: the output tests need:$missing. fix: sudo apt-get install -y$missing" >&2
+        fi
+    fi
 fi

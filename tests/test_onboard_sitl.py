@@ -7,6 +7,7 @@ gate itself flagged the pair (low overlap / gap) during the flight.
 
 from __future__ import annotations
 
+import datetime
 import json
 from pathlib import Path
 
@@ -48,3 +49,16 @@ def test_live_culling_in_sitl_meets_overlap_and_tagging_accuracy(tmp_path):
         assert p.flagged or p.true_overlap >= 0.77, f"keyframes {p.prev}->{p.cur}: true {p.true_overlap:.3f} unflagged"
     flagged = sum(p.flagged for p in pairs)
     assert len(pairs) >= 4 and flagged <= len(pairs) // 2, (len(pairs), flagged, res.stats.as_dict())
+
+    # The keyframe images as photogrammetry tools read them (docs/OUTPUTS.md): capture times on the flight's wall
+    # clock with sub-seconds, the exact focal, a horizontal camera (exiftool; tests/test_outputs_exif.py has more).
+    from test_outputs_exif import exiftool
+
+    flown = [json.loads(x)["t_wall"] for x in res.telemetry_log.read_text().splitlines()]
+    focal_px = json.loads((spool / "spool.json").read_text())["camera"]["K"][0][0]
+    for kf in lines:
+        t = exiftool(str(spool / kf["image"]))
+        when = datetime.datetime.strptime(t["Composite:SubSecDateTimeOriginal"], "%Y:%m:%d %H:%M:%S.%f%z")
+        assert min(flown) - 1.0 <= when.timestamp() <= max(flown) + 1.0, (kf["image"], when)
+        assert t["ExifIFD:FocalLength"] * t["ExifIFD:FocalPlaneXResolution"] == pytest.approx(focal_px, rel=1e-4)
+        assert t["XMP-Camera:Pitch"] == 90

@@ -13,6 +13,7 @@ import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
+import pymap3d
 import simplekml
 
 from companion.errors import CompanionError
@@ -35,8 +36,14 @@ def mavlink_items_json(plan: ScanPlan, flavour: str) -> str:
     return json.dumps({"autopilot": flavour, "mission_items": rows}, indent=1)
 
 
+# mavsdk.plugins.mission.MissionItem.CameraAction / VehicleAction are IntEnums: JSON holds their integer values,
+# which MissionItem(**item) and the enums themselves accept (a name string such as "NONE" is refused by both).
+MAVSDK_CAMERA_ACTION_NONE = 0
+MAVSDK_VEHICLE_ACTION_NONE = 0
+
+
 def mavsdk_mission_json(plan: ScanPlan) -> str:
-    """High-level mavsdk Mission plugin items (mavsdk.mission.MissionItem fields) for PX4-style uploads."""
+    """High-level mavsdk Mission plugin items: each one is ``mavsdk.plugins.mission.MissionItem(**item)``."""
     pitch = plan.mission.gimbal_pitch_deg
     items = []
     for wp in plan.waypoints:
@@ -51,13 +58,13 @@ def mavsdk_mission_json(plan: ScanPlan) -> str:
                 "is_fly_through": wp.hold_s == 0.0,
                 "gimbal_pitch_deg": pitch,
                 "gimbal_yaw_deg": 0.0,
-                "camera_action": "NONE",
+                "camera_action": MAVSDK_CAMERA_ACTION_NONE,
                 "loiter_time_s": wp.hold_s,
                 "camera_photo_interval_s": None,
                 "acceptance_radius_m": wp.acceptance_m,
                 "yaw_deg": wp.yaw_deg,
                 "camera_photo_distance_m": None,
-                "vehicle_action": "NONE",
+                "vehicle_action": MAVSDK_VEHICLE_ACTION_NONE,
             }
         )
     end = "LAND" if plan.mission.end_action == "land" else "RTL"
@@ -66,10 +73,24 @@ def mavsdk_mission_json(plan: ScanPlan) -> str:
             "mission_items": items,
             "takeoff_first": True,
             "end_action": end,
-            "note": "takeoff with action.takeoff() and finish with action.land()/return_to_launch()",
+            "note": "each item: mavsdk.plugins.mission.MissionItem(**item) (camera_action/vehicle_action are the "
+            "IntEnum values, 0 = NONE; null = mavsdk's default). Take off with action.takeoff() first and finish "
+            "with action.land()/return_to_launch().",
         },
         indent=1,
     )
+
+
+def qgc_geofence(plan: ScanPlan) -> dict:
+    """QGroundControl geoFence (version 2): the mission's horizontal limit as an inclusion circle around home.
+
+    The altitude limit has no place in QGC's fence JSON (it is a vehicle parameter: PX4 GF_MAX_VER_DIST,
+    ArduPilot FENCE_ALT_MAX); docs/OUTPUTS.md says so.
+    """
+    gf = plan.mission.geofence
+    circle = {"circle": {"center": [plan.home.lat, plan.home.lon], "radius": gf.max_distance_m}, "inclusion": True,
+              "version": 1}
+    return {"circles": [circle], "polygons": [], "version": 2}
 
 
 def qgc_plan_json(plan: ScanPlan, flavour: str = "px4") -> str:
@@ -98,7 +119,8 @@ def qgc_plan_json(plan: ScanPlan, flavour: str = "px4") -> str:
             }
         )
     h = plan.home
-    speed = plan.estimates.scan_speed_m_s
+    # No cruiseSpeed/hoverSpeed: QGroundControl copies them into the user's saved offline-editing speeds on load.
+    # The flown speeds are in the DO_CHANGE_SPEED items.
     doc = {
         "fileType": "Plan",
         "version": 1,
@@ -107,12 +129,10 @@ def qgc_plan_json(plan: ScanPlan, flavour: str = "px4") -> str:
             "version": 2,
             "firmwareType": QGC_FIRMWARE[flavour],
             "vehicleType": QGC_VEHICLE_MULTIROTOR,
-            "cruiseSpeed": plan.mission.max_speed_m_s,
-            "hoverSpeed": speed,
             "plannedHomePosition": [h.lat, h.lon, h.alt_amsl_m],
             "items": items,
         },
-        "geoFence": {"circles": [], "polygons": [], "version": 2},
+        "geoFence": qgc_geofence(plan),
         "rallyPoints": {"points": [], "version": 2},
     }
     return json.dumps(doc, indent=1)
@@ -134,35 +154,93 @@ def wpl_text(plan: ScanPlan) -> str:
 
 
 def _wall_corners(plan: ScanPlan) -> list[tuple[float, float, float]]:
+    """The wall face, base to top, as (lon, lat, alt AMSL) with the altitudes of the wall's ground + height."""
     f = plan.frame
     h = plan.mission.facade.height_m
+    ground = plan.mission.facade.ground_alt_amsl_m
     pts = []
     for a, u in ((0.0, 0.0), (f.length_m, 0.0), (f.length_m, h), (0.0, h), (0.0, 0.0)):
-        lat, lon, alt = f.facade_to_geodetic(a, 0.0, u)
-        pts.append((float(lon), float(lat), float(alt)))
+        lat, lon, _ = f.facade_to_geodetic(a, 0.0, 0.0)
+        pts.append((float(lon), float(lat), ground + u))
     return pts
 
 
+def _mission_amsl_m(plan: ScanPlan, rel_alt_m: float) -> float:
+    """Altitude above mean sea level of a mission altitude (the items fly relative to home)."""
+    return plan.home.alt_amsl_m + rel_alt_m
+
+
+def signed_area_deg2(ring: list[list[float]]) -> float:
+    """Shoelace area of a closed [lon, lat] ring: > 0 counter-clockwise (RFC 7946's right-hand rule for exteriors)."""
+    return 0.5 * sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:], strict=False))
+
+
+def _ccw(ring: list[list[float]]) -> list[list[float]]:
+    return ring if signed_area_deg2(ring) > 0 else ring[::-1]
+
+
+def _geofence_ring(plan: ScanPlan, vertices: int = 72) -> list[list[float]]:
+    """The horizontal geofence (circle around home) as an inscribed polygon: inside the ring is inside the fence."""
+    h = plan.home
+    r = plan.mission.geofence.max_distance_m
+    ring = []
+    for k in range(vertices + 1):
+        a = 2 * math.pi * (k % vertices) / vertices
+        lat, lon, _ = pymap3d.enu2geodetic(r * math.sin(a), r * math.cos(a), 0.0, h.lat, h.lon, h.alt_amsl_m)
+        ring.append([round(float(lon), 9), round(float(lat), 9)])
+    return _ccw(ring)
+
+
 def geojson_text(plan: ScanPlan) -> str:
-    path = [[wp.lon, wp.lat, wp.alt_amsl_m] for wp in plan.waypoints]
+    """GeoJSON per RFC 7946: 2-D positions (its heights would be ellipsoidal; ours are above mean sea level, as
+    MAVLink's), heights as properties; polygon exteriors counter-clockwise (right-hand rule)."""
+    m = plan.mission
     wall = _wall_corners(plan)
     feats = [
         {
             "type": "Feature",
-            "properties": {"name": "wall", "height_m": plan.mission.facade.height_m, "length_m": plan.frame.length_m},
-            "geometry": {"type": "LineString", "coordinates": [list(wall[0]), list(wall[1])]},
+            "properties": {
+                "name": "wall base",
+                "ground_alt_amsl_m": m.facade.ground_alt_amsl_m,
+                "height_m": m.facade.height_m,
+                "length_m": round(plan.frame.length_m, 3),
+                "yaw_facing_wall_deg": round(plan.frame.yaw_facing_wall_deg, 3),
+            },
+            "geometry": {"type": "LineString", "coordinates": [list(wall[0][:2]), list(wall[1][:2])]},
         },
         {
             "type": "Feature",
-            "properties": {"name": "wall face (vertical polygon)"},
-            "geometry": {"type": "Polygon", "coordinates": [[list(p) for p in wall]]},
+            "properties": {
+                "name": "scan path",
+                "alt_amsl_m": [round(_mission_amsl_m(plan, wp.rel_alt_m), 3) for wp in plan.waypoints],
+                "rel_alt_m": [round(wp.rel_alt_m, 3) for wp in plan.waypoints],
+            },
+            "geometry": {"type": "LineString", "coordinates": [[wp.lon, wp.lat] for wp in plan.waypoints]},
         },
         {
             "type": "Feature",
-            "properties": {"name": "scan path"},
-            "geometry": {"type": "LineString", "coordinates": path},
+            "properties": {
+                "name": "geofence",
+                "max_distance_m": m.geofence.max_distance_m,
+                "max_alt_rel_m": m.geofence.max_alt_m,
+                "max_alt_amsl_m": round(_mission_amsl_m(plan, m.geofence.max_alt_m), 3),
+            },
+            "geometry": {"type": "Polygon", "coordinates": [_geofence_ring(plan)]},
         },
     ]
+    fp = m.facade.footprint
+    if fp is not None and fp.coordinates:
+        ring = [[float(lon), float(lat)] for lon, lat in fp.coordinates]
+        if ring[0] != ring[-1]:
+            ring.append(ring[0])
+        feats.append(
+            {
+                "type": "Feature",
+                "properties": {"name": "building footprint", "ground_alt_amsl_m": m.facade.ground_alt_amsl_m,
+                               "height_m": m.facade.height_m, "face": fp.face},
+                "geometry": {"type": "Polygon", "coordinates": [_ccw(ring)]},
+            }
+        )
     for k, wp in enumerate(plan.waypoints):
         feats.append(
             {
@@ -170,28 +248,46 @@ def geojson_text(plan: ScanPlan) -> str:
                 "properties": {
                     "seq": k,
                     "kind": wp.kind,
+                    "alt_amsl_m": round(_mission_amsl_m(plan, wp.rel_alt_m), 3),
                     "rel_alt_m": round(wp.rel_alt_m, 3),
                     "yaw_deg": round(wp.yaw_deg, 3),
                     "speed_m_s": round(wp.speed_m_s, 3),
                     "standoff_m": round(wp.out_m, 3),
                 },
-                "geometry": {"type": "Point", "coordinates": [wp.lon, wp.lat, wp.alt_amsl_m]},
+                "geometry": {"type": "Point", "coordinates": [wp.lon, wp.lat]},
             }
         )
-    return json.dumps({"type": "FeatureCollection", "features": feats}, indent=1)
+    return json.dumps(
+        {
+            "type": "FeatureCollection",
+            "heights": "2-D positions; alt_amsl_m is above mean sea level (home altitude + rel_alt_m, the mission's "
+            "frame), rel_alt_m above home",
+            "features": feats,
+        },
+        indent=1,
+    )
 
 
 def kml_text(plan: ScanPlan) -> str:
+    """KML in altitudeMode absolute (above mean sea level, as KML defines it): home altitude + each item's altitude
+    above home, so the drawn path is the one the autopilot flies in its relative-to-home frame (relativeToGround
+    would follow the terrain under each point instead)."""
+    h = plan.home
     kml = simplekml.Kml(name=plan.mission.name)
+    kml.document.description = (
+        f"Altitudes above mean sea level = home {h.alt_amsl_m:.2f} m + the mission's altitudes above home "
+        "(MAV_FRAME_GLOBAL_RELATIVE_ALT)."
+    )
     wall = kml.newpolygon(name="wall", outerboundaryis=_wall_corners(plan))
     wall.altitudemode = simplekml.AltitudeMode.absolute
     wall.style.polystyle.color = simplekml.Color.changealphaint(120, simplekml.Color.gray)
-    path = kml.newlinestring(name="scan path", coords=[(wp.lon, wp.lat, wp.alt_amsl_m) for wp in plan.waypoints])
+    coords = [(wp.lon, wp.lat, _mission_amsl_m(plan, wp.rel_alt_m)) for wp in plan.waypoints]
+    path = kml.newlinestring(name="scan path", coords=coords)
     path.altitudemode = simplekml.AltitudeMode.absolute
     path.style.linestyle.color = simplekml.Color.red
     path.style.linestyle.width = 2
-    for k, wp in enumerate(plan.waypoints):
-        p = kml.newpoint(name=f"{k} {wp.kind}", coords=[(wp.lon, wp.lat, wp.alt_amsl_m)])
+    for k, (wp, c) in enumerate(zip(plan.waypoints, coords, strict=True)):
+        p = kml.newpoint(name=f"{k} {wp.kind}", coords=[c])
         p.altitudemode = simplekml.AltitudeMode.absolute
     return kml.kml()
 

@@ -69,6 +69,13 @@ class Camera(_Strict):
     hfov_deg: float = Field(gt=5.0, lt=170.0)
     fps: float = Field(gt=0.0, le=240.0)
     exposure_s: float = Field(gt=0.0, le=0.1)
+    # Written into the keyframe images' EXIF (docs/OUTPUTS.md): tools group images and look up sensors by these.
+    make: str | None = Field(default=None, min_length=1, max_length=60)
+    model: str | None = Field(default=None, min_length=1, max_length=60)
+    # Width of the image area on the sensor; gives the true lens focal in mm (without it: the 35 mm equivalent).
+    sensor_width_mm: float | None = Field(default=None, gt=0.5, le=100.0)
+    # Calibration file (intrinsics + distortion, companion/spool/camera.py), relative to the mission file.
+    calibration: str | None = Field(default=None, min_length=1)
 
     @property
     def vfov_deg(self) -> float:
@@ -140,7 +147,8 @@ class Mission(_Strict):
 _FIELD_FIXES = {
     "overlap": "use a fraction between 0.50 and 0.95, e.g. overlap: 0.80",
     "standoff_m": f"use a standoff of at least {MIN_SAFE_STANDOFF_M} m (the paper flies at 4 m)",
-    "camera": "check the camera block: width_px, height_px, hfov_deg (5..170), fps, exposure_s (seconds)",
+    "camera": "check the camera block: width_px, height_px, hfov_deg (5..170), fps, exposure_s (seconds); optional "
+    "make, model, sensor_width_mm, calibration",
     "facade": "give facade.start/end as {lat, lon} (or a footprint), ground_alt_amsl_m and height_m",
 }
 
@@ -218,6 +226,16 @@ def load_mission(path: str | Path) -> Mission:
             update={"footprint": fp.model_copy(update={"geojson": None, "coordinates": ring})}
         )
         mission = mission.model_copy(update={"facade": facade})
+    if mission.camera.calibration is not None:
+        calibration = (path.parent / mission.camera.calibration).resolve()
+        if not calibration.is_file():
+            raise CompanionError(
+                f"mission file {path}: camera.calibration {mission.camera.calibration} does not exist "
+                f"(looked for {calibration})",
+                "give the calibration file's path relative to the mission file, or remove camera.calibration",
+            )
+        camera = mission.camera.model_copy(update={"calibration": str(calibration)})
+        mission = mission.model_copy(update={"camera": camera})
     if mission.depth_model is not None:
         model = (path.parent / mission.depth_model).resolve()
         if not model.is_file():

@@ -13,6 +13,7 @@ from companion.errors import CompanionError
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.setup import build_chain
 from companion.progress import progress_bar
+from companion.spool.clock import TelemetryWallClock
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,8 +43,23 @@ def run_cull(args: argparse.Namespace) -> int:
     buffer = buffer_from_log(rows)
     if len(buffer) == 0:
         raise CompanionError(f"telemetry log {args.telemetry} holds no usable samples", "check the file")
-    tagger = FrameTagger(buffer, ClockMap(fixed_offset_s=-args.time_offset))
-    chain = build_chain(args.out, tagger, mission_path=args.mission, model=args.model, mask=not args.no_mask)
+    camera_to_autopilot = ClockMap(fixed_offset_s=-args.time_offset)
+    tagger = FrameTagger(buffer, camera_to_autopilot)
+    # EXIF capture times: video time -> autopilot boot time -> Unix time from the log's t_wall beside t_boot_s
+    wall_clock = TelemetryWallClock.from_log_rows(rows, camera_to_autopilot)
+    if not wall_clock.has_wall_time:
+        print(
+            f"warning: telemetry log {args.telemetry} has no t_wall times, so keyframe images carry no capture date "
+            "(logs from companion fly --telemetry-log have them)"
+        )
+    chain = build_chain(
+        args.out,
+        tagger,
+        mission_path=args.mission,
+        model=args.model,
+        mask=not args.no_mask,
+        capture_clock=wall_clock,
+    )
     source = open_source(args.video, fps=args.fps)
     total = getattr(source, "files", None)
     with source, progress_bar(total=len(total) if total else None, unit="frame", desc="culling") as bar:

@@ -23,6 +23,7 @@ from companion.onboard.chain import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.runner import LiveRunner
 from companion.onboard.setup import build_chain
+from companion.spool.clock import CaptureClock, TelemetryWallClock, UnixCaptureClock
 
 log = logging.getLogger(__name__)
 
@@ -30,9 +31,17 @@ log = logging.getLogger(__name__)
 class TelemetryLogTailer(threading.Thread):
     """Follows a growing telemetry log and feeds each complete line to the buffer (and the clock map)."""
 
-    def __init__(self, path: Path, buffer: TelemetryBuffer, clock: ClockMap | None = None, poll_s: float = 0.02):
+    def __init__(
+        self,
+        path: Path,
+        buffer: TelemetryBuffer,
+        clock: ClockMap | None = None,
+        poll_s: float = 0.02,
+        wall_clock: TelemetryWallClock | None = None,
+    ):
         super().__init__(name="telemetry-tail", daemon=True)
         self.path, self.buffer, self.clock, self.poll_s = Path(path), buffer, clock, poll_s
+        self.wall_clock = wall_clock  # learns the autopilot boot -> Unix offset for the images' capture times
         self._halt = threading.Event()
         self.rows = 0
         # The flight appends to its log: rows already there are an earlier flight's (another boot clock), and
@@ -69,6 +78,8 @@ class TelemetryLogTailer(threading.Thread):
                 pose = pose_from_log_row(row)
                 if pose is None:
                     continue
+                if self.wall_clock is not None and row.get("t_wall") is not None:  # before the pose can tag a frame
+                    self.wall_clock.observe(float(row["t_wall"]), pose.time_s)
                 self.buffer.add(pose)
                 if self.clock is not None and row.get("t_wall") is not None:
                     self.clock.observe(float(row["t_wall"]), pose.time_s)
@@ -137,12 +148,19 @@ def run_live_scan(
         source = paced = AutopilotPacedSource(source, buffer, offset_s=capture_time_offset_s)
     on_autopilot_clock = sim_camera or paced is not None
     clock = ClockMap(fixed_offset_s=0.0) if on_autopilot_clock else ClockMap()
-    tailer = TelemetryLogTailer(telemetry_log, buffer, None if on_autopilot_clock else clock)
+    # Frames on the autopilot clock get their Unix time from the telemetry's t_wall beside t_boot_s; live cameras
+    # stamp with the companion's Unix clock already.
+    capture_clock = TelemetryWallClock(clock) if on_autopilot_clock else UnixCaptureClock()
+    tailer = TelemetryLogTailer(
+        telemetry_log,
+        buffer,
+        None if on_autopilot_clock else clock,
+        wall_clock=capture_clock if on_autopilot_clock else None,
+    )
 
     try:
-        epoch = time.time() if on_autopilot_clock else 0.0
         chain, camera_component = _build(out, FrameTagger(buffer, clock), plan, model=model, mask=mask,
-                                         gcs_camera_url=gcs_camera_url, epoch=epoch)
+                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock)
     except BaseException:
         source.close()
         raise
@@ -176,7 +194,9 @@ def run_live_scan(
     return result
 
 
-def _build(out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, epoch: float):
+def _build(
+    out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, capture_clock: CaptureClock
+):
     """The chain (and the MAVLink camera component that announces its keyframes, when asked for)."""
     camera_component = None
     if gcs_camera_url:
@@ -192,7 +212,7 @@ def _build(out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camer
         if camera_component is not None:
             camera_component.publish(kf.masked.tagged.pose, entry.image)
 
-    chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, clock_epoch_unix_s=epoch,
+    chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, capture_clock=capture_clock,
                         on_keyframe=on_keyframe)
     return chain, camera_component
 

@@ -8,6 +8,8 @@ from companion.capture.tagging import FrameTagger
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.onboard.chain import CullChain
 from companion.spool import KeyframeSpool
+from companion.spool.camera import camera_tags_for_mission
+from companion.spool.clock import CaptureClock
 
 
 def spool_meta(mission) -> dict:
@@ -37,7 +39,7 @@ def build_chain(
     mission=None,
     model: Path | None = None,
     mask: bool = True,
-    clock_epoch_unix_s: float = 0.0,
+    capture_clock: CaptureClock | None = None,
     on_keyframe=None,
     on_warning=None,
 ) -> CullChain:
@@ -60,7 +62,8 @@ def build_chain(
         out,
         meta=spool_meta(mission) if mission is not None else None,
         settings=settings,
-        clock_epoch_unix_s=clock_epoch_unix_s,
+        camera_tags=camera_tags_for_mission(mission.camera) if mission is not None else None,
+        capture_clock=capture_clock,
     )
     crosscheck = None
     if mission is not None:

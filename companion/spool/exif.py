@@ -1,8 +1,10 @@
-"""Keyframe JPEGs tagged the way photogrammetry tools read them.
+"""Keyframe JPEGs tagged the way photogrammetry tools read them (which tool reads which tag: docs/OUTPUTS.md).
 
-EXIF: GPS position/altitude, DateTimeOriginal + SubSecTimeOriginal, camera model. XMP: DJI's ``drone-dji``
-namespace (GimbalYaw/Pitch/RollDegree, FlightYaw/Pitch/RollDegree, Absolute/RelativeAltitude), which Pix4D,
-Metashape and OpenDroneMap all read, plus ``Camera:Yaw/Pitch/Roll`` (Pix4D's own camera orientation tags).
+EXIF: Make/Model from the mission's camera, FocalLength with FocalPlaneX/YResolution (the focal in pixels, exact
+in COLMAP and OpenDroneMap), image size, GPS position/altitude, DateTimeOriginal with SubSecTime(Original) in UTC.
+XMP: Pix4D's ``Camera:Yaw/Pitch/Roll`` (pitch 90 = horizontal camera, the convention OpenDroneMap normalises to),
+DJI's ``drone-dji`` flight attitude and altitudes, and DJI's gimbal angles only for DJI-convention makes (a
+non-DJI make with ``GimbalPitchDegree`` = 0 reads as a nadir camera in OpenDroneMap).
 """
 
 from __future__ import annotations
@@ -10,7 +12,6 @@ from __future__ import annotations
 import datetime as dt
 import io
 import math
-from dataclasses import dataclass
 from fractions import Fraction
 
 import cv2
@@ -18,16 +19,10 @@ import numpy as np
 import piexif
 
 from companion.records import Pose
+from companion.spool.camera import CameraTags
 
 XMP_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
-
-
-@dataclass(frozen=True)
-class CameraTags:
-    make: str = "companion"
-    model: str = "facade-scan"
-    focal_length_mm: float | None = None
-    focal_length_35mm: int | None = None
+FOCAL_PLANE_UNIT_MM = 4  # EXIF FocalPlaneResolutionUnit: 2 inch, 3 cm, 4 mm, 5 um
 
 
 def _rational(value: float, denom: int = 10000) -> tuple[int, int]:
@@ -43,21 +38,40 @@ def _dms(deg: float) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int]]
     return (d, 1), (m, 1), (int(round(s * 10000)), 10000)
 
 
-def exif_bytes(pose: Pose | None, capture_utc: dt.datetime, camera: CameraTags) -> bytes:
-    stamp = capture_utc.strftime("%Y:%m:%d %H:%M:%S")
-    subsec = f"{capture_utc.microsecond // 1000:03d}"
-    zeroth = {piexif.ImageIFD.Make: camera.make, piexif.ImageIFD.Model: camera.model, piexif.ImageIFD.DateTime: stamp}
-    exif = {
-        piexif.ExifIFD.DateTimeOriginal: stamp,
-        piexif.ExifIFD.DateTimeDigitized: stamp,
-        piexif.ExifIFD.SubSecTimeOriginal: subsec,
-        piexif.ExifIFD.SubSecTimeDigitized: subsec,
-        piexif.ExifIFD.OffsetTimeOriginal: "+00:00",
+def exif_bytes(
+    pose: Pose | None, capture_utc: dt.datetime | None, camera: CameraTags, width_px: int, height_px: int
+) -> bytes:
+    """EXIF for one keyframe; ``capture_utc`` None (no wall clock known) leaves the time tags out, never 1970."""
+    zeroth: dict = {piexif.ImageIFD.Orientation: 1}
+    if camera.make:
+        zeroth[piexif.ImageIFD.Make] = camera.make
+    if camera.model:
+        zeroth[piexif.ImageIFD.Model] = camera.model
+    exif: dict = {
+        piexif.ExifIFD.PixelXDimension: int(width_px),
+        piexif.ExifIFD.PixelYDimension: int(height_px),
     }
-    if camera.focal_length_mm:
-        exif[piexif.ExifIFD.FocalLength] = _rational(camera.focal_length_mm)
-    if camera.focal_length_35mm:
-        exif[piexif.ExifIFD.FocalLengthIn35mmFilm] = int(camera.focal_length_35mm)
+    if capture_utc is not None:
+        stamp = capture_utc.strftime("%Y:%m:%d %H:%M:%S")
+        subsec = f"{capture_utc.microsecond // 1000:03d}"
+        zeroth[piexif.ImageIFD.DateTime] = stamp
+        exif.update({
+            piexif.ExifIFD.DateTimeOriginal: stamp,
+            piexif.ExifIFD.DateTimeDigitized: stamp,
+            piexif.ExifIFD.SubSecTime: subsec,
+            piexif.ExifIFD.SubSecTimeOriginal: subsec,
+            piexif.ExifIFD.SubSecTimeDigitized: subsec,
+            piexif.ExifIFD.OffsetTime: "+00:00",
+            piexif.ExifIFD.OffsetTimeOriginal: "+00:00",
+            piexif.ExifIFD.OffsetTimeDigitized: "+00:00",
+        })
+    focal = camera.focal_for(width_px, height_px)
+    if focal is not None:
+        focal_mm, px_per_mm_x, px_per_mm_y = focal
+        exif[piexif.ExifIFD.FocalLength] = _rational(focal_mm, 100000)
+        exif[piexif.ExifIFD.FocalPlaneXResolution] = _rational(px_per_mm_x, 100000)
+        exif[piexif.ExifIFD.FocalPlaneYResolution] = _rational(px_per_mm_y, 100000)
+        exif[piexif.ExifIFD.FocalPlaneResolutionUnit] = FOCAL_PLANE_UNIT_MM
     gps = {}
     if pose is not None and all(math.isfinite(v) for v in (pose.lat, pose.lon, pose.alt_amsl_m)):
         gps = {
@@ -68,35 +82,44 @@ def exif_bytes(pose: Pose | None, capture_utc: dt.datetime, camera: CameraTags) 
             piexif.GPSIFD.GPSLongitude: _dms(pose.lon),
             piexif.GPSIFD.GPSAltitudeRef: 0 if pose.alt_amsl_m >= 0 else 1,
             piexif.GPSIFD.GPSAltitude: _rational(abs(pose.alt_amsl_m), 1000),
-            piexif.GPSIFD.GPSTimeStamp: (
+        }
+        if capture_utc is not None:
+            gps[piexif.GPSIFD.GPSTimeStamp] = (
                 (capture_utc.hour, 1),
                 (capture_utc.minute, 1),
                 _rational(capture_utc.second + capture_utc.microsecond / 1e6, 1000),
-            ),
-            piexif.GPSIFD.GPSDateStamp: capture_utc.strftime("%Y:%m:%d"),
-        }
+            )
+            gps[piexif.GPSIFD.GPSDateStamp] = capture_utc.strftime("%Y:%m:%d")
     return piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps, "1st": {}, "thumbnail": None})
 
 
-def xmp_packet(pose: Pose | None) -> bytes:
+def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
     if pose is None:
         return b""
-    cam_yaw = pose.yaw_deg  # gimbal yaw follows the body in our missions; camera heading = body heading
+    camera = camera or CameraTags()
+    # the gimbal yaw follows the body in our missions: camera heading = body heading (rounded first: 359.999 -> 0.00)
+    cam_yaw = round(pose.yaw_deg, 2) % 360.0
     fields = {
         "drone-dji:GpsLatitude": f"{pose.lat:.9f}",
         "drone-dji:GpsLongitude": f"{pose.lon:.9f}",
         "drone-dji:AbsoluteAltitude": f"{pose.alt_amsl_m:+.3f}",
         "drone-dji:RelativeAltitude": f"{pose.relative_alt_m:+.3f}",
-        "drone-dji:GimbalRollDegree": "+0.00",
-        "drone-dji:GimbalYawDegree": f"{cam_yaw:+.2f}",
-        "drone-dji:GimbalPitchDegree": f"{pose.gimbal_pitch_deg:+.2f}",
         "drone-dji:FlightRollDegree": f"{pose.roll_deg:+.2f}",
         "drone-dji:FlightYawDegree": f"{pose.yaw_deg:+.2f}",
         "drone-dji:FlightPitchDegree": f"{pose.pitch_deg:+.2f}",
-        "Camera:Yaw": f"{cam_yaw:.2f}",
-        "Camera:Pitch": f"{pose.gimbal_pitch_deg + 90.0:.2f}",  # Pix4D: 90 = horizontal, 0 = nadir
-        "Camera:Roll": "0.00",
     }
+    if camera.dji_gimbal_convention:
+        # DJI's convention (0 = horizontal, -90 = nadir); readers turn it into their own only for these makes.
+        fields.update({
+            "drone-dji:GimbalRollDegree": "+0.00",
+            "drone-dji:GimbalYawDegree": f"{cam_yaw:+.2f}",
+            "drone-dji:GimbalPitchDegree": f"{pose.gimbal_pitch_deg:+.2f}",
+        })
+    fields.update({
+        "Camera:Yaw": f"{cam_yaw:.2f}",
+        "Camera:Pitch": f"{pose.gimbal_pitch_deg + 90.0:.2f}",  # Pix4D: 0 = nadir, 90 = horizontal
+        "Camera:Roll": "0.00",  # the gimbal holds the camera level
+    })
     attrs = "\n   ".join(f'{k}="{v}"' for k, v in fields.items())
     xml = (
         '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
@@ -110,14 +133,15 @@ def xmp_packet(pose: Pose | None) -> bytes:
 
 
 def encode_tagged_jpeg(
-    image: np.ndarray, pose: Pose | None, capture_utc: dt.datetime, camera: CameraTags, quality: int = 95
+    image: np.ndarray, pose: Pose | None, capture_utc: dt.datetime | None, camera: CameraTags, quality: int = 95
 ) -> bytes:
     ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:
         raise ValueError("JPEG encoding failed")
     out = io.BytesIO()
-    piexif.insert(exif_bytes(pose, capture_utc, camera), buf.tobytes(), out)
-    return _insert_xmp(out.getvalue(), xmp_packet(pose))
+    height, width = image.shape[:2]
+    piexif.insert(exif_bytes(pose, capture_utc, camera, width, height), buf.tobytes(), out)
+    return _insert_xmp(out.getvalue(), xmp_packet(pose, camera))
 
 
 def _insert_xmp(jpeg: bytes, xmp: bytes) -> bytes:

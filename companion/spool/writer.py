@@ -20,14 +20,16 @@ import errno
 import json
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 
 from companion.errors import CompanionError
 from companion.records import Keyframe, Pose
-from companion.spool.exif import CameraTags, encode_tagged_jpeg
+from companion.spool.camera import CameraTags
+from companion.spool.clock import CaptureClock, UnixCaptureClock
+from companion.spool.exif import encode_tagged_jpeg
 
 log = logging.getLogger(__name__)
 MANIFEST = "manifest.jsonl"
@@ -97,13 +99,14 @@ class KeyframeSpool:
         meta: dict | None = None,
         settings: dict | None = None,
         camera_tags: CameraTags | None = None,
-        clock_epoch_unix_s: float = 0.0,
+        capture_clock: CaptureClock | None = None,
     ):
         self.dir = Path(directory)
         self.settings = dict(settings or {})
         self.camera_tags = camera_tags or CameraTags()
-        # capture_time_s + clock_epoch_unix_s = Unix time of the exposure (0 when capture times are Unix already)
-        self.clock_epoch_unix_s = clock_epoch_unix_s
+        # frame capture time -> Unix time of the exposure (default: capture times are Unix already)
+        self.capture_clock = capture_clock or UnixCaptureClock()
+        self.untimed = 0  # keyframes saved without a capture time (no wall clock known for them)
         try:
             self.dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -142,12 +145,31 @@ class KeyframeSpool:
         _write_atomic(self.dir / CLOSED, b"")
         _fsync_dir(self.dir)
 
+    def _check_camera_size(self, width: int, height: int) -> None:
+        """A camera delivering another aspect ratio than its model (a crop) keeps spooling, without a focal: the
+        flight must not stop for it, and a wrong focal in the images would mislead every photogrammetry tool."""
+        intr = self.camera_tags.intrinsics
+        if intr is None:
+            return
+        try:
+            intr.scaled_to(width, height)
+        except CompanionError as exc:
+            log.warning("spool %s: %s; %s. The keyframes are saved without a focal length.", self.dir, exc.problem,
+                        exc.fix)
+            self.camera_tags = replace(self.camera_tags, intrinsics=None)
+
     def _write_meta(self, width: int, height: int) -> None:
         if self._meta is None or (self.dir / META).exists():
             return
         meta = dict(self._meta)
         if "camera" in meta:
-            meta["camera"] = {**meta["camera"], "width_px": int(width), "height_px": int(height)}
+            camera = {**meta["camera"], "width_px": int(width), "height_px": int(height)}
+            tags = self.camera_tags
+            if tags.intrinsics is not None:  # the lens at the delivered size (the stitcher reads K)
+                camera.update(tags.intrinsics.scaled_to(int(width), int(height)).as_dict())
+            named = {"make": tags.make, "model": tags.model, "sensor_width_mm": tags.sensor_width_mm}
+            camera.update({k: v for k, v in named.items() if v is not None})
+            meta["camera"] = camera
         _write_atomic(self.dir / META, json.dumps(meta, indent=1).encode())
 
     def __len__(self) -> int:
@@ -165,12 +187,19 @@ class KeyframeSpool:
         stem = f"kf_{frame.index:06d}"
         entry = SpoolEntry(frame.index, f"{stem}.jpg", f"{stem}_mask.png", f"{stem}.json")
         pose = tagged.pose
-        capture_unix = frame.capture_time_s + self.clock_epoch_unix_s
-        capture_utc = dt.datetime.fromtimestamp(capture_unix, tz=dt.UTC)
+        capture_unix = self.capture_clock.unix_time(frame.capture_time_s)
+        capture_utc = None if capture_unix is None else dt.datetime.fromtimestamp(capture_unix, tz=dt.UTC)
+        if capture_utc is None:
+            self.untimed += 1
+            if self.untimed == 1:
+                log.warning(
+                    "spool %s: keyframe %d has no wall-clock capture time (the telemetry log has no t_wall, or the "
+                    "camera clock is not set); its EXIF carries no date", self.dir, frame.index,
+                )
         sidecar = {
             "index": frame.index,
             "capture_time_s": frame.capture_time_s,
-            "capture_utc": capture_utc.isoformat(),
+            "capture_utc": capture_utc.isoformat() if capture_utc is not None else None,
             "pose": pose_dict(pose),
             "pose_stale": tagged.pose_stale,
             "overlap_to_previous": keyframe.overlap_to_previous,
@@ -191,6 +220,7 @@ class KeyframeSpool:
             "overlap_suspect": bool(keyframe.extra.get("overlap_suspect", False)),
         }
         try:
+            self._check_camera_size(frame.image.shape[1], frame.image.shape[0])
             self._write_meta(frame.image.shape[1], frame.image.shape[0])
             jpeg = encode_tagged_jpeg(frame.image, pose, capture_utc, self.camera_tags)
             ok, mask_png = cv2.imencode(".png", keyframe.masked.mask)

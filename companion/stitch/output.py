@@ -1,13 +1,17 @@
-"""What the worker hands the engineer: coverage analysis (where to re-fly), a scale bar, and the preview."""
+"""What the worker hands the engineer: coverage analysis (where to re-fly), a scale bar, the preview, and the
+georeferencing that makes the map open at true scale in GDAL/QGIS/CAD."""
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
+from companion.errors import CompanionError
 from companion.stitch.render import MapGrid
 
 
@@ -142,3 +146,212 @@ def annotate_uncovered(preview: np.ndarray, grid: MapGrid, areas: list[Uncovered
             max(1, preview.shape[1] // 800),
         )
     return out
+
+
+# --- a map that opens at true scale ------------------------------------------------------------------------------
+#
+# The map is an image of the wall plane: x = metres along the wall from its start, y = metres above the wall base
+# (docs/ARCHITECTURE.md, the facade frame). A world file gives GDAL, QGIS and CAD tools the pixel size and origin
+# in those metres; the PAM sidecar (map.png.aux.xml, or the SRS inside map.vrt) names that plane as an engineering
+# CRS in metres, so lengths measured on the map are wall metres. Uncovered map pixels have alpha 0 in every
+# output mode (map.png is BGRA; tiles are BGRA). map_georef.json anchors the plane on the Earth (docs/OUTPUTS.md).
+
+GEOREF_JSON = "map_georef.json"
+
+
+@dataclass(frozen=True)
+class WallAnchor:
+    """Where the map's plane is on the Earth: the wall base ends, its ground altitude and the way it faces."""
+
+    start_lat: float
+    start_lon: float
+    end_lat: float
+    end_lon: float
+    ground_alt_amsl_m: float
+    height_m: float
+    length_m: float
+    face_azimuth_deg: float  # direction the mapped face looks (wall -> drone), degrees clockwise from north
+    along_azimuth_deg: float  # direction of the map's +x (start -> end), degrees clockwise from north
+
+    @classmethod
+    def from_facade(cls, frame, height_m: float) -> WallAnchor:
+        """From a ``companion.geo.FacadeFrame`` and the wall height."""
+        end_lat, end_lon, _ = frame.facade_to_geodetic(frame.length_m, 0.0, 0.0)
+        de, dn = frame.along_enu
+        oe, on = frame.out_enu
+        return cls(
+            start_lat=frame.origin.lat,
+            start_lon=frame.origin.lon,
+            end_lat=float(end_lat),
+            end_lon=float(end_lon),
+            ground_alt_amsl_m=frame.origin.alt_amsl_m,
+            height_m=float(height_m),
+            length_m=frame.length_m,
+            face_azimuth_deg=math.degrees(math.atan2(oe, on)) % 360.0,
+            along_azimuth_deg=math.degrees(math.atan2(de, dn)) % 360.0,
+        )
+
+    def as_dict(self) -> dict:
+        return {
+            "start": {"lat": round(self.start_lat, 9), "lon": round(self.start_lon, 9)},
+            "end": {"lat": round(self.end_lat, 9), "lon": round(self.end_lon, 9)},
+            "ground_alt_amsl_m": round(self.ground_alt_amsl_m, 3),
+            "height_m": round(self.height_m, 3),
+            "length_m": round(self.length_m, 4),
+            "face_azimuth_deg": round(self.face_azimuth_deg, 4),
+            "along_azimuth_deg": round(self.along_azimuth_deg, 4),
+        }
+
+
+@dataclass(frozen=True)
+class KeyframeFootprint:
+    """The wall area a keyframe shows, as its image corners projected from the telemetry pose onto the wall."""
+
+    index: int
+    image: str
+    corners_m: tuple[tuple[float, float], ...]  # (along, up) of the top-left, top-right, bottom-right, bottom-left
+
+    def as_dict(self) -> dict:
+        return {
+            "index": self.index,
+            "image": self.image,
+            "corners_along_up_m": [[round(a, 4), round(u, 4)] for a, u in self.corners_m],
+            "source": "telemetry pose",
+        }
+
+
+def geotransform(grid: MapGrid) -> tuple[float, float, float, float, float, float]:
+    """GDAL geotransform (top-left corner of the top-left pixel; map pixel centres sit on integer coordinates)."""
+    s = grid.m_per_px
+    return (grid.along0_m - s / 2.0, s, 0.0, grid.up_top_m + s / 2.0, 0.0, -s)
+
+
+def world_file_text(grid: MapGrid) -> str:
+    """ESRI world file: pixel size x, rotations, pixel size y (negative), centre of the top-left pixel."""
+    s = grid.m_per_px
+    return "\n".join(f"{v:.10f}" for v in (s, 0.0, 0.0, -s, grid.along0_m, grid.up_top_m)) + "\n"
+
+
+def facade_crs_wkt(name: str) -> str:
+    """An engineering CRS for the wall plane: x along the wall, y up, metres (shown as east/north by GIS tools)."""
+    return (
+        f'LOCAL_CS["facade plane: {name}",LOCAL_DATUM["wall base start",0],'
+        'UNIT["metre",1,AUTHORITY["EPSG","9001"]],'
+        'AXIS["along the wall from its start",EAST],AXIS["height above the wall base",NORTH]]'
+    )
+
+
+def _xml(text: str) -> str:
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace('"', "&quot;")
+
+
+def _write_text(path: Path, text: str) -> str:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return str(path)
+
+
+def tiles_vrt(grid: MapGrid, tiles: list[tuple[str, int, int, int, int]], wkt: str | None) -> str:
+    """A GDAL VRT mosaic of the PNG tiles ``(relative path, x0, y0, w, h)`` (with alpha) as one RGBA map."""
+    gt = ", ".join(f"{v:.12g}" for v in geotransform(grid))
+    srs = f"  <SRS>{_xml(wkt)}</SRS>\n  <GeoTransform>{gt}</GeoTransform>\n" if wkt else ""
+    bands = []
+    # OpenCV's BGRA arrays are stored as RGBA in the PNG files: file band k is map band k
+    for band, (src_band, interp) in enumerate(((1, "Red"), (2, "Green"), (3, "Blue"), (4, "Alpha")), start=1):
+        sources = "".join(
+            f'    <SimpleSource><SourceFilename relativeToVRT="1">{_xml(p)}</SourceFilename>'
+            f"<SourceBand>{src_band}</SourceBand>"
+            f'<SrcRect xOff="0" yOff="0" xSize="{w}" ySize="{h}"/>'
+            f'<DstRect xOff="{x0}" yOff="{y0}" xSize="{w}" ySize="{h}"/></SimpleSource>\n'
+            for p, x0, y0, w, h in tiles
+        )
+        bands.append(
+            f'  <VRTRasterBand dataType="Byte" band="{band}">\n'
+            f"    <ColorInterp>{interp}</ColorInterp>\n{sources}  </VRTRasterBand>\n"
+        )
+    return f'<VRTDataset rasterXSize="{grid.width}" rasterYSize="{grid.height}">\n{srs}{"".join(bands)}</VRTDataset>\n'
+
+
+def keyframe_footprints(inp) -> list[KeyframeFootprint]:
+    """Footprints of the keyframes of a ``StitchInput`` that have a pose, on the wall plane (out = 0)."""
+    if inp.camera is None or inp.facade is None:
+        return []
+    frame = inp.facade.frame
+    K_inv = np.linalg.inv(inp.camera.K)
+    w, h = inp.camera.width, inp.camera.height
+    corners = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [w, h, 1.0], [0.0, h, 1.0]])
+    de, dn = frame.along_enu
+    oe, on = frame.out_enu
+    enu_to_facade = np.array([[de, dn, 0.0], [oe, on, 0.0], [0.0, 0.0, 1.0]])
+    out = []
+    for kf in inp.keyframes:
+        if kf.pose is None:
+            continue
+        a0, o0, u0 = (float(v) for v in frame.geodetic_to_facade(kf.pose.lat, kf.pose.lon, kf.pose.alt_amsl_m))
+        rays = (enu_to_facade @ kf.pose.R_enu_from_cam @ (K_inv @ corners.T)).T  # (along, out, up) directions
+        if np.any(rays[:, 1] >= -1e-9) or o0 <= 0:  # a corner ray that never reaches the wall
+            continue
+        t = -o0 / rays[:, 1]
+        pts = [(a0 + ti * r[0], u0 + ti * r[2]) for ti, r in zip(t, rays, strict=True)]
+        out.append(KeyframeFootprint(kf.index, kf.image_path.name, tuple(pts)))
+    return out
+
+
+def write_georeferencing(result, inp, *, name: str | None = None) -> dict[str, str]:
+    """Makes a finished map (``worker.StitchResult`` of ``inp``) open at true scale; returns the files written.
+
+    * map.png rewritten as BGRA with alpha = coverage (uncovered = transparent, as in the tiles);
+    * map.pgw (world file) + map.png.aux.xml (CRS), or map.vrt over the tiles for maps too big for memory;
+    * map_georef.json: the wall's geographic anchor, the scale, the extent and the keyframe footprints.
+
+    Georeferencing needs a map rectified to the facade from telemetry (known scale); otherwise only the alpha
+    convention and a sidecar saying the scale is unknown are written.
+    """
+    out = Path(result.out_dir)
+    grid = result.grid
+    files: dict[str, str] = {}
+    rectified = bool(result.report.get("map", {}).get("rectified_to_facade")) and result.mm_per_px is not None
+    wall = WallAnchor.from_facade(inp.facade.frame, inp.facade.height_m) if inp.facade is not None else None
+    wkt = facade_crs_wkt(name or out.name) if rectified and wall is not None else None
+    if result.map_image is not None and result.coverage is not None:
+        bgra = np.dstack((result.map_image, result.coverage))
+        tmp = out / "map.tmp.png"
+        if not cv2.imwrite(str(tmp), bgra):
+            raise CompanionError(f"cannot write {out / 'map.png'}", "check free disk space and permissions of --out")
+        tmp.replace(out / "map.png")
+        files["map"] = str(out / "map.png")
+        if wkt:
+            files["world_file"] = _write_text(out / "map.pgw", world_file_text(grid))
+            files["crs"] = _write_text(
+                out / "map.png.aux.xml", f"<PAMDataset>\n  <SRS>{_xml(wkt)}</SRS>\n</PAMDataset>\n"
+            )
+    elif result.files.get("tiles"):
+        tiles = []
+        for p in sorted(Path(result.files["tiles"]).glob("tile_y*_x*.png")):
+            y0, x0 = int(p.stem.split("_")[1][1:]), int(p.stem.split("_")[2][1:])
+            img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                continue
+            tiles.append((str(p.relative_to(out)), x0, y0, img.shape[1], img.shape[0]))
+        files["map_vrt"] = _write_text(out / "map.vrt", tiles_vrt(grid, tiles, wkt))
+    footprints = keyframe_footprints(inp) if rectified else []
+    doc = {
+        "plane": "x = metres along the wall from its start (map right), y = metres above the wall base (map up)",
+        "scale_known": rectified,
+        "mm_per_px": round(grid.m_per_px * 1000.0, 6) if rectified else None,
+        "geotransform": list(geotransform(grid)) if rectified else None,
+        "extent_m": {
+            "along": [grid.along0_m - grid.m_per_px / 2, grid.along0_m + (grid.width - 0.5) * grid.m_per_px],
+            "up": [grid.up_top_m - (grid.height - 0.5) * grid.m_per_px, grid.up_top_m + grid.m_per_px / 2],
+        }
+        if rectified
+        else None,
+        "size_px": [grid.width, grid.height],
+        "uncovered": "alpha 0 (map.png is BGRA with alpha = coverage; tiles likewise)",
+        "wall": wall.as_dict() if wall is not None else None,
+        "keyframes": [f.as_dict() for f in footprints],
+        "files": {k: Path(v).name for k, v in files.items()},
+    }
+    files["georef"] = _write_text(out / GEOREF_JSON, json.dumps(doc, indent=1))
+    return files

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -32,6 +33,16 @@ class Footprint:
     width_m: float
     height_m: float
     gsd_mm_per_px: float
+
+
+@dataclass(frozen=True)
+class WallRegion:
+    """A rectangle on the wall plane in facade metres (along from the wall start, up from the wall base)."""
+
+    along_min_m: float
+    along_max_m: float
+    up_min_m: float
+    up_max_m: float
 
 
 @dataclass(frozen=True)
@@ -126,8 +137,57 @@ def _spread(lo: float, hi: float, size: float, max_step: float) -> list[float]:
     return [float(v) for v in np.linspace(first, last, n)]
 
 
-def plan_scan(mission: Mission) -> ScanPlan:
-    """Plan the scan; raises CompanionError when the mission cannot be flown safely."""
+def scan_extent(mission: Mission, wall_length_m: float) -> WallRegion:
+    """The part of the wall plane a scan can show: the wall plus ``margins.ends_m`` past each end and
+    ``margins.roof_m`` above the roof, from the lowest frame edge the bottom clearance allows."""
+    mg = mission.margins
+    fp = camera_footprint(mission)
+    bottom_edge = max(mg.bottom_clearance_m, fp.height_m / 2.0) - fp.height_m / 2.0
+    top = max(mission.facade.height_m + mg.roof_m, bottom_edge + fp.height_m)
+    return WallRegion(-mg.ends_m, wall_length_m + mg.ends_m, bottom_edge, top)
+
+
+def _strips(
+    m: Mission, fp: Footprint, kf_spacing: float, low_centre: float, regions: list[WallRegion]
+) -> tuple[list[tuple[tuple[float, float], tuple[float, float]]], float]:
+    """Strips (start, end) as (along, up) frame centres covering each region, regions in order along the wall;
+    and the widest spacing between neighbouring strips of one region (0 when no region has two).
+
+    Frame edges reach each region's edges; a region smaller than a footprint gets one frame centred on it (never
+    below the lowest frame centre). The boustrophedon continues across regions so each strip starts near where
+    the previous one ended; vertical strips start from the top (the vehicle arrives from above).
+    """
+    strips: list[tuple[tuple[float, float], tuple[float, float]]] = []
+    widest = 0.0
+    for r in sorted(regions, key=lambda r: (r.along_min_m + r.along_max_m) / 2.0):
+        u0, u1 = r.up_min_m, r.up_max_m
+        if u1 - u0 < fp.height_m:  # one frame high: centred, but not below the lowest centre
+            centre = max((u0 + u1) / 2.0, low_centre)
+            u0, u1 = centre - fp.height_m / 2.0, centre + fp.height_m / 2.0
+        if m.pattern == "vertical":
+            columns = _spread(r.along_min_m, r.along_max_m, fp.width_m, fp.width_m * (1.0 - m.side_overlap))
+            rows_span = _spread(u0, u1, fp.height_m, kf_spacing)
+            z_lo, z_hi = rows_span[0], rows_span[-1]
+            for a in columns:
+                zs = (z_hi, z_lo) if len(strips) % 2 == 0 else (z_lo, z_hi)
+                strips.append(((a, zs[0]), (a, zs[1])))
+            steps = np.diff(columns)
+        else:
+            rows = _spread(u0, u1, fp.height_m, fp.height_m * (1.0 - m.side_overlap))
+            cols_span = _spread(r.along_min_m, r.along_max_m, fp.width_m, kf_spacing)
+            a_lo, a_hi = cols_span[0], cols_span[-1]
+            for z in reversed(rows):  # top row first
+                xs = (a_lo, a_hi) if len(strips) % 2 == 0 else (a_hi, a_lo)
+                strips.append(((xs[0], z), (xs[1], z)))
+            steps = np.diff(rows)
+        widest = max(widest, float(np.max(steps)) if len(steps) else 0.0)
+    return strips, widest
+
+
+def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> ScanPlan:
+    """Plan the scan of the whole wall, or only of ``regions`` (rectangles on the wall plane, frame edges reaching
+    their edges: a re-fly, ``companion.mission.refly``); takeoff, transit, landing and the standoff and geofence
+    checks are the same. Raises CompanionError when the mission cannot be flown safely."""
     start, end = wall_ends(mission)
     try:
         frame = FacadeFrame.from_wall(start, end)
@@ -167,41 +227,20 @@ def plan_scan(mission: Mission) -> ScanPlan:
         home = GeoPoint(float(lat), float(lon), m.facade.ground_alt_amsl_m)
     up_to_rel = m.facade.ground_alt_amsl_m - home.alt_amsl_m  # add to up_m to get altitude above home
 
-    along_lo, along_hi = -mg.ends_m, frame.length_m + mg.ends_m
-    top = wall_h + mg.roof_m
-    low_centre = max(mg.bottom_clearance_m, fp.height_m / 2.0)
-    uncovered_bottom = max(0.0, low_centre - fp.height_m / 2.0)
+    extent = scan_extent(m, frame.length_m)
+    low_centre = extent.up_min_m + fp.height_m / 2.0
+    uncovered_bottom = max(0.0, extent.up_min_m)
     if uncovered_bottom > 0:
         warnings.append(
             f"the bottom {uncovered_bottom:.2f} m of the wall is below the lowest frame (bottom clearance "
             f"{mg.bottom_clearance_m} m): lower margins.bottom_clearance_m or inspect it from the ground"
         )
-    bottom_edge = low_centre - fp.height_m / 2.0
-
-    if m.pattern == "vertical":
-        kf_spacing = fp.height_m * (1.0 - m.overlap)
-        columns = _spread(along_lo, along_hi, fp.width_m, fp.width_m * (1.0 - m.side_overlap))
-        rows_span = _spread(bottom_edge, max(top, bottom_edge + fp.height_m), fp.height_m, kf_spacing)
-        z_lo, z_hi = rows_span[0], rows_span[-1]
-        strips = []
-        for i, a in enumerate(columns):
-            zs = (z_hi, z_lo) if i % 2 == 0 else (z_lo, z_hi)  # first strip from the top: we arrive from above
-            strips.append(((a, zs[0]), (a, zs[1])))
-        strip_step = columns[1] - columns[0] if len(columns) > 1 else 0.0
-        side_achieved = 1.0 - strip_step / fp.width_m if len(columns) > 1 else 1.0
-    else:
-        kf_spacing = fp.width_m * (1.0 - m.overlap)
-        rows = _spread(
-            bottom_edge, max(top, bottom_edge + fp.height_m), fp.height_m, fp.height_m * (1.0 - m.side_overlap)
-        )
-        cols_span = _spread(along_lo, along_hi, fp.width_m, kf_spacing)
-        a_lo, a_hi = cols_span[0], cols_span[-1]
-        strips = []
-        for i, z in enumerate(reversed(rows)):  # top row first
-            xs = (a_lo, a_hi) if i % 2 == 0 else (a_hi, a_lo)
-            strips.append(((xs[0], z), (xs[1], z)))
-        strip_step = rows[1] - rows[0] if len(rows) > 1 else 0.0
-        side_achieved = 1.0 - strip_step / fp.height_m if len(rows) > 1 else 1.0
+    if regions is not None and not regions:
+        raise CompanionError("no wall region to scan was given", "give at least one region, or none for the whole wall")
+    kf_spacing = (fp.height_m if m.pattern == "vertical" else fp.width_m) * (1.0 - m.overlap)
+    strips, strip_step = _strips(m, fp, kf_spacing, low_centre, [extent] if regions is None else list(regions))
+    side_extent = fp.width_m if m.pattern == "vertical" else fp.height_m
+    side_achieved = 1.0 - strip_step / side_extent if strip_step > 0 else 1.0
 
     v_scan, limited_by = _scan_speed(m, fp, kf_spacing)
     v_transit = m.max_speed_m_s

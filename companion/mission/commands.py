@@ -1,4 +1,5 @@
-"""`companion plan` (and, until the SITL pieces land, `companion demo`): plan a mission and write its exports."""
+"""`companion plan` (and, until the SITL pieces land, `companion demo`): plan a mission and write its exports;
+`--refly MAPDIR` plans only the uncovered areas of a stitched map (``companion.mission.refly``)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 from companion.mission.exports import flight_parameters_by_autopilot, render_outputs, write_outputs
 from companion.mission.planner import ScanPlan, plan_scan
+from companion.mission.refly import refly_to_dir
 from companion.mission.spec import load_mission
 
 DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "missions" / "demo-facade.yaml"
@@ -16,6 +18,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("plan", help="plan a facade scan and write mission exports + a review plot")
     p.add_argument("mission", type=Path, help="mission YAML (see missions/)")
     p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument(
+        "--refly",
+        type=Path,
+        metavar="MAPDIR",
+        help="plan only the uncovered areas of this stitched map folder (companion stitch --out), same standoff "
+        "and overlap",
+    )
     p.set_defaults(func=run_plan)
 
 
@@ -50,7 +59,27 @@ def plan_to_dir(mission_path: Path, out: Path) -> tuple[ScanPlan, list[Path]]:
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    if args.refly is not None:
+        return run_refly(args)
     plan, written = plan_to_dir(args.mission, args.out)
     print(format_estimates(plan))
+    print(f"wrote {len(written)} files to {args.out}")
+    return 0
+
+
+def run_refly(args: argparse.Namespace) -> int:
+    refly, written = refly_to_dir(args.mission, args.refly, args.out)
+    for line in (*refly.notes, *(f"left out: {s}" for s in refly.skipped)):
+        print(f"  note: {line}")
+    print(refly.message)
+    if refly.plan is None:
+        return 0
+    for k, g in enumerate(refly.groups):
+        r = g.region
+        print(
+            f"  group {k + 1}: {len(g.areas)} area(s), frames over along {r.along_min_m:.2f}..{r.along_max_m:.2f} m, "
+            f"up {r.up_min_m:.2f}..{r.up_max_m:.2f} m"
+        )
+    print(format_estimates(refly.plan))
     print(f"wrote {len(written)} files to {args.out}")
     return 0

@@ -168,6 +168,9 @@ def _strips(
             columns = _spread(r.along_min_m, r.along_max_m, fp.width_m, fp.width_m * (1.0 - m.side_overlap))
             rows_span = _spread(u0, u1, fp.height_m, kf_spacing)
             z_lo, z_hi = rows_span[0], rows_span[-1]
+            if len(rows_span) == 1 and len(columns) > 1:  # one frame high: a single pass along it, not point strips
+                strips.append(_nearest_first(strips, (columns[0], z_lo), (columns[-1], z_lo)))
+                continue
             for a in columns:
                 zs = (z_hi, z_lo) if len(strips) % 2 == 0 else (z_lo, z_hi)
                 strips.append(((a, zs[0]), (a, zs[1])))
@@ -176,12 +179,22 @@ def _strips(
             rows = _spread(u0, u1, fp.height_m, fp.height_m * (1.0 - m.side_overlap))
             cols_span = _spread(r.along_min_m, r.along_max_m, fp.width_m, kf_spacing)
             a_lo, a_hi = cols_span[0], cols_span[-1]
+            if len(cols_span) == 1 and len(rows) > 1:  # one frame wide: a single pass down it, not point strips
+                strips.append(_nearest_first(strips, (a_lo, rows[-1]), (a_lo, rows[0])))
+                continue
             for z in reversed(rows):  # top row first
                 xs = (a_lo, a_hi) if len(strips) % 2 == 0 else (a_hi, a_lo)
                 strips.append(((xs[0], z), (xs[1], z)))
             steps = np.diff(rows)
         widest = max(widest, float(np.max(steps)) if len(steps) else 0.0)
     return strips, widest
+
+
+def _nearest_first(strips: list, p: tuple[float, float], q: tuple[float, float]) -> tuple:
+    """The strip p-q, started from whichever end is nearer where the previous strip ended (p when first)."""
+    if strips and math.dist(strips[-1][1], q) < math.dist(strips[-1][1], p):
+        return (q, p)
+    return (p, q)
 
 
 def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> ScanPlan:

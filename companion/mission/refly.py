@@ -6,6 +6,11 @@ Earth in ``map_georef.json``. Here those rectangles are grown by the mission's o
 re-fly frames share the planned overlap with the map already made, and the stitcher can register them), nearby
 ones are grouped, and the planner scans only the groups, at the mission's standoff and overlap, with its takeoff,
 transit, landing, standoff and geofence rules (``planner.plan_scan(mission, regions)``).
+
+Between groups the vehicle moves along the wall at the standoff, at scan speed, like between strips: the frames
+it takes there show map already made (the stitcher registers them like any overlapping keyframe). Areas below the
+lowest frame the bottom clearance allows (or outside the wall and its margins) cannot be re-flown and are listed
+with the reason; a map with nothing left to fly gives no mission.
 """
 
 from __future__ import annotations

@@ -189,3 +189,38 @@ def test_map_without_wall_metres_or_of_another_wall_is_refused(tmp_path):
 def test_map_without_georef_is_planned_with_a_note(tmp_path):
     refly = plan_refly(load_mission(DEMO), _write_map(tmp_path / "m", TWO_AREAS, georef=False))
     assert refly.plan is not None and any("map_georef.json" in n for n in refly.notes)
+
+
+def test_refly_of_a_real_stitch_covers_its_hole(tmp_path):
+    """End to end: a synthetic spool whose keyframes all miss one wall patch, stitched by `companion stitch`,
+    re-flown by `companion plan --refly`: the re-fly frames cover the patch the map lacks."""
+    from companion.stitch.synthetic import SyntheticWall, make_spool
+
+    hole = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: masked as background in every keyframe
+    truth = make_spool(tmp_path / "spool", SyntheticWall(length_m=8.0, height_m=4.0), hole_m=hole)
+    assert main(["stitch", str(tmp_path / "spool"), "--out", str(tmp_path / "map")]) == 0
+    frame = truth["frame"]
+    end_lat, end_lon, _ = frame.facade_to_geodetic(frame.length_m, 0.0, 0.0)
+    mission = {
+        "name": "synthetic-wall",
+        "facade": {
+            "start": {"lat": frame.origin.lat, "lon": frame.origin.lon},
+            "end": {"lat": float(end_lat), "lon": float(end_lon)},
+            "ground_alt_amsl_m": frame.origin.alt_amsl_m,
+            "height_m": 4.0,
+        },
+        "standoff_m": 4.0,
+        "overlap": 0.6,
+        "camera": {"width_px": 640, "height_px": 360, "hfov_deg": 70.0, "fps": 30, "exposure_s": 0.002},
+    }
+    path = tmp_path / "wall.yaml"
+    path.write_text(json.dumps(mission))  # JSON is YAML
+    out = tmp_path / "refly"
+    assert main(["plan", str(path), "--refly", str(tmp_path / "map"), "--out", str(out)]) == 0
+    refly, _ = refly_to_dir(path, tmp_path / "map", tmp_path / "again")
+    assert (out / "synthetic-wall-refly.plan").is_file() and (out / "mavsdk_mission.json").is_file()
+    frames = _camera_footprints(refly.plan)
+    for a in np.linspace(hole[0], hole[1], 9):
+        for u in np.linspace(hole[2], hole[3], 9):
+            assert any(f[0] <= a <= f[1] and f[2] <= u <= f[3] for f in frames), (a, u)
+    assert refly.plan.estimates.path_length_m < plan_scan(load_mission(path)).estimates.path_length_m

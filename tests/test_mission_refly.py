@@ -224,3 +224,12 @@ def test_refly_of_a_real_stitch_covers_its_hole(tmp_path):
         for u in np.linspace(hole[2], hole[3], 9):
             assert any(f[0] <= a <= f[1] and f[2] <= u <= f[3] for f in frames), (a, u)
     assert refly.plan.estimates.path_length_m < plan_scan(load_mission(path)).estimates.path_length_m
+
+
+def test_map_edge_sliver_is_left_out_unless_asked_for(tmp_path):
+    sliver = [{"along_min_m": 26.49, "along_max_m": 26.51, "up_min_m": 0.0, "up_max_m": 12.0, "area_m2": 0.24}]
+    map_dir = _write_map(tmp_path / "map", [*TWO_AREAS[:1], *sliver])
+    refly = plan_refly(load_mission(DEMO), map_dir)
+    assert len(refly.groups) == 1 and refly.groups[0].areas[0].along_min_m == 3.0
+    assert len(refly.skipped) == 1 and "2.0 cm thin" in refly.skipped[0]
+    assert len(plan_refly(load_mission(DEMO), map_dir, min_size_m=0.0).groups) == 2

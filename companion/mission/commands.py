@@ -8,7 +8,7 @@ from pathlib import Path
 
 from companion.mission.exports import flight_parameters_by_autopilot, render_outputs, write_outputs
 from companion.mission.planner import ScanPlan, plan_scan
-from companion.mission.refly import refly_to_dir
+from companion.mission.refly import MIN_AREA_SIZE_M, refly_to_dir
 from companion.mission.spec import load_mission
 
 DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "missions" / "demo-facade.yaml"
@@ -24,6 +24,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="MAPDIR",
         help="plan only the uncovered areas of this stitched map folder (companion stitch --out), same standoff "
         "and overlap",
+    )
+    p.add_argument(
+        "--refly-min-size-m",
+        type=float,
+        default=MIN_AREA_SIZE_M,
+        metavar="M",
+        help=f"with --refly: leave out uncovered areas thinner than this (default {MIN_AREA_SIZE_M} m: map-edge "
+        "slivers); 0 flies every area",
     )
     p.set_defaults(func=run_plan)
 
@@ -68,7 +76,7 @@ def run_plan(args: argparse.Namespace) -> int:
 
 
 def run_refly(args: argparse.Namespace) -> int:
-    refly, written = refly_to_dir(args.mission, args.refly, args.out)
+    refly, written = refly_to_dir(args.mission, args.refly, args.out, min_size_m=args.refly_min_size_m)
     for line in (*refly.notes, *(f"left out: {s}" for s in refly.skipped)):
         print(f"  note: {line}")
     print(refly.message)

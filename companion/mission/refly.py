@@ -32,6 +32,9 @@ GEOREF_JSON = "map_georef.json"  # written by companion.stitch.output (read-only
 # How far the map's wall anchor may sit from the mission's wall before the map is taken for another wall:
 # the anchor comes from the same mission file, so anything beyond GNSS-survey noise means a different wall.
 WALL_MATCH_TOLERANCE_M = 1.0
+# Areas thinner than this are slivers where the map's pixel edge misses the wall edge by rounding (the stitcher's
+# cells are 10 cm, so a real hole is never thinner than a cell): not worth a flight; listed as left out.
+MIN_AREA_SIZE_M = 0.05
 _STITCH_FIX = "make the map with `companion stitch SPOOL --out MAPDIR` and give that MAPDIR to --refly"
 
 
@@ -222,8 +225,9 @@ def _fmt(r: WallRegion) -> str:
     return f"along {r.along_min_m:.2f}..{r.along_max_m:.2f} m, up {r.up_min_m:.2f}..{r.up_max_m:.2f} m"
 
 
-def plan_refly(mission: Mission, map_dir: str | Path) -> ReflyPlan:
-    """Plans the re-fly of ``map_dir``'s uncovered areas with ``mission``'s standoff, overlap, camera and rules."""
+def plan_refly(mission: Mission, map_dir: str | Path, *, min_size_m: float = MIN_AREA_SIZE_M) -> ReflyPlan:
+    """Plans the re-fly of ``map_dir``'s uncovered areas with ``mission``'s standoff, overlap, camera and rules;
+    areas thinner than ``min_size_m`` (along or up) are left out and listed."""
     gaps = read_map_gaps(map_dir)
     start, end = wall_ends(mission)
     try:
@@ -241,6 +245,10 @@ def plan_refly(mission: Mission, map_dir: str | Path) -> ReflyPlan:
     margins = overlap_margins(mission)
     reachable, skipped = [], []
     for a in gaps.areas:
+        thin = min(a.along_max_m - a.along_min_m, a.up_max_m - a.up_min_m)
+        if thin < min_size_m:
+            skipped.append(f"{_fmt(a)}: only {100 * thin:.1f} cm thin, under the {100 * min_size_m:g} cm minimum")
+            continue
         clipped = _clip(a, extent)
         if clipped is None:
             why = (
@@ -275,10 +283,12 @@ def plan_refly(mission: Mission, map_dir: str | Path) -> ReflyPlan:
     return ReflyPlan(plan, tuple(groups), margins, tuple(skipped), tuple(notes), message)
 
 
-def refly_to_dir(mission_path: Path, map_dir: Path, out: Path) -> tuple[ReflyPlan, list[Path]]:
+def refly_to_dir(
+    mission_path: Path, map_dir: Path, out: Path, *, min_size_m: float = MIN_AREA_SIZE_M
+) -> tuple[ReflyPlan, list[Path]]:
     """Plans the re-fly and writes its exports to ``out`` (all or none); nothing is written when there is nothing
     to re-fly."""
-    refly = plan_refly(load_mission(mission_path), map_dir)
+    refly = plan_refly(load_mission(mission_path), map_dir, min_size_m=min_size_m)
     if refly.plan is None:
         return refly, []
     files = render_outputs(refly.plan)  # everything rendered before anything is written

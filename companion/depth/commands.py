@@ -78,6 +78,7 @@ def cmd_train(args) -> int:
         model_width=args.model_width, lr=args.lr, max_minutes=args.max_minutes, max_steps=args.max_steps,
         threads=args.threads, view_seeds=args.view_seeds or [], eval_view_seeds=args.eval_view_seeds or [],
         views_per_seed=args.views_per_seed, init_from=Path(args.init_from) if args.init_from else None,
+        real_photos=Path(args.real_photos) if args.real_photos else None, real_fraction=args.real_fraction,
     )
     path = train(cfg)
     print(f"model: {path}")
@@ -195,7 +196,12 @@ def register(subparsers) -> None:
     p.add_argument("--max-minutes", type=float, default=45.0, help="wall-time budget")
     p.add_argument("--max-steps", type=int, default=1_000_000)
     p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
-    p.add_argument("--init-from", default=None, help="fine-tune: start from this run folder's weights")
+    p.add_argument("--init-from", default=None,
+                   help="fine-tune: start from this run folder's weights or a Monodepth2 .onnx (e.g. the shipped one)")
+    p.add_argument("--real-photos", default=None,
+                   help="shared data folder (../shared/data): mix in composites of its train-split real photos "
+                        "(makes the model research / non-commercial)")
+    p.add_argument("--real-fraction", type=float, default=0.5, help="share of each batch from real photos")
     p.set_defaults(func=cmd_train)
 
     p = dsub.add_parser("average", help="uniform weight average of training runs (a model soup) -> verified ONNX")

@@ -18,7 +18,23 @@ from companion.errors import CompanionError
 
 log = logging.getLogger(__name__)
 
-DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "monodepth2-sim-r18w025.onnx"
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
+# The models shipped in the package, selectable by name (mission ``depth_model``, ``--model``). "sim": trained on our
+# simulator only (BSD-3-Clause). "real-nc": fine-tuned on real facade photos whose licences are research /
+# non-commercial, so the model is too (README.md, docs/DEPTH.md).
+SHIPPED_MODELS = {
+    "sim": MODELS_DIR / "monodepth2-sim-r18w025.onnx",
+    "real-nc": MODELS_DIR / "monodepth2-real-nc-r18w025.onnx",
+}
+DEFAULT_MODEL_NAME = "sim"
+DEFAULT_MODEL = SHIPPED_MODELS[DEFAULT_MODEL_NAME]
+
+
+def resolve_model(model: str | Path | None) -> Path:
+    """The model file for ``model``: None = the shipped default, a shipped name ("sim", "real-nc"), or a path."""
+    if model is None:
+        return DEFAULT_MODEL
+    return SHIPPED_MODELS.get(str(model), Path(model))
 DEFAULT_SIZE = (192, 640)  # (height, width), the Monodepth2 default
 
 
@@ -57,12 +73,12 @@ class DepthSession:
     def __init__(self, model_path: str | Path | None = None, *, threads: int | None = None):
         import onnxruntime as ort
 
-        path = Path(model_path) if model_path is not None else DEFAULT_MODEL
+        path = resolve_model(model_path)
         if not path.is_file():
             raise CompanionError(
                 f"depth model not found: {path}",
-                "pass --model (or set depth_model in the mission) to an existing .onnx file, or omit it to use "
-                "the shipped default model"
+                "pass --model (or set depth_model in the mission) to an existing .onnx file or a shipped model name "
+                f"({', '.join(SHIPPED_MODELS)}), or omit it to use the shipped default model"
                 if model_path is not None
                 else "reinstall companion (pip install -e .): the shipped model file is missing",
             )

@@ -121,8 +121,8 @@ class Mission(_Strict):
     # this and the camera fps. About 3 on a 2-core companion at 640 px (docs/BENCHMARKS.md, Onboard pipeline).
     onboard_fps: float | None = Field(default=None, gt=0.0, le=240.0)
     gimbal_pitch_deg: float = Field(default=0.0, ge=-90.0, le=30.0)
-    # Monodepth2-style ONNX depth model for the background mask, relative to the mission file; None: the shipped
-    # model. A command's --model overrides it.
+    # Monodepth2-style ONNX depth model for the background mask: a shipped model's name ("sim", "real-nc") or a file
+    # relative to the mission file; None: the shipped default. A command's --model overrides it.
     depth_model: str | None = Field(default=None, min_length=1)
     end_action: Literal["land", "rtl"] = "land"
     geofence: Geofence = Geofence()
@@ -236,13 +236,15 @@ def load_mission(path: str | Path) -> Mission:
             )
         camera = mission.camera.model_copy(update={"calibration": str(calibration)})
         mission = mission.model_copy(update={"camera": camera})
-    if mission.depth_model is not None:
+    from companion.depth.session import SHIPPED_MODELS
+
+    if mission.depth_model is not None and mission.depth_model not in SHIPPED_MODELS:  # a name stays a name
         model = (path.parent / mission.depth_model).resolve()
         if not model.is_file():
             raise CompanionError(
                 f"mission file {path}: depth_model {mission.depth_model} does not exist (looked for {model})",
-                "set depth_model to a Monodepth2-style .onnx file, relative to the mission file, or remove it to use "
-                "the shipped model",
+                "set depth_model to a Monodepth2-style .onnx file, relative to the mission file, or to a shipped "
+                "model's name (sim, real-nc), or remove it to use the shipped default",
             )
         mission = mission.model_copy(update={"depth_model": str(model)})
     return mission

@@ -143,6 +143,26 @@ def to_input(image_bgr: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(image_bgr, cv2.COLOR_BGR2RGB).astype(np.float32).transpose(2, 0, 1) / 255.0
 
 
+def augment_crop(
+    image: np.ndarray, depth: np.ndarray, facade: np.ndarray, sky: np.ndarray, rng: np.random.Generator,
+    crop: tuple[int, int] | None, augment: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One training sample from a frame at model input size: a random crop, randomised and maybe flipped.
+
+    Returns (3 x h x w RGB float input, 1 x h x w float32 depth)."""
+    h, w = depth.shape
+    ch, cw = crop or (h, w)
+    y0 = int(rng.integers(0, h - ch + 1))
+    x0 = int(rng.integers(0, w - cw + 1))
+    img = image[y0 : y0 + ch, x0 : x0 + cw]
+    dep = depth[y0 : y0 + ch, x0 : x0 + cw]
+    if augment:
+        img = randomise(img, rng, facade=facade[y0 : y0 + ch, x0 : x0 + cw] > 0, sky=sky[y0 : y0 + ch, x0 : x0 + cw])
+        if rng.random() < 0.5:
+            img, dep = img[:, ::-1], dep[:, ::-1]
+    return to_input(np.ascontiguousarray(img)), np.ascontiguousarray(dep, dtype=np.float32)[None]
+
+
 def sample_batch(
     frames: FrameSet, batch: int, crop: tuple[int, int] | None, rng: np.random.Generator, augment: bool = True,
     max_depth: float = 100.0,
@@ -150,20 +170,11 @@ def sample_batch(
     """A random batch: (B x 3 x h x w inputs, B x 1 x h x w true depth), cropped and randomised.
 
     ``max_depth`` is the clip depth of ``frames`` (sky is stored at it)."""
-    n, h, w = frames.depths.shape
-    ch, cw = crop or (h, w)
     xs, ds = [], []
-    for idx in rng.integers(0, n, batch):
-        y0 = int(rng.integers(0, h - ch + 1))
-        x0 = int(rng.integers(0, w - cw + 1))
-        img = frames.images[idx, y0 : y0 + ch, x0 : x0 + cw]
-        dep = frames.depths[idx, y0 : y0 + ch, x0 : x0 + cw]
-        if augment:
-            facade = frames.roi_masks[idx, y0 : y0 + ch, x0 : x0 + cw] > 0
-            sky = np.asarray(dep, dtype=np.float32) >= SKY_DEPTH_FRACTION * max_depth
-            img = randomise(img, rng, facade=facade, sky=sky)
-            if rng.random() < 0.5:
-                img, dep = img[:, ::-1], dep[:, ::-1]
-        xs.append(to_input(np.ascontiguousarray(img)))
-        ds.append(np.ascontiguousarray(dep)[None])
+    for idx in rng.integers(0, len(frames), batch):
+        dep = np.asarray(frames.depths[idx], dtype=np.float32)
+        x, d = augment_crop(frames.images[idx], dep, frames.roi_masks[idx], dep >= SKY_DEPTH_FRACTION * max_depth,
+                            rng, crop, augment)
+        xs.append(x)
+        ds.append(d)
     return np.stack(xs), np.stack(ds).astype(np.float32)

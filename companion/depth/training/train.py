@@ -21,11 +21,17 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from companion.depth.training.data import FrameSet, load_frames, sample_batch
+from companion.depth.training.data import FrameSet, augment_crop, load_frames, sample_batch
 from companion.depth.training.networks import Monodepth2, disp_to_depth, encoder_state_dict
 from companion.errors import CompanionError
 
 log = logging.getLogger(__name__)
+
+SIM_LICENCE = "BSD-3-Clause (companion project, trained on its simulator)"
+REAL_NC_LICENCE = (
+    "research / non-commercial: trained on CMP Facade Database and LabelMeFacade photos (no permissive licence; "
+    "LabelMe images for non-commercial and research use only), see ../shared/data/real-facades/ATTRIBUTION.md"
+)
 
 
 @dataclass
@@ -55,7 +61,10 @@ class TrainConfig:
     seed: int = 0
     stride: int = 1
     source: str = ""
-    init_from: Path | None = None  # fine-tune: start from this run's weights (fresh optimiser and clock)
+    init_from: Path | None = None  # fine-tune: start from this run's weights or a .onnx (fresh optimiser and clock)
+    real_photos: Path | None = None  # ../shared/data: mix in real-photo composites (train split only)
+    real_fraction: float = 0.5  # share of each batch that is real-photo composites
+    head_warmup_steps: int = 60  # from a .onnx: steps that fit only the coarse disparity heads first
 
 
 def silog_loss(disp: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
@@ -98,6 +107,10 @@ def init_disparity_bias(model: Monodepth2, cfg: TrainConfig, typical_depth_m: fl
 def initial_weights(path: Path) -> dict:
     """Model weights of an earlier run (its folder or its checkpoint.pt), for fine-tuning on changed data."""
     path = Path(path)
+    if path.suffix == ".onnx":
+        if not path.is_file():
+            raise CompanionError(f"no model at {path}", "pass an existing .onnx file or a run folder")
+        return {}  # rebuilt from the ONNX file once training data is there (BatchNorm calibration)
     ckpt = path / "checkpoint.pt" if path.is_dir() else path
     if not ckpt.is_file():
         raise CompanionError(f"no training checkpoint at {ckpt}", "pass a run folder of companion depth train")
@@ -151,6 +164,48 @@ def training_frames(
     )
 
 
+def mixed_batch(frames: FrameSet, bank, cfg: TrainConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A training batch: simulator frames, and with a photo bank ``cfg.real_fraction`` of real-photo composites."""
+    n_real = 0 if bank is None else int(round(cfg.batch * cfg.real_fraction))
+    xs, ds = [], []
+    if cfg.batch - n_real:
+        xs, ds = sample_batch(frames, cfg.batch - n_real, cfg.crop, rng, max_depth=cfg.max_depth)
+        xs, ds = list(xs), list(ds)
+    if n_real:
+        from companion.depth.training.composite import compose
+
+        for _ in range(n_real):
+            c = compose(bank, rng, cfg.height, cfg.width, cfg.max_depth)
+            x, d = augment_crop(c.image, c.depth, c.facade, c.sky, rng, cfg.crop)
+            xs.append(x)
+            ds.append(d)
+    return np.stack(xs), np.stack(ds).astype(np.float32)
+
+
+def start_from_onnx(path: Path, cfg: TrainConfig, frames: FrameSet, bank) -> Monodepth2:
+    """The shipped ONNX model as a trainable network: BatchNorm rebuilt on 64 training crops, then the coarse
+    disparity heads (absent from the file) fitted alone for ``cfg.head_warmup_steps`` batches."""
+    from companion.depth.training.onnx_weights import fit_missing_heads, model_from_onnx
+
+    rng = np.random.default_rng(cfg.seed + 7)
+    n_batches = max(1, 64 // cfg.batch)
+    calib = torch.from_numpy(np.concatenate([mixed_batch(frames, bank, cfg, rng)[0] for _ in range(n_batches)]))
+    model = model_from_onnx(path, calib)
+    if model.width != cfg.model_width:
+        raise CompanionError(f"{path} has encoder width {model.width}, the run asks for {cfg.model_width}",
+                             f"pass --model-width {model.width}")
+
+    def batches():
+        while True:
+            xb, db = mixed_batch(frames, bank, cfg, rng)
+            yield torch.from_numpy(xb), torch.from_numpy(db)
+
+    last = fit_missing_heads(model, batches(), lambda out, x, d: total_loss(out, x, d, cfg), cfg.head_warmup_steps)
+    log.info("started from %s (BatchNorm rebuilt, coarse heads fitted: loss %.4f)", path, last)
+    model.train()
+    return model
+
+
 def train(cfg: TrainConfig) -> Path:
     """Train (or resume) into ``cfg.out``; returns the exported ONNX path. Bounded by ``cfg.max_minutes``."""
     if not cfg.recordings and not cfg.view_seeds:
@@ -164,6 +219,11 @@ def train(cfg: TrainConfig) -> Path:
     initial = initial_weights(cfg.init_from) if cfg.init_from is not None and not ckpt.is_file() else None
     (out / "config.json").write_text(json.dumps(asdict(cfg), default=str, indent=1))
     frames = training_frames(cfg, cfg.recordings, cfg.view_seeds, cfg.stride, cfg.views_per_seed)
+    bank = None
+    if cfg.real_photos is not None:
+        from companion.depth.training.composite import load_photo_bank
+
+        bank = load_photo_bank(cfg.real_photos)
     held = None
     if cfg.eval_recordings or cfg.eval_view_seeds:
         held = training_frames(cfg, cfg.eval_recordings, cfg.eval_view_seeds, 4, 30)
@@ -179,6 +239,9 @@ def train(cfg: TrainConfig) -> Path:
         opt.load_state_dict(state["opt"])
         step, elapsed0 = int(state["step"]), float(state["elapsed_s"])
         log.info("resumed from step %d (%.1f min)", step, elapsed0 / 60)
+    elif initial is not None and Path(cfg.init_from).suffix == ".onnx":
+        model = start_from_onnx(Path(cfg.init_from), cfg, frames, bank)
+        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
     elif initial is not None:
         model.load_state_dict(initial)
         log.info("fine-tuning from %s", cfg.init_from)
@@ -198,7 +261,7 @@ def train(cfg: TrainConfig) -> Path:
         lr = cfg.lr if progress < 1.0 - cfg.final_fraction else cfg.lr_final
         for group in opt.param_groups:
             group["lr"] = lr
-        xb, db = sample_batch(frames, cfg.batch, cfg.crop, rng, max_depth=cfg.max_depth)
+        xb, db = mixed_batch(frames, bank, cfg, rng)
         x, d = torch.from_numpy(xb), torch.from_numpy(db)
         loss = total_loss(model.forward_all(x), x, d, cfg)
         opt.zero_grad()
@@ -230,12 +293,16 @@ def finish(model: Monodepth2, cfg: TrainConfig, step: int, elapsed_s: float, hel
     torch.save(model.depth.state_dict(), out / "depth.pth")
     source = cfg.source or (
         f"companion depth train: Monodepth2 ResNet-18 layout at width {cfg.model_width}, "
-        f"{len(cfg.recordings)} simulator recordings + {len(cfg.view_seeds)} random-view scenes, "
-        f"{step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
+        f"{len(cfg.recordings)} simulator recordings + {len(cfg.view_seeds)} random-view scenes"
+        + (f" + real-photo composites ({cfg.real_fraction:.0%} of each batch, train split of {cfg.real_photos})"
+           if cfg.real_photos is not None else "")
+        + (f", fine-tuned from {Path(cfg.init_from).name}" if cfg.init_from is not None else "")
+        + f", {step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
     )
+    licence = REAL_NC_LICENCE if cfg.real_photos is not None else SIM_LICENCE
     report = export_onnx(
         model, out / "model.onnx", height=cfg.height, width=cfg.width, min_depth=cfg.min_depth,
-        max_depth=cfg.max_depth, source=source, licence="BSD-3-Clause (companion project, trained on its simulator)",
+        max_depth=cfg.max_depth, source=source, licence=licence,
         extra_metadata={"metric_depth": "true", "encoder_width": str(cfg.model_width), "train_steps": str(step)},
     )
     summary = {

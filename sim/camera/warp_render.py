@@ -41,6 +41,7 @@ from sim.camera.render import (
     RenderedFrame,
     Renderer,
     _box_corners,
+    _box_hit,
     _ellipsoid_hit,
 )
 from sim.camera.scene import Scene
@@ -112,6 +113,7 @@ class WarpRenderer(Renderer):
         self._cube: dict[int, np.ndarray] = {}
         self._patch_cache: dict[int, tuple] = {}
         self._arrays: tuple | None = None
+        self._crowns: dict[int, np.ndarray] = {}
         sc = scene
         self._horizon_u8 = tuple(float(c) * 255.0 for c in sc.sky_horizon)
         self._tri = (np.arange(256) % 16 + np.arange(256) // 16 - 15).astype(np.int16)  # sum of two nibbles
@@ -142,13 +144,11 @@ class WarpRenderer(Renderer):
                 (_vec(lo[0], hi[1], lo[2]), -y, z, -x, (d, h)), (_vec(hi[0], lo[1], lo[2]), y, z, x, (d, h)),
                 (_vec(lo[0], lo[1], hi[2]), x, y, z, (w, d)),
             ]
+            if b.kind == "trunk":
+                continue  # thin constant-colour boxes: one exact ray test each (_draw_trunks), not 3 planes
             for o, e1, e2, n, size in sides:
-                if b.kind == "trunk":
-                    col = tuple(float(c) * self._lambert(y) for c in (0.1, 0.15, 0.2))
-                    faces.append(Face(TRUNK, o, e1, e2, n, size, None, colour=col))
-                else:
-                    faces.append(Face(FAR, o, e1, e2, n, size, self._far_texture(j, o, e1, e2, n), haze=True,
-                                      uv_offset=(0.0, 0.0), max_level=12))
+                faces.append(Face(FAR, o, e1, e2, n, size, self._far_texture(j, o, e1, e2, n), haze=True,
+                                  max_level=12))
         return faces
 
     def _roof_texture(self) -> TiledTexture:
@@ -367,6 +367,7 @@ class WarpRenderer(Renderer):
         cams, order = self._candidates(faces, A, orig)
         for i in order:
             self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
+        self._draw_trunks(A, orig, img, zb, sid)
         self._draw_trees(A, orig, img, zb, sid)
         self._draw_sky(A, img, zb)
         with np.errstate(divide="ignore"):
@@ -504,6 +505,35 @@ class WarpRenderer(Renderer):
         hor[:] = np.round(self._horizon_u8).astype(np.uint8)
         return cv2.blendLinear(col, hor, keep, np.float32(1.0) - keep)
 
+    def _rect_rays(self, rect, A):
+        """Ray directions (facade axes, camera z = 1) of the pixels of an image rectangle."""
+        rx = self._rx_row[rect[1]][None, :]
+        ry = self._ry_col[rect[0]][:, None]
+        return tuple(np.float32(A[k, 0]) * rx + np.float32(A[k, 1]) * ry + np.float32(A[k, 2]) for k in range(3))
+
+    def _draw_trunks(self, A, orig, img, zb, sid):
+        """Tree trunks: the ray caster's box test inside each trunk's small image rectangle."""
+        col = np.clip(np.array([0.1, 0.15, 0.2]) * self._lambert(_vec(0, 1, 0)) * 255 + 0.5, 0, 255).astype(np.uint8)
+        for b in self.scene.boxes:
+            if b.kind != "trunk":
+                continue
+            lo, hi = np.array(b.lo), np.array(b.hi)
+            rect = self._rect(orig, A, _box_corners(lo, hi))
+            if rect is None:
+                continue
+            zr = zb[rect]
+            near = float(np.linalg.norm(np.maximum(np.maximum(lo - orig, 0.0), orig - hi)))
+            if near > 0 and float(zr.min()) * near > 1.001:
+                continue
+            th, _ = _box_hit(orig.astype(np.float32), self._rect_rays(rect, A), lo, hi)
+            with np.errstate(divide="ignore"):
+                w = np.float32(1.0) / th
+            vis = w > zr
+            if vis.any():
+                zr[vis] = w[vis]
+                sid[rect][vis] = TRUNK
+                img[rect][vis] = col
+
     def _draw_trees(self, A, orig, img, zb, sid):
         sc = self.scene
         for ti, tr in enumerate(sc.trees):
@@ -516,9 +546,7 @@ class WarpRenderer(Renderer):
             near = float(np.linalg.norm(np.maximum(np.maximum(c - rad - orig, 0.0), orig - c - rad)))
             if near > 0 and float(zr.min()) * near > 1.001:  # everything there is nearer than the crown's box
                 continue
-            rx = self._rx_row[rect[1]][None, :]
-            ry = self._ry_col[rect[0]][:, None]
-            Dc = tuple(np.float32(A[k, 0]) * rx + np.float32(A[k, 1]) * ry + np.float32(A[k, 2]) for k in range(3))
+            Dc = self._rect_rays(rect, A)
             th = _ellipsoid_hit(orig.astype(np.float32), Dc, c, rad)
             with np.errstate(divide="ignore"):
                 w = (np.float32(1.0) / th).astype(np.float32)
@@ -528,9 +556,41 @@ class WarpRenderer(Renderer):
             zr[vis] = w[vis]
             sid[rect][vis] = TREE
             t = th[vis]
-            P = np.stack([orig[k] + Dc[k][vis] * t for k in range(3)], axis=-1)
-            col = self._tree(P, np.full(len(t), ti), t * self._dnorm[rect][vis])
-            img[rect][vis] = np.clip(col * 255.0 + 0.5, 0, 255).astype(np.uint8)
+            unit = [(orig[k] + Dc[k][vis] * t - c[k]) / rad[k] for k in range(3)]
+            col = self._crown_colour(ti, unit)
+            keep = math.exp(-float(np.linalg.norm(c - orig)) / 900.0)  # haze: a crown is small against 900 m
+            col = col.astype(np.float32) * np.float32(keep) + np.array(self._horizon_u8, np.float32) * (1 - keep)
+            img[rect][vis] = np.clip(col + 0.5, 0, 255).astype(np.uint8)
+
+    def _crown_colour(self, ti: int, unit) -> np.ndarray:
+        """Crown colour (N x 3 uint8) at unit-sphere points of tree ``ti``'s ellipsoid, looked up in a texture
+        over (azimuth, polar angle) built once from the ray caster's leaf shading, instead of per pixel."""
+        tex = self._crowns.get(ti)
+        if tex is None:
+            tr = self.scene.trees[ti]
+            c = np.array(tr.centre)
+            rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
+            nphi, nth = 512, 256
+            phi = (np.arange(nphi + 1) + 0.5) / nphi * 2 * math.pi  # one wrapped column for interpolation
+            th = (np.arange(nth) + 0.5) / nth * math.pi
+            PH, TH = np.meshgrid(phi, th)
+            P = c + rad * np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
+            col = self._tree(P, np.full(len(P), ti), np.zeros(len(P)))
+            tex = cv2.convertScaleAbs(col.reshape(nth, nphi + 1, 3), alpha=255.0)
+            self._crowns[ti] = tex
+        nth, nphi = tex.shape[0], tex.shape[1] - 1
+        phi = np.mod(np.arctan2(unit[1], unit[0]), 2 * math.pi)
+        th = np.arccos(np.clip(unit[2], -1.0, 1.0))
+        n = len(phi)
+        cols = 1024
+        rows = -(-n // cols)
+        mx = np.zeros(rows * cols, np.float32)
+        my = np.zeros(rows * cols, np.float32)
+        mx[:n] = phi / (2 * math.pi) * nphi - 0.5
+        my[:n] = th / math.pi * nth - 0.5
+        out = cv2.remap(tex, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+        return out.reshape(-1, 3)[:n]
 
     def _draw_sky(self, A, img, zb):
         empty = zb == 0

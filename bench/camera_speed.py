@@ -30,7 +30,7 @@ from sim.camera.trajectory import KinematicFlight, scan_path
 from sim.camera.warp_render import RENDERERS, make_renderer
 
 
-def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "raycast") -> dict:
+def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "raycast", view: str = "edge") -> dict:
     plan = plan_scan(mission)
     cam = camera_from_mission(mission, width)
     scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=seed)
@@ -39,7 +39,8 @@ def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "ra
     ae = AutoExposure(seed=seed)
     fps = float(mission.camera.fps)
     stride = 10  # 1/3 s apart: the view moves ~0.25 m between benchmark frames
-    times = [k / fps for k in range(0, frames * stride, stride)]
+    start = 0.0 if view == "edge" else flight.duration_s / 2  # middle: plain wall, the bulk of a scan
+    times = [start + k / fps for k in range(0, frames * stride, stride)]
     c0, w0 = time.process_time(), time.perf_counter()
     f = r.render(flight.pose(times[0]), index=0, time_s=times[0], exposure=ae)
     first_cpu, first_wall = time.process_time() - c0, time.perf_counter() - w0
@@ -65,6 +66,9 @@ def main() -> int:
     p.add_argument("--mission", type=Path, default=Path("missions/demo-facade.yaml"))
     p.add_argument("--widths", type=int, nargs="+", default=[640, 1280, 1920])
     p.add_argument("--renderers", nargs="+", choices=RENDERERS, default=["raycast", "warp"])
+    p.add_argument("--views", nargs="+", choices=["edge", "middle"], default=["edge", "middle"],
+                   help="edge: the first strip at the wall's left end (trees, far buildings, roof line); middle: "
+                        "frames from the middle of the scan (plain wall)")
     p.add_argument("--frames", type=int, default=20, help="frames per width (the 3840 run uses a quarter)")
     p.add_argument("--generator-frames", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
@@ -72,17 +76,19 @@ def main() -> int:
     mission = load_mission(a.mission)
     print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
           f"mission {a.mission}; load average {os.getloadavg()[0]:.1f}")
-    print("renderer | width x height | first frame cpu/wall s | per frame cpu s | per frame wall s | frames/s (cpu) "
-          "| jpeg s | cpu vs first renderer")
-    for w in a.widths:
-        n = max(3, a.frames // 4) if w >= 2000 else a.frames
-        base = None
-        for kind in a.renderers:
-            r = bench_width(mission, w, n + 1, a.seed, kind)
-            base = base or r["cpu_s"]
-            print(f"{kind} | {r['width']} x {r['height']} | {r['first_cpu_s']:.2f} / {r['first_wall_s']:.2f} | "
-                  f"{r['cpu_s']:.3f} | {r['wall_s']:.3f} | {1 / r['cpu_s']:.1f} | {r['jpeg_s']:.4f} | "
-                  f"{r['cpu_s'] / base:.2f}  (median of {r['frames']})", flush=True)
+    print("view | renderer | width x height | first frame cpu/wall s | per frame cpu s | per frame wall s | "
+          "frames/s (cpu) | jpeg s | cpu vs first renderer")
+    for view in a.views:
+        for w in a.widths:
+            n = max(3, a.frames // 4) if w >= 2000 else a.frames
+            base = None
+            for kind in a.renderers:
+                r = bench_width(mission, w, n + 1, a.seed, kind, view)
+                base = base or r["cpu_s"]
+                print(f"{view} | {kind} | {r['width']} x {r['height']} | {r['first_cpu_s']:.2f} / "
+                      f"{r['first_wall_s']:.2f} | {r['cpu_s']:.3f} | {r['wall_s']:.3f} | {1 / r['cpu_s']:.1f} | "
+                      f"{r['jpeg_s']:.4f} | "
+                      f"{r['cpu_s'] / base:.2f}  (median of {r['frames']})", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
         for kind in a.renderers:

@@ -642,19 +642,18 @@ class WarpRenderer(Renderer):
 
     def _expose(self, img: np.ndarray, gain: float, index: int) -> np.ndarray:
         """Gain, then the ray caster's noise model (read noise 1.5 DN, shot noise 0.06 DN per DN of signal) with
-        unit-variance triangular noise, in int16 fixed point: three table lookups and a multiply-add."""
+        unit-variance triangular noise (two random nibbles), rounded to whole DN: three table lookups, a
+        multiply and a saturating add on the uint8 image."""
         if not self.noise:
             return cv2.convertScaleAbs(img, alpha=gain)
-        v = np.minimum(np.arange(256) * gain, 400.0)
-        base = np.round(v * 2**_FIXED).astype(np.int16)
-        sigma = np.sqrt(1.5**2 + 0.06 * np.minimum(v, 255.0)) / self._tri_std
-        sig = np.round(sigma * 2**_FIXED).astype(np.int16)
+        v = np.minimum(np.arange(256) * gain, 255.0)
+        level = np.round(v).astype(np.uint8)
+        sig = np.round(np.sqrt(1.5**2 + 0.06 * v) / self._tri_std * 2**_FIXED).astype(np.int16)
         flat = img.reshape(img.shape[0], -1)
         rng = np.random.default_rng([self.seed, index, 17])
         b = np.frombuffer(rng.bytes(flat.size), dtype=np.uint8).reshape(flat.shape)
-        noise = cv2.multiply(cv2.LUT(b, self._tri), cv2.LUT(flat, sig))
-        total = cv2.add(cv2.LUT(flat, base), noise)
-        return cv2.convertScaleAbs(cv2.max(total, 0), alpha=1.0 / 2**_FIXED).reshape(img.shape)
+        noise = cv2.multiply(cv2.LUT(b, self._tri), cv2.LUT(flat, sig), scale=1.0 / 2**_FIXED)  # int16, DN
+        return cv2.add(cv2.LUT(flat, level), noise, dtype=cv2.CV_8U).reshape(img.shape)
 
 
 def make_renderer(kind: str, scene: Scene, frame: FacadeFrame, camera: CameraModel, **kw) -> Renderer:

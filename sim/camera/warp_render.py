@@ -317,12 +317,16 @@ class WarpRenderer(Renderer):
         texel_mm = gsd * 1000.0 * 1.5
         return int(np.clip(math.floor(math.log2(max(texel_mm, 1.0))), 0, f.max_level))
 
-    def _patch(self, f: Face, key: int, s0, t0, s1, t1, level):
-        """Shaded texture patch over face coordinates [s0, s1] x [t0, t1] (cached while the tile range holds)."""
+    def _patch(self, f: Face, key: int, s0, t0, s1, t1, level, pixels: int):
+        """Shaded texture patch over face coordinates [s0, s1] x [t0, t1] (cached while the tile range holds).
+        At most about 4 texels per pixel drawn: a plane seen at a grazing angle (the ground) spans footprints
+        from millimetres to metres, and tiles at the median footprint over all of it would cost more than the
+        frame; its far part is hazed and sampled below its texel size anyway."""
         tex = f.texture
         a0, a1 = s0 + f.uv_offset[0], s1 + f.uv_offset[0]
         u0, u1 = t0 + f.uv_offset[1], t1 + f.uv_offset[1]
-        while ((a1 - a0) * 1000 / 2**level) * ((u1 - u0) * 1000 / 2**level) > 12e6 and level < f.max_level + 2:
+        cap = min(12e6, max(4.0 * pixels, 4.0 * tex.TILE**2))
+        while ((a1 - a0) * 1000 / 2**level) * ((u1 - u0) * 1000 / 2**level) > cap and level < f.max_level + 2:
             level += 1
         span = tex.TILE * (2**level) / 1000.0
         tiles = (level, math.floor(a0 / span), math.floor(a1 / span), math.floor(u0 / span), math.floor(u1 / span))
@@ -448,7 +452,7 @@ class WarpRenderer(Renderer):
             t0, t1 = max(t0, ct - r), min(t1, ct + r)
             if s0 >= s1 or t0 >= t1:
                 s0, s1, t0, t1 = cs - 1, cs + 1, ct - 1, ct + 1
-        patch, ao, uo, px = self._patch(f, key, s0, t0, s1, t1, level)
+        patch, ao, uo, px = self._patch(f, key, s0, t0, s1, t1, level, bw * bh)
         T1 = np.array([[px, 0.0, ao + 0.5 * px - f.uv_offset[0]], [0.0, px, uo + 0.5 * px - f.uv_offset[1]],
                        [0.0, 0.0, 1.0]])
         P = np.column_stack([A.T @ f.e1, A.T @ f.e2, A.T @ (f.origin - orig)])

@@ -486,9 +486,13 @@ class WarpRenderer(Renderer):
         rx = (uv[:, 0] + 0.5 - self._cx) / self._fx
         ry = (uv[:, 1] + 0.5 - self._cy) / self._fy
         D = np.column_stack([rx, ry, np.ones_like(rx)]) @ A.T
-        t = float(f.normal @ (f.origin - orig)) / (D @ f.normal)
-        P = orig + D * t[:, None] - f.origin
-        s, tt = P @ f.e1, P @ f.e2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = float(f.normal @ (f.origin - orig)) / (D @ f.normal)
+            P = orig + D * t[:, None] - f.origin
+            s, tt = P @ f.e1, P @ f.e2
+        ok = np.isfinite(s) & np.isfinite(tt) & (t > 0)
+        if not ok.all():  # a corner on the horizon (grazing ray): the whole face, bounded by its size
+            return 0.0, 0.0, f.size[0], f.size[1]
         return (max(float(s.min()), 0.0), max(float(tt.min()), 0.0), min(float(s.max()), f.size[0]),
                 min(float(tt.max()), f.size[1]))
 

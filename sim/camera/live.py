@@ -274,6 +274,10 @@ class LiveCamera:
             self.writer = RecordingWriter(cfg.record_dir, self._meta(), jpeg_quality=cfg.jpeg_quality)
         self.stop = threading.Event()
         self.sent = 0
+        self._outbox: queue.Queue = queue.Queue(maxsize=2)
+        self._delivery_error: Exception | None = None
+        self._delivery = threading.Thread(target=self._deliver_frames, name="camera-delivery", daemon=True)
+        self._delivery.start()
         self.skipped = 0
 
     def _meta(self) -> dict:
@@ -321,11 +325,31 @@ class LiveCamera:
                 k += 1
         finally:
             self.close()
+        if self._delivery_error is not None:
+            raise self._delivery_error
         return self.sent
 
     def _emit(self, k: int, t: float, msg: dict, rate: float):
+        """Render frame k here; JPEG encoding, streaming and recording happen on the delivery thread (the other
+        core), in order. A full hand-over queue blocks, so a slow encoder makes the camera drop frames too."""
         pose = camera_pose(msg, self.frame, yaw_rate_deg_s=rate)
         rendered = self.renderer.render(pose, index=k, time_s=t, exposure=self.exposure)
+        if self._delivery_error is not None:
+            raise self._delivery_error
+        self._outbox.put((k, t, pose, rendered))
+
+    def _deliver_frames(self):
+        while True:
+            item = self._outbox.get()
+            if item is None:
+                return
+            try:
+                self._deliver(*item)
+            except Exception as exc:  # noqa: BLE001 (re-raised on the render loop, which stops the camera)
+                self._delivery_error = exc
+                self.stop.set()
+
+    def _deliver(self, k: int, t: float, pose: TruePose, rendered):
         ok, jpg = cv2.imencode(".jpg", rendered.image, [cv2.IMWRITE_JPEG_QUALITY, self.cfg.jpeg_quality])
         if not ok:
             return
@@ -343,6 +367,9 @@ class LiveCamera:
         return 0.0 < float(out) <= self.cfg.record_max_out_m and float(up) > 0.3
 
     def close(self):
+        if self._delivery.is_alive():
+            self._outbox.put(None)  # after the frames already handed over
+            self._delivery.join()
         self.listener.close()
         self.server.close()
         if self.writer is not None:

@@ -1,18 +1,26 @@
-"""Render speed of the simulated camera at several working resolutions, and the fast recording generator.
+"""Render speed of the simulated camera at several working resolutions, both renderers side by side in one run
+(the per-pixel ray caster and the texture warp), and the fast recording generator.
 
-    python bench/camera_speed.py [--mission missions/demo-facade.yaml] [--widths 640 1280 3840] [--frames 20]
+    python bench/camera_speed.py [--mission missions/demo-facade.yaml] [--widths 640 1280 1920]
+                                 [--renderers raycast warp] [--frames 20] [--live 30]
 
 Poses come from the kinematic flight along the demo mission's first strip (left end of the wall: facade,
 roof line and background in view), so the figures include the edge frames, not only plain wall. Prints CPU
-(process) time and wall time per frame; the first frame (texture tiles generated) is reported separately.
+(process) time and wall time per frame; the first frame (texture tiles generated) is reported separately, the
+load average before and after, and the per-frame CPU ratio of each renderer to the first one.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
+import resource
+import socket
 import statistics
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -20,21 +28,23 @@ import cv2
 
 from companion.mission import load_mission, plan_scan
 from sim.camera.recording import camera_from_mission, generate_recording
-from sim.camera.render import AutoExposure, Renderer
+from sim.camera.render import AutoExposure
 from sim.camera.scene import Scene
 from sim.camera.trajectory import KinematicFlight, scan_path
+from sim.camera.warp_render import RENDERERS, make_renderer
 
 
-def bench_width(mission, width: int, frames: int, seed: int) -> dict:
+def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "raycast", view: str = "edge") -> dict:
     plan = plan_scan(mission)
     cam = camera_from_mission(mission, width)
     scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=seed)
-    r = Renderer(scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=seed)
+    r = make_renderer(renderer, scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=seed)
     flight = KinematicFlight(plan.frame, scan_path(plan), seed=seed)
     ae = AutoExposure(seed=seed)
     fps = float(mission.camera.fps)
     stride = 10  # 1/3 s apart: the view moves ~0.25 m between benchmark frames
-    times = [k / fps for k in range(0, frames * stride, stride)]
+    start = 0.0 if view == "edge" else flight.duration_s / 2  # middle: plain wall, the bulk of a scan
+    times = [start + k / fps for k in range(0, frames * stride, stride)]
     c0, w0 = time.process_time(), time.perf_counter()
     f = r.render(flight.pose(times[0]), index=0, time_s=times[0], exposure=ae)
     first_cpu, first_wall = time.process_time() - c0, time.perf_counter() - w0
@@ -55,29 +65,89 @@ def bench_width(mission, width: int, frames: int, seed: int) -> dict:
     }
 
 
+def _poses(port: int, frame, stop: threading.Event, speed_m_s: float = 0.7) -> None:
+    """A vehicle climbing along the wall's middle at the scan speed, 4 m out: true poses at 50 Hz, real time."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    t0 = time.monotonic()
+    k = 0
+    while not stop.is_set():
+        t = k * 0.02
+        time.sleep(max(0.0, t0 + t - time.monotonic()))
+        lat, lon, alt = frame.facade_to_geodetic(frame.length_m / 2, 4.0, 1.5 + speed_m_s * t)
+        msg = {"t_s": round(t, 4), "lat": float(lat), "lon": float(lon), "alt_amsl_m": float(alt),
+               "vn_m_s": 0.0, "ve_m_s": 0.0, "vd_m_s": -speed_m_s, "yaw_deg": frame.yaw_facing_wall_deg,
+               "gimbal_pitch_deg": 0.0, "gimbal_yaw_deg": 0.0}
+        s.sendto(json.dumps(msg).encode(), ("127.0.0.1", port))
+        k += 1
+    s.close()
+
+
+def bench_live(mission_path: Path, width: int, fps: float, seconds: float, renderer: str) -> dict:
+    """The live camera process's own loop (render, then JPEG + stream on its delivery thread) fed real-time
+    poses for ``seconds``: frames sent and dropped, and CPU of this process (camera + pose sender) per second."""
+    from sim.camera.live import LiveCamera, LiveConfig
+    from sim.rig import free_port
+
+    pose_port = free_port()
+    cam = LiveCamera(mission_path, LiveConfig(pose_port=pose_port, stream_port=free_port(socket.SOCK_STREAM),
+                                              width_px=width, fps=fps, duration_s=seconds, renderer=renderer))
+    stop = threading.Event()
+    sender = threading.Thread(target=_poses, args=(pose_port, cam.frame, stop), daemon=True)
+    r0 = resource.getrusage(resource.RUSAGE_SELF)
+    sender.start()
+    sent = cam.run()
+    stop.set()
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+    return {"sent": sent, "dropped": cam.skipped, "fps": sent / seconds, "cpu_per_s": cpu / seconds}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--mission", type=Path, default=Path("missions/demo-facade.yaml"))
-    p.add_argument("--widths", type=int, nargs="+", default=[640, 1280, 3840])
+    p.add_argument("--widths", type=int, nargs="+", default=[640, 1280, 1920])
+    p.add_argument("--renderers", nargs="+", choices=RENDERERS, default=["raycast", "warp"])
+    p.add_argument("--views", nargs="+", choices=["edge", "middle"], default=["edge", "middle"],
+                   help="edge: the first strip at the wall's left end (trees, far buildings, roof line); middle: "
+                        "frames from the middle of the scan (plain wall)")
     p.add_argument("--frames", type=int, default=20, help="frames per width (the 3840 run uses a quarter)")
     p.add_argument("--generator-frames", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--live", type=float, default=0.0, metavar="S",
+                   help="also run the live camera for S wall seconds per renderer on real-time poses (mid-wall)")
+    p.add_argument("--live-width", type=int, default=1280)
+    p.add_argument("--live-fps", type=float, default=30.0)
     a = p.parse_args()
     mission = load_mission(a.mission)
-    print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}; mission {a.mission}")
-    print("width x height | first frame cpu/wall s | per frame cpu s | per frame wall s | frames/s (cpu) | jpeg s")
-    for w in a.widths:
-        n = max(3, a.frames // 4) if w >= 2000 else a.frames
-        r = bench_width(mission, w, n + 1, a.seed)
-        print(f"{r['width']} x {r['height']} | {r['first_cpu_s']:.2f} / {r['first_wall_s']:.2f} | "
-              f"{r['cpu_s']:.3f} | {r['wall_s']:.3f} | {1 / r['cpu_s']:.1f} | {r['jpeg_s']:.4f}  (median of "
-              f"{r['frames']})")
+    print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
+          f"mission {a.mission}; load average {os.getloadavg()[0]:.1f}")
+    print("view | renderer | width x height | first frame cpu/wall s | per frame cpu s | per frame wall s | "
+          "frames/s (cpu) | jpeg s | cpu vs first renderer")
+    for view in a.views:
+        for w in a.widths:
+            n = max(3, a.frames // 4) if w >= 2000 else a.frames
+            base = None
+            for kind in a.renderers:
+                r = bench_width(mission, w, n + 1, a.seed, kind, view)
+                base = base or r["cpu_s"]
+                print(f"{view} | {kind} | {r['width']} x {r['height']} | {r['first_cpu_s']:.2f} / "
+                      f"{r['first_wall_s']:.2f} | {r['cpu_s']:.3f} | {r['wall_s']:.3f} | {1 / r['cpu_s']:.1f} | "
+                      f"{r['jpeg_s']:.4f} | "
+                      f"{r['cpu_s'] / base:.2f}  (median of {r['frames']})", flush=True)
+    for kind in a.renderers if a.live > 0 else []:
+        r = bench_live(a.mission, a.live_width, a.live_fps, a.live, kind)
+        print(f"live camera, {kind}, {a.live_width} px at {a.live_fps:g} fps for {a.live:g} s: {r['sent']} frames "
+              f"sent ({r['fps']:.1f}/s), {r['dropped']} dropped, {r['cpu_per_s']:.2f} CPU-s per second "
+              f"(load average {os.getloadavg()[0]:.1f})", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
-        c0, w0 = time.process_time(), time.perf_counter()
-        generate_recording(mission, Path(tmp) / "rec", seed=a.seed, width_px=640, max_frames=a.generator_frames)
-        print(f"generate_recording(width_px=640, max_frames={a.generator_frames}): "
-              f"{time.process_time() - c0:.1f} s cpu, {time.perf_counter() - w0:.1f} s wall "
-              f"(scene, sky, render, JPEG + depth + mask files)")
+        for kind in a.renderers:
+            c0, w0 = time.process_time(), time.perf_counter()
+            generate_recording(mission, Path(tmp) / kind, seed=a.seed, width_px=640, max_frames=a.generator_frames,
+                               renderer=kind)
+            print(f"generate_recording(width_px=640, max_frames={a.generator_frames}, renderer={kind}): "
+                  f"{time.process_time() - c0:.1f} s cpu, {time.perf_counter() - w0:.1f} s wall "
+                  f"(scene, sky, render, JPEG + depth + mask files)", flush=True)
     return 0
 
 

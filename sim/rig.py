@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -44,6 +45,7 @@ class SitlRig:
         record_max_out_m: float | None = None,
         truth_log: str | Path | None = None,
         sim_options: dict | None = None,
+        renderer: str = "warp",
     ):
         from companion.mission import load_mission, plan_scan
 
@@ -56,6 +58,7 @@ class SitlRig:
         self.record_max_out_m = record_max_out_m
         self.truth_log = Path(truth_log).resolve() if truth_log else None
         self.sim_options = dict(sim_options or {})
+        self.renderer = renderer
         self.pose_port = free_port(socket.SOCK_DGRAM)
         self.stream_port = free_port(socket.SOCK_STREAM)
         self.camera: subprocess.Popen | None = None
@@ -75,7 +78,7 @@ class SitlRig:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         args = [sys.executable, "-m", "sim", "camera", str(self.mission_path), "--pose-port", str(self.pose_port),
                 "--stream-port", str(self.stream_port), "--width", str(self.width_px), "--fps", str(self.fps),
-                "--seed", str(self.seed)]  # fmt: skip
+                "--seed", str(self.seed), "--renderer", self.renderer]  # fmt: skip
         if self.record_dir is not None:
             args += ["--record", str(self.record_dir)]
             if self.record_max_out_m is not None:
@@ -120,6 +123,13 @@ class SitlRig:
         if self._cam_log is not None:
             self._cam_log.close()
             self._cam_log = None
+
+    def camera_counts(self) -> dict | None:
+        """What the camera process reported when it stopped: frames sent, and frames dropped because rendering
+        fell behind simulated time (None while it runs, or if it printed no summary)."""
+        path = self.log_dir / "camera.log"
+        m = re.search(r"camera: (\d+) frames sent, (\d+) dropped", path.read_text()) if path.exists() else None
+        return {"frames_sent": int(m.group(1)), "frames_dropped": int(m.group(2))} if m else None
 
     def __enter__(self) -> SitlRig:
         return self.start()

@@ -114,3 +114,25 @@ def test_stream_and_recording_from_fake_vehicle(tmp_path):
 def test_missing_camera_is_a_companion_error():
     with pytest.raises(CompanionError, match="simulated camera"):
         SimCameraSource(port=free_port(socket.SOCK_STREAM), connect_timeout_s=0.3)
+
+
+def test_a_recording_failure_stops_the_camera_with_that_error(tmp_path):
+    """Encoding, streaming and recording run on a delivery thread; its failure must not be lost."""
+    pose_port = free_port()
+    cfg = LiveConfig(pose_port=pose_port, stream_port=free_port(socket.SOCK_STREAM), width_px=64, fps=10.0,
+                     record_dir=tmp_path / "live", duration_s=20.0, max_lag_frames=50)
+    cam = LiveCamera(MISSION, cfg)
+
+    def full_disk(*_a, **_k):
+        raise OSError(28, "No space left on device")
+
+    cam.writer.add = full_disk
+    vehicle = FakeVehicle(pose_port)
+    vehicle.start()
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(OSError, match="No space left"):
+            cam.run()
+        assert time.monotonic() - t0 < 15.0  # stopped at the failure, not at the 20 s duration
+    finally:
+        vehicle.stop.set()

@@ -32,8 +32,9 @@ from companion.errors import CompanionError
 from companion.geo import FacadeFrame
 from sim.camera.model import TruePose, rotation_world_from_cam
 from sim.camera.recording import RecordingWriter, camera_from_mission, facade_meta, resolve_mission
-from sim.camera.render import AutoExposure, Renderer
+from sim.camera.render import AutoExposure
 from sim.camera.scene import Scene
+from sim.camera.warp_render import RENDERERS, make_renderer
 
 log = logging.getLogger(__name__)
 _NUMERIC = ("lat", "lon", "alt_amsl_m", "north_m", "east_m", "down_m", "vn_m_s", "ve_m_s", "vd_m_s", "roll_deg",
@@ -54,6 +55,7 @@ class LiveConfig:
     max_lag_frames: int = 3
     duration_s: float | None = None  # wall seconds, for tests and scripted runs
     record_max_out_m: float | None = None  # record only frames taken this close to the wall plane (the scan)
+    renderer: str = "warp"  # 'warp' (real time) or 'raycast' (the per-pixel reference, 4-6x the CPU)
 
 
 def interpolate_pose(a: dict, b: dict, t: float) -> dict:
@@ -258,8 +260,8 @@ class LiveCamera:
         if not self.fps > 0:
             raise CompanionError(f"camera fps {self.fps} must be positive", "give --fps, e.g. 30")
         self.scene = Scene.build(self.frame.length_m, float(self.mission.facade.height_m), seed=cfg.seed)
-        self.renderer = Renderer(self.scene, self.frame, self.camera, exposure_s=float(self.mission.camera.exposure_s),
-                                 seed=cfg.seed)
+        self.renderer = make_renderer(cfg.renderer, self.scene, self.frame, self.camera,
+                                      exposure_s=float(self.mission.camera.exposure_s), seed=cfg.seed)
         self.exposure = AutoExposure(seed=cfg.seed)
         self.listener = PoseListener(cfg.pose_port)
         try:
@@ -272,6 +274,10 @@ class LiveCamera:
             self.writer = RecordingWriter(cfg.record_dir, self._meta(), jpeg_quality=cfg.jpeg_quality)
         self.stop = threading.Event()
         self.sent = 0
+        self._outbox: queue.Queue = queue.Queue(maxsize=2)
+        self._delivery_error: Exception | None = None
+        self._delivery = threading.Thread(target=self._deliver_frames, name="camera-delivery", daemon=True)
+        self._delivery.start()
         self.skipped = 0
 
     def _meta(self) -> dict:
@@ -279,7 +285,7 @@ class LiveCamera:
         return {
             "mission": self.mission.name,
             "seed": self.cfg.seed,
-            "generator": {"kind": "live", "pose_port": self.listener.port},
+            "generator": {"kind": "live", "pose_port": self.listener.port, "renderer": self.cfg.renderer},
             "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg, "K": cam.K.tolist(),
                        "fps": self.fps, "exposure_s": float(self.mission.camera.exposure_s),
                        "native_width": int(self.mission.camera.width_px), "jpeg_quality": self.cfg.jpeg_quality},
@@ -319,11 +325,31 @@ class LiveCamera:
                 k += 1
         finally:
             self.close()
+        if self._delivery_error is not None:
+            raise self._delivery_error
         return self.sent
 
     def _emit(self, k: int, t: float, msg: dict, rate: float):
+        """Render frame k here; JPEG encoding, streaming and recording happen on the delivery thread (the other
+        core), in order. A full hand-over queue blocks, so a slow encoder makes the camera drop frames too."""
         pose = camera_pose(msg, self.frame, yaw_rate_deg_s=rate)
         rendered = self.renderer.render(pose, index=k, time_s=t, exposure=self.exposure)
+        if self._delivery_error is not None:
+            raise self._delivery_error
+        self._outbox.put((k, t, pose, rendered))
+
+    def _deliver_frames(self):
+        while True:
+            item = self._outbox.get()
+            if item is None:
+                return
+            try:
+                self._deliver(*item)
+            except Exception as exc:  # noqa: BLE001 (re-raised on the render loop, which stops the camera)
+                self._delivery_error = exc
+                self.stop.set()
+
+    def _deliver(self, k: int, t: float, pose: TruePose, rendered):
         ok, jpg = cv2.imencode(".jpg", rendered.image, [cv2.IMWRITE_JPEG_QUALITY, self.cfg.jpeg_quality])
         if not ok:
             return
@@ -341,6 +367,9 @@ class LiveCamera:
         return 0.0 < float(out) <= self.cfg.record_max_out_m and float(up) > 0.3
 
     def close(self):
+        if self._delivery.is_alive():
+            self._outbox.put(None)  # after the frames already handed over
+            self._delivery.join()
         self.listener.close()
         self.server.close()
         if self.writer is not None:
@@ -362,6 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="record only frames taken within M metres of the wall plane (the scan, not the transit)")
     p.add_argument("--jpeg-quality", type=int, default=88)
     p.add_argument("--duration", type=float, help="stop after this many wall seconds")
+    p.add_argument("--renderer", choices=RENDERERS, default="warp",
+                   help="warp: textures warped per plane (real time, default); raycast: per-pixel reference")
     return p
 
 
@@ -370,7 +401,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = LiveConfig(pose_port=args.pose_port, stream_host=args.stream_host, stream_port=args.stream_port,
                      width_px=args.width, fps=args.fps, seed=args.seed, record_dir=args.record,
-                     jpeg_quality=args.jpeg_quality, duration_s=args.duration, record_max_out_m=args.record_max_out)
+                     jpeg_quality=args.jpeg_quality, duration_s=args.duration, record_max_out_m=args.record_max_out,
+                     renderer=args.renderer)
     try:
         cam = LiveCamera(args.mission, cfg)
     except CompanionError as exc:

@@ -31,7 +31,7 @@ from companion.progress import progress_bar
 from companion.records import Frame
 from sim.camera.model import CameraModel, TruePose
 from sim.camera.overlap import clip_to_rect, footprint_on_wall, overlap_ratio
-from sim.camera.render import AutoExposure, RenderedFrame, Renderer
+from sim.camera.render import AutoExposure, RenderedFrame
 from sim.camera.scene import Scene
 
 FORMAT_VERSION = 1
@@ -235,13 +235,16 @@ def camera_from_mission(mission, width_px: int | None) -> CameraModel:
 
 def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px: int = 640,
                        max_frames: int | None = None, stride: int = 1, jpeg_quality: int = 92,
-                       n_cracks: int | None = None, progress: bool = False, telemetry_rate_hz: float = 10.0) -> Path:
+                       n_cracks: int | None = None, progress: bool = False, telemetry_rate_hz: float = 10.0,
+                       renderer: str = "warp") -> Path:
     """Fast recording: kinematic flight along the planner's scan path (first to last scan waypoint), frames at
     the mission camera's fps (every ``stride``-th, at most ``max_frames``), rendered at ``width_px`` wide, and
-    the telemetry log of the recorded span at ``telemetry_rate_hz`` (``companion fly``'s default rate)."""
+    the telemetry log of the recorded span at ``telemetry_rate_hz`` (``companion fly``'s default rate).
+    ``renderer``: 'warp' (textures warped per plane, the default) or 'raycast' (the per-pixel reference)."""
     from companion.mission import plan_scan
     from sim.camera.telemetry_log import telemetry_rows, write_telemetry_log
     from sim.camera.trajectory import KinematicFlight, scan_path
+    from sim.camera.warp_render import make_renderer
 
     mission = resolve_mission(mission)
     if stride < 1:
@@ -254,13 +257,14 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     scene = Scene.build(frame.length_m, float(mission.facade.height_m), seed=seed, n_cracks=n_cracks)
     fps = float(mission.camera.fps)
     exposure_s = float(mission.camera.exposure_s)
-    renderer = Renderer(scene, frame, cam, exposure_s=exposure_s, seed=seed)
+    render = make_renderer(renderer, scene, frame, cam, exposure_s=exposure_s, seed=seed)
     flight = KinematicFlight(frame, scan_path(plan), gimbal_pitch_deg=float(mission.gimbal_pitch_deg), seed=seed)
     meta = {
         "mission": mission.name,
         "seed": seed,
         "generator": {"kind": "kinematic", "stride": stride, "max_frames": max_frames,
-                      "flight_duration_s": flight.duration_s, "telemetry_rate_hz": telemetry_rate_hz},
+                      "flight_duration_s": flight.duration_s, "telemetry_rate_hz": telemetry_rate_hz,
+                      "renderer": renderer},
         "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg, "K": cam.K.tolist(),
                    "fps": fps, "exposure_s": exposure_s, "native_width": int(mission.camera.width_px),
                    "jpeg_quality": jpeg_quality},
@@ -273,7 +277,7 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     times = list(flight.times(fps, stride=stride, max_frames=max_frames))
     try:
         for k, t in progress_bar(times, desc="rendering", unit="frame", disable=not progress):
-            rendered = renderer.render(flight.pose(t), index=k, time_s=t, exposure=ae)
+            rendered = render.render(flight.pose(t), index=k, time_s=t, exposure=ae)
             writer.add(rendered, t, source_frame=k)
     finally:
         path = writer.close()

@@ -160,15 +160,55 @@ def _smooth_cover(d: np.ndarray, half_w: float, px: float) -> np.ndarray:
     return np.clip(0.5 + (half_w - d) / px, 0.0, 1.0)
 
 
-class FacadeTexture:
-    """Evaluates the wall's colour (BGR float32, 0..1) at facade points; cached tiles for rendering."""
+class TiledTexture:
+    """A surface colour function ``evaluate(a, u, px)`` (plane metres -> BGR float32 0..1, rendered with texel
+    size ``px``) cached as uint8 tiles at power-of-two texel sizes, so renderers sample a patch at the level that
+    matches their pixel footprint instead of evaluating the function per pixel."""
 
     TILE = 256
 
-    def __init__(self, style: FacadeStyle, max_tiles: int = 384):
-        self.style = style
+    def __init__(self, max_tiles: int = 384):
         self._tiles: OrderedDict[tuple[int, int, int], np.ndarray] = OrderedDict()
         self.max_tiles = max_tiles
+
+    def evaluate(self, a: np.ndarray, u: np.ndarray, px: float) -> np.ndarray:
+        raise NotImplementedError
+
+    # ---- tiled rendering ---------------------------------------------------------------------------------
+    def tile(self, level: int, ix: int, iy: int) -> np.ndarray:
+        """uint8 BGR tile of TILE x TILE texels of 2**level mm; row index grows with up_m."""
+        key = (level, ix, iy)
+        t = self._tiles.get(key)
+        if t is not None:
+            self._tiles.move_to_end(key)
+            return t
+        px = (2**level) / 1000.0
+        n = self.TILE
+        c = (np.arange(n) + 0.5) * px
+        aa, uu = np.meshgrid(ix * n * px + c, iy * n * px + c)
+        t = (self.evaluate(aa, uu, px) * 255 + 0.5).astype(np.uint8)
+        self._tiles[key] = t
+        while len(self._tiles) > self.max_tiles:
+            self._tiles.popitem(last=False)
+        return t
+
+    def patch(self, a0: float, u0: float, a1: float, u1: float, level: int) -> tuple[np.ndarray, float, float, float]:
+        """Texture covering [a0, a1] x [u0, u1]: (image uint8 with rows growing upwards, a_org, u_org, px_m)."""
+        px = (2**level) / 1000.0
+        span = self.TILE * px
+        ix0, ix1 = int(math.floor(a0 / span)), int(math.floor(a1 / span))
+        iy0, iy1 = int(math.floor(u0 / span)), int(math.floor(u1 / span))
+        rows = [np.concatenate([self.tile(level, ix, iy) for ix in range(ix0, ix1 + 1)], axis=1)
+                for iy in range(iy0, iy1 + 1)]
+        return np.concatenate(rows, axis=0), ix0 * span, iy0 * span, px
+
+
+class FacadeTexture(TiledTexture):
+    """Evaluates the wall's colour (BGR float32, 0..1) at facade points; cached tiles for rendering."""
+
+    def __init__(self, style: FacadeStyle, max_tiles: int = 384):
+        super().__init__(max_tiles)
+        self.style = style
 
     # ---- point evaluation -------------------------------------------------------------------------------
     def evaluate(self, a: np.ndarray, u: np.ndarray, px: float) -> np.ndarray:
@@ -311,34 +351,6 @@ class FacadeTexture:
             d = np.hypot(qa - (p0[:, 0] + t * da), qu - (p0[:, 1] + t * du)).min(axis=1)
             cov = _smooth_cover(d, c.width_m / 2, px) * 0.85
             col[sel] *= (1 - cov)[..., None].astype(np.float32)
-
-    # ---- tiled rendering ---------------------------------------------------------------------------------
-    def tile(self, level: int, ix: int, iy: int) -> np.ndarray:
-        """uint8 BGR tile of TILE x TILE texels of 2**level mm; row index grows with up_m."""
-        key = (level, ix, iy)
-        t = self._tiles.get(key)
-        if t is not None:
-            self._tiles.move_to_end(key)
-            return t
-        px = (2**level) / 1000.0
-        n = self.TILE
-        c = (np.arange(n) + 0.5) * px
-        aa, uu = np.meshgrid(ix * n * px + c, iy * n * px + c)
-        t = (self.evaluate(aa, uu, px) * 255 + 0.5).astype(np.uint8)
-        self._tiles[key] = t
-        while len(self._tiles) > self.max_tiles:
-            self._tiles.popitem(last=False)
-        return t
-
-    def patch(self, a0: float, u0: float, a1: float, u1: float, level: int) -> tuple[np.ndarray, float, float, float]:
-        """Texture covering [a0, a1] x [u0, u1]: (image uint8 with rows growing upwards, a_org, u_org, px_m)."""
-        px = (2**level) / 1000.0
-        span = self.TILE * px
-        ix0, ix1 = int(math.floor(a0 / span)), int(math.floor(a1 / span))
-        iy0, iy1 = int(math.floor(u0 / span)), int(math.floor(u1 / span))
-        rows = [np.concatenate([self.tile(level, ix, iy) for ix in range(ix0, ix1 + 1)], axis=1)
-                for iy in range(iy0, iy1 + 1)]
-        return np.concatenate(rows, axis=0), ix0 * span, iy0 * span, px
 
     def full_image(self, mm_per_px: float) -> np.ndarray:
         """The whole wall as one BGR uint8 image (row 0 = top of the wall), for map-accuracy references."""

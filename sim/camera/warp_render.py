@@ -1,0 +1,674 @@
+"""Real-time rendering of the facade scene: every plane is a texture warped into the image by its homography.
+
+The scene is a handful of planes (the target building's faces, the ground, the far buildings' and trunks' faces),
+the tree crowns (ellipsoids) and the sky at infinity. The ray caster (``render.Renderer``) intersects every pixel's
+ray with all of them and evaluates the procedural textures per pixel; that costs 0.2 s per 1280 px frame, so the
+live camera could not deliver 30 fps. Here, per plane: clip its rectangle to the view frustum, fill the image
+polygon, take its inverse depth (affine in the pixel coordinates for a plane) and keep the pixels where it is
+nearer than what is already drawn (a depth test, planes drawn near to far so few pixels are drawn twice), then
+warp the plane's pre-built texture patch (``TiledTexture`` tiles at the level matching the pixel footprint) there
+with ``cv2.warpPerspective``. The sky is a cube map built once from the ray caster's sky panorama, each cube face
+a plane at infinity. Tree crowns keep the exact per-pixel ray test inside their small image rectangles.
+
+Ground truth is the ray caster's: the same surfaces, z-depth from the same plane equations (float32), the same ROI
+mask, up to polygon rasterisation on boundary pixels (``tests/test_camera_warp_render.py`` checks it on poses
+facing the wall, off its end, looking down and from above the roof). Colours agree closely but not texel for
+texel (textures are sampled from cached tiles, haze on the coarse grid). The camera effects are the ray caster's
+model (auto exposure, motion blur, read + shot noise) done on uint8 and int16 images with table lookups.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+from companion.geo import FacadeFrame
+from sim.camera.model import CameraModel, TruePose
+from sim.camera.noise import fbm
+from sim.camera.render import (
+    FAR,
+    GROUND,
+    ROOF,
+    SIDE,
+    TARGET,
+    TREE,
+    TRUNK,
+    AutoExposure,
+    RenderedFrame,
+    Renderer,
+    _box_corners,
+    _box_hit,
+    _ellipsoid_hit,
+)
+from sim.camera.scene import Scene
+from sim.camera.textures import TiledTexture
+
+_NEAR = 0.05  # near clipping plane (m); the ray caster's surfaces start at 1 mm but nothing is that close
+_GROUND_FAR_M = 1.0e5  # the ground plane's half extent: the ray caster's ground is infinite
+_GROUND_NEAR_M = 40.0  # ground within this distance of the camera is drawn at the footprint's texture level
+_FAR_PATCH_M = 2000.0  # the coarse far ground texture covers this far around the camera (hazed beyond)
+_FIXED = 6  # fixed-point bits of the int16 noise arithmetic
+RENDERERS = ("warp", "raycast")
+
+
+@dataclass(frozen=True)
+class Face:
+    """A textured rectangle: points origin + s e1 + t e2 for s in [0, size[0]], t in [0, size[1]], seen from the
+    side ``normal`` points to. Texture coordinates are (s + uv_offset[0], t + uv_offset[1])."""
+
+    surface: int
+    origin: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    normal: np.ndarray
+    size: tuple[float, float]
+    texture: TiledTexture | None  # None: constant ``colour``
+    colour: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    shade: float = 1.0  # Lambert factor applied to the texture
+    haze: bool = False
+    min_cos: float = 0.15  # footprint estimate's floor on the viewing angle's cosine
+    uv_offset: tuple[float, float] = (0.0, 0.0)
+    level: int | None = None  # fixed texture level (2**level mm per texel); None: from the pixel footprint
+    max_level: int = 10
+    patch_window_m: float | None = None  # texture patch limited to this distance around the camera
+
+    def corners(self) -> np.ndarray:
+        s, t = self.size
+        o = self.origin
+        return np.array([o, o + s * self.e1, o + s * self.e1 + t * self.e2, o + t * self.e2])
+
+
+class FunctionTexture(TiledTexture):
+    """A :class:`TiledTexture` of a colour function ``fn(a, u, px)``."""
+
+    def __init__(self, fn, max_tiles: int = 256):
+        super().__init__(max_tiles)
+        self._fn = fn
+
+    def evaluate(self, a, u, px):
+        return np.clip(self._fn(np.asarray(a, np.float64), np.asarray(u, np.float64), px), 0, 1)
+
+
+def _vec(*v) -> np.ndarray:
+    return np.array(v, dtype=float)
+
+
+class WarpRenderer(Renderer):
+    """Drop-in replacement of :class:`Renderer` (same constructor, ``render`` and truth) at real-time speed."""
+
+    def __init__(self, scene: Scene, frame: FacadeFrame, camera: CameraModel, *, exposure_s: float = 1 / 240,
+                 noise: bool = True, blur: bool = True, seed: int = 0):
+        super().__init__(scene, frame, camera, exposure_s=exposure_s, noise=noise, blur=blur, seed=seed)
+        K = self.K
+        self._fx, self._fy = float(K[0, 0]), float(K[1, 1])
+        self._cx, self._cy = float(K[0, 2]), float(K[1, 2])
+        self._rx_row = self._rx[0].copy()
+        self._ry_col = self._ry[:, 0].copy()
+        self._faces = self._static_faces()
+        self._ground = self._ground_texture()
+        self._cube: dict[int, np.ndarray] = {}
+        self._patch_cache: dict[int, tuple] = {}
+        self._arrays: tuple | None = None
+        self._crowns: dict[int, np.ndarray] = {}
+        sc = scene
+        self._horizon_u8 = tuple(float(c) * 255.0 for c in sc.sky_horizon)
+        self._tri = (np.arange(256) % 16 + np.arange(256) // 16 - 15).astype(np.int16)  # sum of two nibbles
+        self._tri_std = math.sqrt(2 * (16**2 - 1) / 12.0)
+
+    # ---- the scene as planes -----------------------------------------------------------------------------
+    def _lambert(self, n) -> float:
+        sc = self.scene
+        return float(sc.light * (0.55 + 0.5 * max(0.0, float(np.dot(n, sc.sun_dir)))))
+
+    def _static_faces(self) -> list[Face]:
+        sc = self.scene
+        L, H, D = sc.length_m, sc.height_m, sc.depth_m
+        x, y, z = _vec(1, 0, 0), _vec(0, 1, 0), _vec(0, 0, 1)
+        faces = [
+            Face(TARGET, _vec(0, 0, 0), x, z, y, (L, H), sc.texture, shade=self._lambert(y)),
+            Face(SIDE, _vec(L, 0, 0), -y, z, x, (D, H), sc.side_texture, shade=self._lambert(x)),
+            Face(SIDE, _vec(0, -D, 0), y, z, -x, (D, H), sc.side_texture, shade=self._lambert(-x)),
+            Face(SIDE, _vec(L, -D, 0), -x, z, -y, (L, H), sc.side_texture, shade=self._lambert(-y)),
+            Face(ROOF, _vec(0, -D, H), x, y, z, (L, D), self._roof_texture(), shade=self._lambert(z),
+                 uv_offset=(0.0, -D)),
+        ]
+        for j, b in enumerate(sc.boxes):
+            lo, hi = _vec(*b.lo), _vec(*b.hi)
+            w, d, h = hi - lo
+            sides = [  # (origin, e1, e2, normal, size): the four walls and the roof
+                (lo, x, z, -y, (w, h)), (_vec(hi[0], hi[1], lo[2]), -x, z, y, (w, h)),
+                (_vec(lo[0], hi[1], lo[2]), -y, z, -x, (d, h)), (_vec(hi[0], lo[1], lo[2]), y, z, x, (d, h)),
+                (_vec(lo[0], lo[1], hi[2]), x, y, z, (w, d)),
+            ]
+            if b.kind == "trunk":
+                continue  # thin constant-colour boxes: one exact ray test each (_draw_trunks), not 3 planes
+            for o, e1, e2, n, size in sides:
+                faces.append(Face(FAR, o, e1, e2, n, size, self._far_texture(j, o, e1, e2, n), haze=True,
+                                  max_level=12))
+        return faces
+
+    def _roof_texture(self) -> TiledTexture:
+        sc = self.scene
+
+        def roof(pa, po, px):
+            n = fbm(pa, po, 0.5, sc.seed + 61, octaves=3)
+            return (np.float32(0.45) + 0.06 * n)[..., None] * np.array([1.0, 1.0, 1.02], np.float32)
+
+        return FunctionTexture(roof)
+
+    def _far_texture(self, j: int, o, e1, e2, n) -> TiledTexture:
+        """A far building's face as the ray caster shades it: colour x Lambert, a window grid on the walls."""
+        b = self.scene.boxes[j]
+        col = np.array(b.bgr, np.float32) * np.float32(self._lambert(n))
+        vertical = abs(n[2]) < 0.5
+
+        def face(s, t, px):
+            P = o[None, None, :] + s[..., None] * e1 + t[..., None] * e2
+            out = np.broadcast_to(col, s.shape + (3,)).copy()
+            if vertical:
+                horiz = P[..., 1] if abs(n[0]) > 0.5 else P[..., 0]
+                fu = np.mod(P[..., 2], 3.2) / 3.2
+                fh = np.mod(horiz, 2.8) / 2.8
+                win = (fu > 0.35) & (fu < 0.75) & (fh > 0.2) & (fh < 0.75) & (P[..., 2] > 1.0)
+                out[win] = out[win] * 0.45 + np.array([0.35, 0.3, 0.25], np.float32) * 0.4
+            return out
+
+        return FunctionTexture(face, max_tiles=16)
+
+    def _ground_texture(self) -> TiledTexture:
+        sc = self.scene
+
+        def ground(pa, po, px):
+            gsd = px
+            paved = (po > -sc.depth_m - 4) & (po < 8) & (pa > -6) & (pa < sc.length_m + 6)
+            n1 = fbm(pa, po, 3.0, sc.seed + 71, octaves=5, min_cell=gsd * 2)
+            grass = np.array([0.16, 0.36, 0.26], np.float32) * (1 + 0.35 * n1)[..., None]
+            slab = np.array([0.55, 0.56, 0.57], np.float32) * (1 + 0.12 * n1)[..., None]
+            fa, fo = np.mod(pa, 0.6), np.mod(po, 0.6)
+            joint = np.minimum(np.minimum(fa, 0.6 - fa), np.minimum(fo, 0.6 - fo)) < max(0.004, gsd / 2)
+            slab[joint] *= np.float32(0.75 if gsd < 0.05 else 0.95)
+            return np.where(paved[..., None], slab, grass)
+
+        return FunctionTexture(ground, max_tiles=384)
+
+    def _ground_faces(self, orig) -> list[Face]:
+        """The ground plane as two faces: a square around the camera at the footprint's level, and the rest of
+        the (practically infinite) plane at a coarse level, drawn after it (same plane: the test keeps the near)."""
+        z = _vec(0, 0, 1)
+        x, y = _vec(1, 0, 0), _vec(0, 1, 0)
+        shade = self._lambert(z)
+        r = _GROUND_NEAR_M
+        near = Face(GROUND, _vec(orig[0] - r, orig[1] - r, 0.0), x, y, z, (2 * r, 2 * r), self._ground, shade=shade,
+                    haze=True, min_cos=0.05, uv_offset=(orig[0] - r, orig[1] - r))
+        R = _GROUND_FAR_M
+        far = Face(GROUND, _vec(-R, -R, 0.0), x, y, z, (2 * R, 2 * R), self._ground, shade=shade, haze=True,
+                   min_cos=0.05, uv_offset=(-R, -R), level=11, max_level=12, patch_window_m=_FAR_PATCH_M)
+        return [near, far]
+
+    # ---- projection helpers ------------------------------------------------------------------------------
+    def _polygon(self, cam: np.ndarray) -> np.ndarray | None:
+        """Camera-frame polygon -> image polygon (pixel index coordinates), clipped to the frustum (1 px
+        margin, so its corners are the visible part's extent on the plane), or None if nothing of it is in view."""
+        W, H = self.camera.width, self.camera.height
+        fx, fy, cx, cy = self._fx, self._fy, self._cx, self._cy
+        z = cam[:, 2]
+        if (z > _NEAR).all():
+            u = fx * cam[:, 0] / z + cx - 0.5
+            v = fy * cam[:, 1] / z + cy - 0.5
+            if u.max() < -1 or u.min() > W or v.max() < -1 or v.min() > H:
+                return None
+            if u.min() >= -1 and u.max() <= W and v.min() >= -1 and v.max() <= H:
+                return np.column_stack([u, v])
+        planes = (
+            np.array([0.0, 0.0, 1.0, -_NEAR]),
+            np.array([fx, 0.0, cx + 0.5, 0.0]),
+            np.array([-fx, 0.0, W - cx + 0.5, 0.0]),
+            np.array([0.0, fy, cy + 0.5, 0.0]),
+            np.array([0.0, -fy, H - cy + 0.5, 0.0]),
+        )
+        poly = cam
+        for p in planes:
+            if len(poly) == 0:
+                return None
+            d = poly @ p[:3] + p[3]
+            out = []
+            for i in range(len(poly)):
+                a, b = poly[i], poly[(i + 1) % len(poly)]
+                da, db = d[i], d[(i + 1) % len(poly)]
+                if da >= 0:
+                    out.append(a)
+                if (da >= 0) != (db >= 0):
+                    out.append(a + (b - a) * (da / (da - db)))
+            poly = np.array(out)
+        if len(poly) < 3:
+            return None
+        z = poly[:, 2]
+        return np.column_stack([fx * poly[:, 0] / z + cx - 0.5, fy * poly[:, 1] / z + cy - 0.5])
+
+    def _rect_mask(self, uv: np.ndarray):
+        """Bounding rectangle (x0, y0, x1, y1) of an image polygon and the pixels whose centres lie inside it
+        there (the ray caster's rule, so boundaries agree to the pixel): a bool mask, or None when the polygon
+        covers the whole rectangle, or None for the whole answer when no pixel centre is inside."""
+        W, H = self.camera.width, self.camera.height
+        y0, y1 = max(int(math.ceil(uv[:, 1].min())), 0), min(int(math.floor(uv[:, 1].max())) + 1, H)
+        if y0 >= y1:
+            return None
+        # a convex polygon covers one interval of each row: intersect the half-planes of its edges
+        ys = np.arange(y0, y1, dtype=float)
+        lo = np.full(len(ys), -np.inf)
+        hi = np.full(len(ys), np.inf)
+        p, q = uv, np.roll(uv, -1, axis=0)
+        area = float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
+        sign = 1.0 if area > 0 else -1.0
+        for (px, py), (qx, qy) in zip(p, q, strict=True):
+            nx, ny = -(qy - py) * sign, (qx - px) * sign  # inward normal: n . (X - p) >= 0 inside
+            if abs(nx) < 1e-12:
+                if abs(ny) > 1e-12:
+                    out = ny * (ys - py) < 0
+                    lo[out], hi[out] = np.inf, -np.inf
+                continue
+            bound = px - ny * (ys - py) / nx
+            if nx > 0:
+                np.maximum(lo, bound, out=lo)
+            else:
+                np.minimum(hi, bound, out=hi)
+        xl = np.maximum(np.ceil(lo), 0)
+        xr = np.minimum(np.floor(hi) + 1, W)  # exclusive
+        rows = np.nonzero(xr > xl)[0]
+        if len(rows) == 0:
+            return None
+        r0, r1 = int(rows[0]), int(rows[-1]) + 1
+        xl, xr = xl[r0:r1].astype(int), xr[r0:r1].astype(int)
+        x0, x1 = int(xl.min()), int(xr.max())
+        if (xl == x0).all() and (xr == x1).all():
+            mask = None
+        else:
+            cols = np.arange(x0, x1)
+            mask = (cols[None, :] >= xl[:, None]) & (cols[None, :] < xr[:, None])
+        return (x0, y0 + r0, x1, y0 + r1), mask
+
+    def _kidx(self, x0: int, y0: int) -> np.ndarray:
+        """Camera frame -> pixel index coordinates inside a rectangle starting at (x0, y0)."""
+        return np.array([[self._fx, 0.0, self._cx - 0.5 - x0], [0.0, self._fy, self._cy - 0.5 - y0], [0, 0, 1.0]])
+
+    # ---- textures ----------------------------------------------------------------------------------------
+    def _level(self, f: Face, w, vis, g, X0: int, Y0: int) -> int:
+        """Texture level of a face from its median pixel footprint (a 1-in-16 sample), as the ray caster picks
+        it: texel about 1.5 x the footprint, rounded down to a power of two."""
+        if f.level is not None:
+            return f.level
+        step = max(1, int(math.sqrt(vis.size / 2000)))  # about 2000 samples
+        if not vis[::step, ::step].any():
+            step = 1
+        sub = vis[::step, ::step]
+        ys, xs = np.nonzero(sub)
+        ws = w[::step, ::step][sub]
+        px = X0 + xs * step
+        py = Y0 + ys * step
+        rx, ry = self._rx_row[px], self._ry_col[py]
+        dn = np.sqrt(rx * rx + ry * ry + 1.0)
+        g = g / np.linalg.norm(g)  # the face normal in camera axes
+        cos = np.maximum(np.abs(g[0] * rx + g[1] * ry + g[2]) / dn, f.min_cos)
+        gsd = float(np.median(dn / ws / self._fx / cos))
+        texel_mm = gsd * 1000.0 * 1.5
+        return int(np.clip(math.floor(math.log2(max(texel_mm, 1.0))), 0, f.max_level))
+
+    def _patch(self, f: Face, key: int, s0, t0, s1, t1, level, pixels: int):
+        """Shaded texture patch over face coordinates [s0, s1] x [t0, t1] (cached while the tile range holds).
+        At most about 4 texels per pixel drawn: a plane seen at a grazing angle (the ground) spans footprints
+        from millimetres to metres, and tiles at the median footprint over all of it would cost more than the
+        frame; its far part is hazed and sampled below its texel size anyway."""
+        tex = f.texture
+        a0, a1 = s0 + f.uv_offset[0], s1 + f.uv_offset[0]
+        u0, u1 = t0 + f.uv_offset[1], t1 + f.uv_offset[1]
+        cap = min(12e6, max(4.0 * pixels, 4.0 * tex.TILE**2))
+        while ((a1 - a0) * 1000 / 2**level) * ((u1 - u0) * 1000 / 2**level) > cap and level < f.max_level + 2:
+            level += 1
+        span = tex.TILE * (2**level) / 1000.0
+        tiles = (level, math.floor(a0 / span), math.floor(a1 / span), math.floor(u0 / span), math.floor(u1 / span))
+        hit = self._patch_cache.get(key)
+        if hit is not None and hit[0] == tiles:
+            return hit[1]
+        patch, ao, uo, px = tex.patch(a0, u0, max(a1, a0 + 1e-3), max(u1, u0 + 1e-3), level)
+        if f.shade != 1.0:  # the face's Lambert factor, applied once per patch rather than per frame
+            patch = cv2.convertScaleAbs(patch, alpha=f.shade)
+        got = (patch, ao, uo, px)
+        self._patch_cache[key] = (tiles, got)
+        return got
+
+    def _cube_face(self, k: int, n, e1, e2) -> np.ndarray:
+        """Sky cube face ``k`` (uint8, N x N over tan -1..1) resampled from the ray caster's sky panorama."""
+        if k not in self._cube:
+            pano = self._sky_panorama()
+            h, w = pano.shape[0], pano.shape[1] - 1
+            N = int(np.clip(self._fx, 64, 2048))
+            c = -1.0 + (np.arange(N) + 0.5) * 2.0 / N
+            S, T = np.meshgrid(c, c)
+            d = n[None, None] + S[..., None] * e1 + T[..., None] * e2
+            d /= np.linalg.norm(d, axis=-1, keepdims=True)
+            az = np.mod(np.arctan2(d[..., 0], d[..., 1]), 2 * math.pi)
+            el = np.degrees(np.arcsin(np.clip(d[..., 2], -1, 1)))
+            mx = (az / (2 * math.pi) * w - 0.5).astype(np.float32)
+            my = ((el + 1.0) / 91.0 * h - 0.5).astype(np.float32)
+            img = cv2.remap(pano, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            self._cube[k] = cv2.convertScaleAbs(img, alpha=255.0)
+        return self._cube[k]
+
+    # ---- drawing -----------------------------------------------------------------------------------------
+    def radiance_u8(self, pose: TruePose):
+        """Scene colour (BGR uint8, radiance x 255 before exposure), z-depth (float32, inf for sky), surfaces."""
+        A = self.M @ pose.R_world_from_cam  # facade <- camera
+        orig = self.M @ pose.position_enu
+        W, H = self.camera.width, self.camera.height
+        img = np.zeros((H, W, 3), np.uint8)
+        zb = np.zeros((H, W), np.float32)  # inverse z-depth: 0 = nothing (sky)
+        sid = np.zeros((H, W), np.uint8)
+        faces = self._faces + self._ground_faces(orig)
+        cams, order = self._candidates(faces, A, orig)
+        for i in order:
+            self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
+        self._draw_trunks(A, orig, img, zb, sid)
+        self._draw_trees(A, orig, img, zb, sid)
+        self._draw_sky(A, img, zb)
+        with np.errstate(divide="ignore"):
+            depth = np.float32(1.0) / zb
+        return img, depth, sid
+
+    def _candidates(self, faces: list[Face], A, orig) -> tuple[np.ndarray, list[int]]:
+        """Camera-frame corners of all faces, and the faces turned towards the camera that may be in view,
+        nearest first (fewer pixels drawn twice; the far ground last). One vectorised pass over all faces."""
+        if self._arrays is None or len(self._arrays[0]) != len(faces):
+            self._arrays = tuple(np.array(v) for v in zip(*[(f.origin, f.e1, f.e2, f.normal, f.size, f.corners())
+                                                             for f in faces], strict=True))
+        org, E1, E2, N, S, C = self._arrays
+        org, C = org.copy(), C.copy()
+        for k in (-2, -1):  # the ground faces follow the camera
+            f = faces[k]
+            org[k], C[k] = f.origin, f.corners()
+        rel = orig - org
+        front = np.einsum("ij,ij->i", rel, N) > 0
+        s = np.clip(np.einsum("ij,ij->i", rel, E1), 0.0, S[:, 0])
+        t = np.clip(np.einsum("ij,ij->i", rel, E2), 0.0, S[:, 1])
+        dist = np.linalg.norm(rel - s[:, None] * E1 - t[:, None] * E2, axis=1)
+        dist[-1] = np.inf
+        cams = (C - orig) @ A
+        z = cams[..., 2]
+        ahead = z > _NEAR
+        W, H = self.camera.width, self.camera.height
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self._fx * cams[..., 0] / z + self._cx - 0.5
+            v = self._fy * cams[..., 1] / z + self._cy - 0.5
+        outside = ahead.all(axis=1) & ((u.max(1) < -1) | (u.min(1) > W) | (v.max(1) < -1) | (v.min(1) > H))
+        keep = np.nonzero(front & ahead.any(axis=1) & ~outside)[0]
+        return cams, [int(i) for i in keep[np.argsort(dist[keep], kind="stable")]]
+
+    def _draw_face(self, f: Face, key: int, cam, A, orig, img, zb, sid):
+        uv = self._polygon(cam)
+        if uv is None:
+            return
+        # inverse depth of the plane n.X = n.O along the ray A (rx, ry, 1): affine in (rx, ry)
+        g = (A.T @ f.normal) / float(f.normal @ (f.origin - orig))
+        if self._hidden(uv, g, zb):
+            return
+        got = self._rect_mask(uv)
+        if got is None:
+            return
+        (x0, y0, x1, y1), mask = got
+        zr = zb[y0:y1, x0:x1]
+        w = (np.float32(g[0]) * self._rx_row[x0:x1])[None, :] + (np.float32(g[1]) * self._ry_col[y0:y1]
+                                                                  + np.float32(g[2]))[:, None]
+        vis = w > zr
+        if mask is not None:
+            vis &= mask
+        bx, by, bw, bh = cv2.boundingRect(vis.view(np.uint8))
+        if bw == 0 or bh == 0:
+            return
+        sl = (slice(by, by + bh), slice(bx, bx + bw))
+        vis, w = vis[sl], w[sl]
+        X0, Y0 = x0 + bx, y0 + by
+        out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
+        full = bool(vis.all())  # the common case: the nearest face, nothing drawn there yet
+        if full:
+            zb[out] = w
+            sid[out] = f.surface
+        else:
+            np.copyto(zb[out], w, where=vis)
+            np.copyto(sid[out], np.uint8(f.surface), where=vis)
+        if f.texture is None:
+            col = np.clip(np.array(f.colour) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+            np.copyto(img[out], col, where=vis[..., None])
+            return
+        level = self._level(f, w, vis, g, X0, Y0)
+        # the visible part's extent on the face (from the clipped polygon's corners, in face coordinates)
+        s0, t0, s1, t1 = self._face_extent(f, A, orig, uv)
+        if f.patch_window_m is not None:
+            r = f.patch_window_m
+            cs, ct = float((orig - f.origin) @ f.e1), float((orig - f.origin) @ f.e2)
+            s0, s1 = max(s0, cs - r), min(s1, cs + r)
+            t0, t1 = max(t0, ct - r), min(t1, ct + r)
+            if s0 >= s1 or t0 >= t1:
+                s0, s1, t0, t1 = cs - 1, cs + 1, ct - 1, ct + 1
+        patch, ao, uo, px = self._patch(f, key, s0, t0, s1, t1, level, bw * bh)
+        T1 = np.array([[px, 0.0, ao + 0.5 * px - f.uv_offset[0]], [0.0, px, uo + 0.5 * px - f.uv_offset[1]],
+                       [0.0, 0.0, 1.0]])
+        P = np.column_stack([A.T @ f.e1, A.T @ f.e2, A.T @ (f.origin - orig)])
+        Hm = self._kidx(X0, Y0) @ P @ T1
+        if full and not f.haze:
+            cv2.warpPerspective(patch, Hm, (bw, bh), dst=img[out], flags=cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REPLICATE)
+            return
+        col = cv2.warpPerspective(patch, Hm, (bw, bh), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if f.haze:
+            col = self._hazed(col, w, X0, Y0)
+        if full:
+            img[out] = col
+        else:
+            np.copyto(img[out], col, where=vis[..., None])
+
+    def _hidden(self, uv, g, zb) -> bool:
+        """True if something nearer already covers the polygon's whole bounding box (far buildings behind the
+        wall): the plane's inverse depth is affine, so its largest value is at a corner."""
+        W, H = self.camera.width, self.camera.height
+        x0, y0 = max(int(uv[:, 0].min()), 0), max(int(uv[:, 1].min()), 0)
+        x1, y1 = min(int(uv[:, 0].max()) + 2, W), min(int(uv[:, 1].max()) + 2, H)
+        if x0 >= x1 or y0 >= y1:
+            return True
+        w_max = float(np.max(g[0] * (uv[:, 0] + 0.5 - self._cx) / self._fx + g[1] * (uv[:, 1] + 0.5 - self._cy)
+                             / self._fy + g[2]))
+        return float(zb[y0:y1, x0:x1].min()) > w_max * 1.001
+
+    def _face_extent(self, f: Face, A, orig, uv) -> tuple[float, float, float, float]:
+        """Face coordinates spanned by the image polygon (its corners cast back onto the plane)."""
+        rx = (uv[:, 0] + 0.5 - self._cx) / self._fx
+        ry = (uv[:, 1] + 0.5 - self._cy) / self._fy
+        D = np.column_stack([rx, ry, np.ones_like(rx)]) @ A.T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = float(f.normal @ (f.origin - orig)) / (D @ f.normal)
+            P = orig + D * t[:, None] - f.origin
+            s, tt = P @ f.e1, P @ f.e2
+        ok = np.isfinite(s) & np.isfinite(tt) & (t > 0)
+        if not ok.all():  # a corner on the horizon (grazing ray): the whole face, bounded by its size
+            return 0.0, 0.0, f.size[0], f.size[1]
+        return (max(float(s.min()), 0.0), max(float(tt.min()), 0.0), min(float(s.max()), f.size[0]),
+                min(float(tt.max()), f.size[1]))
+
+    def _hazed(self, col, w, X0, Y0):
+        """Aerial perspective (the ray caster's: exp(-range / 900 m) towards the horizon colour), from the range
+        on an 8x coarser grid (smooth on a plane) bilinearly resized."""
+        h, wd = w.shape
+        ws = w[::8, ::8]
+        rx = self._rx_row[X0:X0 + wd:8][None, :]
+        ry = self._ry_col[Y0:Y0 + h:8][:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.sqrt(rx * rx + ry * ry + 1.0) / np.maximum(ws, 1e-9)
+        keep = np.exp(-r / np.float32(900.0)).astype(np.float32)
+        if float(keep.min()) > 0.998:
+            return col
+        keep = cv2.resize(keep, (wd, h), interpolation=cv2.INTER_LINEAR)
+        hor = np.empty_like(col)
+        hor[:] = np.round(self._horizon_u8).astype(np.uint8)
+        return cv2.blendLinear(col, hor, keep, np.float32(1.0) - keep)
+
+    def _rect_rays(self, rect, A):
+        """Ray directions (facade axes, camera z = 1) of the pixels of an image rectangle."""
+        rx = self._rx_row[rect[1]][None, :]
+        ry = self._ry_col[rect[0]][:, None]
+        return tuple(np.float32(A[k, 0]) * rx + np.float32(A[k, 1]) * ry + np.float32(A[k, 2]) for k in range(3))
+
+    def _draw_trunks(self, A, orig, img, zb, sid):
+        """Tree trunks: the ray caster's box test inside each trunk's small image rectangle."""
+        col = np.clip(np.array([0.1, 0.15, 0.2]) * self._lambert(_vec(0, 1, 0)) * 255 + 0.5, 0, 255).astype(np.uint8)
+        for b in self.scene.boxes:
+            if b.kind != "trunk":
+                continue
+            lo, hi = np.array(b.lo), np.array(b.hi)
+            rect = self._rect(orig, A, _box_corners(lo, hi))
+            if rect is None:
+                continue
+            zr = zb[rect]
+            near = float(np.linalg.norm(np.maximum(np.maximum(lo - orig, 0.0), orig - hi)))
+            if near > 0 and float(zr.min()) * near > 1.001:
+                continue
+            th, _ = _box_hit(orig.astype(np.float32), self._rect_rays(rect, A), lo, hi)
+            with np.errstate(divide="ignore"):
+                w = np.float32(1.0) / th
+            vis = w > zr
+            if vis.any():
+                zr[vis] = w[vis]
+                sid[rect][vis] = TRUNK
+                img[rect][vis] = col
+
+    def _draw_trees(self, A, orig, img, zb, sid):
+        sc = self.scene
+        for ti, tr in enumerate(sc.trees):
+            rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
+            c = np.array(tr.centre)
+            rect = self._rect(orig, A, _box_corners(c - rad, c + rad))
+            if rect is None:
+                continue
+            zr = zb[rect]
+            near = float(np.linalg.norm(np.maximum(np.maximum(c - rad - orig, 0.0), orig - c - rad)))
+            if near > 0 and float(zr.min()) * near > 1.001:  # everything there is nearer than the crown's box
+                continue
+            Dc = self._rect_rays(rect, A)
+            th = _ellipsoid_hit(orig.astype(np.float32), Dc, c, rad)
+            with np.errstate(divide="ignore"):
+                w = (np.float32(1.0) / th).astype(np.float32)
+            vis = w > zr
+            if not vis.any():
+                continue
+            zr[vis] = w[vis]
+            sid[rect][vis] = TREE
+            t = th[vis]
+            unit = [(orig[k] + Dc[k][vis] * t - c[k]) / rad[k] for k in range(3)]
+            col = self._crown_colour(ti, unit)
+            keep = math.exp(-float(np.linalg.norm(c - orig)) / 900.0)  # haze: a crown is small against 900 m
+            col = col.astype(np.float32) * np.float32(keep) + np.array(self._horizon_u8, np.float32) * (1 - keep)
+            img[rect][vis] = np.clip(col + 0.5, 0, 255).astype(np.uint8)
+
+    def _crown_colour(self, ti: int, unit) -> np.ndarray:
+        """Crown colour (N x 3 uint8) at unit-sphere points of tree ``ti``'s ellipsoid, looked up in a texture
+        over (azimuth, polar angle) built once from the ray caster's leaf shading, instead of per pixel."""
+        tex = self._crowns.get(ti)
+        if tex is None:
+            tr = self.scene.trees[ti]
+            c = np.array(tr.centre)
+            rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
+            nphi, nth = 512, 256
+            phi = (np.arange(nphi + 1) + 0.5) / nphi * 2 * math.pi  # one wrapped column for interpolation
+            th = (np.arange(nth) + 0.5) / nth * math.pi
+            PH, TH = np.meshgrid(phi, th)
+            P = c + rad * np.stack([np.sin(TH) * np.cos(PH), np.sin(TH) * np.sin(PH), np.cos(TH)], -1).reshape(-1, 3)
+            col = self._tree(P, np.full(len(P), ti), np.zeros(len(P)))
+            tex = cv2.convertScaleAbs(col.reshape(nth, nphi + 1, 3), alpha=255.0)
+            self._crowns[ti] = tex
+        nth, nphi = tex.shape[0], tex.shape[1] - 1
+        phi = np.mod(np.arctan2(unit[1], unit[0]), 2 * math.pi)
+        th = np.arccos(np.clip(unit[2], -1.0, 1.0))
+        n = len(phi)
+        cols = 1024
+        rows = -(-n // cols)
+        mx = np.zeros(rows * cols, np.float32)
+        my = np.zeros(rows * cols, np.float32)
+        mx[:n] = phi / (2 * math.pi) * nphi - 0.5
+        my[:n] = th / math.pi * nth - 0.5
+        out = cv2.remap(tex, mx.reshape(rows, cols), my.reshape(rows, cols), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_REPLICATE)
+        return out.reshape(-1, 3)[:n]
+
+    def _draw_sky(self, A, img, zb):
+        empty = zb == 0
+        bx, by, bw, bh = cv2.boundingRect(empty.view(np.uint8))
+        if bw == 0 or bh == 0:
+            return
+        axes = [_vec(1, 0, 0), _vec(0, 1, 0), _vec(0, 0, 1)]
+        for k in range(6):
+            n = axes[k // 2] * (1 if k % 2 == 0 else -1)
+            e1, e2 = axes[(k // 2 + 1) % 3], axes[(k // 2 + 2) % 3]
+            corners = np.array([n - e1 - e2, n + e1 - e2, n + e1 + e2, n - e1 + e2])
+            uv = self._polygon(corners @ A)
+            if uv is None:
+                continue
+            got = self._rect_mask(uv)
+            if got is None:
+                continue
+            (x0, y0, x1, y1), mask = got
+            x0, y0, x1, y1 = max(x0, bx), max(y0, by), min(x1, bx + bw), min(y1, by + bh)
+            if x0 >= x1 or y0 >= y1:
+                continue
+            sel = empty[y0:y1, x0:x1]
+            if mask is not None:
+                sel = sel & mask[y0 - got[0][1]:y1 - got[0][1], x0 - got[0][0]:x1 - got[0][0]]
+            if not sel.any():
+                continue
+            tex = self._cube_face(k, n, e1, e2)
+            N = tex.shape[0]
+            T1 = np.array([[2.0 / N, 0.0, -1.0 + 1.0 / N], [0.0, 2.0 / N, -1.0 + 1.0 / N], [0.0, 0.0, 1.0]])
+            Hm = self._kidx(x0, y0) @ np.column_stack([A.T @ e1, A.T @ e2, A.T @ n]) @ T1
+            col = cv2.warpPerspective(tex, Hm, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR,
+                                      borderMode=cv2.BORDER_REPLICATE)
+            np.copyto(img[y0:y1, x0:x1], col, where=sel[..., None])
+
+    # ---- camera effects ----------------------------------------------------------------------------------
+    def render(self, pose: TruePose, *, index: int = 0, time_s: float = 0.0,
+               exposure: AutoExposure | None = None) -> RenderedFrame:
+        img, depth, sid = self.radiance_u8(pose)
+        mean = float(np.mean(cv2.mean(img)[:3])) / 255.0
+        if exposure is not None:
+            gain = exposure.update(mean, time_s)
+        else:
+            gain = float(np.clip(0.42 / max(mean, 1e-3), 0.6, 1.7))
+        if self.blur and self.exposure_s > 0:
+            img = self._motion_blur(img, depth, pose)
+        image = self._expose(img, gain, index)
+        roi = cv2.compare(sid, TARGET, cv2.CMP_EQ)
+        return RenderedFrame(image, depth, roi, sid, pose, self.K.copy(), gain)
+
+    def _expose(self, img: np.ndarray, gain: float, index: int) -> np.ndarray:
+        """Gain, then the ray caster's noise model (read noise 1.5 DN, shot noise 0.06 DN per DN of signal) with
+        unit-variance triangular noise (two random nibbles), rounded to whole DN: three table lookups, a
+        multiply and a saturating add on the uint8 image."""
+        if not self.noise:
+            return cv2.convertScaleAbs(img, alpha=gain)
+        v = np.minimum(np.arange(256) * gain, 255.0)
+        level = np.round(v).astype(np.uint8)
+        sig = np.round(np.sqrt(1.5**2 + 0.06 * v) / self._tri_std * 2**_FIXED).astype(np.int16)
+        flat = img.reshape(img.shape[0], -1)
+        rng = np.random.default_rng([self.seed, index, 17])
+        b = np.frombuffer(rng.bytes(flat.size), dtype=np.uint8).reshape(flat.shape)
+        noise = cv2.multiply(cv2.LUT(b, self._tri), cv2.LUT(flat, sig), scale=1.0 / 2**_FIXED)  # int16, DN
+        return cv2.add(cv2.LUT(flat, level), noise, dtype=cv2.CV_8U).reshape(img.shape)
+
+
+def make_renderer(kind: str, scene: Scene, frame: FacadeFrame, camera: CameraModel, **kw) -> Renderer:
+    """The renderer by name: 'warp' (real time, the default of the live camera and recordings) or 'raycast'
+    (the per-pixel reference)."""
+    if kind == "warp":
+        return WarpRenderer(scene, frame, camera, **kw)
+    if kind == "raycast":
+        return Renderer(scene, frame, camera, **kw)
+    raise CompanionError(f"unknown renderer {kind!r}", f"use one of {', '.join(RENDERERS)}")

@@ -7,6 +7,9 @@ Scenes: a procedurally textured wall plane at 4 m in front of a strongly texture
 
 from __future__ import annotations
 
+from functools import lru_cache
+from types import SimpleNamespace
+
 import cv2
 import numpy as np
 import pytest
@@ -14,7 +17,7 @@ import pytest
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.keyframes import FeatureConfig, FeatureExtractor, GateConfig, KeyframeGate, OverlapEstimator
-from companion.keyframes.evaluate import minimum_keyframes
+from companion.keyframes.evaluate import evaluate_gate, format_table, minimum_keyframes, telemetry_poses
 from companion.keyframes.motion import WallMotionPredictor
 from companion.keyframes.overlap import OverlapStatus
 from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall
@@ -57,7 +60,6 @@ def _minimum(scene, cams):
 
 def test_predicted_wall_motion_matches_the_simulator_truth(tmp_path):
     """Independent check of the geometry: the simulator's footprint overlap against the poses' prediction."""
-    from companion.keyframes.evaluate import telemetry_poses
     from sim.camera.recording import generate_recording, load_recording
 
     rec = load_recording(generate_recording("missions/demo-facade.yaml", tmp_path / "rec", seed=1, width_px=192,
@@ -101,16 +103,51 @@ def test_only_background_matched_is_no_wall_motion(scene, predictor):
     assert est.R_telemetry == pytest.approx(100.0 * scene.true_overlap(a, b), abs=0.2)
 
 
+class WallRecording:
+    """The evaluation's duck-typed recording over a WallScene pass, whole frame as ROI (no mask)."""
+
+    def __init__(self, scene, cams):
+        self.scene, self.cams = scene, cams
+        self.width, self.height = scene.width_px, scene.height_px
+
+    def __len__(self):
+        return len(self.cams)
+
+    @lru_cache(maxsize=4)  # noqa: B019 (one short-lived instance per test)
+    def _render(self, i):
+        return self.scene.render(self.cams[i])
+
+    def image(self, i):
+        return self._render(i)[0]
+
+    def roi_mask(self, i):
+        return self._render(i)[1]
+
+    def capture_time(self, i):
+        return i / 3.0
+
+    def camera_pose(self, i):
+        p = self.scene.pose(self.cams[i])
+        return SimpleNamespace(lat=p.lat, lon=p.lon, alt_amsl_m=p.alt_amsl_m, yaw_deg=p.yaw_deg,
+                               pitch_deg=p.gimbal_pitch_deg)
+
+    def true_overlap(self, i, j):
+        return self.scene.true_overlap(self.cams[i], self.cams[j])
+
+
 def test_no_mask_pass_off_the_walls_end_keeps_every_pair_above_rth(scene, predictor):
-    cams = [WallCamera(7.0 + 0.3 * i, STANDOFF, 3.0) for i in range(30)]  # wall ends at 12 m: last third is sky
-    frames = [scene.masked_frame(i, c, mask="none") for i, c in enumerate(cams)]
-    _, today = _run(KeyframeGate(_config()), frames)
-    assert min(_pair_truth(scene, cams, today)) < 77.0  # today: the background says ~98 % far past the end
-    kfs, ours = _run(KeyframeGate(_config(), predictor=predictor), frames)
-    assert min(_pair_truth(scene, cams, ours)) >= 77.0
-    assert len(ours) <= _minimum(scene, cams) * 1.1 + 1
-    sources = {k.extra["overlap_source"] for k in kfs[1:]}
-    assert "image" in sources and "telemetry" in sources  # the wall while it is in view, the poses after
+    """Evaluated as bench/gate_eval.py does, side by side: today's images-only gate against the telemetry gate."""
+    cams = [WallCamera(7.6 + 0.4 * i, STANDOFF, 3.0) for i in range(22)]  # wall ends at 12 m, off it from 18
+    rec = WallRecording(scene, cams)
+    today = evaluate_gate(rec, _config(), use_masks=False, curve_floor=101.0)
+    assert min(today.keyframe_pair_truth) < 77.0  # today: the background says ~98 % far past the end
+    ours = evaluate_gate(rec, _config(), use_masks=False, curve_floor=101.0, predictor=predictor,
+                         pose=telemetry_poses(rec, scene.frame))
+    assert min(ours.keyframe_pair_truth) >= 77.0
+    assert len(ours.keyframes) <= len(ours.minimum_keyframes) * 1.1 + 1
+    assert ours.sources.get("image", 0) > 0 and ours.sources.get("telemetry", 0) > 0  # wall in view, then poses
+    table = format_table([("none", "images", today), ("none", "telemetry", ours)], 0.80)
+    assert "| none | telemetry | 22 -> " in table and f"| 0 of {len(ours.keyframes) - 1} |" in table
 
 
 def test_thin_wall_strip_does_not_keep_every_frame(scene, predictor):

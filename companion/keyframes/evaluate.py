@@ -281,6 +281,29 @@ def format_report(ev: GateEvaluation) -> str:
     return "\n".join(lines)
 
 
+def format_table(rows: list[tuple[str, str, GateEvaluation]], rth: float) -> str:
+    """One markdown row per (mask, gate, evaluation): the side-by-side figures of bench/gate_*.py."""
+    rth_pts = 100.0 * rth
+    lines = [
+        f"| mask | gate | raw -> keyframes | minimum at Rth | excess | keyframe pairs: min true overlap | "
+        f"pairs < {rth_pts - 3:.0f} % | R error median / p95 (pts) | unknown R / gaps | R from telemetry "
+        f"(fallback / veto) | gate s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for mask, gate, ev in rows:
+        kp = ev.keyframe_pair_truth
+        med, p95, _ = ev.error_stats("est")
+        src = ev.sources
+        lines.append(
+            f"| {mask} | {gate} | {ev.frames} -> {len(ev.keyframes)} | {len(ev.minimum_keyframes)} | "
+            f"{ev.excess_keyframes_pct:+.1f} % | {min(kp) if kp else float('nan'):.1f} % | "
+            f"{sum(v < rth_pts - 3.0 for v in kp)} of {len(kp)} | {med:.2f} / {p95:.2f} | "
+            f"{ev.unknown} / {len(ev.gaps)} | {src.get('telemetry', 0)} / {src.get('telemetry_veto', 0)} | "
+            f"{ev.gate_seconds:.0f} |"
+        )
+    return "\n".join(lines)
+
+
 def plot_curve(ev: GateEvaluation, path) -> None:
     """R against q for one p (paper Figure 9): estimate, truth and the threshold."""
     import matplotlib

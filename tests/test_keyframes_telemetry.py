@@ -228,3 +228,20 @@ def test_chain_cross_check_decides_in_the_gate(scene, tmp_path):
     idx = [e.index for e in chain.spool.entries]
     assert min(_pair_truth(scene, cams, idx)) >= 77.0
     assert chain.stats.telemetry_overlap_keyframes >= 1 and chain.stats.telemetry_disagrees == 0
+
+
+def test_no_mask_simulator_pass_off_the_walls_end(tmp_path):
+    """The simulator's own scene (trees, far buildings, sky), the first horizontal pass of a mission that starts
+    6 m before the wall's left end, whole frames as ROI: no keyframe pair below Rth - 3 by truth."""
+    from sim.camera.recording import generate_recording, load_recording
+
+    rec = load_recording(generate_recording("bench/missions/wall-end-pass.yaml", tmp_path / "rec", width_px=256,
+                                            stride=12, max_frames=30))
+    cfg = GateConfig(features=FeatureConfig(long_side_px=256, max_features=1000))
+    today = evaluate_gate(rec, cfg, use_masks=False, curve_floor=101.0)
+    assert min(today.keyframe_pair_truth) < 77.0  # the background decides R today
+    pred = WallMotionPredictor(rec.frame, float(rec.meta["camera"]["hfov_deg"]), float(rec.meta["standoff_m"]))
+    ours = evaluate_gate(rec, cfg, use_masks=False, curve_floor=101.0, predictor=pred,
+                         pose=telemetry_poses(rec, rec.frame))
+    assert min(ours.keyframe_pair_truth) >= 77.0
+    assert len(ours.keyframes) <= len(ours.minimum_keyframes) * 1.1 + 1

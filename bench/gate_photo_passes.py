@@ -140,6 +140,8 @@ def main() -> None:
                 ev = evaluate_gate(rec, cfg, use_masks=mask == "truth", predictor=rec.predictor if pose else None,
                                    pose=pose, mask_of=model_masks if mask == "model" else None, curve_floor=101.0)
                 rows.append((mask, gate, ev))
+                print(f"done: mask {mask}, gate {gate}: {len(ev.keyframes)} keyframes, lowest pair "
+                      f"{min(ev.keyframe_pair_truth, default=float('nan')):.1f} %", flush=True)
         print(format_table(rows, args.rth))
         print("\n| mask | gate | keyframes showing no wall | visible-wall overlap of keyframe pairs: min | "
               f"pairs < {100 * args.rth - 3:.0f} % |")

@@ -1,20 +1,24 @@
 """The gate measured against simulator truth: R error, keyframe-pair overlap, keyframe count vs the minimum.
 
 Reads a recording through a duck-typed interface (``len``, ``image(i)``, ``roi_mask(i)``, ``capture_time(i)``,
-``true_overlap(i, j)``, ``width``, ``height``), so this module does not import the simulator.
+``true_overlap(i, j)``, ``width``, ``height``; ``camera_pose(i)`` for telemetry), so this module does not import
+the simulator.
 """
 
 from __future__ import annotations
 
 import time
-from collections import deque
+from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateConfig, KeyframeGate
+from companion.keyframes.motion import WallMotionPredictor
 from companion.keyframes.synthetic import masked_frame
+from companion.records import MaskedFrame, Pose, TaggedFrame
 
 
 @dataclass
@@ -42,6 +46,8 @@ class GateEvaluation:
     gate_seconds: float  # time inside push/flush only (no disk reads)
     curve: list[tuple[int, float | None, float]] = field(default_factory=list)  # (q, R_est, R_true) for one p
     curve_p: int = 0
+    sources: dict[str, int] = field(default_factory=dict)  # comparisons by where R came from (image / telemetry)
+    telemetry: bool = False  # the gate had poses and a wall-motion predictor
 
     @staticmethod
     def _abs_err(values: list[float | None], truth: list[float]) -> np.ndarray:
@@ -104,15 +110,70 @@ def minimum_keyframes(n: int, overlap, rth: float, patience: int = 90) -> list[i
     return path[::-1]
 
 
+@dataclass(frozen=True)
+class PoseNoise:
+    """GNSS/IMU-like telemetry error for evaluations: a constant bias (facade axes along, out, up, metres; yaw
+    degrees), which cancels in relative motion, plus independent per-frame noise (metres, degrees)."""
+
+    bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    bias_yaw_deg: float = 0.0
+    sigma_m: float = 0.0
+    sigma_deg: float = 0.0
+    seed: int = 0
+
+    @property
+    def exact(self) -> bool:
+        return self.bias_m == (0.0, 0.0, 0.0) and self.bias_yaw_deg == 0.0 and self.sigma_m == 0.0 \
+            and self.sigma_deg == 0.0
+
+
+def telemetry_poses(recording, frame, noise: PoseNoise | None = None) -> Callable[[int], Pose]:
+    """``pose(i)``: the telemetry pose of recording frame i (its true camera pose, optionally with ``noise``).
+
+    ``frame`` is the recording's FacadeFrame; the camera is a stabilised gimbal (pitch -> gimbal_pitch_deg)."""
+    noise = noise or PoseNoise()
+    rng = np.random.default_rng(noise.seed)
+    draws: dict[int, np.ndarray] = {}
+
+    def pose(i: int) -> Pose:
+        tp = recording.camera_pose(i)
+        if i not in draws:
+            draws[i] = rng.normal(0.0, 1.0, 5)
+        d = draws[i]
+        along, out, up = (float(v) for v in frame.geodetic_to_facade(tp.lat, tp.lon, tp.alt_amsl_m))
+        along += noise.bias_m[0] + noise.sigma_m * d[0]
+        out += noise.bias_m[1] + noise.sigma_m * d[1]
+        up += noise.bias_m[2] + noise.sigma_m * d[2]
+        lat, lon, alt = (float(v) for v in frame.facade_to_geodetic(along, out, up))
+        yaw = (float(tp.yaw_deg) + noise.bias_yaw_deg + noise.sigma_deg * d[3]) % 360.0
+        pitch = float(tp.pitch_deg) + noise.sigma_deg * d[4]
+        return Pose(recording.capture_time(i), lat, lon, alt, up, 0.0, 0.0, yaw, gimbal_pitch_deg=pitch)
+
+    return pose
+
+
 def evaluate_gate(
-    recording, config: GateConfig | None = None, *, use_masks: bool = True, curve_p: int = 0, curve_floor: float = 50.0
+    recording,
+    config: GateConfig | None = None,
+    *,
+    use_masks: bool = True,
+    curve_p: int = 0,
+    curve_floor: float = 50.0,
+    predictor: WallMotionPredictor | None = None,
+    pose: Callable[[int], Pose | None] | None = None,
+    mask_of: Callable[[int], np.ndarray | None] | None = None,
 ) -> GateEvaluation:
-    """Runs the gate over every frame of ``recording`` and compares what it computed with the truth."""
+    """Runs the gate over every frame of ``recording`` and compares what it computed with the truth.
+
+    ``predictor`` and ``pose`` give the gate telemetry (see ``telemetry_poses``); without them it decides on the
+    images alone. ``mask_of(i)`` replaces the recording's truth ROI mask (e.g. the depth model's; None: no ROI,
+    the frame is dropped as the onboard chain does)."""
     n = len(recording)
     if n < 2:
         raise CompanionError(f"the recording has {n} frame(s)", "evaluate a recording with at least 2 frames")
     cfg = config or GateConfig()
-    gate = KeyframeGate(cfg)
+    gate = KeyframeGate(cfg, predictor=predictor if pose is not None else None)
+    sources: Counter = Counter()
     keys: list[int] = []
     gaps: list[int] = []
     pairs: list[PairError] = []
@@ -124,6 +185,7 @@ def evaluate_gate(
         nonlocal unknown, warnings
         for c in step.comparisons:
             e = c.estimate
+            sources[e.source if e.known else "unknown"] += 1
             if e.known:
                 truth = 100.0 * recording.true_overlap(c.ref_index, c.frame_index)
                 pairs.append(PairError(c.ref_index, c.frame_index, e.percent, truth, e.R_displacement, e.R_polygon))
@@ -132,8 +194,15 @@ def evaluate_gate(
         warnings += int(step.overlap_warning)
 
     for i in range(n):
-        mask = recording.roi_mask(i) if use_masks else None
+        if mask_of is not None:
+            mask = mask_of(i)
+            if mask is None:
+                continue
+        else:
+            mask = recording.roi_mask(i) if use_masks else None
         mf = masked_frame(i, recording.image(i), mask, t_s=recording.capture_time(i))
+        if pose is not None:
+            mf = MaskedFrame(TaggedFrame(mf.tagged.frame, pose(i)), mf.mask)
         t0 = time.perf_counter()
         out = gate.push(mf)
         spent += time.perf_counter() - t0
@@ -163,6 +232,8 @@ def evaluate_gate(
         gate_seconds=spent,
         curve=curve,
         curve_p=curve_p,
+        sources=dict(sources),
+        telemetry=gate.predictor is not None,
     )
 
 
@@ -203,8 +274,33 @@ def format_report(ev: GateEvaluation) -> str:
         f" {ev.excess_keyframes_pct:+.1f} % (target <= +10 %)",
         f"gaps {len(ev.gaps)}, overlap warnings {ev.warnings}; gate time {ev.gate_seconds:.1f} s"
         f" = {ev.fps:.2f} frames/s",
+        f"telemetry {'on' if ev.telemetry else 'off'}; comparisons by source of R: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(ev.sources.items())),
         f"keyframe indices: {ev.keyframes}",
     ]
+    return "\n".join(lines)
+
+
+def format_table(rows: list[tuple[str, str, GateEvaluation]], rth: float) -> str:
+    """One markdown row per (mask, gate, evaluation): the side-by-side figures of bench/gate_*.py."""
+    rth_pts = 100.0 * rth
+    lines = [
+        f"| mask | gate | raw -> keyframes | minimum at Rth | excess | keyframe pairs: min true overlap | "
+        f"pairs < {rth_pts - 3:.0f} % | R error median / p95 (pts) | unknown R / gaps | R from telemetry "
+        f"(fallback / veto) | gate s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for mask, gate, ev in rows:
+        kp = ev.keyframe_pair_truth
+        med, p95, _ = ev.error_stats("est")
+        src = ev.sources
+        lines.append(
+            f"| {mask} | {gate} | {ev.frames} -> {len(ev.keyframes)} | {len(ev.minimum_keyframes)} | "
+            f"{ev.excess_keyframes_pct:+.1f} % | {min(kp) if kp else float('nan'):.1f} % | "
+            f"{sum(v < rth_pts - 3.0 for v in kp)} of {len(kp)} | {med:.2f} / {p95:.2f} | "
+            f"{ev.unknown} / {len(ev.gaps)} | {src.get('telemetry', 0)} / {src.get('telemetry_veto', 0)} | "
+            f"{ev.gate_seconds:.0f} |"
+        )
     return "\n".join(lines)
 
 

@@ -7,16 +7,24 @@ keyframe and the current frame is compared again against it. So the keyframe is 
 
 Memory is bounded: between calls the gate holds the last keyframe and one candidate at full resolution, plus
 their working-resolution features (one SIFT extraction per incoming frame, one match, two after a promotion).
+
+With telemetry (a ``WallMotionPredictor`` and frames carrying poses) the gate measures the wall, not whatever
+RANSAC agrees on: the wall's motion predicted from the two poses picks the RANSAC hypothesis that decides R (a
+static far background cannot), a pair the poses put below Rth - ``telemetry_margin`` is never accepted whatever
+the image says, and where the image holds too little wall to measure (a thin strip at the wall's end) the
+predicted overlap decides and the keyframe's record says so (``overlap_source``). Frames without poses are
+decided by the image alone, as in the paper.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 from companion.errors import CompanionError
 from companion.keyframes.features import FeatureConfig, FeatureExtractor, FeatureSet
+from companion.keyframes.motion import WallMotion, WallMotionPredictor
 from companion.keyframes.overlap import OverlapConfig, OverlapEstimate, OverlapEstimator
 from companion.keyframes.sharpness import SharpnessReference, laplacian_variance
 from companion.records import Keyframe, MaskedFrame
@@ -29,6 +37,7 @@ class GateConfig:
     rth: float = 0.80
     warn_margin: float = 0.10  # R dropping from >= Rth to below Rth - margin in one frame -> overlap warning
     blur_ratio: float = 0.6  # sharpness below this share of the running reference = blurred
+    telemetry_margin: float = 0.03  # poses saying overlap < rth - this veto the pair, whatever the image says
     features: FeatureConfig = field(default_factory=FeatureConfig)
     overlap: OverlapConfig = field(default_factory=OverlapConfig)
 
@@ -40,6 +49,8 @@ class GateConfig:
             raise CompanionError(f"warn_margin={self.warn_margin} must be in [0, rth)", "use e.g. 0.10")
         if not 0.0 < self.blur_ratio <= 1.0:
             raise CompanionError(f"blur_ratio={self.blur_ratio} must be in (0, 1]", "use e.g. 0.6")
+        if not 0.0 <= self.telemetry_margin < self.rth:
+            raise CompanionError(f"telemetry_margin={self.telemetry_margin} must be in [0, rth)", "use e.g. 0.03")
 
     @classmethod
     def for_mission(cls, mission, **overrides) -> GateConfig:
@@ -104,10 +115,16 @@ class _Held:
 
 
 class KeyframeGate:
-    """Online keyframe selection. ``push(frame) -> keyframes decided now``; ``flush()`` at end of stream."""
+    """Online keyframe selection. ``push(frame) -> keyframes decided now``; ``flush()`` at end of stream.
 
-    def __init__(self, config: GateConfig | None = None):
+    ``predictor``: the wall's motion from telemetry poses (see module docstring); None decides on images alone.
+    """
+
+    def __init__(self, config: GateConfig | None = None, predictor: WallMotionPredictor | None = None):
         self.config = config or GateConfig()
+        self.predictor = predictor
+        self.telemetry_vetoes = 0  # comparisons where the poses overruled an image R >= Rth
+        self.telemetry_fallbacks = 0  # comparisons decided by the poses because the image could not measure the wall
         self._extractor = FeatureExtractor(self.config.features)
         self._estimator = OverlapEstimator(self.config.overlap)
         self._sharp_ref = SharpnessReference(self.config.blur_ratio)
@@ -256,7 +273,8 @@ class KeyframeGate:
             GateEvent(
                 GateEventKind.LOW_OVERLAP,
                 item.index,
-                f"frame {item.index} kept at R {est.R:.1f} % < {self.rth_percent:.0f} %: no frame in between",
+                f"frame {item.index} kept at R {est.R:.1f} % < {self.rth_percent:.0f} %"
+                f"{'' if est.source == 'image' else ' (from telemetry)'}: no frame in between",
                 est.R,
             )
         )
@@ -286,10 +304,35 @@ class KeyframeGate:
         cand, self._cand = self._cand, None
         self._emit(cand, step, overlap=cand.estimate, gap=False, reason=reason)
 
+    def _predict(self, key: _Held, item: _Held) -> WallMotion | None:
+        if self.predictor is None:
+            return None
+        a, b = key.masked.tagged, item.masked.tagged
+        if a.pose_stale or b.pose_stale:
+            return None
+        w, h = item.features.full_size
+        return self.predictor.predict(a.pose, b.pose, w, h)
+
     def _compare(self, key: _Held, item: _Held, step: GateStep) -> OverlapEstimate:
-        est = self._estimator.estimate(key.features, item.features)
+        prior = self._predict(key, item)
+        est = self._estimator.estimate(key.features, item.features, prior=prior)
+        if prior is not None:
+            est = self._with_telemetry(est, prior)
         step.comparisons.append(Comparison(key.index, item.index, est))
         return est
+
+    def _with_telemetry(self, est: OverlapEstimate, prior: WallMotion) -> OverlapEstimate:
+        """The image decides where it measured the wall; the poses veto a pair they put below Rth - margin and
+        decide alone where the image found no wall motion."""
+        predicted = prior.overlap_percent
+        floor = self.rth_percent - 100.0 * self.config.telemetry_margin
+        if est.known:
+            if est.percent >= self.rth_percent and predicted < floor:
+                self.telemetry_vetoes += 1
+                return replace(est, R=predicted, source="telemetry_veto", R_image=est.R, R_telemetry=predicted)
+            return replace(est, R_telemetry=predicted)
+        self.telemetry_fallbacks += 1
+        return replace(est, R=predicted, source="telemetry", R_telemetry=predicted)
 
     def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool, reason: str) -> None:
         est = overlap
@@ -310,6 +353,13 @@ class KeyframeGate:
                 "R_polygon": None if est is None else est.R_polygon,
                 "sharpness": item.sharpness,
                 "low_overlap": est is not None and est.known and est.percent < self.rth_percent,
+                # where R came from: "image", or the telemetry prediction ("telemetry": the image held too little
+                # wall to measure; "telemetry_veto": the poses overruled an image R >= Rth)
+                "overlap_source": None if est is None else est.source,
+                "R_image": None if est is None else (est.R_image if est.source != "image" else est.R),
+                "R_telemetry": None if est is None else est.R_telemetry,
+                "prediction_miss_px": None if est is None else est.prediction_miss_px,
+                "background_matches_rejected": 0 if est is None else est.rejected_matches,
             },
         )
         self._key = item

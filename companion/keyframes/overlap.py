@@ -14,14 +14,18 @@ saying why, and the gate treats it as "unknown".
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from companion.errors import CompanionError
 from companion.keyframes.features import FeatureSet
+
+if TYPE_CHECKING:
+    from companion.keyframes.motion import WallMotion
 
 METHODS = ("displacement", "polygon")
 
@@ -32,6 +36,7 @@ class OverlapStatus(StrEnum):
     TOO_FEW_MATCHES = "too_few_matches"  # descriptors do not agree: different scene, blur, or too far apart
     TOO_FEW_INLIERS = "too_few_inliers"  # matches do not agree on one geometry
     DEGENERATE = "degenerate"  # RANSAC model folds, mirrors or scales implausibly
+    NO_WALL_MOTION = "no_wall_motion"  # models found, but none moves like the wall the telemetry predicts
 
 
 @dataclass(frozen=True)
@@ -44,6 +49,13 @@ class OverlapConfig:
     min_inlier_share: float = 0.15  # inliers / matches; repeated texture gives many wrong matches
     max_scale_change: float = 2.0  # homography area change allowed between neighbouring frames
     matcher: str = "flann"  # "flann" or "bf"
+    # With a telemetry prior (the wall's predicted motion): how many RANSAC models to try one after the other,
+    # and how far (median, full-resolution px) a model's inliers may land from where the wall should be:
+    # the larger of prior_floor x frame width and prior_tolerance x the predicted shift. A static background
+    # misses by about the whole predicted shift; relative pose error over a second is a few % of the frame.
+    max_hypotheses: int = 4
+    prior_tolerance: float = 0.35
+    prior_floor: float = 0.05
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -54,6 +66,13 @@ class OverlapConfig:
             raise CompanionError(f"ratio_test={self.ratio_test} is outside (0, 1)", "use about 0.7-0.8")
         if self.min_inliers < 4:
             raise CompanionError("min_inliers must be at least 4 (a homography needs 4 points)", "use 12 or more")
+        if self.max_hypotheses < 1:
+            raise CompanionError(f"max_hypotheses={self.max_hypotheses} must be at least 1", "use about 4")
+        if not (0.0 < self.prior_tolerance < 1.0 and 0.0 < self.prior_floor < 1.0):
+            raise CompanionError(
+                f"prior_tolerance={self.prior_tolerance} / prior_floor={self.prior_floor} must be fractions in (0, 1)",
+                "use about 0.35 and 0.05",
+            )
 
 
 @dataclass(frozen=True)
@@ -71,6 +90,13 @@ class OverlapEstimate:
     R_displacement: float | None = None
     R_polygon: float | None = None
     model: str = ""  # "homography", or "similarity" when the homography was ill-posed
+    # Set when a telemetry prior was used (see KeyframeGate): where R came from and how the image agreed.
+    source: str = "image"  # "image"; "telemetry" (no wall in the image); "telemetry_veto" (poses overruled it)
+    R_image: float | None = None  # the image's own R when the telemetry replaced it
+    R_telemetry: float | None = None  # overlap predicted from the two poses (percent)
+    prediction_miss_px: float | None = None  # median distance of the chosen inliers from the predicted wall
+    hypotheses: int = 0  # RANSAC models tried against the prediction
+    rejected_matches: int = 0  # inliers of models that did not move like the wall (background)
 
     @property
     def known(self) -> bool:
@@ -157,6 +183,16 @@ def _plausible(H_work: np.ndarray, max_scale_change: float, work_w: float, work_
     return tilt < 0.5
 
 
+@dataclass
+class _Fit:
+    """One RANSAC model on a set of matches (working pixels). ``inliers`` index the matches it was fitted on."""
+
+    H_work: np.ndarray | None
+    inliers: np.ndarray  # bool mask over the matches given to the fit
+    model: str
+    status: OverlapStatus
+
+
 class OverlapEstimator:
     """Matches two FeatureSets and returns an OverlapEstimate. Holds the matcher so it is built once."""
 
@@ -167,7 +203,11 @@ class OverlapEstimator:
         else:
             self._matcher = cv2.BFMatcher(cv2.NORM_L2)
 
-    def estimate(self, p: FeatureSet, q: FeatureSet) -> OverlapEstimate:
+    def estimate(self, p: FeatureSet, q: FeatureSet, prior: WallMotion | None = None) -> OverlapEstimate:
+        """R(Ip, Iq). With ``prior`` (the wall's motion predicted from telemetry) R is measured on the RANSAC
+        hypothesis that moves like the wall; a cluster that does not (a static far background) cannot decide R,
+        and when no hypothesis does the status is NO_WALL_MOTION (R unknown). Without it: one RANSAC model on all
+        matches, the paper's method."""
         cfg = self.config
         if p.full_size != q.full_size:
             raise CompanionError(
@@ -185,52 +225,122 @@ class OverlapEstimator:
             return OverlapEstimate(OverlapStatus.TOO_FEW_MATCHES, matches=len(good), **unknown)
         src = p.points[[m.queryIdx for m in good]]
         dst = q.points[[m.trainIdx for m in good]]
+        if prior is None:
+            fit = self._fit(src, dst, p)
+            if fit.status != OverlapStatus.OK:
+                return OverlapEstimate(fit.status, matches=len(good), inliers=int(fit.inliers.sum()), **unknown)
+            return self._result(fit, src, dst, p, len(good))
+        return self._estimate_with_prior(src, dst, p, prior, len(good))
+
+    def _fit(self, src: np.ndarray, dst: np.ndarray, p: FeatureSet, min_share: float | None = None) -> _Fit:
+        """RANSAC homography, or a similarity where the homography is ill-posed (the paper's model, guarded)."""
+        cfg = self.config
+        share = cfg.min_inlier_share if min_share is None else min_share
+        none = np.zeros(len(src), dtype=bool)
+        if len(src) < 4:
+            return _Fit(None, none, "", OverlapStatus.TOO_FEW_INLIERS)
         H_work, inlier_mask = cv2.findHomography(
             src, dst, cv2.RANSAC, cfg.ransac_reproj_px, maxIters=2000, confidence=0.995
         )
         if H_work is None or inlier_mask is None:
-            return OverlapEstimate(OverlapStatus.TOO_FEW_INLIERS, matches=len(good), **unknown)
+            return _Fit(None, none, "", OverlapStatus.TOO_FEW_INLIERS)
         inl = inlier_mask.ravel().astype(bool)
         n_in = int(inl.sum())
-        if n_in < cfg.min_inliers or n_in < cfg.min_inlier_share * len(good):
-            return OverlapEstimate(OverlapStatus.TOO_FEW_INLIERS, matches=len(good), inliers=n_in, **unknown)
+        if n_in < cfg.min_inliers or n_in < share * len(src):
+            return _Fit(None, inl, "", OverlapStatus.TOO_FEW_INLIERS)
         s = p.scale
         w, h = p.full_size
-        model = "homography"
-        if not _plausible(H_work, cfg.max_scale_change, w * s, h * s):
-            # Inliers bunched in a small ROI (a wall edge just entering view) leave the projective part of H
-            # unconstrained; a similarity (shift, rotation, scale) is well-posed there and is what a
-            # constant-standoff pass does between neighbouring frames.
-            A, sim_mask = cv2.estimateAffinePartial2D(
-                src, dst, method=cv2.RANSAC, ransacReprojThreshold=cfg.ransac_reproj_px, maxIters=2000
+        if _plausible(H_work, cfg.max_scale_change, w * s, h * s):
+            return _Fit(H_work, inl, "homography", OverlapStatus.OK)
+        # Inliers bunched in a small ROI (a wall edge just entering view) leave the projective part of H
+        # unconstrained; a similarity (shift, rotation, scale) is well-posed there and is what a
+        # constant-standoff pass does between neighbouring frames.
+        A, sim_mask = cv2.estimateAffinePartial2D(
+            src, dst, method=cv2.RANSAC, ransacReprojThreshold=cfg.ransac_reproj_px, maxIters=2000
+        )
+        if A is None or sim_mask is None:
+            return _Fit(None, inl, "", OverlapStatus.DEGENERATE)
+        H_sim = np.vstack([A, [0.0, 0.0, 1.0]])
+        sim_inl = sim_mask.ravel().astype(bool)
+        if int(sim_inl.sum()) < cfg.min_inliers or not _plausible(H_sim, cfg.max_scale_change, w * s, h * s):
+            return _Fit(None, inl, "", OverlapStatus.DEGENERATE)
+        return _Fit(H_sim, sim_inl, "similarity", OverlapStatus.OK)
+
+    def _estimate_with_prior(
+        self, src: np.ndarray, dst: np.ndarray, p: FeatureSet, prior: WallMotion, n_matches: int
+    ) -> OverlapEstimate:
+        """Sequential RANSAC: fit, set the inliers aside, fit again on the rest (up to ``max_hypotheses``); keep
+        the hypothesis whose inliers land where the telemetry puts the wall (median distance within tolerance)."""
+        cfg = self.config
+        s = p.scale
+        w, _ = p.full_size
+        predicted = prior.map_points(src / s)  # full-resolution px in Iq where the wall points should land
+        src_full = src.astype(np.float64) / s
+        expected_shift = float(np.median(np.linalg.norm(predicted - src_full, axis=1)))
+        tolerance = max(cfg.prior_floor * w, cfg.prior_tolerance * expected_shift)
+        remaining = np.arange(len(src))
+        best: tuple[float, _Fit, np.ndarray] | None = None
+        hypotheses = 0
+        explained = 0
+        for _ in range(cfg.max_hypotheses):
+            if len(remaining) < cfg.min_inliers:
+                break
+            # No inlier-share rule here: agreement with the predicted wall motion is the stronger guard.
+            fit = self._fit(src[remaining], dst[remaining], p, min_share=0.0)
+            idx = remaining[fit.inliers]
+            if len(idx) == 0:
+                break
+            remaining = remaining[~fit.inliers]
+            if fit.status != OverlapStatus.OK:
+                if len(idx) < cfg.min_inliers:
+                    break
+                continue  # an implausible model's matches are set aside; the rest may still hold the wall
+            hypotheses += 1
+            explained += len(idx)
+            miss = float(np.median(np.linalg.norm(dst[idx].astype(np.float64) / s - predicted[idx], axis=1)))
+            if best is None or miss < best[0]:
+                best = (miss, fit, idx)
+        common = dict(matches=n_matches, hypotheses=hypotheses, R_telemetry=prior.overlap_percent)
+        if best is None:
+            return OverlapEstimate(OverlapStatus.TOO_FEW_INLIERS, R=None, method=cfg.method, **common)
+        miss, fit, idx = best
+        if miss > tolerance:
+            return OverlapEstimate(
+                OverlapStatus.NO_WALL_MOTION, R=None, method=cfg.method, inliers=len(idx), prediction_miss_px=miss,
+                rejected_matches=explained, **common,
             )
-            if A is None or sim_mask is None:
-                return OverlapEstimate(OverlapStatus.DEGENERATE, matches=len(good), inliers=n_in, **unknown)
-            H_work = np.vstack([A, [0.0, 0.0, 1.0]])
-            inl = sim_mask.ravel().astype(bool)
-            n_in = int(inl.sum())
-            model = "similarity"
-            if n_in < cfg.min_inliers or not _plausible(H_work, cfg.max_scale_change, w * s, h * s):
-                return OverlapEstimate(OverlapStatus.DEGENERATE, matches=len(good), inliers=n_in, **unknown)
+        chosen = np.zeros(len(src), dtype=bool)
+        chosen[idx] = True
+        chosen_fit = _Fit(fit.H_work, chosen, fit.model, fit.status)
+        est = self._result(chosen_fit, src, dst, p, n_matches)
+        return replace(est, prediction_miss_px=miss, rejected_matches=explained - len(idx), **common)
+
+    def _result(self, fit: _Fit, src: np.ndarray, dst: np.ndarray, p: FeatureSet, n_matches: int) -> OverlapEstimate:
+        cfg = self.config
+        s = p.scale
+        w, h = p.full_size
+        inl = fit.inliers
+        n_in = int(inl.sum())
         scale_m = np.diag([s, s, 1.0])
-        H_full = np.linalg.inv(scale_m) @ H_work @ scale_m
+        H_full = np.linalg.inv(scale_m) @ fit.H_work @ scale_m
         vectors = (dst[inl] - src[inl]) / s
         dx, dy = (float(v) for v in vectors.mean(axis=0))
         r_disp = eq2_overlap(dx, dy, w, h)
         r_poly = polygon_overlap(H_full, w, h)
         r = r_disp if cfg.method == "displacement" else r_poly
         if r is None:
-            return OverlapEstimate(OverlapStatus.DEGENERATE, matches=len(good), inliers=n_in, **unknown)
+            return OverlapEstimate(OverlapStatus.DEGENERATE, R=None, method=cfg.method, matches=n_matches,
+                                   inliers=n_in)
         return OverlapEstimate(
             OverlapStatus.OK,
             R=r,
             method=cfg.method,
-            matches=len(good),
+            matches=n_matches,
             inliers=n_in,
             dx=dx,
             dy=dy,
             H=H_full,
             R_displacement=r_disp,
             R_polygon=r_poly,
-            model=model,
+            model=fit.model,
         )

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from companion.geo import FacadeFrame, GeoPoint
 from companion.keyframes.overlap import convex_intersection_area
-from companion.records import Frame, MaskedFrame, TaggedFrame
+from companion.records import Frame, MaskedFrame, Pose, TaggedFrame
 
 
 def textured_wall(width: int, height: int, seed: int = 0) -> np.ndarray:
@@ -134,3 +135,122 @@ def lawnmower(
                 raise ValueError("texture too small for this many views")
             y = min(row_target, y + step_px)
     return views
+
+
+# -- a wall in front of a far background, seen from telemetry-tagged poses ----------------------------------------
+# The views above are one plane: a static far background cannot be told from the wall by how it moves. The scene
+# below has both, with exact truth: a wall plane (along_m 0..length_m, up_m 0..height_m at out_m = 0) textured
+# with ``wall``, and a background plane ``background_distance_m`` behind it that fills the rest of the view.
+# Cameras are given in facade coordinates (companion.geo) and tagged with geodetic poses of a real-looking site,
+# so the gate's telemetry path sees exactly what the onboard chain would give it.
+
+SITE = FacadeFrame.from_wall(GeoPoint(37.5665, 126.978, 30.0), GeoPoint(37.5665, 126.9786, 30.0))  # 53 m wall, W->E
+
+
+@dataclass(frozen=True)
+class WallCamera:
+    """A camera in facade coordinates: centre (along, out, up) in metres, turned right by ``yaw_deg`` from facing
+    the wall and up by ``pitch_deg`` (a stabilised gimbal: no roll)."""
+
+    along_m: float
+    out_m: float
+    up_m: float
+    yaw_deg: float = 0.0
+    pitch_deg: float = 0.0
+
+    def rotation(self) -> np.ndarray:
+        """Columns: the camera's right, down and forward axes in facade coordinates (along, out, up).
+
+        The facade axes are left-handed (along x out = down), hence down = right x forward."""
+        psi, th = math.radians(self.yaw_deg), math.radians(self.pitch_deg)
+        forward = np.array([math.sin(psi) * math.cos(th), -math.cos(psi) * math.cos(th), math.sin(th)])
+        right = np.array([math.cos(psi), math.sin(psi), 0.0])
+        return np.column_stack([right, np.cross(right, forward), forward])
+
+    @property
+    def centre(self) -> np.ndarray:
+        return np.array([self.along_m, self.out_m, self.up_m])
+
+
+@dataclass(frozen=True)
+class WallScene:
+    """Wall texture over ``length_m`` x ``height_m`` (row 0 = top of the wall) and a background texture spread
+    over ``background_size_m`` (width, height; centred on the wall, bottom at ground level) at the distance."""
+
+    wall: np.ndarray
+    background: np.ndarray
+    length_m: float
+    height_m: float
+    background_distance_m: float = 120.0
+    background_size_m: tuple[float, float] = (600.0, 200.0)
+    width_px: int = 480
+    height_px: int = 270
+    hfov_deg: float = 69.0
+    frame: FacadeFrame = SITE
+
+    @property
+    def K(self) -> np.ndarray:
+        f = (self.width_px / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+        return np.array([[f, 0.0, self.width_px / 2.0], [0.0, f, self.height_px / 2.0], [0.0, 0.0, 1.0]])
+
+    def _plane_to_image(self, cam: WallCamera, texture: np.ndarray, origin, size_m, out_m: float) -> np.ndarray:
+        """Homography from a texture's pixels (row 0 = top) to image pixels, the texture spanning ``size_m`` from
+        the facade point ``origin`` (along, up of its bottom-left corner) on the plane ``out_m``."""
+        th, tw = texture.shape[:2]
+        sx, sy = size_m[0] / tw, size_m[1] / th
+        c = cam.centre
+        top = origin[1] + size_m[1]
+        to_rel = np.array([[sx, 0.0, origin[0] - c[0]], [0.0, 0.0, out_m - c[1]], [0.0, -sy, top - c[2]]])
+        return self.K @ cam.rotation().T @ to_rel
+
+    def render(self, cam: WallCamera) -> tuple[np.ndarray, np.ndarray]:
+        """(BGR image, truth ROI mask 0/255 = wall) of the scene from ``cam``."""
+        size = (self.width_px, self.height_px)
+        bw, bh = self.background_size_m
+        Hb = self._plane_to_image(cam, self.background, (self.length_m / 2 - bw / 2, 0.0), (bw, bh),
+                                  -self.background_distance_m)
+        image = cv2.warpPerspective(self.background, Hb, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        Hw = self._plane_to_image(cam, self.wall, (0.0, 0.0), (self.length_m, self.height_m), 0.0)
+        wall = cv2.warpPerspective(self.wall, Hw, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        ones = np.full(self.wall.shape[:2], 255, np.uint8)
+        mask = cv2.warpPerspective(ones, Hw, size, flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        image[mask > 0] = wall[mask > 0]
+        return image, mask
+
+    def footprint(self, cam: WallCamera) -> np.ndarray:
+        """The image rectangle on the wall PLANE (along_m, up_m), 4 x 2: what true overlap is measured on."""
+        w, h = self.width_px, self.height_px
+        corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], dtype=np.float64)
+        rays = (cam.rotation() @ np.linalg.inv(self.K) @ corners.T).T
+        t = -cam.out_m / rays[:, 1]
+        return (cam.centre + t[:, None] * rays)[:, [0, 2]]
+
+    def true_overlap(self, a: WallCamera, b: WallCamera) -> float:
+        """Share (0..1) of a's footprint on the wall plane that b's covers (the simulator's definition)."""
+        fa, fb = self.footprint(a), self.footprint(b)
+        return convex_intersection_area(fb, fa) / abs(float(cv2.contourArea(fa.astype(np.float32))))
+
+    def wall_share(self, cam: WallCamera) -> float:
+        """Share of the image that shows the wall."""
+        return float((self.render(cam)[1] > 0).mean())
+
+    def pose(self, cam: WallCamera, t_s: float = 0.0, *, offset_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+             yaw_error_deg: float = 0.0) -> Pose:
+        """The telemetry a GNSS/IMU would give for ``cam`` (optionally off by ``offset_m`` in facade axes)."""
+        along, out, up = cam.centre + np.asarray(offset_m, dtype=float)
+        lat, lon, alt = (float(v) for v in self.frame.facade_to_geodetic(along, out, up))
+        yaw = (self.frame.yaw_facing_wall_deg + cam.yaw_deg + yaw_error_deg) % 360.0
+        return Pose(t_s, lat, lon, alt, float(up), 0.0, 0.0, yaw, gimbal_pitch_deg=cam.pitch_deg)
+
+    def masked_frame(self, index: int, cam: WallCamera, *, t_s: float | None = None, mask: str = "truth",
+                     pose: Pose | None = None, with_pose: bool = True) -> MaskedFrame:
+        """The gate's input for ``cam``: ``mask`` 'truth' (the wall only) or 'none' (whole frame as ROI)."""
+        image, roi = self.render(cam)
+        t = float(index) / 30.0 if t_s is None else t_s
+        if mask == "none":
+            roi = np.full(image.shape[:2], 255, np.uint8)
+        elif mask != "truth":
+            raise ValueError(f"mask must be 'truth' or 'none', not {mask!r}")
+        p = (pose or self.pose(cam, t)) if with_pose else None
+        return MaskedFrame(tagged=TaggedFrame(frame=Frame(index=index, capture_time_s=t, image=image), pose=p),
+                           mask=roi)

@@ -38,6 +38,8 @@ class ChainStats:
     low_overlap_keyframes: int = 0
     gaps: int = 0
     telemetry_disagrees: int = 0  # keyframes whose image overlap the poses contradict (flagged in the spool)
+    telemetry_vetoes: int = 0  # frames the poses put below Rth - 3 points although the image said >= Rth
+    telemetry_overlap_keyframes: int = 0  # keyframes whose overlap the poses gave (too little wall to measure)
     spool_errors: int = 0
     busy_s: float = 0.0
     first_frame_wall_s: float | None = None
@@ -83,6 +85,8 @@ class CullChain:
         self.spool_disabled = False
         self.require_telemetry = require_telemetry
         self.crosscheck = crosscheck
+        if crosscheck is not None and gate.predictor is None:
+            gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
         self._seen_pose = False
 
@@ -111,6 +115,7 @@ class CullChain:
         else:  # no depth model requested: the whole frame is ROI
             masked = MaskedFrame(tagged, np.full(frame.image.shape[:2], 255, np.uint8))
         keyframes = self.gate.push(masked)
+        st.telemetry_vetoes = self.gate.telemetry_vetoes
         self._events()
         out = self._spool(keyframes)
         st.busy_s += time.monotonic() - now
@@ -129,6 +134,8 @@ class CullChain:
 
     def _cross_check(self, kf: Keyframe) -> None:
         pose = kf.masked.tagged.pose
+        if kf.extra.get("overlap_source") in ("telemetry", "telemetry_veto"):
+            self.stats.telemetry_overlap_keyframes += 1
         if self.crosscheck is not None and not kf.gap_before:
             predicted = self.crosscheck.suspect(
                 kf.overlap_to_previous, self._last_key_pose, pose, self.gate.rth_percent

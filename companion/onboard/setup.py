@@ -73,12 +73,15 @@ def build_chain(
 
         cam = mission.camera
         crosscheck = OverlapCrossCheck(
-            FacadeFrame.from_wall(*wall_ends(mission)), cam.hfov_deg, cam.height_px / cam.width_px
+            FacadeFrame.from_wall(*wall_ends(mission)),
+            cam.hfov_deg,
+            cam.height_px / cam.width_px,
+            standoff_m=float(mission.standoff_m),
         )
     return CullChain(
         tagger,
         masker,
-        KeyframeGate(gate_cfg),
+        KeyframeGate(gate_cfg, predictor=None if crosscheck is None else crosscheck.predictor),
         spool,
         on_keyframe=on_keyframe,
         on_warning=on_warning,

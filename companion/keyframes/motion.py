@@ -1,0 +1,144 @@
+"""The wall's image motion between two frames, predicted from the two frames' telemetry poses.
+
+Why: the image overlap is measured on whatever features RANSAC agrees on. Where the ROI holds a strongly textured
+far background (the mask kept it, or no mask), the static background can win RANSAC and say R 96-99 % while the
+wall has moved half a frame. The wall is a plane at a known place (the facade frame) and the camera's motion
+between two frames a second apart is well measured even when absolute GNSS is off by a metre: a constant bias
+cancels in the relative motion. So the poses predict where each wall point of frame a lands in frame b (a plane
+homography), which tells the wall's inliers from the background's, and gives the overlap when the image cannot.
+
+Camera model: a pinhole with square pixels and the principal point at the image centre; a stabilised gimbal
+(camera yaw = vehicle yaw, camera pitch = ``gimbal_pitch_deg``, no camera roll), as the stitcher assumes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.errors import CompanionError
+from companion.geo import FacadeFrame
+from companion.keyframes.overlap import convex_intersection_area
+from companion.records import Pose
+
+
+def camera_rotation_enu(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
+    """3x3 rotation taking camera axes (x right, y down, z forward; OpenCV) to ENU vectors.
+
+    Yaw clockwise from north, pitch up positive, roll right side down positive.
+    """
+    psi, th, phi = (math.radians(v) for v in (yaw_deg, pitch_deg, roll_deg))
+    forward = np.array([math.sin(psi) * math.cos(th), math.cos(psi) * math.cos(th), math.sin(th)])
+    right_level = np.array([math.cos(psi), -math.sin(psi), 0.0])
+    down_level = np.cross(forward, right_level)
+    right = math.cos(phi) * right_level + math.sin(phi) * down_level
+    down = np.cross(forward, right)
+    return np.column_stack([right, down, forward])
+
+
+@dataclass(frozen=True)
+class WallMotion:
+    """Where the wall plane seen in frame a appears in frame b, predicted from the two poses.
+
+    ``H`` maps frame a's pixels to frame b's pixels (full resolution) for points on the wall plane;
+    ``overlap_percent`` is the share of a's footprint on the wall plane that b's footprint covers (the simulator's
+    true overlap); ``dx``/``dy`` the predicted shift of a's image centre (b minus a, px).
+    """
+
+    H: np.ndarray
+    overlap_percent: float
+    dx: float
+    dy: float
+    baseline_m: float  # camera travel between the two poses
+
+    def map_points(self, points: np.ndarray) -> np.ndarray:
+        """Frame-a pixels (N x 2) -> predicted frame-b pixels of the same wall points."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        homog = np.hstack([pts, np.ones((len(pts), 1))]) @ self.H.T
+        return homog[:, :2] / homog[:, 2:3]
+
+
+@dataclass(frozen=True)
+class WallMotionPredictor:
+    """Predicts the wall's image motion for one wall and one lens.
+
+    ``standoff_m``: when given, the wall's distance is taken from the plan and only the poses' RELATIVE position
+    is used (both cameras are shifted together so their mean distance to the wall is the standoff): a GNSS bias
+    towards or away from the wall would otherwise scale every predicted shift. None: the poses' own distance.
+    """
+
+    frame: FacadeFrame
+    hfov_deg: float
+    standoff_m: float | None = None
+
+    def __post_init__(self) -> None:
+        if not 1.0 < self.hfov_deg < 179.0:
+            raise CompanionError(
+                f"hfov_deg={self.hfov_deg} is outside (1, 179)", "give the camera's horizontal field of view in degrees"
+            )
+        if self.standoff_m is not None and self.standoff_m <= 0.1:
+            raise CompanionError(f"standoff_m={self.standoff_m} is not a distance in front of the wall",
+                                 "give the planned camera-to-wall distance in metres (e.g. 4.0)")
+
+    def _basis(self) -> np.ndarray:
+        """Columns: the facade's along, out and up axes as ENU vectors."""
+        de, dn = self.frame.along_enu
+        oe, on = self.frame.out_enu
+        return np.array([[de, oe, 0.0], [dn, on, 0.0], [0.0, 0.0, 1.0]])
+
+    def _camera(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+        """(camera centre in facade coordinates, rotation facade <- camera)."""
+        centre = np.array([float(v) for v in self.frame.geodetic_to_facade(pose.lat, pose.lon, pose.alt_amsl_m)])
+        rot = self._basis().T @ camera_rotation_enu(pose.yaw_deg, pose.gimbal_pitch_deg, 0.0)
+        return centre, rot
+
+    @staticmethod
+    def _wall_to_image(K: np.ndarray, centre: np.ndarray, rot: np.ndarray) -> np.ndarray:
+        """Homography from wall-plane coordinates (along_m, up_m, 1) to image pixels."""
+        to_cam = np.array([[1.0, 0.0, -centre[0]], [0.0, 0.0, -centre[1]], [0.0, 1.0, -centre[2]]])
+        return K @ rot.T @ to_cam
+
+    def predict(self, a: Pose | None, b: Pose | None, width: int, height: int) -> WallMotion | None:
+        """The wall's motion from frame a to frame b (``width`` x ``height`` px); None without a usable geometry
+        (a pose missing or not finite, a camera behind the wall plane or looking past it)."""
+        if a is None or b is None:
+            return None
+        values = (a.lat, a.lon, a.alt_amsl_m, a.yaw_deg, a.gimbal_pitch_deg,
+                  b.lat, b.lon, b.alt_amsl_m, b.yaw_deg, b.gimbal_pitch_deg)
+        if not all(math.isfinite(float(v)) for v in values):
+            return None
+        (ca, ra), (cb, rb) = self._camera(a), self._camera(b)
+        if self.standoff_m is not None:
+            shift = self.standoff_m - (ca[1] + cb[1]) / 2.0
+            ca, cb = ca + [0.0, shift, 0.0], cb + [0.0, shift, 0.0]
+        if ca[1] <= 0.1 or cb[1] <= 0.1:
+            return None
+        f = (width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+        K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+        corners = np.array([[0, 0, 1], [width, 0, 1], [width, height, 1], [0, height, 1]], dtype=np.float64)
+        footprints = []
+        for centre, rot in ((ca, ra), (cb, rb)):
+            rays = (rot @ np.linalg.inv(K) @ corners.T).T  # facade-frame ray directions of the corners
+            if np.any(rays[:, 1] >= -1e-6):  # a corner ray does not reach the wall plane in front of the camera
+                return None
+            t = -centre[1] / rays[:, 1]
+            hits = centre + t[:, None] * rays
+            footprints.append(hits[:, [0, 2]])
+        area_a = abs(_signed_area(footprints[0]))
+        if area_a <= 0.0:
+            return None
+        overlap = 100.0 * convex_intersection_area(footprints[1], footprints[0]) / area_a
+        Ha, Hb = self._wall_to_image(K, ca, ra), self._wall_to_image(K, cb, rb)
+        H = Hb @ np.linalg.inv(Ha)
+        H = H / H[2, 2]
+        motion = WallMotion(H, float(min(100.0, overlap)), 0.0, 0.0, float(np.linalg.norm(cb - ca)))
+        centre_b = motion.map_points(np.array([[width / 2.0, height / 2.0]]))[0]
+        return WallMotion(H, motion.overlap_percent, float(centre_b[0] - width / 2.0),
+                          float(centre_b[1] - height / 2.0), motion.baseline_m)
+
+
+def _signed_area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

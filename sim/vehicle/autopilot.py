@@ -27,6 +27,7 @@ from companion.mission import items as mi
 from sim.vehicle import flavours as fl
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.environment import Battery, GpsError, Wind
+from sim.vehicle.firmware import FirmwareRules, lost_link_action
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
 from sim.vehicle.model import Limits, Multirotor
@@ -66,6 +67,13 @@ class VehicleConfig:
     duration_s: float | None = None
     max_mission_items: int = 500
     system_id: int = 1
+    # firmware behaviours (sim/vehicle/firmware.py): reboot at simulated time, silent for reboot_s wall seconds;
+    # PX4 geofence radius; seconds after boot until the estimator uses GPS (None: the flavour's); PX4 storage file
+    reboot_at_s: float | None = None
+    reboot_s: float = 2.0
+    geofence_max_dist_m: float | None = None
+    gps_ready_after_s: float | None = None
+    storage: Path | None = None
     limits: Limits = field(default_factory=Limits)
 
 
@@ -77,7 +85,7 @@ class _LinkWriter:
         self.link.send(bytes(buf))
 
 
-class SimVehicle(TelemetryStreams, CommandHandler):
+class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
     """A MAVLink multirotor. ``run()`` blocks until ``stop()`` or ``duration_s`` of simulated time."""
 
     def __init__(self, cfg: VehicleConfig):
@@ -136,6 +144,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self._outage_start_wall: float | None = None
         self._stop = False
         self.nav = self.model.state.pos.copy()
+        self._init_firmware_rules()
 
     # --- helpers -------------------------------------------------------------------------------------------
     def param(self, name: str, default: float) -> float:
@@ -190,6 +199,10 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 refusal = self.flavour.ground_start_refusal(self.mission)
                 if refusal:
                     return refusal
+                if self.refuse_infeasible_start():
+                    self.mode = mode
+                    self.task = Hold(self.model.state.pos)
+                    return None
             if self.mission_finished:
                 self.mission_seq, self.mission_finished = self.flavour.first_seq, False
             self.mission_task = None
@@ -229,7 +242,11 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 return "battery too low to arm"
             if self.gps.glitching(self.t):
                 return "GPS position not usable"
+            prearm = self.prearm_refusal()
+            if prearm:
+                return prearm
         self.armed = True
+        self.armed_at = self.t
         self.took_off = False
         self.landed_since = None
         self.battery_failsafe = self.link_failsafe = False
@@ -248,14 +265,18 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         return None
 
     def _on_new_mission(self, items: list) -> None:
+        keep = self.keeps_current_on_upload(list(items))
         self.mission = list(items)
-        self.mission_seq = self.flavour.first_seq
+        if not keep:
+            self.mission_seq = self.flavour.first_seq
+        self.mission_refused = False
         self.mission_task = None
         self.mission_finished = False
         self.reached_seq = -1
         if self.mode == fl.MISSION and self.armed:
             self.set_mode(fl.HOLD)
         self._send_mission_current()
+        self.save_storage()
 
     # --- mission execution ---------------------------------------------------------------------------------
     def _start_item(self, item: mi.MissionItem) -> bool:
@@ -329,6 +350,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
             self.task = Hold(self.nav if not self.on_ground else self.model.state.pos)
             log.info("mission finished")
         self._send_mission_current()
+        self.save_storage()
 
     def _mission_command(self, on_ground: bool, dt: float) -> np.ndarray:
         for _ in range(len(self.mission) + 1):
@@ -354,7 +376,9 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self.nav = st.pos + self.gps.step(self.t, dt)
         v_cmd = np.zeros(3)
         if self.armed:
-            if self.mode == fl.MISSION:
+            if self.mode == fl.MISSION and self.mission_refused:
+                v_cmd = np.zeros(3)
+            elif self.mode == fl.MISSION:
                 v_cmd = self._mission_command(st.on_ground, dt)
             else:
                 v_cmd = self.task.command(self.nav, st.on_ground, dt, self)
@@ -366,6 +390,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         if not st.on_ground:
             self.took_off = True
         self._landing_logic()
+        self.preflight_disarm()
         self.battery.step(dt, self.armed, float(np.linalg.norm(st.vel)))
         self._failsafes()
         self._publish_truth()
@@ -391,13 +416,14 @@ class SimVehicle(TelemetryStreams, CommandHandler):
             self.set_mode(fl.RTL)
         if self.last_gcs_wall is None or self.link_failsafe:
             return
-        timeout = self.param("COM_DL_LOSS_T", 10.0)
-        if (time.monotonic() - self.last_gcs_wall > timeout and self.param("NAV_DLL_ACT", 2.0) == 2
+        timeout = self.param("COM_DL_LOSS_T" if self.flavour.name == "px4" else "FS_GCS_TIMEOUT", 10.0)
+        action = lost_link_action(self.flavour.name, self.params)
+        if (time.monotonic() - self.last_gcs_wall > timeout and action is not None
                 and self.mode not in (fl.RTL, fl.LAND)):
             self.link_failsafe = True
-            log.warning("data link lost for more than %.0f s: RTL", timeout)
-            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Data link lost: returning to launch")
-            self.set_mode(fl.RTL)
+            log.warning("data link lost for more than %.0f s: %s", timeout, action)
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Data link lost: failsafe {action}")
+            self.set_mode({"rtl": fl.RTL, "land": fl.LAND, "hold": fl.HOLD}[action])
 
     def landed_state(self) -> int:
         st = self.model.state
@@ -472,6 +498,8 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 if steps == 50:  # cannot keep up: slow the simulated clock down instead of jumping
                     t0 = now - self.t / speed
                 self._update_outage()
+                if self.update_reboot():
+                    t0 = time.monotonic()
                 for data in self.link.receive():
                     for msg in self._parse(data):
                         try:

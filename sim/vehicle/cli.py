@@ -52,7 +52,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-mission-items", type=int, default=500, help="larger uploads are refused (NO_SPACE)")
     p.add_argument("--duration", type=float, help="exit after this much simulated time, s")
     p.add_argument("--max-speed", type=float, default=12.0, help="max horizontal speed, m/s")
+    add_firmware_arguments(p)
     p.add_argument("--max-accel", type=float, default=4.0, help="max acceleration, m/s^2")
+
+
+def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
+    """Firmware behaviours that end or refuse a flight (sim/vehicle/firmware.py)."""
+    p.add_argument("--reboot-at", type=float, metavar="S",
+                   help="the autopilot reboots at this simulated time, s (on the ground again, time_boot_ms from 0)")
+    p.add_argument("--reboot-s", type=float, default=2.0, help="link silence while rebooting, wall seconds")
+    p.add_argument("--geofence-max-dist", type=float, metavar="M",
+                   help="PX4 GF_MAX_HOR_DIST: a mission beyond it is accepted, then its takeoff refused")
+    p.add_argument("--gps-ready-after", type=float, metavar="S",
+                   help="simulated seconds after boot until the estimator uses GPS (default: ArduCopter 38, PX4 0)")
+    p.add_argument("--storage", type=Path,
+                   help="PX4 flavour: keep the mission and its current item in this file across restarts")
+
+
+def firmware_config(args: argparse.Namespace) -> dict:
+    return dict(reboot_at_s=args.reboot_at, reboot_s=args.reboot_s, geofence_max_dist_m=args.geofence_max_dist,
+                gps_ready_after_s=args.gps_ready_after, storage=args.storage)
 
 
 def config_from_args(args: argparse.Namespace) -> VehicleConfig:
@@ -70,6 +89,7 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
         gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,
         duration_s=args.duration, max_mission_items=args.max_mission_items,
         limits=Limits(max_speed_h_m_s=args.max_speed, max_accel_m_s2=args.max_accel),
+        **firmware_config(args),
     )
 
 

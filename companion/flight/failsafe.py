@@ -108,8 +108,9 @@ def failsafe_warnings(settings: FailsafeSettings, need: ReturnAltitudeNeed | Non
 
 
 def failsafe_overrides(autopilot: str, *, link_action: str | None, return_alt: str | float | None,
-                       need: ReturnAltitudeNeed | None) -> dict[str, float]:
-    """The parameter values the explicit options ask for (empty: change nothing)."""
+                       need: ReturnAltitudeNeed | None, current: FailsafeSettings | None = None) -> dict[str, float]:
+    """The parameter values the explicit options ask for (empty: change nothing). ``return_alt='auto'`` raises the
+    return altitude to what the scan needs and never lowers one that is already high enough (``current``)."""
     names = FAILSAFE[autopilot]
     out: dict[str, float] = {}
     if link_action is not None:
@@ -123,6 +124,8 @@ def failsafe_overrides(autopilot: str, *, link_action: str | None, return_alt: s
                 raise CompanionError("--return-alt auto needs a planned scan (transit altitude, wall height)",
                                      "give the return altitude in metres, e.g. --return-alt 30")
             alt_m = float(math.ceil(need.alt_m))
+            if current is not None and current.return_alt_m >= need.alt_m:
+                return out
         else:
             try:
                 alt_m = float(return_alt)

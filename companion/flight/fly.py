@@ -292,16 +292,18 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
                           return_alt: str | float | None) -> tuple[dict[str, float], list[str]]:
     """Read the lost-link action and return altitude; warn; the parameters the explicit options ask for."""
     need = required_return_alt(plan)
-    overrides = failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt,
-                                   need=need)
-    if vehicle.param is None:
-        return overrides, []
+    failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt, need=need)  # check
+    settings = None
     try:
         settings = await read_failsafe(vehicle.param, vehicle.autopilot)
     except CompanionError as exc:
+        if lost_link_action is not None or return_alt is not None:
+            raise
         text = f"could not check the lost-link failsafe: {exc.problem}"
         log.warning("%s", text)
-        return overrides, [text]
+        return {}, [text]
+    overrides = failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt,
+                                   need=need, current=settings)
     log.info("lost-link failsafe: %s=%d (%s); return altitude %s = %g m", settings.names.link_action,
              settings.link_action, settings.link_action_text, settings.names.return_alt, settings.return_alt_m)
     warnings = []

@@ -67,9 +67,11 @@ class VehicleConfig:
     duration_s: float | None = None
     max_mission_items: int = 500
     system_id: int = 1
-    # firmware behaviours (sim/vehicle/firmware.py): reboot at simulated time, silent for reboot_s wall seconds;
+    # firmware behaviours (sim/vehicle/firmware.py): reboot this long (simulated) after take-off, silent for
+    # reboot_s wall seconds;
     # PX4 geofence radius; seconds after boot until the estimator uses GPS (None: the flavour's); PX4 storage file
-    reboot_at_s: float | None = None
+    reboot_after_takeoff_s: float | None = None
+    outage_after_takeoff_s: float | None = None
     reboot_s: float = 2.0
     geofence_max_dist_m: float | None = None
     gps_ready_after_s: float | None = None
@@ -207,6 +209,8 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 self.mission_seq, self.mission_finished = self.flavour.first_seq, False
             self.mission_task = None
             self.mission_prev = nav
+            if self.mode != fl.MISSION:
+                log.info("mission mode from item %d", self.mission_seq)
         elif mode == fl.TAKEOFF:
             if not self.armed:
                 return "takeoff needs the vehicle armed"
@@ -267,7 +271,9 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
     def _on_new_mission(self, items: list) -> None:
         keep = self.keeps_current_on_upload(list(items))
         self.mission = list(items)
-        if not keep:
+        if keep:
+            log.info("uploaded mission equals the stored one: current item %d kept", self.mission_seq)
+        else:
             self.mission_seq = self.flavour.first_seq
         self.mission_refused = False
         self.mission_task = None
@@ -498,6 +504,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 if steps == 50:  # cannot keep up: slow the simulated clock down instead of jumping
                     t0 = now - self.t / speed
                 self._update_outage()
+                self.update_outage_after_takeoff()
                 if self.update_reboot():
                     t0 = time.monotonic()
                 for data in self.link.receive():

@@ -6,8 +6,8 @@ Each rule here was seen on real firmware in SITL (shared/notes/real-firmware.md;
 * PX4 keeps its current mission item when an upload equals the stored mission (the ``current`` flag on item 0
   does not reset it), and across a restart: a re-fly after an interrupted flight resumes at the interrupted item
   unless the companion sets the current item itself. ArduCopter resets it to 1 on every upload.
-* A reboot mid-flight (``--reboot-at``): the link goes silent for a moment, then the vehicle is back on the ground,
-  disarmed, with ``time_boot_ms`` restarting from 0 and (PX4) its stored mission and current item.
+* A reboot mid-flight (``--reboot-after-takeoff``): the link goes silent for a moment, then the vehicle is back on
+  the ground, disarmed, with ``time_boot_ms`` restarting from 0 and (PX4) its stored mission and current item.
 * A mission outside PX4's geofence (``--geofence-max-dist``, PX4's GF_MAX_HOR_DIST): the upload is accepted, the
   takeoff is refused at start with PX4's STATUSTEXTs and the vehicle disarms on the ground (COM_DISARM_PRFLT).
 * ArduCopter's EKF uses GPS only 35-40 s after boot: until then no home, no absolute position, and arming is
@@ -82,6 +82,8 @@ class FirmwareRules:
         self.mission_refused = False
         self.armed_at: float | None = None
         self._reboot_wall: float | None = None
+        self._takeoff_t: float | None = None
+        self._outage_wall: float | None = None
         self._load_storage()
 
     # --- estimator readiness (ArduCopter: 35-40 s after boot) -----------------------------------------
@@ -162,16 +164,41 @@ class FirmwareRules:
             self.disarm()
             self.statustext(mavlink.MAV_SEVERITY_INFO, "Disarmed by auto preflight disarming")
 
+    # --- faults timed from the take-off (reproducible whatever the companion's start-up took) -------------
+    def seconds_since_takeoff(self) -> float | None:
+        if self._takeoff_t is None and self.took_off:
+            self._takeoff_t = self.t
+        return None if self._takeoff_t is None else self.t - self._takeoff_t
+
+    def update_outage_after_takeoff(self) -> None:
+        """``--outage-after-takeoff S``: the link goes down S simulated seconds after take-off, for ``outage_s``
+        wall seconds (a very long one is a link that never comes back)."""
+        cfg = self.cfg
+        if cfg.outage_after_takeoff_s is None:
+            return
+        since = self.seconds_since_takeoff()
+        now = time.monotonic()
+        if self._outage_wall is None:
+            if since is None or since < cfg.outage_after_takeoff_s:
+                return
+            self._outage_wall = now
+            log.warning("link outage starts %.1f s after take-off (%.1f s wall)", since, cfg.outage_s)
+        down = now - self._outage_wall < cfg.outage_s
+        if self.link.down and not down:
+            log.warning("link outage ends")
+        self.link.down = down
+
     # --- reboot mid-flight ----------------------------------------------------------------------------
     def update_reboot(self) -> bool:
         """Runs the scheduled reboot: silence on the link for ``reboot_s`` wall seconds, then a fresh boot.
         Returns True at the moment the vehicle boots again (the caller restarts its clock)."""
         cfg = self.cfg
-        if cfg.reboot_at_s is None or self.boot_count > 0:
+        if cfg.reboot_after_takeoff_s is None or self.boot_count > 0:
             return False
+        since = self.seconds_since_takeoff()
         now = time.monotonic()
         if self._reboot_wall is None:
-            if self.t < cfg.reboot_at_s:
+            if since is None or since < cfg.reboot_after_takeoff_s:
                 return False
             self._reboot_wall = now
             self.link.down = True

@@ -57,7 +57,8 @@ def _fly(plan, url, **kw):
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "companion.cli", "fly", *args]
+    # a generous heartbeat wait: on a loaded machine the simulator process alone can take 10 s to start
+    return [sys.executable, "-m", "companion.cli", "fly", "--connect-timeout", "60", *args]
 
 
 def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
@@ -104,6 +105,17 @@ def test_autopilot_restart_mid_flight_exits_non_zero(tmp_path):
     assert proc.returncode == 1, out
     assert "mission NOT complete" in out and "stopped by reboot" in out
     assert "the autopilot restarted" in out and "cannot be trusted" in out
+
+
+def test_ardupilot_restart_is_seen_although_it_streams_nothing_until_asked_again(small_plan, tmp_path):
+    """After a restart ArduCopter streams only HEARTBEAT: the companion asks for telemetry again while the link is
+    silent, and the restart shows in the time since boot (not as a dead link at the limit)."""
+    cmd = _cli(str(DEMO), "--sitl", "--autopilot", "ardupilot", "--speedup", "20", "--no-progress",
+               "--sim-arg", "reboot-after-takeoff=40", "--link-dead", "40")
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=240)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out
+    assert "stopped by reboot" in out and "the autopilot restarted" in out
 
 
 def test_mission_the_vehicle_refuses_at_start_errors_within_seconds(small_plan, tmp_path, caplog):

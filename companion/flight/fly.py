@@ -111,7 +111,8 @@ async def _retry(what: str, coro_fn, attempts: int = 3):
 class _Supervisor:
     def __init__(self, vehicle: Vehicle, items: Sequence[mi.MissionItem], rec: TelemetryRecorder, *,
                  link_loss_s: float, flight_timeout_s: float, end_action: str, progress: bool,
-                 link_dead_s: float = 60.0, stop_wait_s: float = 180.0, first_seq: int = 0):
+                 link_dead_s: float = 60.0, stop_wait_s: float = 180.0, first_seq: int = 0,
+                 telemetry_rate_hz: float | None = None):
         self.v = vehicle
         self.items = items
         self.rec = rec
@@ -129,6 +130,9 @@ class _Supervisor:
         self.texts_from = self.t0  # refusal texts count from here (before arming: they can beat the start's ACK)
         self.max_reached = 0
         self.problems: list[str] = []
+        self.telemetry_rate_hz = telemetry_rate_hz
+        self._rerequest: asyncio.Task | None = None
+        self._rerequested_at = 0.0
 
     def on_signal(self) -> None:
         self.signal_count += 1
@@ -152,11 +156,36 @@ class _Supervisor:
             self.lost_since = last if last is not None else self.t0
             log.warning("link lost: no telemetry for %.1f s; the vehicle continues on its own (its failsafe "
                         "decides); supervision ends if it stays silent for %.0f s", gap, self.link_dead_s)
+        elif self.lost_since is not None and gap > self.link_loss_s:
+            self._ask_for_telemetry_again(now)
         elif gap <= self.link_loss_s and self.lost_since is not None:
             self.link_losses.append(LinkLoss(self.lost_since - self.t0, now - self.lost_since))
             log.warning("link restored after %.1f s; resuming supervision", now - self.lost_since)
             self.lost_since = None
         return gap
+
+    def _ask_for_telemetry_again(self, now: float, every_s: float = 5.0) -> None:
+        """While silent, ask for the streams again now and then (in the background): an ArduPilot that restarted
+        streams nothing but HEARTBEAT until asked, and only its telemetry can show the restart."""
+        if self.telemetry_rate_hz is None or now - self._rerequested_at < every_s:
+            return
+        if self._rerequest is not None and not self._rerequest.done():
+            return
+        self._rerequested_at = now
+        self._rerequest = asyncio.create_task(self._request_time_streams())
+
+    async def _request_time_streams(self) -> None:
+        t, hz = self.v.telemetry, self.telemetry_rate_hz
+        for setter in (t.set_rate_position, t.set_rate_attitude_euler):  # GLOBAL_POSITION_INT, ATTITUDE
+            with contextlib.suppress(Exception):
+                await setter(hz)
+
+    async def finish_background(self) -> None:
+        """Wait for a stream request still in flight: mavsdk's call runs in a worker thread that never returns if
+        mavsdk is destroyed under it (the process would hang at exit). Each call ends by its own timeout."""
+        if self._rerequest is not None:
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await self._rerequest
 
     def close_open_loss(self) -> None:
         """A loss still open when supervision ends is a loss too (counted, marked open)."""
@@ -344,6 +373,7 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
     vehicle = await connect(connect_url, timeout_s=connect_timeout_s, autopilot=autopilot)
     loop = asyncio.get_running_loop()
     installed: list[int] = []
+    sup: _Supervisor | None = None
     try:
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
@@ -361,7 +391,7 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None) as rec:
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,
                               end_action=end_action, progress=progress, link_dead_s=link_dead_s,
-                              stop_wait_s=stop_wait_s, first_seq=first_seq)
+                              stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz)
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
@@ -411,6 +441,8 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
     finally:
         for sig in installed:
             loop.remove_signal_handler(sig)
+        if sup is not None:
+            await sup.finish_background()
         vehicle.close()
 
 

@@ -16,6 +16,7 @@ import asyncio
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -71,7 +72,7 @@ def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
                                      "--no-progress"), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True, env=ENV)
         try:
-            deadline = time.monotonic() + 90
+            deadline = time.monotonic() + 300
             while time.monotonic() < deadline:
                 rows = read_telemetry_log(first_log) if first_log.exists() else []
                 if rows and rows[-1]["mission_item"] >= 9:
@@ -80,7 +81,7 @@ def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
             else:
                 pytest.fail("the first flight never reached the scan")
             proc.send_signal(signal.SIGINT)
-            out, _ = proc.communicate(timeout=120)
+            out, _ = proc.communicate(timeout=300)
         finally:
             if proc.poll() is None:
                 proc.kill()
@@ -100,7 +101,7 @@ def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
 def test_autopilot_restart_mid_flight_exits_non_zero(tmp_path):
     cmd = _cli(str(DEMO), "--sitl", "--speedup", "20", "--no-progress", "--sim-arg", "reboot-after-takeoff=60",
                "--link-dead", "30")
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=180)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out
     assert "mission NOT complete" in out and "stopped by reboot" in out
@@ -112,7 +113,7 @@ def test_ardupilot_restart_is_seen_although_it_streams_nothing_until_asked_again
     silent, and the restart shows in the time since boot (not as a dead link at the limit)."""
     cmd = _cli(str(DEMO), "--sitl", "--autopilot", "ardupilot", "--speedup", "20", "--no-progress",
                "--sim-arg", "reboot-after-takeoff=40", "--link-dead", "40")
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=240)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out
     assert "stopped by reboot" in out and "the autopilot restarted" in out
@@ -133,13 +134,13 @@ def test_mission_the_vehicle_refuses_at_start_errors_within_seconds(small_plan, 
 def test_dead_link_ends_supervision_at_the_configured_limit(tmp_path):
     cmd = _cli(str(DEMO), "--sitl", "--speedup", "20", "--no-progress", "--sim-arg", "outage-after-takeoff=30",
                "--sim-arg", "outage-s=100000", "--link-loss", "1", "--link-dead", "5")
-    t0 = time.monotonic()
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=180)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out
     assert "stopped by link" in out and "1 link loss(es) (1 never restored)" in out
     assert "limit 5 s" in out
-    assert time.monotonic() - t0 < 120  # not the 1800 s flight timeout
+    flown_s = int(re.search(r"NOT landed, still ARMED, (\d+) s,", out).group(1))
+    assert flown_s < 60, out  # supervision ended at the limit, not at the 1800 s flight timeout
 
 
 def test_ardupilot_refuses_to_arm_until_its_ekf_uses_gps_and_says_why(tmp_path):

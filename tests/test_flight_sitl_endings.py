@@ -53,7 +53,8 @@ def _home(plan) -> str:
 def _fly(plan, url, **kw):
     kw.setdefault("progress", False)
     kw.setdefault("handle_signals", False)
-    kw.setdefault("flight_timeout_s", 120.0)
+    kw.setdefault("flight_timeout_s", 600.0)  # wall seconds: generous, a loaded machine slows the simulator down
+    kw.setdefault("connect_timeout_s", 60.0)  # the simulator process alone can take 10 s to start under load
     return fly_mission_sync(plan, url, **kw)
 
 
@@ -147,7 +148,7 @@ def test_ardupilot_refuses_to_arm_until_its_ekf_uses_gps_and_says_why(tmp_path):
     from companion.flight.telemetry_log import TelemetryRecorder
 
     async def go():
-        vehicle = await connect(sim.url, timeout_s=15)
+        vehicle = await connect(sim.url, timeout_s=60)
         try:
             await request_rates(vehicle, 5.0)
             assert await select_arming_mode(vehicle)
@@ -170,7 +171,7 @@ def test_ardupilot_health_wait_covers_ekf_convergence_and_says_what_is_missing(t
     m = load_mission(DEMO)
     with SitlVehicle(speedup=4, autopilot="ardupilot", home=_home(plan_scan(m)), log_path=tmp_path / "sim.log") as v:
         async def until_healthy():
-            vehicle = await connect(v.url, timeout_s=15)
+            vehicle = await connect(v.url, timeout_s=60)
             try:
                 await request_rates(vehicle, 5.0)
                 t0 = time.monotonic()
@@ -197,7 +198,7 @@ def test_failsafe_options_set_parameters_for_the_flight_and_restore_them(small_p
         assert result.warnings == []
 
         async def read_back():
-            vehicle = await connect(v.url, timeout_s=15)
+            vehicle = await connect(v.url, timeout_s=60)
             try:
                 return [(await read_parameter(vehicle.param, n)).value for n in ("NAV_DLL_ACT", "MPC_XY_CRUISE")]
             finally:
@@ -212,7 +213,7 @@ def test_default_failsafe_is_reported_as_unsafe_for_the_scan(tmp_path):
     plan = plan_scan(load_mission(DEMO))
     with SitlVehicle(speedup=20, autopilot="ardupilot", gps_ready_after=1, home=_home(plan),
                      log_path=tmp_path / "sim.log") as v:
-        result = _fly(plan, v.url, flight_timeout_s=180.0)
+        result = _fly(plan, v.url)
     assert result.completed, result
     text = " | ".join(result.warnings)
     assert "FS_GCS_ENABLE=0" in text and "keeps flying" in text

@@ -107,10 +107,9 @@ def main() -> None:
     ap.add_argument("--rth", type=float, default=0.80)
     args = ap.parse_args()
     try:
+        from sim.camera.model import CameraModel
         from sim.camera.photo_passes import DEFAULT_PASSES, RECIPES, build_pass
         from sim.camera.photo_scene import PhotoPassRenderer
-
-        from sim.camera.model import CameraModel
     except ImportError as exc:
         raise CompanionError("the real-texture passes (sim/camera/photo_passes.py) are not in this checkout",
                              "merge the mask evaluation's real-texture passes (issue 13) first") from exc

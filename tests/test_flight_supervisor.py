@@ -1,5 +1,8 @@
-"""Flight supervision edge case without a simulator: a short mission that flew and landed while the companion was
-still waiting for the start command's acknowledgement (seen on a 20 % lossy SITL link at speed-up 20)."""
+"""Flight supervision without a simulator: how each ending is decided, bounded and said.
+
+The recorder and vehicle are stand-ins holding exactly what the supervisor reads, so each case is one state of the
+vehicle (already landed, refused on the ground, restarted, silent) and the test checks the ending and its wording.
+"""
 
 from __future__ import annotations
 
@@ -8,20 +11,40 @@ import time
 from types import SimpleNamespace
 
 from companion.flight.fly import _Supervisor
+from companion.flight.telemetry_log import TelemetryRecorder
 from companion.mission import items as mi
 
 
-class _Recorder:
-    """What the supervisor reads of the telemetry recorder: the vehicle is already down, disarmed, at the end."""
+def _items(n_waypoints: int = 4) -> list[mi.MissionItem]:
+    out = [mi.MissionItem(0, 6, mi.MAV_CMD_NAV_TAKEOFF, 1, 1, 0, 0, 0, 0, 1, 1, 5.0),
+           mi.MissionItem(1, 2, mi.MAV_CMD_DO_CHANGE_SPEED, 0, 1, 1, 2, -1, 0, 0, 0, 0.0)]
+    for k in range(n_waypoints):
+        out.append(mi.MissionItem(len(out), 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 1, 0, 0, 1, 1 + k, 5.0))
+    out.append(mi.MissionItem(len(out), 6, mi.MAV_CMD_NAV_LAND, 0, 1, 0, 0, 0, 0, 1, 1, 0.0))
+    return out
 
-    def __init__(self, total: int, was_in_air: bool):
-        self.state = {"mission_item": total, "armed": False, "in_air": False}
+
+class _Recorder:
+    """What the supervisor reads of the telemetry recorder."""
+
+    def __init__(self, *, item: int, armed: bool | None, in_air: bool | None, was_in_air: bool,
+                 was_armed: bool = True, silent_for_s: float | None = None):
+        self.state = {"mission_item": item, "armed": armed, "in_air": in_air}
         self.was_in_air = was_in_air
-        self.last_sample_wall = time.monotonic()
+        self.was_armed = was_armed
+        self.last_sample_wall = time.monotonic() - silent_for_s if silent_for_s is not None else time.monotonic()
+        self.silent = silent_for_s is not None
+        self.reboot: str | None = None
+        self.status_texts: list[str] = []
+        self.status_events: list[tuple[float, str, str]] = []
+
+    def say(self, severity: str, text: str) -> None:
+        self.status_texts.append(f"{severity}: {text}")
+        self.status_events.append((time.monotonic(), severity, text))
 
 
 class _Vehicle:
-    def __init__(self):
+    def __init__(self, rtl_fails: bool = False):
         self.rtl_commands = 0
 
         async def noop():
@@ -29,27 +52,110 @@ class _Vehicle:
 
         async def rtl():
             self.rtl_commands += 1
+            if rtl_fails:
+                raise RuntimeError("COMMAND_DENIED")
 
         self.mission = SimpleNamespace(pause_mission=noop)
         self.action = SimpleNamespace(return_to_launch=rtl, land=noop)
 
 
-def _run(was_in_air: bool) -> tuple[str | None, _Vehicle]:
-    items = [SimpleNamespace(command=mi.MAV_CMD_NAV_WAYPOINT)] * 5 + [SimpleNamespace(command=mi.MAV_CMD_NAV_LAND)]
-    vehicle = _Vehicle()
-    rec = _Recorder(len(items), was_in_air)
-    sup = _Supervisor(vehicle, items, rec, link_loss_s=3.0, flight_timeout_s=1.0, end_action="land",
-                      progress=False)
+def _supervisor(rec, vehicle=None, **kw) -> _Supervisor:
+    kw.setdefault("link_loss_s", 3.0)
+    kw.setdefault("flight_timeout_s", 1.0)
+    kw.setdefault("end_action", "land")
+    return _Supervisor(vehicle or _Vehicle(), _items(), rec, progress=False, **kw)
 
-    return asyncio.run(sup.run()), vehicle
+
+def _run(sup: _Supervisor, fresh_link: _Recorder | None = None) -> tuple[str | None, float]:
+    async def go():
+        if fresh_link is not None and not fresh_link.silent:
+            async def keep_alive():
+                while True:
+                    fresh_link.last_sample_wall = time.monotonic()
+                    await asyncio.sleep(0.05)
+            task = asyncio.create_task(keep_alive())
+            try:
+                return await sup.run()
+            finally:
+                task.cancel()
+        return await sup.run()
+
+    t0 = time.monotonic()
+    reason = asyncio.run(go())
+    return reason, time.monotonic() - t0
 
 
 def test_flight_that_ended_before_supervision_started_is_complete():
-    reason, vehicle = _run(was_in_air=True)
-    assert reason is None and vehicle.rtl_commands == 0
+    rec = _Recorder(item=len(_items()), armed=False, in_air=False, was_in_air=True)
+    sup = _supervisor(rec)
+    reason, _ = _run(sup, rec)
+    assert reason is None and sup.problem is None and sup.max_reached == len(_items())
+    assert sup.progress.done == sup.progress.total == 6  # takeoff, 4 waypoints, land: the DO item is not counted
 
 
-def test_vehicle_never_seen_airborne_is_not_taken_for_a_finished_flight():
-    # without any sign of flight, a disarmed vehicle on the ground is still waiting to go: the timeout decides
-    reason, vehicle = _run(was_in_air=False)
+def test_vehicle_never_armed_waits_for_the_timeout():
+    # never seen armed, never airborne: nothing says the start was refused, so the timeout decides
+    rec = _Recorder(item=0, armed=False, in_air=False, was_in_air=False, was_armed=False)
+    vehicle = _Vehicle()
+    reason, _ = _run(_supervisor(rec, vehicle, stop_wait_s=1.0), rec)
     assert reason == "timeout" and vehicle.rtl_commands == 1
+
+
+def test_disarmed_without_take_off_is_a_refused_start_within_seconds():
+    # PX4 with a mission outside its geofence: armed, takeoff refused, disarmed on the ground
+    rec = _Recorder(item=0, armed=False, in_air=False, was_in_air=False)
+    sup = _supervisor(rec, flight_timeout_s=600.0)
+    rec.say("CRITICAL", "Geofence violation for waypoint 3")
+    rec.say("INFO", "Disarmed by auto preflight disarming")
+    reason, took = _run(sup, rec)
+    assert reason == "refused" and took < 2.0
+    assert "disarmed without taking off" in sup.problem and "Geofence violation for waypoint 3" in sup.problem
+
+
+def test_critical_text_on_the_ground_ends_the_start_while_still_armed():
+    rec = _Recorder(item=0, armed=True, in_air=False, was_in_air=False)
+    rec.say("CRITICAL", "Geofence violation: an old text from before this flight is not its reason")
+    time.sleep(0.01)
+    sup = _supervisor(rec, flight_timeout_s=600.0)
+    rec.say("CRITICAL", "No valid mission available, refusing takeoff")
+    reason, took = _run(sup, rec)
+    assert reason == "refused" and took < 3.0
+    assert "did not take off" in sup.problem and "refusing takeoff" in sup.problem
+    assert "old text" not in sup.problem
+
+
+def test_autopilot_restart_fails_the_flight_even_when_progress_says_done():
+    rec = _Recorder(item=len(_items()), armed=False, in_air=False, was_in_air=True)
+    rec.reboot = "the autopilot restarted: its time since boot went back from 95.0 s to 3.2 s"
+    sup = _supervisor(rec, flight_timeout_s=600.0)
+    reason, _ = _run(sup, rec)
+    assert reason == "reboot"
+    assert "restarted" in sup.problem and "cannot be trusted" in sup.problem
+
+
+def test_dead_link_ends_supervision_at_the_limit_and_counts_the_open_loss():
+    rec = _Recorder(item=3, armed=True, in_air=True, was_in_air=True, silent_for_s=0.0)
+    sup = _supervisor(rec, link_loss_s=0.3, link_dead_s=1.0, flight_timeout_s=600.0)
+    reason, took = _run(sup)
+    assert reason == "link" and 0.9 <= took < 3.0
+    assert "no telemetry for" in sup.problem and "limit 1 s" in sup.problem
+    assert len(sup.link_losses) == 1 and sup.link_losses[0].closed is False
+
+
+def test_failed_rtl_after_a_timeout_is_reported_not_swallowed():
+    rec = _Recorder(item=3, armed=True, in_air=True, was_in_air=True)
+    vehicle = _Vehicle(rtl_fails=True)
+    sup = _supervisor(rec, vehicle, flight_timeout_s=0.2, stop_wait_s=0.5)
+    reason, took = _run(sup, rec)
+    assert reason == "timeout" and vehicle.rtl_commands == 3  # tried, and said
+    assert sup.problem.index("longer than") < sup.problem.index("NOT sent home")  # both said, in order ...
+    assert took < 8.0  # ... and the wait for the landing is bounded by stop_wait_s
+
+
+def test_recorder_notices_time_since_boot_going_backwards():
+    rec = TelemetryRecorder(SimpleNamespace(), None)
+    for t in (100.0, 100.05, 100.03, 100.1):  # small reordering between two streams is not a restart
+        rec._on_boot_time(t)
+    assert rec.reboot is None
+    rec._on_boot_time(2.5)
+    assert rec.reboot is not None and "100.1 s to 2.5 s" in rec.reboot

@@ -134,7 +134,9 @@ def fly_in_process(plan, autopilot: str, items, params=None, home: GeoPoint | No
         v._on_new_mission(v.flavour.transform_upload(list(items), v.home_item))
         if autopilot == "ardupilot":
             v.set_mode(fl.GUIDED)
-        assert v.arm() is None
+        while v.arm() is not None and v.t < 120.0:  # ArduCopter's EKF uses GPS only ~35-40 s after boot
+            v.step()
+        assert v.armed
         assert v.set_mode(fl.MISSION) is None
         poses = []
         while v.t < limit_s:

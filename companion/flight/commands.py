@@ -23,8 +23,22 @@ def register(sub) -> None:
                    help="autopilot behaviour to expect (auto: from its heartbeat); with --sitl also the simulator's")
     p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
     p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to wait for a heartbeat")
-    p.add_argument("--health-timeout", type=float, default=30.0, help="seconds to wait for GPS/home/pre-arm")
+    p.add_argument("--health-timeout", type=float, default=120.0,
+                   help="seconds to wait for GPS/home/pre-arm (ArduCopter's EKF needs 35-40 s after boot)")
     p.add_argument("--link-loss", type=float, default=3.0, help="seconds without telemetry that count as lost")
+    p.add_argument("--link-dead", type=float, default=60.0,
+                   help="seconds without telemetry after which supervision ends as failed (the vehicle's "
+                        "failsafe flies on)")
+    p.add_argument("--stop-wait", type=float, default=180.0,
+                   help="after Ctrl-C (RTL): seconds to wait at most for landed + disarmed")
+    p.add_argument("--lost-link-action", choices=["rtl", "land"],
+                   help="set the firmware's lost-link failsafe for this flight (PX4 NAV_DLL_ACT, ArduPilot "
+                        "FS_GCS_ENABLE); restored after")
+    p.add_argument("--return-alt", metavar="M|auto",
+                   help="set the return altitude for this flight (PX4 RTL_RETURN_ALT, ArduPilot RTL_ALT); 'auto': "
+                        "the plan's transit altitude or wall top + roof margin; restored after")
+    p.add_argument("--set-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set an autopilot parameter for this flight only (restored after; repeatable)")
     p.add_argument("--timeout", type=float, default=1800.0, help="RTL if the flight takes longer (seconds)")
     p.add_argument("--rate", type=float, default=10.0, help="telemetry rate to request, Hz")
     p.add_argument("--end-action", choices=["rtl", "land"], default="rtl",
@@ -76,6 +90,19 @@ def _sim_options(pairs: list[str]) -> dict:
     return opts
 
 
+def _flight_parameters(pairs: list[str]) -> dict[str, float]:
+    out = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            name = ""
+        if not sep or not name.strip():
+            raise CompanionError(f"--set-param {pair!r} is not NAME=NUMBER", "write e.g. --set-param MPC_XY_CRUISE=3")
+    return out
+
+
 def _fly(args: argparse.Namespace) -> int:
     from companion.flight.fly import fly_mission_sync
     from companion.flight.simulator import SimulatorProcess
@@ -110,7 +137,9 @@ def _fly(args: argparse.Namespace) -> int:
         log.info("started the simulated vehicle (speed-up %g) on %s", args.speedup, url)
     fly_kwargs = dict(autopilot=args.autopilot, connect_timeout_s=args.connect_timeout,
                       health_timeout_s=args.health_timeout, link_loss_s=args.link_loss, flight_timeout_s=args.timeout,
-                      end_action=args.end_action, progress=not args.no_progress)
+                      end_action=args.end_action, progress=not args.no_progress, link_dead_s=args.link_dead,
+                      stop_wait_s=args.stop_wait, lost_link_action=args.lost_link_action, return_alt=args.return_alt,
+                      flight_parameters=_flight_parameters(args.set_param) or None)
     try:
         if capture:
             from companion.onboard.live import run_live_scan
@@ -130,12 +159,24 @@ def _fly(args: argparse.Namespace) -> int:
         if sim is not None:
             with contextlib.suppress(Exception):
                 sim.stop()
-    state = "landed" if result.landed else "NOT landed"
-    state += ", disarmed" if result.disarmed else ", still ARMED"
-    print(f"{'mission complete' if result.completed else 'mission NOT complete'}: "
-          f"{result.items_reached}/{result.items_total} items, {state}, {result.duration_s:.0f} s, "
-          f"{result.telemetry_samples} telemetry samples, {len(result.link_losses)} link loss(es)"
-          + (f", stopped by {result.aborted}" if result.aborted else ""), file=sys.stderr)
+    print(flight_summary(result), file=sys.stderr)
+    if result.problem:
+        print(f"error: {result.problem}", file=sys.stderr)
     if result.aborted == "signal":
         return 130
     return 0 if result.completed else 1
+
+
+def flight_summary(result) -> str:
+    """One line for a person: how far it got, how it ended, every link loss (open ones said so)."""
+    state = "landed" if result.landed else "NOT landed"
+    state += ", disarmed" if result.disarmed else ", still ARMED"
+    open_losses = sum(1 for loss in result.link_losses if not loss.closed)
+    losses = f"{len(result.link_losses)} link loss(es)" + (f" ({open_losses} never restored)" if open_losses else "")
+    return (f"{'mission complete' if result.completed else 'mission NOT complete'}: "
+            f"{result.waypoints_reached}/{result.waypoints_total} waypoints "
+            f"({result.items_reached}/{result.items_total} items), {state}, {result.duration_s:.0f} s, "
+            f"{result.telemetry_samples} telemetry samples, {losses}"
+            + (f", stopped by {result.aborted}" if result.aborted else "")
+            + ("; parameters set for this flight only: "
+               + ", ".join(c.name for c in result.parameter_changes) if result.parameter_changes else ""))

@@ -17,6 +17,7 @@ from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync, MavlinkMessage
 from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from companion.errors import CompanionError
@@ -46,6 +47,7 @@ class Vehicle:
     direct: MavlinkDirectAsync
     autopilot: str  # 'px4' or 'ardupilot'
     system_id: int
+    param: ParamAsync | None = None
 
     async def command_long(self, command: int, *params: float) -> int:
         """Send a COMMAND_LONG through mavlink_direct; returns the MAV_RESULT of its final ACK."""
@@ -83,7 +85,7 @@ async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto")
         kind = await system.autopilot_type()
         autopilot = "ardupilot" if kind == Autopilot.ARDUPILOT else "px4"
     vehicle = Vehicle(mavsdk, system, TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system),
-                      MavlinkDirectAsync(system), autopilot, await system.get_system_id())
+                      MavlinkDirectAsync(system), autopilot, await system.get_system_id(), ParamAsync(system))
     log.info("connected to %s autopilot (system %d) on %s", autopilot, vehicle.system_id, url)
     return vehicle
 
@@ -127,9 +129,27 @@ async def check_home(vehicle: Vehicle, planned, *, max_alt_diff_m: float = 3.0, 
     return dist, dalt
 
 
-async def wait_healthy(vehicle: Vehicle, timeout_s: float = 30.0) -> None:
-    """Wait until GPS, position estimate, home and pre-arm checks are all good; name what is missing if not."""
-    last = {}
+# ArduCopter 4.7 SITL uses GPS in its EKF only 35-40 s after boot (no home, not armable until then); a real
+# vehicle after power-on can take longer for a 3D fix. Two minutes covers both with room.
+DEFAULT_HEALTH_TIMEOUT_S = 120.0
+
+
+def missing_health(last: dict) -> list[str]:
+    return [HEALTH_FIELDS[k] for k in HEALTH_FIELDS if not last.get(k, False)]
+
+
+async def wait_healthy(vehicle: Vehicle, timeout_s: float = DEFAULT_HEALTH_TIMEOUT_S, *, report_every_s: float = 5.0,
+                       when_only_armable_missing=None) -> None:
+    """Wait until GPS, position estimate, home and pre-arm checks are all good. Every ``report_every_s`` it says
+    what is still missing (and the vehicle's latest message); on timeout the error names it.
+
+    ``when_only_armable_missing``: a coroutine function called (at most every ``report_every_s``) while
+    everything but "armable" is good: the vehicle may sit in a mode it cannot arm in (PX4 Return, Mission without
+    a valid mission) and the caller can switch it."""
+    last: dict = {}
+    said: list[str] = []
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
 
     async def _watch():
         async for health in vehicle.telemetry.subscribe_health():
@@ -137,13 +157,41 @@ async def wait_healthy(vehicle: Vehicle, timeout_s: float = 30.0) -> None:
             if all(last.values()):
                 return
 
+    async def _texts():
+        async for s in vehicle.telemetry.subscribe_status_text():
+            said.append(f"{s.type.name}: {s.text}")
+
+    watcher = asyncio.create_task(_watch())
+    listener = asyncio.create_task(_texts())
+    last_fix = -float("inf")
     try:
-        await asyncio.wait_for(_watch(), timeout_s)
-    except TimeoutError:
-        missing = [HEALTH_FIELDS[k] for k in HEALTH_FIELDS if not last.get(k, False)]
-        what = ", ".join(missing) if last else "no health (SYS_STATUS) telemetry at all"
-        raise CompanionError(
-            f"vehicle not ready to fly after {timeout_s:g} s: missing {what}",
-            "wait for a 3D GPS fix and home position, check pre-arm messages on the ground station, or raise "
-            "--health-timeout") from None
-    log.info("vehicle healthy: GPS, position estimate, home and pre-arm checks OK")
+        while True:
+            elapsed = loop.time() - t0
+            remaining = timeout_s - elapsed
+            if remaining <= 0:
+                break
+            done, _ = await asyncio.wait({watcher}, timeout=min(report_every_s, remaining))
+            if done:
+                watcher.result()
+                log.info("vehicle healthy after %.0f s: GPS, position estimate, home and pre-arm checks OK",
+                         loop.time() - t0)
+                return
+            missing = missing_health(last)
+            if last and missing == [HEALTH_FIELDS["is_armable"]] and when_only_armable_missing is not None \
+                    and loop.time() - last_fix >= report_every_s:
+                last_fix = loop.time()
+                await when_only_armable_missing()
+            what = ", ".join(missing) if last else "no health (SYS_STATUS) telemetry yet"
+            log.info("waiting for the vehicle (%.0f of %.0f s): still missing %s%s", loop.time() - t0, timeout_s,
+                     what, f" (vehicle says {said[-1]})" if said else "")
+    finally:
+        for task in (watcher, listener):
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await task
+    what = ", ".join(missing_health(last)) if last else "no health (SYS_STATUS) telemetry at all"
+    raise CompanionError(
+        f"vehicle not ready to fly after {timeout_s:g} s: missing {what}"
+        + (f"; the vehicle said: {'; '.join(said[-3:])}" if said else ""),
+        "wait for a 3D GPS fix and home position (ArduCopter's EKF takes 35-40 s after boot), check pre-arm "
+        "messages on the ground station, or raise --health-timeout")

@@ -1,12 +1,16 @@
 """Fly a planned mission: connect, check health, upload + verify, arm, start, supervise to landed + disarmed.
 
-Supervision rules (why they look like this):
+Supervision rules (why they look like this; docs/FLIGHT.md "Supervision"):
   * the autopilot flies the mission; the companion only watches, records and steps in on request, so a dead
     companion or a cut link never leaves the vehicle without a plan (its own link-loss failsafe decides);
-  * a silent link longer than ``link_loss_s`` is logged and timed; recording continues and supervision resumes
-    when telemetry returns;
-  * SIGINT/SIGTERM: pause (hold), then RTL, then wait for landed + disarmed and return; a second signal stops
-    waiting.
+  * every flight starts from its first item, set and read back before the start (PX4 keeps its current item
+    across an identical upload and a restart);
+  * progress is never trusted across an autopilot restart (time since boot going backwards): that flight failed;
+  * every ending is bounded and said: a start the vehicle refuses (it disarms on the ground, or reports a critical
+    error before taking off) ends within seconds; a link silent for ``link_loss_s`` is counted as a loss, one
+    silent for ``link_dead_s`` ends supervision as failed; a timeout commands RTL; a failed RTL is reported;
+  * SIGINT/SIGTERM: pause (hold), then RTL, then wait at most ``stop_wait_s`` for landed + disarmed (said, with the
+    time left); a second signal stops waiting.
 """
 
 from __future__ import annotations
@@ -16,45 +20,54 @@ import contextlib
 import logging
 import signal
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
-
 from companion.errors import CompanionError
 from companion.flight.connection import (
-    MAV_CMD_DO_SET_MODE,
+    DEFAULT_HEALTH_TIMEOUT_S,
     Vehicle,
     check_home,
     connect,
     request_rates,
     wait_healthy,
 )
+from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
+from companion.flight.parameters import FlightParameters, ParamChange
+from companion.flight.progress import WaypointProgress
+from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item
 from companion.flight.telemetry_log import TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
 
 log = logging.getLogger(__name__)
 
-ARDUCOPTER_GUIDED = 4
 _ENDS_ON_GROUND = {mi.MAV_CMD_NAV_LAND, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+# STATUSTEXT severities that, before take-off, mean the vehicle refuses to fly the mission (PX4: "Geofence violation
+# for waypoint N", "No valid mission available, refusing takeoff" are CRITICAL)
+_REFUSAL_SEVERITIES = {"EMERGENCY", "ALERT", "CRITICAL", "ERROR"}
+REFUSAL_GRACE_S = 1.0  # after the first refusal text, collect the ones that follow before ending
 
 
 @dataclass(frozen=True)
 class LinkLoss:
     started_s: float  # seconds after the mission start (wall)
     duration_s: float
+    closed: bool = True  # False: the link had not come back when supervision ended
 
 
 @dataclass
 class FlightResult:
-    """What happened. ``completed``: every mission item was reached and the vehicle ended landed + disarmed."""
+    """What happened. ``completed``: every mission item was reached and the vehicle ended landed + disarmed.
+
+    ``aborted``: 'signal', 'timeout', 'failsafe' (landed early), 'reboot' (the autopilot restarted), 'link' (silent
+    longer than the limit) or None; ``problem`` says it in words for a person."""
 
     completed: bool
     landed: bool
     disarmed: bool
-    aborted: str | None  # 'signal', 'timeout', 'failsafe' (landed early) or None
+    aborted: str | None
     items_total: int
     items_reached: int
     autopilot: str
@@ -63,6 +76,11 @@ class FlightResult:
     link_losses: list[LinkLoss] = field(default_factory=list)
     telemetry_log: Path | None = None
     status_texts: list[str] = field(default_factory=list)
+    problem: str | None = None
+    waypoints_total: int = 0
+    waypoints_reached: int = 0
+    parameter_changes: list[ParamChange] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
 
 def mission_items_for(plan, autopilot: str) -> list[mi.MissionItem]:
@@ -92,88 +110,191 @@ async def _retry(what: str, coro_fn, attempts: int = 3):
 
 class _Supervisor:
     def __init__(self, vehicle: Vehicle, items: Sequence[mi.MissionItem], rec: TelemetryRecorder, *,
-                 link_loss_s: float, flight_timeout_s: float, end_action: str, progress: bool):
+                 link_loss_s: float, flight_timeout_s: float, end_action: str, progress: bool,
+                 link_dead_s: float = 60.0, stop_wait_s: float = 180.0, first_seq: int = 0,
+                 telemetry_rate_hz: float | None = None):
         self.v = vehicle
         self.items = items
         self.rec = rec
         self.link_loss_s = link_loss_s
+        self.link_dead_s = link_dead_s
         self.flight_timeout_s = flight_timeout_s
+        self.stop_wait_s = stop_wait_s
         self.end_action = end_action
-        self.progress = progress
+        self.progress = WaypointProgress(items, first_seq, enabled=progress)
         self.signalled = asyncio.Event()
         self.signal_count = 0
         self.link_losses: list[LinkLoss] = []
+        self.lost_since: float | None = None
         self.t0 = time.monotonic()
+        self.texts_from = self.t0  # refusal texts count from here (before arming: they can beat the start's ACK)
         self.max_reached = 0
+        self.problems: list[str] = []
+        self.telemetry_rate_hz = telemetry_rate_hz
+        self._rerequest: asyncio.Task | None = None
+        self._rerequested_at = 0.0
 
     def on_signal(self) -> None:
         self.signal_count += 1
         self.signalled.set()
         log.warning("stop requested (signal %d): pausing, then returning to launch", self.signal_count)
 
+    @property
+    def problem(self) -> str | None:
+        """Everything that went wrong, first (the one that ended the flight) first; None when nothing did."""
+        return "; then ".join(self.problems) if self.problems else None
+
+    def _fail(self, text: str) -> None:
+        log.error("%s", text)
+        self.problems.append(text)
+
+    def _track_link(self, now: float) -> float:
+        """Count link losses; returns the current gap in seconds."""
+        last = self.rec.last_sample_wall
+        gap = now - last if last is not None else now - self.t0
+        if gap > self.link_loss_s and self.lost_since is None:
+            self.lost_since = last if last is not None else self.t0
+            log.warning("link lost: no telemetry for %.1f s; the vehicle continues on its own (its failsafe "
+                        "decides); supervision ends if it stays silent for %.0f s", gap, self.link_dead_s)
+        elif self.lost_since is not None and gap > self.link_loss_s:
+            self._ask_for_telemetry_again(now)
+        elif gap <= self.link_loss_s and self.lost_since is not None:
+            self.link_losses.append(LinkLoss(self.lost_since - self.t0, now - self.lost_since))
+            log.warning("link restored after %.1f s; resuming supervision", now - self.lost_since)
+            self.lost_since = None
+        return gap
+
+    def _ask_for_telemetry_again(self, now: float, every_s: float = 5.0) -> None:
+        """While silent, ask for the streams again now and then (in the background): an ArduPilot that restarted
+        streams nothing but HEARTBEAT until asked, and only its telemetry can show the restart."""
+        if self.telemetry_rate_hz is None or now - self._rerequested_at < every_s:
+            return
+        if self._rerequest is not None and not self._rerequest.done():
+            return
+        self._rerequested_at = now
+        self._rerequest = asyncio.create_task(self._request_time_streams())
+
+    async def _request_time_streams(self) -> None:
+        t, hz = self.v.telemetry, self.telemetry_rate_hz
+        for setter in (t.set_rate_position, t.set_rate_attitude_euler):  # GLOBAL_POSITION_INT, ATTITUDE
+            with contextlib.suppress(Exception):
+                await setter(hz)
+
+    async def finish_background(self) -> None:
+        """Wait for a stream request still in flight: mavsdk's call runs in a worker thread that never returns if
+        mavsdk is destroyed under it (the process would hang at exit). Each call ends by its own timeout."""
+        if self._rerequest is not None:
+            with contextlib.suppress(Exception, asyncio.CancelledError):
+                await self._rerequest
+
+    def close_open_loss(self) -> None:
+        """A loss still open when supervision ends is a loss too (counted, marked open)."""
+        if self.lost_since is not None:
+            now = time.monotonic()
+            self.link_losses.append(LinkLoss(self.lost_since - self.t0, now - self.lost_since, closed=False))
+            self.lost_since = None
+
+    def _refusal_texts(self, since: float) -> list[str]:
+        return [f"{sev}: {text}" for t, sev, text in self.rec.status_events
+                if t >= since and sev in _REFUSAL_SEVERITIES]
+
     async def run(self) -> str | None:
         """Returns the abort reason or None."""
         st = self.rec.state
         total = len(self.items)
-        bar = tqdm(total=total, unit="item", desc="mission", disable=not self.progress, leave=True)
-        lost_since: float | None = None
         airborne = False
         end_sent = False
+        refusal_seen: float | None = None
         ends_on_ground = self.items[-1].command in _ENDS_ON_GROUND
         try:
             while True:
                 now = time.monotonic()
-                last = self.rec.last_sample_wall
-                gap = now - last if last is not None else now - self.t0
-                if gap > self.link_loss_s and lost_since is None:
-                    lost_since = last if last is not None else self.t0
-                    log.warning("link lost: no telemetry for %.1f s; the vehicle continues on its own "
-                                "(its failsafe decides), still recording", gap)
-                elif gap <= self.link_loss_s and lost_since is not None:
-                    self.link_losses.append(LinkLoss(lost_since - self.t0, now - lost_since))
-                    log.warning("link restored after %.1f s; resuming supervision", now - lost_since)
-                    lost_since = None
+                gap = self._track_link(now)
                 if self.signalled.is_set():
                     return "signal"
+                if self.rec.reboot is not None:
+                    self._fail(f"{self.rec.reboot}; mission progress after a restart cannot be trusted (the vehicle "
+                               f"had reached item {self.max_reached} of {total}); the flight failed")
+                    return "reboot"
+                if self.lost_since is not None and gap > self.link_dead_s:
+                    self._fail(f"no telemetry for {gap:.0f} s (limit {self.link_dead_s:g} s): supervision ends; "
+                               f"the vehicle is on its own and its lost-link failsafe decides")
+                    return "link"
                 if now - self.t0 > self.flight_timeout_s:
-                    log.error("flight took longer than %.0f s: returning to launch", self.flight_timeout_s)
-                    await self._rtl_and_wait(timeout_s=120.0)
+                    self._fail(f"flight took longer than {self.flight_timeout_s:.0f} s: returning to launch")
+                    await self._rtl_and_wait(timeout_s=min(self.stop_wait_s, 120.0))
                     return "timeout"
-                if lost_since is None:
+                if self.lost_since is None:
                     current = max(0, int(st["mission_item"]))
                     self.max_reached = max(self.max_reached, min(current, total))
-                    bar.n = self.max_reached
-                    bar.refresh()
+                    self.progress.update(self.max_reached, f"item {self.max_reached}/{total}")
                     if st["in_air"] or self.rec.was_in_air:  # latched: the flight may predate this loop
                         airborne = True
+                    if not airborne:
+                        reason = self._start_refused(refusal_seen, now)
+                        if reason is not None:
+                            return reason
+                        if refusal_seen is None and self._refusal_texts(self.texts_from):
+                            refusal_seen = now
                     done = self.max_reached >= total
                     if done and st["in_air"] and not ends_on_ground and not end_sent:
                         end_sent = True
                         log.info("mission complete; %s", "returning to launch" if self.end_action == "rtl"
                                  else "landing")
                         action = self.v.action.return_to_launch if self.end_action == "rtl" else self.v.action.land
-                        await _retry(self.end_action, action)
+                        try:
+                            await _retry(self.end_action, action)
+                        except CompanionError as exc:
+                            self._fail(f"the mission ended in the air and {exc.problem}: the vehicle hovers at the "
+                                       f"last waypoint; take control from the ground station")
                     if airborne and st["armed"] is False and st["in_air"] is False:
                         if not done and ends_on_ground and self.max_reached >= total - 1:
                             # Down and disarmed while executing the final LAND/RTL item: that item is complete
                             # even if its MISSION_ITEM_REACHED was lost on the link.
                             self.max_reached = total
+                            self.progress.update(total)
                             done = True
+                        if not done:
+                            self._fail(f"the vehicle landed and disarmed at item {self.max_reached} of {total} "
+                                       "(a failsafe or the pilot ended the mission early)")
                         return None if done else "failsafe"
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self.signalled.wait(), 0.1)
         finally:
-            bar.close()
+            self.close_open_loss()
+            self.progress.close()
+
+    def _start_refused(self, refusal_seen: float | None, now: float) -> str | None:
+        """Before take-off: the vehicle disarmed again (PX4 refuses the takeoff of an infeasible mission and
+        disarms on the ground), or it reported a critical error. Ends within seconds, quoting the vehicle."""
+        st = self.rec.state
+        disarmed = self.rec.was_armed and st["armed"] is False and not st["in_air"]
+        if not disarmed and (refusal_seen is None or now - refusal_seen < REFUSAL_GRACE_S):
+            return None
+        texts = self._refusal_texts(self.texts_from) or [
+            f"{sev}: {text}" for t, sev, text in self.rec.status_events if t >= self.texts_from][-3:]
+        said = "; ".join(texts) if texts else "no reason given (no STATUSTEXT)"
+        what = "disarmed without taking off" if disarmed else "did not take off"
+        self._fail(f"the vehicle refused the mission start: it {what}; it said: {said}")
+        return "refused"
 
     async def _rtl_and_wait(self, timeout_s: float) -> None:
         st = self.rec.state
-        with contextlib.suppress(Exception):
+        try:
             await self.v.mission.pause_mission()
             await asyncio.sleep(1.0)
-        with contextlib.suppress(CompanionError):
+        except Exception as exc:  # RTL follows anyway; say that the pause did not happen
+            log.warning("pause (hold) failed: %s; commanding RTL directly", exc)
+        try:
             await _retry("return to launch", self.v.action.return_to_launch)
+        except CompanionError as exc:
+            self._fail(f"{exc.problem}: the vehicle was NOT sent home; take control from the ground station")
         self.signalled.clear()
-        deadline = time.monotonic() + timeout_s
+        t_start = time.monotonic()
+        deadline = t_start + timeout_s
+        log.warning("waiting up to %.0f s for the vehicle to land and disarm (stop again to stop waiting)",
+                    timeout_s)
+        last_said = t_start
         while time.monotonic() < deadline:
             if st["armed"] is False and st["in_air"] is False:
                 log.info("landed and disarmed after RTL")
@@ -181,65 +302,147 @@ class _Supervisor:
             if self.signal_count >= 2:
                 log.warning("second stop request: not waiting for the landing")
                 return
+            if self.rec.reboot is not None:
+                self._fail(self.rec.reboot)
+                return
+            now = time.monotonic()
+            self._track_link(now)
+            if now - last_said >= 10.0:
+                last_said = now
+                log.info("still waiting for landed + disarmed (%.0f s left)", deadline - now)
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self.signalled.wait(), 0.2)
             self.signalled.clear()
+        log.error("the vehicle was not landed and disarmed %.0f s after RTL; stopped waiting", timeout_s)
+        self.close_open_loss()
+
+
+async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | None,
+                          return_alt: str | float | None) -> tuple[dict[str, float], list[str]]:
+    """Read the lost-link action and return altitude; warn; the parameters the explicit options ask for."""
+    need = required_return_alt(plan)
+    failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt, need=need)  # check
+    settings = None
+    try:
+        settings = await read_failsafe(vehicle.param, vehicle.autopilot)
+    except CompanionError as exc:
+        if lost_link_action is not None or return_alt is not None:
+            raise
+        text = f"could not check the lost-link failsafe: {exc.problem}"
+        log.warning("%s", text)
+        return {}, [text]
+    overrides = failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt,
+                                   need=need, current=settings)
+    log.info("lost-link failsafe: %s=%d (%s); return altitude %s = %g m", settings.names.link_action,
+             settings.link_action, settings.link_action_text, settings.names.return_alt, settings.return_alt_m)
+    warnings = []
+    for text in failsafe_warnings(settings, need):
+        fixed = (settings.names.link_action in overrides if "lost-link" in text
+                 else settings.names.return_alt in overrides)
+        if not fixed:
+            log.warning("failsafe: %s", text)
+            warnings.append(text)
+    return overrides, warnings
 
 
 async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log: Path | str | None = None,
-                      autopilot: str = "auto", connect_timeout_s: float = 10.0, health_timeout_s: float = 30.0,
-                      link_loss_s: float = 3.0, flight_timeout_s: float = 1800.0, telemetry_rate_hz: float = 10.0,
-                      end_action: str = "rtl", progress: bool = True, handle_signals: bool = True) -> FlightResult:
+                      autopilot: str = "auto", connect_timeout_s: float = 10.0,
+                      health_timeout_s: float = DEFAULT_HEALTH_TIMEOUT_S, link_loss_s: float = 3.0,
+                      link_dead_s: float = 60.0, flight_timeout_s: float = 1800.0, telemetry_rate_hz: float = 10.0,
+                      end_action: str = "rtl", progress: bool = True, handle_signals: bool = True,
+                      stop_wait_s: float = 180.0, flight_parameters: Mapping[str, float] | None = None,
+                      lost_link_action: str | None = None, return_alt: str | float | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
-    Returns when the vehicle is landed and disarmed (or after a stop request / timeout, having commanded RTL).
-    Raises CompanionError for anything that prevents the flight from starting.
+    ``flight_parameters``: autopilot parameters to set for this flight only (restored afterwards, also after an
+    error or Ctrl-C); ``lost_link_action`` ('rtl'/'land') and ``return_alt`` (metres or 'auto': the plan's transit
+    altitude or wall top + margin) set the lost-link failsafe the same way.
+
+    Returns when the vehicle is landed and disarmed, or supervision ended (stop request, timeout, restart, dead
+    link: ``aborted`` and ``problem`` say which). Raises CompanionError for anything that prevents the flight from
+    starting, including a start the vehicle refuses.
     """
     if end_action not in ("rtl", "land"):
         raise CompanionError(f"end_action {end_action!r} is not 'rtl' or 'land'", "use end_action='rtl'")
+    for name, value in (("link_loss_s", link_loss_s), ("link_dead_s", link_dead_s), ("stop_wait_s", stop_wait_s)):
+        if not value > 0:
+            raise CompanionError(f"{name} must be positive, got {value}", f"give {name} in seconds, e.g. 60")
+    if link_dead_s <= link_loss_s:
+        raise CompanionError(f"the dead-link limit ({link_dead_s:g} s) must be longer than the link-loss threshold "
+                             f"({link_loss_s:g} s)", "raise --link-dead or lower --link-loss")
     vehicle = await connect(connect_url, timeout_s=connect_timeout_s, autopilot=autopilot)
     loop = asyncio.get_running_loop()
     installed: list[int] = []
+    sup: _Supervisor | None = None
     try:
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
-        await wait_healthy(vehicle, health_timeout_s)
+        await select_arming_mode(vehicle)
+        await wait_healthy(vehicle, health_timeout_s, when_only_armable_missing=lambda: select_arming_mode(vehicle))
         if getattr(plan, "home", None) is not None:
             await check_home(vehicle, plan.home)
+        overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
+                                                    return_alt=return_alt)
+        wanted = dict(flight_parameters or {})
+        wanted.update(overrides)
         await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
-        async with TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None) as rec:
+        first_seq = await start_from_first_item(vehicle)
+        async with FlightParameters(vehicle.param, wanted) as params, \
+                TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None) as rec:
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,
-                              end_action=end_action, progress=progress)
+                              end_action=end_action, progress=progress, link_dead_s=link_dead_s,
+                              stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz)
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
                         loop.add_signal_handler(sig, sup.on_signal)
                         installed.append(sig)
-            if vehicle.autopilot == "ardupilot":
-                # ArduCopter refuses to arm in BRAKE (mavsdk's "Hold"): arm in GUIDED.
-                await vehicle.command_long(MAV_CMD_DO_SET_MODE, 1, ARDUCOPTER_GUIDED)
-            await _retry("arming", vehicle.action.arm)
-            log.info("armed; starting the mission")
-            await _retry("mission start", vehicle.mission.start_mission)
+            if not await select_arming_mode(vehicle):
+                log.warning("the vehicle did not confirm the switch to %s before arming",
+                            "GUIDED" if vehicle.autopilot == "ardupilot" else "Hold")
+            await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
+            log.info("armed; starting the mission at item %d", first_seq)
+            try:
+                await _retry("mission start", vehicle.mission.start_mission)
+            except CompanionError:
+                with contextlib.suppress(Exception):
+                    await vehicle.action.disarm()
+                raise
             sup.t0 = time.monotonic()
             reason = await sup.run()
+            if reason == "refused":
+                if rec.state["armed"]:
+                    try:
+                        await vehicle.action.disarm()
+                    except Exception as exc:
+                        log.error("could not disarm the refused vehicle: %s", exc)
+                raise CompanionError(sup.problem or "the vehicle refused the mission start",
+                                     "fix what the vehicle reports (e.g. move the mission inside its geofence, or "
+                                     "check the mission's feasibility on the ground station), then retry")
             if reason == "signal":
-                await sup._rtl_and_wait(timeout_s=max(60.0, flight_timeout_s / 4))
+                await sup._rtl_and_wait(timeout_s=stop_wait_s)
             duration_s = time.monotonic() - sup.t0
         # read after the recorder has closed: its exit flushes the last rows, and the count must match the file
         st = rec.state
         landed, disarmed = st["in_air"] is False, st["armed"] is False
         total = len(items)
+        problem = sup.problem
+        if params.restore_failures:
+            text = "parameters not restored: " + ", ".join(params.restore_failures)
+            problem = f"{problem}; {text}" if problem else text
         return FlightResult(
-            completed=reason is None and landed and disarmed and sup.max_reached >= total,
+            completed=reason is None and problem is None and landed and disarmed and sup.max_reached >= total,
             landed=landed, disarmed=disarmed, aborted=reason, items_total=total,
             items_reached=sup.max_reached, autopilot=vehicle.autopilot,
             duration_s=duration_s, telemetry_samples=rec.samples,
             link_losses=sup.link_losses, telemetry_log=Path(telemetry_log) if telemetry_log else None,
-            status_texts=list(rec.status_texts))
+            status_texts=list(rec.status_texts), problem=problem, waypoints_total=sup.progress.total,
+            waypoints_reached=sup.progress.done, parameter_changes=list(params.applied), warnings=warnings)
     finally:
         for sig in installed:
             loop.remove_signal_handler(sig)
+        if sup is not None:
+            await sup.finish_background()
         vehicle.close()
 
 

@@ -36,8 +36,11 @@ class TelemetryRecorder:
     """Subscribes to position, attitude, velocity, mode, armed, in-air and mission progress.
 
     ``state`` holds the latest values; ``last_sample_wall`` the monotonic time of the last position sample
-    (used to notice a silent link).
+    (used to notice a silent link). ``reboot`` is set (and stays) when the autopilot's time since boot goes
+    backwards: the vehicle restarted, and nothing it reports about the mission can be trusted after that.
     """
+
+    REBOOT_BACKSTEP_S = 1.0  # time_boot_ms going back by more than this is a new boot, not reordering
 
     def __init__(self, vehicle, path: Path | None = None):
         self.vehicle = vehicle
@@ -48,6 +51,10 @@ class TelemetryRecorder:
         # latched: the vehicle was seen in the air at some point while recording (a short flight can start and end
         # while the companion is still waiting for a slow command acknowledgement on a lossy link)
         self.was_in_air = False
+        self.was_armed = False  # latched likewise: armed at some point while recording
+        self.reboot: str | None = None
+        self._boot_time_max: float | None = None
+        self.status_events: list[tuple[float, str, str]] = []  # (monotonic time, severity name, text)
         self.samples = 0
         self.last_sample_wall: float | None = None
         self._last_position = None
@@ -111,7 +118,17 @@ class TelemetryRecorder:
     def _on_status_text(self, s) -> None:
         text = f"{s.type.name}: {s.text}"
         self.status_texts.append(text)
+        self.status_events.append((time.monotonic(), s.type.name, s.text))
         log.info("vehicle says %s", text)
+
+    def _on_boot_time(self, t_boot_s: float) -> None:
+        """Notice an autopilot restart: its clock since boot runs backwards."""
+        top = self._boot_time_max
+        if top is not None and t_boot_s < top - self.REBOOT_BACKSTEP_S and self.reboot is None:
+            self.reboot = (f"the autopilot restarted: its time since boot went back from {top:.1f} s to "
+                           f"{t_boot_s:.1f} s")
+            log.error("%s", self.reboot)
+        self._boot_time_max = t_boot_s if top is None else max(top, t_boot_s)
 
     def _on_state(self, key: str, value: bool) -> None:
         """Armed / in-air changes also get a row (with the last position), so the log ends in the final state."""
@@ -119,6 +136,8 @@ class TelemetryRecorder:
         self.state[key] = value
         if key == "in_air" and value:
             self.was_in_air = True
+        if key == "armed" and value:
+            self.was_armed = True
         if changed and self._raw_pos is not None:
             self._write_row(*self._raw_pos)
         elif changed and self._last_position is not None:
@@ -134,6 +153,7 @@ class TelemetryRecorder:
         with contextlib.suppress(ValueError, TypeError, KeyError):
             f = json.loads(msg.fields_json)
             roll, pitch, yaw = (math.degrees(f[k]) for k in ("roll", "pitch", "yaw"))
+            self._on_boot_time(f["time_boot_ms"] / 1000.0)
             self._prev_att, self._raw_att = self._raw_att, (f["time_boot_ms"] / 1000.0, roll, pitch, yaw % 360.0)
             self._flush_positions()
 
@@ -147,6 +167,7 @@ class TelemetryRecorder:
                              f["relative_alt"] / 1000.0, (f["vx"] / 100.0, f["vy"] / 100.0, f["vz"] / 100.0))
         except (ValueError, TypeError, KeyError):
             return
+        self._on_boot_time(self._raw_pos[0])
         self._pending.append(self._raw_pos)
         self._flush_positions()
 

@@ -29,6 +29,7 @@ from sim.vehicle import flavours as fl
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
+from sim.vehicle.firmware import FirmwareRules, lost_link_action
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
 from sim.vehicle.model import Limits, Multirotor
@@ -69,6 +70,16 @@ class VehicleConfig:
     max_mission_items: int = 500
     system_id: int = 1
     params: dict[str, float] = field(default_factory=dict)  # parameter values at boot, over the flavour's defaults
+
+    # firmware behaviours (sim/vehicle/firmware.py): reboot this long (simulated) after take-off, silent for
+    # reboot_s wall seconds;
+    # PX4 geofence radius; seconds after boot until the estimator uses GPS (None: the flavour's); PX4 storage file
+    reboot_after_takeoff_s: float | None = None
+    outage_after_takeoff_s: float | None = None
+    reboot_s: float = 2.0
+    geofence_max_dist_m: float | None = None
+    gps_ready_after_s: float | None = None
+    storage: Path | None = None
     limits: Limits = field(default_factory=Limits)
 
 
@@ -80,7 +91,7 @@ class _LinkWriter:
         self.link.send(bytes(buf))
 
 
-class SimVehicle(TelemetryStreams, CommandHandler):
+class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
     """A MAVLink multirotor. ``run()`` blocks until ``stop()`` or ``duration_s`` of simulated time."""
 
     def __init__(self, cfg: VehicleConfig):
@@ -143,6 +154,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self._outage_start_wall: float | None = None
         self._stop = False
         self.nav = self.model.state.pos.copy()
+        self._init_firmware_rules()
 
     # --- helpers -------------------------------------------------------------------------------------------
     def param(self, name: str, default: float) -> float:
@@ -223,10 +235,16 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 refusal = self.flavour.ground_start_refusal(self.mission)
                 if refusal:
                     return refusal
+                if self.refuse_infeasible_start():
+                    self.mode = mode
+                    self.task = Hold(self.model.state.pos)
+                    return None
             if self.mission_finished:
                 self.mission_seq, self.mission_finished = self.flavour.first_seq, False
             self.mission_task = None
             self.mission_prev = nav
+            if self.mode != fl.MISSION:
+                log.info("mission mode from item %d", self.mission_seq)
         elif mode == fl.TAKEOFF:
             if not self.armed:
                 return "takeoff needs the vehicle armed"
@@ -262,7 +280,11 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 return "battery too low to arm"
             if self.gps.glitching(self.t):
                 return "GPS position not usable"
+            prearm = self.prearm_refusal()
+            if prearm:
+                return prearm
         self.armed = True
+        self.armed_at = self.t
         self.took_off = False
         self.landed_since = None
         self.battery_failsafe = self.link_failsafe = False
@@ -281,8 +303,13 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         return None
 
     def _on_new_mission(self, items: list) -> None:
+        keep = self.keeps_current_on_upload(list(items))
         self.mission = list(items)
-        self.mission_seq = self.flavour.first_seq
+        if keep:
+            log.info("uploaded mission equals the stored one: current item %d kept", self.mission_seq)
+        else:
+            self.mission_seq = self.flavour.first_seq
+        self.mission_refused = False
         self.mission_task = None
         self.mission_finished = False
         self.reached_seq = -1
@@ -290,6 +317,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         if self.mode == fl.MISSION and self.armed:
             self.set_mode(fl.HOLD)
         self._send_mission_current()
+        self.save_storage()
 
     # --- mission execution ---------------------------------------------------------------------------------
     def _start_item(self, item: mi.MissionItem) -> bool:
@@ -389,6 +417,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
             self.task = Hold(self.nav if not self.on_ground else self.model.state.pos)
             log.info("mission finished")
         self._send_mission_current()
+        self.save_storage()
 
     def _mission_command(self, on_ground: bool, dt: float) -> np.ndarray:
         for _ in range(len(self.mission) + 1):
@@ -417,7 +446,9 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         self.nav = st.pos + self.gps.step(self.t, dt)
         v_cmd = np.zeros(3)
         if self.armed:
-            if self.mode == fl.MISSION:
+            if self.mode == fl.MISSION and self.mission_refused:
+                v_cmd = np.zeros(3)
+            elif self.mode == fl.MISSION:
                 v_cmd = self._mission_command(st.on_ground, dt)
             else:
                 v_cmd = self.task.command(self.nav, st.on_ground, dt, self)
@@ -429,6 +460,7 @@ class SimVehicle(TelemetryStreams, CommandHandler):
         if not st.on_ground:
             self.took_off = True
         self._landing_logic()
+        self.preflight_disarm()
         self.battery.step(dt, self.armed, float(np.linalg.norm(st.vel)))
         self._failsafes()
         self._publish_truth()
@@ -454,13 +486,14 @@ class SimVehicle(TelemetryStreams, CommandHandler):
             self.set_mode(fl.RTL)
         if self.last_gcs_wall is None or self.link_failsafe:
             return
-        timeout = self.param("COM_DL_LOSS_T", 10.0)
-        if (time.monotonic() - self.last_gcs_wall > timeout and self.param("NAV_DLL_ACT", 2.0) == 2
+        timeout = self.param("COM_DL_LOSS_T" if self.flavour.name == "px4" else "FS_GCS_TIMEOUT", 10.0)
+        action = lost_link_action(self.flavour.name, self.params)
+        if (time.monotonic() - self.last_gcs_wall > timeout and action is not None
                 and self.mode not in (fl.RTL, fl.LAND)):
             self.link_failsafe = True
-            log.warning("data link lost for more than %.0f s: RTL", timeout)
-            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Data link lost: returning to launch")
-            self.set_mode(fl.RTL)
+            log.warning("data link lost for more than %.0f s: %s", timeout, action)
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Data link lost: failsafe {action}")
+            self.set_mode({"rtl": fl.RTL, "land": fl.LAND, "hold": fl.HOLD}[action])
 
     def landed_state(self) -> int:
         st = self.model.state
@@ -535,6 +568,9 @@ class SimVehicle(TelemetryStreams, CommandHandler):
                 if steps == 50:  # cannot keep up: slow the simulated clock down instead of jumping
                     t0 = now - self.t / speed
                 self._update_outage()
+                self.update_outage_after_takeoff()
+                if self.update_reboot():
+                    t0 = time.monotonic()
                 for data in self.link.receive():
                     for msg in self._parse(data):
                         try:

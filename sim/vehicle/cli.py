@@ -67,7 +67,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--params", type=_params, default={}, metavar="NAME=VALUE,...",
                    help="parameter values at boot, over the flavour's defaults (e.g. WP_YAW_BEHAVIOR=0)")
     p.add_argument("--max-speed", type=float, default=12.0, help="max horizontal speed, m/s")
+    add_firmware_arguments(p)
     p.add_argument("--max-accel", type=float, default=4.0, help="max acceleration, m/s^2")
+
+
+def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
+    """Firmware behaviours that end or refuse a flight (sim/vehicle/firmware.py)."""
+    p.add_argument("--reboot-after-takeoff", type=float, metavar="S",
+                   help="the autopilot reboots this many simulated seconds after take-off (on the ground again, "
+                        "time_boot_ms from 0)")
+    p.add_argument("--outage-after-takeoff", type=float, metavar="S",
+                   help="link outage begins this many simulated seconds after take-off (length: --outage-s)")
+    p.add_argument("--reboot-s", type=float, default=2.0, help="link silence while rebooting, wall seconds")
+    p.add_argument("--geofence-max-dist", type=float, metavar="M",
+                   help="PX4 GF_MAX_HOR_DIST: a mission beyond it is accepted, then its takeoff refused")
+    p.add_argument("--gps-ready-after", type=float, metavar="S",
+                   help="simulated seconds after boot until the estimator uses GPS (default: ArduCopter 38, PX4 0)")
+    p.add_argument("--storage", type=Path,
+                   help="PX4 flavour: keep the mission and its current item in this file across restarts")
+
+
+def firmware_config(args: argparse.Namespace) -> dict:
+    return dict(reboot_after_takeoff_s=args.reboot_after_takeoff, reboot_s=args.reboot_s,
+                geofence_max_dist_m=args.geofence_max_dist, gps_ready_after_s=args.gps_ready_after,
+                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff)
 
 
 def config_from_args(args: argparse.Namespace) -> VehicleConfig:
@@ -81,10 +104,11 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
         target=(args.mavlink_host, args.mavlink_port), bind_port=args.bind_port, pose_port=args.pose_port or None,
         truth_log=args.truth_log, wind_m_s=args.wind, gusts_m_s=args.gusts, wind_from_deg=args.wind_from,
         gps_noise_m=args.gps_noise, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
-        outage_at_s=args.outage_at, outage_s=args.outage_s if args.outage_at is not None else 0.0,
+        outage_at_s=args.outage_at, outage_s=args.outage_s,
         gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,
         duration_s=args.duration, max_mission_items=args.max_mission_items, params=dict(args.params),
         limits=Limits(max_speed_h_m_s=args.max_speed, max_accel_m_s2=args.max_accel),
+        **firmware_config(args),
     )
 
 

@@ -94,6 +94,7 @@ class CommandHandler:
         self.mission_finished = False
         self.mission_prev = self.nav.copy()
         self._send_mission_current()
+        self.save_storage()
         return True
 
     def _ack(self, msg, command: int, result: int) -> None:

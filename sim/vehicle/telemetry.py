@@ -55,7 +55,7 @@ class TelemetryStreams:
         health = SENSORS
         if self.gps.glitching(self.t):
             health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
-        elif self.battery.remaining >= 0.2 or self.armed:
+        elif self.armed or (self.battery.remaining >= 0.2 and self.armable_now()):
             health |= PREARM
         b = self.battery
         return self.mav.sys_status_encode(SENSORS | PREARM, SENSORS | PREARM, health, 250,
@@ -137,6 +137,8 @@ class TelemetryStreams:
                  | mavlink.EKF_POS_HORIZ_REL | mavlink.EKF_POS_HORIZ_ABS | mavlink.EKF_POS_VERT_ABS
                  | mavlink.EKF_PRED_POS_HORIZ_REL | mavlink.EKF_PRED_POS_HORIZ_ABS)
         bad = 0.9 if self.gps.glitching(self.t) else 0.05
+        if not self.position_ready:  # estimator not using GPS yet: attitude and relative position only
+            flags = mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_VERT | mavlink.EKF_CONST_POS_MODE
         return self.mav.ekf_status_report_encode(flags, 0.05, bad, 0.05, 0.02, 0.0)
 
     def _autopilot_version(self):
@@ -162,6 +164,8 @@ class TelemetryStreams:
         for name, rate in self.rates.items():
             if rate <= 0 or name not in self.STREAMS:
                 continue
+            if name == "HOME_POSITION" and not self.position_ready:
+                continue  # no home until the estimator uses GPS
             due = self._next_due.get(name, 0.0)
             if self.t + 1e-9 < due:
                 continue
@@ -179,6 +183,8 @@ class TelemetryStreams:
     def _requested(self, msg_id: int):
         if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return self._autopilot_version()
+        if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION and not self.position_ready:
+            return None
         cls = mavlink.mavlink_map.get(msg_id)
         if cls is not None and cls.msgname in self.STREAMS:
             return getattr(self, self.STREAMS[cls.msgname])()

@@ -1,0 +1,131 @@
+"""Autopilot parameters for one flight: read them, set them for the flight, and always put them back afterwards.
+
+Why a context manager: a flight may need firmware settings that differ from what the vehicle keeps (a lost-link
+action, a return altitude, vertical scan speeds). Left changed, they would silently alter the next flight, so the
+previous values are restored on every way out (normal end, error, Ctrl-C) and every change is logged both ways.
+
+Types: PX4 sends integer parameters byte-wise inside the float field, ArduPilot as a C cast; mavsdk's param plugin
+decodes both, but only when asked with the parameter's own type (``WRONG_TYPE`` otherwise). So each parameter is
+read as a float first and as an int on ``WRONG_TYPE``, and written back with the type it was read with.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from companion.errors import CompanionError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ParamValue:
+    name: str
+    value: float
+    is_int: bool
+
+    def text(self, value: float | None = None) -> str:
+        v = self.value if value is None else value
+        return f"{int(round(v))}" if self.is_int else f"{v:g}"
+
+
+@dataclass(frozen=True)
+class ParamChange:
+    """One parameter set for the flight: its value before and during it."""
+
+    name: str
+    before: float
+    during: float
+    is_int: bool
+
+
+def _result_name(exc: Exception) -> str:
+    return getattr(getattr(exc, "result", None), "name", type(exc).__name__)
+
+
+async def read_parameter(param_plugin, name: str) -> ParamValue:
+    """The vehicle's value of ``name`` with its type; CompanionError if the vehicle does not have it."""
+    try:
+        return ParamValue(name, float(await param_plugin.get_param_float(name)), False)
+    except Exception as exc:
+        if _result_name(exc) != "WRONG_TYPE":
+            raise CompanionError(f"cannot read parameter {name} from the vehicle ({_result_name(exc)})",
+                                 "check the parameter name for this firmware and the link") from exc
+    try:
+        return ParamValue(name, float(await param_plugin.get_param_int(name)), True)
+    except Exception as exc:
+        raise CompanionError(f"cannot read parameter {name} from the vehicle ({_result_name(exc)})",
+                             "check the parameter name for this firmware and the link") from exc
+
+
+async def write_parameter(param_plugin, name: str, value: float, is_int: bool) -> None:
+    try:
+        if is_int:
+            await param_plugin.set_param_int(name, int(round(value)))
+        else:
+            await param_plugin.set_param_float(name, float(value))
+    except Exception as exc:
+        raise CompanionError(f"the vehicle did not accept {name} = {value:g} ({_result_name(exc)})",
+                             "check the value's range for this firmware, or set it on the ground station") from exc
+
+
+async def read_parameters(param_plugin, names) -> dict[str, ParamValue]:
+    return {name: await read_parameter(param_plugin, name) for name in names}
+
+
+def _same(a: float, b: float, is_int: bool) -> bool:
+    return int(round(a)) == int(round(b)) if is_int else math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
+
+
+class FlightParameters:
+    """``async with FlightParameters(vehicle.param, {"RTL_RETURN_ALT": 40.0}) as fp:`` sets the values that differ
+    and restores them on exit, whatever the exit. ``fp.changes`` says what was changed; a value that could not be
+    restored is logged as an error naming the parameter and the value to set by hand (``fp.restore_failures``)."""
+
+    def __init__(self, param_plugin, wanted: Mapping[str, float] | None):
+        self.param = param_plugin
+        self.wanted = dict(wanted or {})
+        self.changes: list[ParamChange] = []  # still to restore
+        self.applied: list[ParamChange] = []  # everything set for the flight (kept for the report)
+        self.restore_failures: list[str] = []
+
+    async def __aenter__(self) -> FlightParameters:
+        try:
+            for name, value in self.wanted.items():
+                if not math.isfinite(float(value)):
+                    raise CompanionError(f"parameter {name} = {value} is not a finite number",
+                                         "give a finite value")
+                old = await read_parameter(self.param, name)
+                if _same(old.value, float(value), old.is_int):
+                    log.info("parameter %s is already %s", name, old.text())
+                    continue
+                await write_parameter(self.param, name, float(value), old.is_int)
+                change = ParamChange(name, old.value, float(value), old.is_int)
+                self.changes.append(change)
+                self.applied.append(change)
+                log.info("parameter %s set to %s for this flight (was %s)", name, old.text(float(value)), old.text())
+        except BaseException:
+            await self.restore()
+            raise
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.restore()
+
+    async def restore(self) -> None:
+        """Put every changed parameter back (newest first). Shielded: a Ctrl-C during the restore does not cut it."""
+        changes, self.changes = self.changes, []
+        for ch in reversed(changes):
+            try:
+                await asyncio.shield(write_parameter(self.param, ch.name, ch.before, ch.is_int))
+                value = ParamValue(ch.name, ch.before, ch.is_int)
+                log.info("parameter %s restored to %s", ch.name, value.text())
+            except (Exception, asyncio.CancelledError) as exc:
+                text = ParamValue(ch.name, ch.before, ch.is_int).text()
+                self.restore_failures.append(f"{ch.name} (set it back to {text})")
+                log.error("could not restore parameter %s to %s: %s; set it on the ground station", ch.name, text,
+                          exc)

@@ -1,0 +1,125 @@
+"""Getting a verified mission started the way each firmware needs it: a mode that can arm, the first item as the
+current one (read back), arming with the firmware's own refusal text.
+
+Why each step (real firmware in SITL, shared/notes/real-firmware.md):
+  * PX4 does not arm in Return mode, nor in Mission mode without a valid mission; ArduCopter refuses in BRAKE (what
+    mavsdk's ``arm()`` switches to first). So the companion selects PX4 Hold (AUTO_LOITER) or Copter GUIDED itself.
+  * PX4 keeps its current item when the uploaded mission equals the stored one, even across a restart, and the
+    ``current`` flag on item 0 does not reset it: a re-fly after an interrupted flight would resume mid-scan,
+    skipping takeoff, transit altitude, gimbal and speed items. So the first item is set explicitly and read back
+    from MISSION_CURRENT before the start; a vehicle that does not confirm it is not started.
+  * A refused arm is only useful with the firmware's reason ("PreArm: ..."), which arrives as STATUSTEXT.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+from collections.abc import Callable
+
+from companion.errors import CompanionError
+
+log = logging.getLogger(__name__)
+
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_SET_MISSION_CURRENT = 224
+MAV_CMD_REQUEST_MESSAGE = 512
+MSG_ID_MISSION_CURRENT = 42
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_RESULT_ACCEPTED = 0
+ARDUCOPTER_GUIDED = 4
+PX4_MAIN_AUTO, PX4_SUB_LOITER = 4, 3
+ARMING_MODE = {"px4": "Hold (AUTO_LOITER)", "ardupilot": "GUIDED"}
+
+
+def first_item_seq(autopilot: str) -> int:
+    """ArduPilot keeps home at seq 0: its first mission item is 1."""
+    return 1 if autopilot == "ardupilot" else 0
+
+
+async def select_arming_mode(vehicle) -> bool:
+    """Switch to the firmware's mode from which arming works; True when the vehicle accepted it."""
+    if vehicle.autopilot == "ardupilot":
+        params = (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ARDUCOPTER_GUIDED)
+    else:
+        params = (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_MAIN_AUTO, PX4_SUB_LOITER)
+    try:
+        result = await vehicle.command_long(MAV_CMD_DO_SET_MODE, *params)
+    except Exception as exc:  # reported by the caller's health wait / arming if it matters
+        log.debug("mode switch to %s failed: %s", ARMING_MODE[vehicle.autopilot], exc)
+        return False
+    if result != MAV_RESULT_ACCEPTED:
+        log.debug("mode switch to %s refused (MAV_RESULT %d)", ARMING_MODE[vehicle.autopilot], result)
+    return result == MAV_RESULT_ACCEPTED
+
+
+async def read_mission_current(vehicle, timeout_s: float = 3.0, want: int | None = None) -> int | None:
+    """The seq of the vehicle's next MISSION_CURRENT (or the first one equal to ``want``) within ``timeout_s``."""
+    seen: list[int] = []
+
+    async def _watch():
+        async for msg in vehicle.direct.subscribe_message("MISSION_CURRENT"):
+            with contextlib.suppress(ValueError, TypeError, KeyError):
+                seen.append(int(json.loads(msg.fields_json)["seq"]))
+                if want is None or seen[-1] == want:
+                    return
+
+    async def _ask():  # MISSION_CURRENT may stream slowly (ArduPilot: only once requested): ask for one now
+        with contextlib.suppress(Exception):
+            await vehicle.command_long(MAV_CMD_REQUEST_MESSAGE, MSG_ID_MISSION_CURRENT)
+
+    watcher = asyncio.create_task(_watch())
+    asker = asyncio.create_task(_ask())
+    try:
+        await asyncio.wait_for(watcher, timeout_s)
+    except TimeoutError:
+        pass
+    finally:
+        asker.cancel()
+        with contextlib.suppress(asyncio.CancelledError, Exception):
+            await asker
+    return seen[-1] if seen else None
+
+
+async def start_from_first_item(vehicle, attempts: int = 3, timeout_s: float = 3.0) -> int:
+    """Make the first mission item the current one and confirm it from MISSION_CURRENT; raises otherwise."""
+    first = first_item_seq(vehicle.autopilot)
+    seen = None
+    for _ in range(attempts):
+        try:
+            await vehicle.mission.set_current_mission_item(first)
+        except Exception as exc:  # older stacks: the command form
+            log.debug("set_current_mission_item failed (%s); sending DO_SET_MISSION_CURRENT", exc)
+            with contextlib.suppress(Exception):
+                await vehicle.command_long(MAV_CMD_DO_SET_MISSION_CURRENT, first)
+        seen = await read_mission_current(vehicle, timeout_s, want=first)
+        if seen == first:
+            log.info("current mission item set to %d (the first) and confirmed by the vehicle", first)
+            return first
+    what = "no MISSION_CURRENT at all" if seen is None else f"MISSION_CURRENT still says item {seen}"
+    raise CompanionError(
+        f"the vehicle did not confirm the first mission item as current ({what}): it could resume mid-mission",
+        "not starting; check the link and that the vehicle accepts MISSION_SET_CURRENT, then retry")
+
+
+async def arm_with_reason(vehicle, texts_since: Callable[[int], list[str]], text_count: Callable[[], int],
+                          attempts: int = 3, reason_wait_s: float = 1.5) -> None:
+    """Arm; a refusal raises with the firmware's own STATUSTEXTs (pre-arm failures) quoted. Only a timed-out
+    command is tried again: a refusal will not change by repeating it."""
+    for attempt in range(1, attempts + 1):
+        mark = text_count()
+        try:
+            await vehicle.action.arm()
+            return
+        except Exception as exc:
+            result = getattr(getattr(exc, "result", None), "name", str(exc))
+            if result in ("TIMEOUT", "CONNECTION_ERROR") and attempt < attempts:
+                log.warning("arming timed out (attempt %d of %d), retrying", attempt, attempts)
+                continue
+            await asyncio.sleep(reason_wait_s)  # the STATUSTEXT may trail the COMMAND_ACK
+            said = texts_since(mark)
+            reason = "; ".join(said) if said else "the vehicle gave no reason (no STATUSTEXT)"
+            raise CompanionError(f"the vehicle refused to arm ({result}): {reason}",
+                                 "fix what the vehicle reports (its pre-arm checks), then retry") from exc

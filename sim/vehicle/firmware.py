@@ -1,0 +1,238 @@
+"""Firmware behaviours that decide how a flight starts and ends, as the real firmware does them (a SimVehicle mixin).
+
+Each rule here was seen on real firmware in SITL (shared/notes/real-firmware.md; ArduCopter V4.7.0-dev, PX4 main of
+2026-03) and is what the companion's supervision must survive:
+
+* PX4 keeps its current mission item when an upload equals the stored mission (the ``current`` flag on item 0
+  does not reset it), and across a restart: a re-fly after an interrupted flight resumes at the interrupted item
+  unless the companion sets the current item itself. ArduCopter resets it to 1 on every upload.
+* A reboot mid-flight (``--reboot-after-takeoff``): the link goes silent for a moment, then the vehicle is back on
+  the ground, disarmed, with ``time_boot_ms`` restarting from 0 and (PX4) its stored mission and current item.
+* A mission outside PX4's geofence (``--geofence-max-dist``, PX4's GF_MAX_HOR_DIST): the upload is accepted, the
+  takeoff is refused at start with PX4's STATUSTEXTs and the vehicle disarms on the ground (COM_DISARM_PRFLT).
+* ArduCopter's EKF uses GPS only 35-40 s after boot: until then no home, no absolute position, and arming is
+  refused with a "PreArm: ..." STATUSTEXT.
+* The failsafe parameters with the firmware defaults (FS_GCS_ENABLE 0 and RTL_ALT 1500 cm on ArduCopter,
+  NAV_DLL_ACT 0 and RTL_RETURN_ALT 30 m on PX4) and the lost-link action each of them selects.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from pathlib import Path
+
+import pymap3d
+from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
+
+from companion.mission import items as mi
+from sim.vehicle import flavours as fl
+from sim.vehicle.environment import Battery
+from sim.vehicle.model import Multirotor
+from sim.vehicle.tasks import Hold
+
+log = logging.getLogger(__name__)
+
+# Real defaults (PX4 main 2026-03: commander/navigator params; ArduCopter 4.7: Parameters.cpp / notes).
+FAILSAFE_DEFAULTS = {
+    "px4": {"NAV_DLL_ACT": 0, "COM_DL_LOSS_T": 10, "RTL_RETURN_ALT": 30.0, "COM_DISARM_PRFLT": 10.0,
+            "GF_MAX_HOR_DIST": 0.0},
+    "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500},
+}
+# Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
+GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
+COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
+
+
+def lost_link_action(flavour: str, params: dict) -> str | None:
+    """What the firmware does when the ground link is lost in a mission: 'rtl', 'land', 'hold' or None (flies on).
+
+    PX4 NAV_DLL_ACT: 0 disabled, 1 hold, 2 return, 3 land, 5 terminate, 6 disarm. ArduCopter FS_GCS_ENABLE:
+    0 disabled, 1 RTL, 2 continue in AUTO, 3/4 SmartRTL (RTL here), 5 land, 6 DO_LAND_START or RTL, 7 brake/land."""
+    if flavour == "px4":
+        return {1: "hold", 2: "rtl", 3: "land"}.get(int(params.get("NAV_DLL_ACT", 0)))
+    return {1: "rtl", 3: "rtl", 4: "rtl", 5: "land", 6: "rtl", 7: "land"}.get(int(params.get("FS_GCS_ENABLE", 0)))
+
+
+def _same_items(a: list, b: list) -> bool:
+    """Equal missions as PX4 compares them: every field but the ``current`` flag (NaN equals NaN)."""
+    if len(a) != len(b):
+        return False
+    for x, y in zip(a, b, strict=True):
+        for name in ("seq", "frame", "command", "autocontinue", "param1", "param2", "param3", "param4", "x", "y",
+                     "z"):
+            u, v = getattr(x, name), getattr(y, name)
+            if u != v and not (isinstance(u, float) and isinstance(v, float) and math.isnan(u) and math.isnan(v)):
+                return False
+    return True
+
+
+class FirmwareRules:
+    """Mixed into SimVehicle: the start/stop behaviours above, each in its own method."""
+
+    def _init_firmware_rules(self) -> None:
+        self.params.update(FAILSAFE_DEFAULTS[self.flavour.name])
+        if self.cfg.geofence_max_dist_m is not None:
+            self.params["GF_MAX_HOR_DIST"] = float(self.cfg.geofence_max_dist_m)
+        delay = self.cfg.gps_ready_after_s
+        self.gps_ready_after_s = GPS_READY_AFTER_S[self.flavour.name] if delay is None else float(delay)
+        self.boot_count = 0
+        self.mission_refused = False
+        self.armed_at: float | None = None
+        self._reboot_wall: float | None = None
+        self._takeoff_t: float | None = None
+        self._outage_wall: float | None = None
+        self._load_storage()
+
+    # --- estimator readiness (ArduCopter: 35-40 s after boot) -----------------------------------------
+    @property
+    def position_ready(self) -> bool:
+        return self.t >= self.gps_ready_after_s
+
+    def prearm_refusal(self) -> str | None:
+        """The firmware's refusal text: the estimator not using GPS yet, or (PX4) Mission mode without a valid
+        mission, which PX4 does not arm in."""
+        if not self.position_ready:
+            return COPTER_PREARM_NO_POSITION if self.flavour.name == "ardupilot" else "Preflight Fail: No position"
+        if self.flavour.name == "px4" and self.mode == fl.MISSION and (not self.mission or self.mission_refused):
+            return "Arming denied: no valid mission"
+        return None
+
+    def armable_now(self) -> bool:
+        """SYS_STATUS pre-arm bit (mavsdk's ``is_armable``): false in a mode the firmware does not arm in."""
+        return self.flavour.arm_refusal(self.mode) is None and self.prearm_refusal() is None
+
+    # --- current item kept across an identical upload (PX4) ------------------------------------------
+    def keeps_current_on_upload(self, new_items: list) -> bool:
+        """PX4 keeps the current item when the new mission equals the stored one (and it is inside the mission)."""
+        return (self.flavour.name == "px4" and bool(self.mission) and _same_items(self.mission, new_items)
+                and 0 <= self.mission_seq < len(new_items))
+
+    # --- storage across a restart of the simulator process (PX4 dataman) -----------------------------
+    def _load_storage(self) -> None:
+        path = self.cfg.storage
+        if path is None or not Path(path).exists() or self.flavour.name != "px4":
+            return
+        data = json.loads(Path(path).read_text())
+        items = [mi.MissionItem(**d) for d in data.get("mission", [])]
+        self.missions.lists[0] = items
+        self.mission = items
+        self.mission_seq = int(data.get("current", 0)) if items else 0
+        log.info("restored %d mission items from %s, current item %d", len(items), path, self.mission_seq)
+
+    def save_storage(self) -> None:
+        path = self.cfg.storage
+        if path is None or self.flavour.name != "px4":
+            return
+        data = {"mission": [it.__dict__ for it in self.mission], "current": self.mission_seq}
+        Path(path).write_text(json.dumps(data, allow_nan=True))
+
+    # --- geofence feasibility at start (PX4) ----------------------------------------------------------
+    def geofence_violation(self) -> int | None:
+        """1-based number of the first positional item beyond GF_MAX_HOR_DIST from home, as PX4 reports it."""
+        limit = float(self.params.get("GF_MAX_HOR_DIST", 0.0))
+        if self.flavour.name != "px4" or limit <= 0:
+            return None
+        h = self.cfg.home
+        for i, it in enumerate(self.mission):
+            if it.frame not in fl.GLOBAL_FRAMES or (it.x == 0 and it.y == 0):
+                continue
+            n, e, _ = pymap3d.geodetic2ned(it.x / 1e7, it.y / 1e7, h.alt_amsl_m, h.lat, h.lon, h.alt_amsl_m)
+            if math.hypot(n, e) > limit:
+                return i + 1
+        return None
+
+    def refuse_infeasible_start(self) -> bool:
+        """PX4 at mission start on the ground: a mission that fails the feasibility check is not flown; the
+        takeoff is refused with PX4's messages and the armed vehicle disarms after COM_DISARM_PRFLT."""
+        bad = self.geofence_violation()
+        if bad is None:
+            return False
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Geofence violation for waypoint {bad}")
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "No valid mission available, refusing takeoff")
+        self.mission_refused = True
+        return True
+
+    def preflight_disarm(self) -> None:
+        """PX4 disarms an armed vehicle that has not taken off after COM_DISARM_PRFLT s. Modelled for a refused
+        mission only: at high speed-ups a general 10 s (simulated) timer would race the companion's start command."""
+        if not (self.armed and self.mission_refused and self.on_ground and not self.took_off):
+            return
+        if self.armed_at is not None and self.t - self.armed_at >= float(self.params.get("COM_DISARM_PRFLT", 10.0)):
+            self.disarm()
+            self.statustext(mavlink.MAV_SEVERITY_INFO, "Disarmed by auto preflight disarming")
+
+    # --- faults timed from the take-off (reproducible whatever the companion's start-up took) -------------
+    def seconds_since_takeoff(self) -> float | None:
+        if self._takeoff_t is None and self.took_off:
+            self._takeoff_t = self.t
+        return None if self._takeoff_t is None else self.t - self._takeoff_t
+
+    def update_outage_after_takeoff(self) -> None:
+        """``--outage-after-takeoff S``: the link goes down S simulated seconds after take-off, for ``outage_s``
+        wall seconds (a very long one is a link that never comes back)."""
+        cfg = self.cfg
+        if cfg.outage_after_takeoff_s is None:
+            return
+        since = self.seconds_since_takeoff()
+        now = time.monotonic()
+        if self._outage_wall is None:
+            if since is None or since < cfg.outage_after_takeoff_s:
+                return
+            self._outage_wall = now
+            log.warning("link outage starts %.1f s after take-off (%.1f s wall)", since, cfg.outage_s)
+        down = now - self._outage_wall < cfg.outage_s
+        if self.link.down and not down:
+            log.warning("link outage ends")
+        self.link.down = down
+
+    # --- reboot mid-flight ----------------------------------------------------------------------------
+    def update_reboot(self) -> bool:
+        """Runs the scheduled reboot: silence on the link for ``reboot_s`` wall seconds, then a fresh boot.
+        Returns True at the moment the vehicle boots again (the caller restarts its clock)."""
+        cfg = self.cfg
+        if cfg.reboot_after_takeoff_s is None or self.boot_count > 0:
+            return False
+        since = self.seconds_since_takeoff()
+        now = time.monotonic()
+        if self._reboot_wall is None:
+            if since is None or since < cfg.reboot_after_takeoff_s:
+                return False
+            self._reboot_wall = now
+            self.link.down = True
+            log.warning("autopilot reboot at %.1f s (link silent for %.1f s wall)", self.t, cfg.reboot_s)
+            return False
+        if now - self._reboot_wall < cfg.reboot_s:
+            return False
+        self.reboot()
+        self.link.down = False
+        return True
+
+    def reboot(self) -> None:
+        """A fresh boot: on the ground at home, disarmed, clocks from 0, streams at the firmware defaults; the
+        stored mission (and on PX4 its current item) survive, as they do in the firmware's storage."""
+        self.boot_count += 1
+        self.model = Multirotor(self.cfg.limits)
+        self.model.state.yaw_deg = self.cfg.home_yaw_deg % 360.0
+        self.nav = self.model.state.pos.copy()
+        self.t = 0.0
+        self.armed = False
+        self.took_off = False
+        self.landed_since = None
+        self.armed_at = None
+        self.mode = fl.HOLD if self.flavour.name == "px4" else fl.POSCTL
+        self.task = Hold(self.model.state.pos)
+        self.yaw_target = None
+        self.mission_task = None
+        self.mission_prev = None
+        self.mission_refused = False
+        self.link_failsafe = self.battery_failsafe = False
+        self.battery = Battery()
+        self.rates = dict(self.flavour.default_rates_hz)
+        self._next_due = {}
+        if self.flavour.name != "px4":
+            self.mission_seq = self.flavour.first_seq
+        log.warning("autopilot booted again (boot %d): mission of %d items, current item %d", self.boot_count + 1,
+                    len(self.mission), self.mission_seq)

@@ -1,0 +1,223 @@
+"""How flights start and end against the firmware behaviours seen on real PX4 and ArduCopter (shared/notes/
+real-firmware.md), reproduced by the simulator (sim/vehicle/firmware.py), end to end over MAVLink + mavsdk:
+
+* a re-fly after an interrupted flight starts at the first item (PX4 keeps its current item across an identical
+  upload, and the interrupted flight left the vehicle in Return mode, where PX4 does not arm);
+* an autopilot restart mid-flight is a failed flight with a non-zero exit, whatever the progress said;
+* a mission PX4 refuses at start (geofence) ends with the vehicle's reason within seconds;
+* a link that never comes back ends supervision at the configured limit, non-zero, and the loss is counted;
+* ArduCopter's EKF (GPS only ~38 s after boot): arming refused with its "PreArm:" text, the health wait covers it;
+* failsafe parameters set for the flight with explicit options and restored after.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from companion.errors import CompanionError
+from companion.flight import fly_mission_sync, read_telemetry_log
+from companion.flight.connection import connect, request_rates, wait_healthy
+from companion.flight.parameters import read_parameter
+from companion.flight.start import arm_with_reason, select_arming_mode
+from companion.mission import load_mission, plan_scan
+from tests.sitl import ROOT, SitlVehicle
+
+pytestmark = pytest.mark.sitl
+DEMO = ROOT / "missions/demo-facade.yaml"
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+
+
+@pytest.fixture(scope="module")
+def small_plan():
+    """The demo mission shrunk to an 8 m x 6 m wall (18 items, ~80 s simulated)."""
+    m = load_mission(DEMO)
+    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
+    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
+    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))
+
+
+def _home(plan) -> str:
+    return f"{plan.home.lat},{plan.home.lon},{plan.home.alt_amsl_m}"
+
+
+def _fly(plan, url, **kw):
+    kw.setdefault("progress", False)
+    kw.setdefault("handle_signals", False)
+    kw.setdefault("flight_timeout_s", 600.0)  # wall seconds: generous, a loaded machine slows the simulator down
+    kw.setdefault("connect_timeout_s", 60.0)  # the simulator process alone can take 10 s to start under load
+    return fly_mission_sync(plan, url, **kw)
+
+
+def _cli(*args: str) -> list[str]:
+    # a generous heartbeat wait: on a loaded machine the simulator process alone can take 10 s to start
+    return [sys.executable, "-m", "companion.cli", "fly", "--connect-timeout", "60", *args]
+
+
+def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
+    """First flight: Ctrl-C in the middle of the scan (RTL, lands in Return mode, PX4 keeps item N as current).
+    Second flight of the same mission: identical upload, so the vehicle still holds item N; the companion must set
+    and confirm item 0 and switch out of Return mode to arm."""
+    first_log, second_log = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
+    with SitlVehicle(speedup=20, log_path=tmp_path / "sim.log") as v:
+        proc = subprocess.Popen(_cli(str(DEMO), "--connect", v.url, "--telemetry-log", str(first_log),
+                                     "--no-progress"), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                text=True, env=ENV)
+        try:
+            deadline = time.monotonic() + 300
+            while time.monotonic() < deadline:
+                rows = read_telemetry_log(first_log) if first_log.exists() else []
+                if rows and rows[-1]["mission_item"] >= 9:
+                    break
+                time.sleep(0.2)
+            else:
+                pytest.fail("the first flight never reached the scan")
+            proc.send_signal(signal.SIGINT)
+            out, _ = proc.communicate(timeout=300)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+        assert proc.returncode == 130, out
+        result = _fly(plan_scan(load_mission(DEMO)), v.url, telemetry_log=second_log)
+    sim_log = (tmp_path / "sim.log").read_text()
+    kept = [line for line in sim_log.splitlines() if "current item" in line and "kept" in line]
+    assert kept and not kept[-1].rstrip().endswith("item 0 kept"), sim_log[-3000:]  # the vehicle did keep it
+    starts = [line.rsplit(" ", 1)[-1] for line in sim_log.splitlines() if "mission mode from item" in line]
+    assert starts == ["0", "0"], starts  # both flights started at their first item
+    assert result.completed, result
+    rows = [r for r in read_telemetry_log(second_log) if r["armed"]]
+    assert rows and rows[0]["mission_item"] == 0
+    assert max(r["rel_alt_m"] for r in rows) > 15.0  # it climbed to the transit altitude first
+
+
+def test_autopilot_restart_mid_flight_exits_non_zero(tmp_path):
+    cmd = _cli(str(DEMO), "--sitl", "--speedup", "20", "--no-progress", "--sim-arg", "reboot-after-takeoff=60",
+               "--link-dead", "30")
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out
+    assert "mission NOT complete" in out and "stopped by reboot" in out
+    assert "the autopilot restarted" in out and "cannot be trusted" in out
+
+
+def test_ardupilot_restart_is_seen_although_it_streams_nothing_until_asked_again(small_plan, tmp_path):
+    """After a restart ArduCopter streams only HEARTBEAT: the companion asks for telemetry again while the link is
+    silent, and the restart shows in the time since boot (not as a dead link at the limit)."""
+    cmd = _cli(str(DEMO), "--sitl", "--autopilot", "ardupilot", "--speedup", "20", "--no-progress",
+               "--sim-arg", "reboot-after-takeoff=40", "--link-dead", "40")
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out
+    assert "stopped by reboot" in out and "the autopilot restarted" in out
+
+
+def test_mission_the_vehicle_refuses_at_start_errors_within_seconds(small_plan, tmp_path, caplog):
+    caplog.set_level(logging.INFO, logger="companion.flight.fly")
+    with SitlVehicle(speedup=20, geofence_max_dist=5, home=_home(small_plan), log_path=tmp_path / "sim.log") as v:
+        with pytest.raises(CompanionError) as err:
+            _fly(small_plan, v.url, flight_timeout_s=600.0)
+        ended = time.time()
+    started = [r.created for r in caplog.records if r.getMessage().startswith("armed; starting the mission")]
+    assert started and ended - started[0] < 10.0
+    assert "refused the mission start" in err.value.problem
+    assert "Geofence violation for waypoint" in err.value.problem and "geofence" in err.value.fix
+
+
+def test_dead_link_ends_supervision_at_the_configured_limit(tmp_path):
+    cmd = _cli(str(DEMO), "--sitl", "--speedup", "20", "--no-progress", "--sim-arg", "outage-after-takeoff=30",
+               "--sim-arg", "outage-s=100000", "--link-loss", "1", "--link-dead", "5")
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out
+    assert "stopped by link" in out and "1 link loss(es) (1 never restored)" in out
+    assert "limit 5 s" in out
+    flown_s = int(re.search(r"NOT landed, still ARMED, (\d+) s,", out).group(1))
+    assert flown_s < 60, out  # supervision ended at the limit, not at the 1800 s flight timeout
+
+
+def test_ardupilot_refuses_to_arm_until_its_ekf_uses_gps_and_says_why(tmp_path):
+    from companion.flight.telemetry_log import TelemetryRecorder
+
+    async def go():
+        vehicle = await connect(sim.url, timeout_s=60)
+        try:
+            await request_rates(vehicle, 5.0)
+            assert await select_arming_mode(vehicle)
+            async with TelemetryRecorder(vehicle) as rec:
+                await asyncio.sleep(0.5)
+                await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
+        finally:
+            vehicle.close()
+
+    sim = SitlVehicle(speedup=5, autopilot="ardupilot", gps_ready_after=10000, log_path=tmp_path / "sim.log")
+    with sim, pytest.raises(CompanionError) as err:
+        asyncio.run(go())
+    assert "refused to arm" in err.value.problem and "PreArm: Need Position Estimate" in err.value.problem
+
+
+def test_ardupilot_health_wait_covers_ekf_convergence_and_says_what_is_missing(tmp_path, caplog):
+    """38 simulated seconds (the real firmware's 35-40 s) before home and position: the default wait covers it and
+    reports what it still waits for while waiting."""
+    caplog.set_level(logging.INFO, logger="companion.flight.connection")
+    m = load_mission(DEMO)
+    with SitlVehicle(speedup=4, autopilot="ardupilot", home=_home(plan_scan(m)), log_path=tmp_path / "sim.log") as v:
+        async def until_healthy():
+            vehicle = await connect(v.url, timeout_s=60)
+            try:
+                await request_rates(vehicle, 5.0)
+                t0 = time.monotonic()
+                await wait_healthy(vehicle, report_every_s=2.0)
+                return time.monotonic() - t0
+            finally:
+                vehicle.close()
+
+        waited = asyncio.run(until_healthy())
+    assert waited > 4.0  # 38 s simulated at speed-up 4 is ~9.5 s wall
+    waiting = [r.getMessage() for r in caplog.records if r.getMessage().startswith("waiting for the vehicle")]
+    assert waiting and "home position" in waiting[0]
+
+
+def test_failsafe_options_set_parameters_for_the_flight_and_restore_them(small_plan, tmp_path):
+    with SitlVehicle(speedup=20, home=_home(small_plan), log_path=tmp_path / "sim.log") as v:
+        result = _fly(small_plan, v.url, lost_link_action="rtl", return_alt="auto",
+                      flight_parameters={"MPC_XY_CRUISE": 4.0})
+        assert result.completed, result
+        changed = {c.name: (c.before, c.during) for c in result.parameter_changes}
+        assert changed["NAV_DLL_ACT"] == (0.0, 2.0)  # an int, byte-wise encoded by PX4
+        assert "RTL_RETURN_ALT" not in changed  # PX4's 30 m is above the 10 m this scan needs: never lowered
+        assert changed["MPC_XY_CRUISE"] == (5.0, 4.0)
+        assert result.warnings == []
+
+        async def read_back():
+            vehicle = await connect(v.url, timeout_s=60)
+            try:
+                return [(await read_parameter(vehicle.param, n)).value for n in ("NAV_DLL_ACT", "MPC_XY_CRUISE")]
+            finally:
+                vehicle.close()
+
+        assert asyncio.run(read_back()) == [0.0, 5.0]
+    sim_log = (tmp_path / "sim.log").read_text()
+    assert "data link lost" not in sim_log
+
+
+def test_default_failsafe_is_reported_as_unsafe_for_the_scan(tmp_path):
+    plan = plan_scan(load_mission(DEMO))
+    with SitlVehicle(speedup=20, autopilot="ardupilot", gps_ready_after=1, home=_home(plan),
+                     log_path=tmp_path / "sim.log") as v:
+        result = _fly(plan, v.url)
+    assert result.completed, result
+    text = " | ".join(result.warnings)
+    assert "FS_GCS_ENABLE=0" in text and "keeps flying" in text
+    assert "RTL_ALT is 15 m, below the transit altitude" in text
+    assert result.waypoints_total < result.items_total  # progress counts waypoints, not DO items
+    assert result.waypoints_reached == result.waypoints_total
+    json.dumps([w for w in result.warnings])  # plain strings, fit for a report

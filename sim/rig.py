@@ -97,12 +97,6 @@ class SitlRig:
         options = dict(self.sim_options)
         if self.truth_log is not None:
             options["truth_log"] = str(self.truth_log)
-        # The parameters the plan needs for its flight (e.g. PX4's climb/descent speed = the scan speed), given at
-        # boot as a configured vehicle would have them, so the camera films the scan at the planned speed.
-        from companion.mission.firmware import flight_parameters
-
-        needed = flight_parameters(self.plan, self.autopilot)
-        options.setdefault("params", ",".join(f"{k}={v:g}" for k, v in needed.items()) or None)
         self.vehicle = SimulatorProcess(
             speedup=self.speedup,
             seed=self.seed,

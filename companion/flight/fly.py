@@ -40,6 +40,7 @@ from companion.flight.start import arm_with_reason, select_arming_mode, start_fr
 from companion.flight.telemetry_log import TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
+from companion.mission.firmware import flight_parameters as firmware_flight_parameters
 
 log = logging.getLogger(__name__)
 
@@ -345,6 +346,13 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
     return overrides, warnings
 
 
+def plan_flight_parameters(plan, autopilot: str) -> dict[str, float]:
+    """The parameters a ScanPlan needs on ``autopilot`` for its flight; none for a bare list of items."""
+    if hasattr(plan, "mavlink_items"):
+        return firmware_flight_parameters(plan, autopilot)
+    return {}
+
+
 async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log: Path | str | None = None,
                       autopilot: str = "auto", connect_timeout_s: float = 10.0,
                       health_timeout_s: float = DEFAULT_HEALTH_TIMEOUT_S, link_loss_s: float = 3.0,
@@ -354,7 +362,10 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
                       lost_link_action: str | None = None, return_alt: str | float | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
-    ``flight_parameters``: autopilot parameters to set for this flight only (restored afterwards, also after an
+    The parameters a ScanPlan needs on this firmware (``companion.mission.firmware.flight_parameters``: PX4's
+    climb/descent speed = the vertical scan speed, ArduCopter's WP_YAW_BEHAVIOR = 0) are always set for the flight
+    and restored afterwards.
+    ``flight_parameters``: further autopilot parameters to set for this flight only (restored afterwards, also after an
     error or Ctrl-C); ``lost_link_action`` ('rtl'/'land') and ``return_alt`` (metres or 'auto': the plan's transit
     altitude or wall top + margin) set the lost-link failsafe the same way.
 
@@ -383,7 +394,8 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
             await check_home(vehicle, plan.home)
         overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
                                                     return_alt=return_alt)
-        wanted = dict(flight_parameters or {})
+        wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
+        wanted.update(flight_parameters or {})
         wanted.update(overrides)
         await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
         first_seq = await start_from_first_item(vehicle)

@@ -12,9 +12,8 @@ import sys
 import time
 from collections.abc import Sequence
 
-from tqdm import tqdm
-
 from companion.mission import items as mi
+from companion.progress import progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -48,7 +47,7 @@ class WaypointProgress:
         self._last_line = -float("inf")
         self._bar = None
         if enabled and self.terminal:
-            self._bar = tqdm(total=len(self.nav), unit="wp", desc="waypoints", leave=True, mininterval=0.5)
+            self._bar = progress_bar(total=len(self.nav), unit="wp", desc="waypoints", leave=True)
 
     @property
     def total(self) -> int:

@@ -100,21 +100,28 @@ class SourceCache:
         return item
 
 
-def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Per map pixel of the region, the keyframe pixel it shows (-1 outside the mesh)."""
+def _region_quads(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int):
+    """(cell number, quad in region pixels) of every mesh cell that reaches the region, in drawing order.
+
+    A later cell wins the pixels on an edge it shares with an earlier one (both renderers keep this order)."""
     cy, cx = pk.src_px.shape[0] - 1, pk.src_px.shape[1] - 1
-    label = np.zeros((h, w), np.int32)
     off = np.array([x0, y0], dtype=float)
+    m = pk.mesh_px
     for r in range(cy):
         for c in range(cx):
-            quad = (
-                np.array([pk.mesh_px[r, c], pk.mesh_px[r, c + 1], pk.mesh_px[r + 1, c + 1], pk.mesh_px[r + 1, c]]) - off
-            )
+            quad = np.array([m[r, c], m[r, c + 1], m[r + 1, c + 1], m[r + 1, c]]) - off
             if quad[:, 0].max() < 0 or quad[:, 1].max() < 0 or quad[:, 0].min() >= w or quad[:, 1].min() >= h:
                 continue
-            cv2.fillConvexPoly(
-                label, np.round(quad * 16).astype(np.int32), r * cx + c + 1, lineType=cv2.LINE_8, shift=4
-            )
+            yield r * cx + c, quad
+
+
+def _layer_pullback(pk, img, mask, weight, x0, y0, w, h):
+    """Reference renderer: the cell label of every map pixel, then each pixel's keyframe position from its cell's
+    homography in numpy, then one ``cv2.remap``. Exact but slow (a 3x3 matrix gathered per pixel); kept to check
+    the fast renderer against and for the side-by-side speed figures (bench/stitch_speed.py)."""
+    label = np.zeros((h, w), np.int32)
+    for k, quad in _region_quads(pk, x0, y0, w, h):
+        cv2.fillConvexPoly(label, np.round(quad * 16).astype(np.int32), k + 1, lineType=cv2.LINE_8, shift=4)
     ys, xs = np.nonzero(label)
     if len(xs) == 0:
         return None
@@ -126,29 +133,83 @@ def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.
     mx = np.full((h, w), -1.0, np.float32)
     my = np.full((h, w), -1.0, np.float32)
     mx[ys, xs], my[ys, xs] = sx, sy
-    return mx, my
+    m = cv2.remap(mask, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    if not m.any():
+        return None
+    im = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    d = cv2.remap(weight, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return im, m, d
+
+
+_INVERSE = cv2.WARP_INVERSE_MAP
+_CONST = {"borderMode": cv2.BORDER_CONSTANT, "borderValue": 0}
+
+
+def _layer_warp(pk, img, mask, weight, x0, y0, w, h):
+    """Fast renderer: each mesh cell is drawn with ``cv2.warpPerspective`` (its homography, pixel positions and
+    interpolation computed in OpenCV's C++), over the cell's bounding box only, and copied in through the cell's
+    rasterised quad. Cells that show only background (mask 0) skip the image and seam-weight warps."""
+    im = np.zeros((h, w, 3), np.uint8)
+    m = np.zeros((h, w), np.uint8)
+    d = np.zeros((h, w), np.float32)
+    drawn = False
+    for k, quad in _region_quads(pk, x0, y0, w, h):
+        fixed = np.round(quad * 16).astype(np.int32)
+        # the quad's box (one pixel of margin), clipped to the region: the same pixels as rasterising the region
+        bx0 = max(int(np.floor(quad[:, 0].min())) - 1, 0)
+        by0 = max(int(np.floor(quad[:, 1].min())) - 1, 0)
+        bx1 = min(int(np.ceil(quad[:, 0].max())) + 2, w)
+        by1 = min(int(np.ceil(quad[:, 1].max())) + 2, h)
+        if bx1 <= bx0 or by1 <= by0:
+            continue
+        size = (bx1 - bx0, by1 - by0)
+        cell = np.zeros((size[1], size[0]), np.uint8)
+        cv2.fillConvexPoly(cell, fixed - np.int32([bx0 * 16, by0 * 16]), 255, lineType=cv2.LINE_8, shift=4)
+        to_src = pk.cell_inv[k] @ np.array([[1.0, 0.0, x0 + bx0], [0.0, 1.0, y0 + by0], [0.0, 0.0, 1.0]])
+        cm = cv2.warpPerspective(mask, to_src, size, flags=cv2.INTER_NEAREST | _INVERSE, **_CONST)
+        cv2.copyTo(cm, cell, m[by0:by1, bx0:bx1])
+        cv2.bitwise_and(cm, cell, dst=cm)
+        if not cv2.countNonZero(cm):
+            continue  # background only: no image needed (its seam weight is 0)
+        drawn = True
+        ex, ey, ew, eh = cv2.boundingRect(cm)  # the image is only needed where the mask is
+        sub = (slice(by0 + ey, by0 + ey + eh), slice(bx0 + ex, bx0 + ex + ew))
+        to_src = to_src @ np.array([[1.0, 0.0, ex], [0.0, 1.0, ey], [0.0, 0.0, 1.0]])
+        keep = cell[ey : ey + eh, ex : ex + ew]
+        ci = cv2.warpPerspective(img, to_src, (ew, eh), flags=cv2.INTER_LINEAR | _INVERSE, **_CONST)
+        cv2.copyTo(ci, keep, im[sub])
+        cd = cv2.warpPerspective(weight, to_src, (ew, eh), flags=cv2.INTER_LINEAR | _INVERSE, **_CONST)
+        cv2.copyTo(cd, keep, d[sub])
+    return (im, m, d) if drawn else None
+
+
+RENDERERS = {"warp": _layer_warp, "pullback": _layer_pullback}
 
 
 def render_tile(
-    x0: int, y0: int, w: int, h: int, placed: list[PlacedKeyframe], sources: SourceCache, *, feather_px: float = 4.0
+    x0: int,
+    y0: int,
+    w: int,
+    h: int,
+    placed: list[PlacedKeyframe],
+    sources: SourceCache,
+    *,
+    feather_px: float = 4.0,
+    renderer: str = "warp",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(BGR uint8 tile, coverage uint8 0/255, owner int32 = keyframe position or -1) for one map region."""
+    draw = RENDERERS[renderer]
     layers = []
     for pk in placed:
         bx0, by0, bx1, by1 = pk.bbox
         rx0, ry0, rx1, ry1 = max(bx0, x0), max(by0, y0), min(bx1, x0 + w), min(by1, y0 + h)
         if rx1 <= rx0 or ry1 <= ry0:
             continue
-        maps = _pullback(pk, rx0, ry0, rx1 - rx0, ry1 - ry0)
-        if maps is None:
-            continue
         img, mask, weight = sources.get(pk.position)
-        mx, my = maps
-        m = cv2.remap(mask, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        if not m.any():
+        drawn = draw(pk, img, mask, weight, rx0, ry0, rx1 - rx0, ry1 - ry0)
+        if drawn is None:
             continue
-        im = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        d = cv2.remap(weight, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        im, m, d = drawn
         d = np.where(m > 0, np.maximum(d, 1e-3), 0.0).astype(np.float32)
         layers.append((pk.position, (rx0 - x0, ry0 - y0), im, d))
     out = np.zeros((h, w, 3), np.float32)

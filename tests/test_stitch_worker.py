@@ -151,12 +151,9 @@ def test_bad_inputs_give_clear_errors(spool, tmp_path):
     with pytest.raises(CompanionError, match="appears twice"):
         load_input(bad)
     _write(bad, [lines[0], {**lines[1], "image": "frames/nope.jpg"}])
-    with pytest.raises(CompanionError, match="missing"):
-        load_input(bad)
-    cv2.imwrite(str(bad / "frames" / "000001_mask.png"), np.zeros((10, 10), np.uint8))
-    _write(bad, lines[:2])
-    with pytest.raises(CompanionError, match="full frame resolution"):
-        stitch(load_input(bad), tmp_path / "o2", progress=False)
+    missing = load_input(bad)  # a damaged spool is not fatal: the keyframe is skipped and named
+    assert [kf.index for kf in missing.keyframes] == [lines[0]["index"]]
+    assert "nope.jpg is missing" in missing.skipped[0].reason
     with pytest.raises(CompanionError, match="neither a keyframe spool"):
         load_input(tmp_path)
 

@@ -22,16 +22,32 @@ class Features:
     luminance: np.ndarray | None = None  # (N,) local mean grey level at each keypoint, for gain compensation
 
 
+def read_image(path: Path, flags: int, what: str) -> np.ndarray:
+    """Decodes an image file, refusing a damaged one. A JPEG cut short (a torn write, a bad card) still decodes
+    in OpenCV, with grey filled in below the cut, so the end-of-image marker after the last scan is checked."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise CompanionError(f"cannot read {what} {path} ({exc.strerror})", "check that the file is there") from exc
+    if data[:2] == b"\xff\xd8":
+        last_scan = data.rfind(b"\xff\xda")
+        if last_scan < 0 or data.find(b"\xff\xd9", last_scan) < 0:
+            raise CompanionError(
+                f"{what} {path} is truncated (the JPEG ends before its end-of-image marker)",
+                "the file was cut short while it was written; the map is made without it",
+            )
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    if img is None:
+        raise CompanionError(f"cannot decode {what} {path}", "the spool must write complete JPEG or PNG files")
+    return img
+
+
 def load_image_and_mask(kf: KeyframeInput) -> tuple[np.ndarray, np.ndarray]:
     """BGR image and a 0/255 ROI mask of the same size (all 255 when the keyframe has no mask)."""
-    img = cv2.imread(str(kf.image_path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise CompanionError(f"cannot decode keyframe image {kf.image_path}", "the spool must write JPEG or PNG files")
+    img = read_image(kf.image_path, cv2.IMREAD_COLOR, "keyframe image")
     if kf.mask_path is None:
         return img, np.full(img.shape[:2], 255, np.uint8)
-    mask = cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE)
-    if mask is None:
-        raise CompanionError(f"cannot decode mask {kf.mask_path}", "write the ROI mask as a single-channel PNG")
+    mask = read_image(kf.mask_path, cv2.IMREAD_GRAYSCALE, "mask")
     if mask.shape != img.shape[:2]:
         raise CompanionError(
             f"mask {kf.mask_path} is {mask.shape[1]}x{mask.shape[0]} but its image is {img.shape[1]}x{img.shape[0]}",
@@ -63,6 +79,9 @@ def detect(image: np.ndarray, mask: np.ndarray, *, work_width: int = 1600, max_f
     return Features(pts / scale, desc.astype(np.float32), (w, h), lum)
 
 
+FEATURE_SETTINGS = {"v": 2}  # bump "v" when detect() changes, so cached features are recomputed
+
+
 def feature_key(kf: KeyframeInput, settings: dict) -> str:
     parts = [str(kf.image_path), str(kf.mask_path), json.dumps(settings, sort_keys=True)]
     for p in (kf.image_path, kf.mask_path):
@@ -74,7 +93,7 @@ def feature_key(kf: KeyframeInput, settings: dict) -> str:
 
 def cached_features(kf: KeyframeInput, cache_dir: Path, *, work_width: int, max_features: int) -> Features:
     """Features from the on-disk cache when the image, mask and settings are unchanged (resumable runs)."""
-    key = feature_key(kf, {"w": work_width, "n": max_features, "v": 2})
+    key = feature_key(kf, FEATURE_SETTINGS | {"w": work_width, "n": max_features})
     path = cache_dir / f"kf{kf.index:06d}-{key}.npz"
     if path.exists():
         try:

@@ -7,7 +7,7 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -17,18 +17,18 @@ from tqdm import tqdm
 from companion.errors import CompanionError
 from companion.stitch.align import global_alignment
 from companion.stitch.exposure import apply_gain, solve_gains
-from companion.stitch.features import cached_features, feature_key, load_image_and_mask
+from companion.stitch.features import FEATURE_SETTINGS, cached_features, feature_key, load_image_and_mask
 from companion.stitch.geometry import (
     apply_h,
     camera_distance_to_wall,
     prior_plane_from_image,
     reference_plane_from_image,
 )
-from companion.stitch.inputs import StitchInput
+from companion.stitch.inputs import SkippedKeyframe, StitchInput
 from companion.stitch.mesh import mesh_for_keyframe
 from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
 from companion.stitch.pairs import PairSettings, candidate_pairs, load_pair, match_pair, save_pair
-from companion.stitch.render import MapGrid, PlacedKeyframe, SourceCache, place, render_tile
+from companion.stitch.render import RENDERERS, MapGrid, PlacedKeyframe, SourceCache, place, render_tile
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,7 @@ class StitchConfig:
     tile_px: int = 1024
     max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
     feather_px: float = 4.0
+    renderer: str = "warp"  # "warp": per-cell cv2.warpPerspective; "pullback": the per-pixel numpy reference
     gain_compensation: bool = True
     preview_width: int = 3000
     min_uncovered_m2: float = 0.02
@@ -85,13 +86,13 @@ def stitch(
     inp: StitchInput, out_dir: str | Path, config: StitchConfig | None = None, *, progress: bool = True
 ) -> StitchResult:
     cfg = config or StitchConfig()
+    if cfg.renderer not in RENDERERS:
+        raise CompanionError(f"unknown renderer {cfg.renderer!r}", f"use one of {', '.join(RENDERERS)}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    kfs = inp.keyframes
-    n = len(kfs)
-    if n < 2:
+    if len(inp.keyframes) < 2 and not inp.skipped:
         raise CompanionError(
-            f"the map needs at least 2 keyframes, the input has {n}",
+            f"the map needs at least 2 keyframes, the input has {len(inp.keyframes)}",
             "fly the scan (or wait for the spool to fill) and run again",
         )
     cam = inp.camera
@@ -103,18 +104,41 @@ def stitch(
         ratio=cfg.ratio, ransac_px=ransac_px, min_inliers=cfg.min_inliers, pose_gate_m=cfg.pose_gate_m
     )
 
-    # 1. features inside the ROI
+    # 1. features inside the ROI; a keyframe whose files are damaged is left out (and named), not fatal
     feat_dir = out / "cache" / "features"
-    feats, keys = [], []
-    for kf in _progress(kfs, "features", progress):
-        f = cached_features(kf, feat_dir, work_width=cfg.work_width, max_features=cfg.max_features)
+    feats, keys, usable, skipped = [], [], [], list(inp.skipped)
+    for kf in _progress(inp.keyframes, "features", progress):
+        try:
+            f = cached_features(kf, feat_dir, work_width=cfg.work_width, max_features=cfg.max_features)
+        except CompanionError as exc:
+            skipped.append(SkippedKeyframe(kf.index, exc.problem))
+            continue
+        except OSError as exc:
+            skipped.append(SkippedKeyframe(kf.index, f"cannot read its files ({exc})"))
+            continue
         if f.image_size != (W, H):
-            raise CompanionError(
-                f"keyframe {kf.index} is {f.image_size[0]}x{f.image_size[1]}, expected {W}x{H}",
-                "all keyframes of one stitch must come from the same camera mode",
+            skipped.append(
+                SkippedKeyframe(
+                    kf.index,
+                    f"image is {f.image_size[0]}x{f.image_size[1]}, the camera's are {W}x{H} "
+                    "(all keyframes of one stitch come from one camera mode)",
+                )
             )
+            continue
         feats.append(f)
-        keys.append(feature_key(kf, {"w": cfg.work_width, "n": cfg.max_features, "v": 2}))
+        keys.append(feature_key(kf, FEATURE_SETTINGS | {"w": cfg.work_width, "n": cfg.max_features}))
+        usable.append(kf)
+    for sk in skipped:
+        log.warning("%s", sk.warning())
+    if not usable:
+        reasons = "; ".join(sk.warning() for sk in skipped[:3]) + ("; ..." if len(skipped) > 3 else "")
+        raise CompanionError(
+            f"no usable keyframe is left: {reasons}",
+            "check the spool's frames/ directory (complete JPEG/PNG files, masks of the image size)",
+        )
+    inp = replace(inp, keyframes=usable, skipped=tuple(skipped))
+    kfs = inp.keyframes
+    n = len(kfs)
     t["features"] = time.perf_counter()
 
     # 2. telemetry priors
@@ -153,7 +177,7 @@ def stitch(
         r.i, r.j = i, j
         results.append(r)
     t["matching"] = time.perf_counter()
-    if not any(r.accepted for r in results) and not use_poses:
+    if n >= 2 and not any(r.accepted for r in results) and not use_poses:
         raise CompanionError(
             "no two keyframes could be registered (no shared features inside the ROI masks)",
             "check that keyframes overlap (gate threshold) and that the masks keep the facade",
@@ -272,7 +296,7 @@ def stitch(
     for x0, y0 in _progress(tiles, "render", progress):
         w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
         near = [p for p in order if p.bbox[0] < x0 + w and p.bbox[2] > x0 and p.bbox[1] < y0 + h and p.bbox[3] > y0]
-        img, cov, _owner = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px)
+        img, cov, _owner = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
         covered_px += int(np.count_nonzero(cov[max(reg[1] - y0, 0) : reg[3] - y0, max(reg[0] - x0, 0) : reg[2] - x0]))
         if in_memory:
             canvas[y0 : y0 + h, x0 : x0 + w] = img
@@ -423,9 +447,11 @@ def _report(
     mmf = (lambda s: {k: (None if v is None else round(v * mm, 3)) for k, v in s.items()}) if mm else (lambda s: None)
     return {
         "source": inp.source,
-        "keyframes_in": len(kfs),
+        "keyframes_in": len(kfs) + len(inp.skipped),
         "keyframes_used": used,
+        "keyframes_skipped": [sk.as_dict() for sk in inp.skipped],
         "keyframes_dropped": dropped,
+        "warnings": [sk.warning() for sk in inp.skipped],
         "telemetry_prior": use_poses,
         "pairs_tried": len(results),
         "pairs_accepted": sum(r.accepted for r in results),

@@ -16,8 +16,8 @@ from tqdm import tqdm
 
 from companion.errors import CompanionError
 from companion.stitch.align import global_alignment
-from companion.stitch.exposure import apply_gain, solve_gains
-from companion.stitch.features import FEATURE_SETTINGS, cached_features, feature_key, load_image_and_mask
+from companion.stitch.exposure import apply_gain, apply_gain_numpy, solve_gains
+from companion.stitch.features import cached_features, detect_settings, feature_key, load_image_and_mask, load_mask
 from companion.stitch.geometry import (
     apply_h,
     camera_distance_to_wall,
@@ -28,7 +28,16 @@ from companion.stitch.inputs import SkippedKeyframe, StitchInput
 from companion.stitch.mesh import mesh_for_keyframe
 from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
 from companion.stitch.pairs import PairSettings, candidate_pairs, load_pair, match_pair, save_pair
-from companion.stitch.render import RENDERERS, MapGrid, PlacedKeyframe, SourceCache, place, render_tile
+from companion.stitch.render import (
+    RENDERERS,
+    MapGrid,
+    PlacedKeyframe,
+    SourceCache,
+    drawable,
+    place,
+    render_tile,
+)
+from companion.stitch.render_plan import plan_render
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +46,8 @@ log = logging.getLogger(__name__)
 class StitchConfig:
     work_width: int = 1600  # SIFT runs on a copy this wide (4K keyframes are downscaled for features only)
     max_features: int = 4000
+    contrast_threshold: float = 0.01  # SIFT; OpenCV's 0.04 finds too little on plain walls (the gate's setting)
+    equalize: bool = True  # CLAHE before SIFT, as the gate: plain cladding gives many more matchable features
     neighbours: int = 2  # sequence neighbours matched besides telemetry-overlapping keyframes
     ratio: float = 0.75
     ransac_px: float | None = None  # default: 0.4 % of the image width, at least 2 px
@@ -106,10 +117,18 @@ def stitch(
 
     # 1. features inside the ROI; a keyframe whose files are damaged is left out (and named), not fatal
     feat_dir = out / "cache" / "features"
+    feature_settings = detect_settings(cfg.work_width, cfg.max_features, cfg.contrast_threshold, cfg.equalize)
     feats, keys, usable, skipped = [], [], [], list(inp.skipped)
     for kf in _progress(inp.keyframes, "features", progress):
         try:
-            f = cached_features(kf, feat_dir, work_width=cfg.work_width, max_features=cfg.max_features)
+            f = cached_features(
+                kf,
+                feat_dir,
+                work_width=cfg.work_width,
+                max_features=cfg.max_features,
+                contrast_threshold=cfg.contrast_threshold,
+                equalize=cfg.equalize,
+            )
         except CompanionError as exc:
             skipped.append(SkippedKeyframe(kf.index, exc.problem))
             continue
@@ -126,7 +145,7 @@ def stitch(
             )
             continue
         feats.append(f)
-        keys.append(feature_key(kf, FEATURE_SETTINGS | {"w": cfg.work_width, "n": cfg.max_features}))
+        keys.append(feature_key(kf, feature_settings))
         usable.append(kf)
     for sk in skipped:
         log.warning("%s", sk.warning())
@@ -275,12 +294,15 @@ def stitch(
     # 7. render tiles
     gains = solve_gains(n, accepted) if cfg.gain_compensation else np.ones(n)
 
+    legacy = cfg.renderer == "pullback"  # the render stage as it was before the OpenCV renderer (reference)
+
     def load(k):
         img, mask = load_image_and_mask(kfs[k])
-        return apply_gain(img, float(gains[k])), mask
+        return (apply_gain_numpy if legacy else apply_gain)(img, float(gains[k])), mask
 
     # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB
-    sources = SourceCache(load, size=int(np.clip(6e8 / (W * H * 8), 3, 16)))
+    cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
+    sources = SourceCache(load, size=cache_size)
     in_memory = gw * gh <= cfg.max_in_memory_px
     canvas = np.zeros((gh, gw, 3), np.uint8) if in_memory else None
     cov_full = np.zeros((gh, gw), np.uint8) if in_memory else None
@@ -292,11 +314,27 @@ def stitch(
     covered_px = 0
     tiles_dir = out / "tiles"
     order = sorted(placed.values(), key=lambda p: p.bbox[0])
-    tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
+    needs, planned = None, {}
+    if legacy:
+        tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
+    else:
+
+        def weight_of(k):
+            return drawable(load_mask(kfs[k], (W, H)))[1]
+
+        plan = plan_render(order, weight_of, gw, gh, cfg.tile_px, cfg.feather_px, cache_size)
+        tiles, needs = plan.order, plan.needs
+        per_tile = [len(v) for v in needs.values() if v]
+        planned = {
+            "planned_decodes": plan.decodes,
+            "keyframes_per_tile": {"max": max(per_tile, default=0), "mean": round(float(np.mean(per_tile or [0])), 2)},
+        }
     for x0, y0 in _progress(tiles, "render", progress):
         w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
         near = [p for p in order if p.bbox[0] < x0 + w and p.bbox[2] > x0 and p.bbox[1] < y0 + h and p.bbox[3] > y0]
-        img, cov, _owner = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
+        if needs is not None:
+            near = [p for p in near if p.position in needs[(x0, y0)]]
+        img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
         covered_px += int(np.count_nonzero(cov[max(reg[1] - y0, 0) : reg[3] - y0, max(reg[0] - x0, 0) : reg[2] - x0]))
         if in_memory:
             canvas[y0 : y0 + h, x0 : x0 + w] = img
@@ -310,6 +348,7 @@ def stitch(
             preview[py0:py1, px0:px1] = cv2.resize(img, (px1 - px0, py1 - py0), interpolation=cv2.INTER_AREA)
             cov_prev[py0:py1, px0:px1] = cv2.resize(cov, (px1 - px0, py1 - py0), interpolation=cv2.INTER_AREA)
     t["render"] = time.perf_counter()
+    render_info = {"renderer": cfg.renderer, "tiles": len(tiles), "keyframe_decodes": sources.decoded, **planned}
 
     # 8. coverage, residuals, files
     cov_for_holes = cov_full if in_memory else np.where(cov_prev > 127, 255, 0).astype(np.uint8)
@@ -355,6 +394,7 @@ def stitch(
         files,
         report_gains,
     )
+    report["render"] = render_info
     files["report"] = str(out / "report.json")
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))

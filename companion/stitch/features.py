@@ -64,7 +64,7 @@ def load_mask(kf: KeyframeInput, size: tuple[int, int]) -> np.ndarray:
             f"mask {kf.mask_path} is {mask.shape[1]}x{mask.shape[0]} but its image is {width}x{height}",
             "write the mask at the full frame resolution",
         )
-    return np.where(mask > 127, 255, 0).astype(np.uint8)
+    return cv2.threshold(mask, 127, 255, cv2.THRESH_BINARY)[1]  # 0/255, as fast as a copy
 
 
 def detect(

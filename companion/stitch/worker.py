@@ -341,7 +341,7 @@ def stitch(
             cov_full[y0 : y0 + h, x0 : x0 + w] = cov
         else:
             tiles_dir.mkdir(exist_ok=True)
-            cv2.imwrite(str(tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"), np.dstack((img, cov)))
+            cv2.imwrite(str(tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"), cv2.merge((img, cov)))
         px0, py0 = round(x0 * ps), round(y0 * ps)
         px1, py1 = min(pw, round((x0 + w) * ps)), min(ph, round((y0 + h) * ps))
         if px1 > px0 and py1 > py0:

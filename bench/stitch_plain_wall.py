@@ -9,7 +9,7 @@ connected by image-only alignment (`--no-poses`), pairs registered, features per
 `--poses` also the same with telemetry. Then the two real photos themselves (two views of the same wall)
 registered as one stitcher pair.
 
-    python bench/stitch_plain_wall.py [--photo PATH] [--out /tmp/stitch_plain_wall]
+    python bench/stitch_plain_wall.py [--photo PATH] [--out /tmp/stitch_plain_wall] [--cost-recording /tmp/rec4k]
 """
 
 from __future__ import annotations
@@ -81,6 +81,28 @@ def real_pair(paths: list[Path], settings: dict) -> dict:
     }
 
 
+def extraction_cost(recording: Path, frames=(0, 10, 20, 30), rounds: int = 2) -> dict:
+    """CPU seconds and features per keyframe of both settings on a recording's frames, interleaved (CPU time,
+    so the shared machine's load cancels out)."""
+    pairs = [
+        (
+            cv2.imread(str(recording / "frames" / f"{i:06d}.jpg")),
+            cv2.imread(str(recording / "masks" / f"{i:06d}.png"), 0),
+        )
+        for i in frames
+    ]
+    cpu = dict.fromkeys(SETTINGS, 0.0)
+    feats: dict[str, list[int]] = {k: [] for k in SETTINGS}
+    for _ in range(rounds):
+        for img, mask in pairs:
+            for name, settings in SETTINGS.items():
+                t0 = time.process_time()
+                feats[name].append(len(detect(img, mask, **settings).keypoints))
+                cpu[name] += time.process_time() - t0
+    n = rounds * len(pairs)
+    return {k: {"cpu_s": round(cpu[k] / n, 3), "features": int(np.mean(feats[k]))} for k in SETTINGS}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--photo", default=str(SHARED / "DJI_0977_rgb.JPG"))
@@ -91,6 +113,7 @@ def main(argv=None) -> int:
     ap.add_argument("--overlap", type=float, default=0.75, help="overlap of neighbouring keyframes")
     ap.add_argument("--poses", action="store_true", help="also stitch with telemetry")
     ap.add_argument("--out", default="/tmp/stitch_plain_wall")
+    ap.add_argument("--cost-recording", help="also: extraction CPU per keyframe on this recording (e.g. 4K)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     texture = plain_wall_texture(Path(args.photo), args.band_m, args.mm_per_px)
@@ -134,6 +157,11 @@ def main(argv=None) -> int:
             f"{name:38s} {pair[0].name} vs {pair[1].name}: features {r['features']}, matches {r['matches']}, "
             f"inliers {r['inliers']}, {'registered (' + r['model'] + ')' if r['registered'] else r['reason']}"
         )
+    if args.cost_recording:
+        cost = extraction_cost(Path(args.cost_recording))
+        results["extraction_cost"] = cost
+        for name, c in cost.items():
+            print(f"{name:38s} extraction on {args.cost_recording}: {c['cpu_s']} CPU s, {c['features']} features")
     (out / "results.json").write_text(json.dumps(results, indent=1))
     return 0
 

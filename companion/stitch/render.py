@@ -8,6 +8,8 @@ narrow feather of width ``feather_px`` hides residual steps without ghosting lar
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -87,14 +89,29 @@ def drawable(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class SourceCache:
-    """Decoded keyframes (image, mask, seam weight) with a small LRU so tiles do not re-read every file."""
+    """Decoded keyframes (image, mask, seam weight), a few at a time, so tiles do not re-read every file.
 
-    def __init__(self, loader: Callable[[int], tuple[np.ndarray, np.ndarray]], size: int = 12):
+    With the ``schedule`` of requests known in advance (the render plan), a full cache drops the keyframe that
+    is needed again furthest in the future (Belady's rule: the fewest decodes possible for that order);
+    without one, or once the requests leave the schedule, the least recently used."""
+
+    def __init__(
+        self,
+        loader: Callable[[int], tuple[np.ndarray, np.ndarray]],
+        size: int = 12,
+        schedule: list[int] | None = None,
+    ):
         self.loader, self.size = loader, size
         self.decoded = 0  # how many times a keyframe was decoded (the render's main cost at 4K)
         self.items: OrderedDict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+        self.schedule, self.step = schedule, 0
+        self.uses = request_indices(schedule) if schedule is not None else {}
 
     def get(self, position: int):
+        now = self.step
+        if self.schedule is not None and (now >= len(self.schedule) or self.schedule[now] != position):
+            self.schedule = None  # off the plan: plain LRU from here on
+        self.step += 1
         if position in self.items:
             self.items.move_to_end(position)
             return self.items[position]
@@ -103,8 +120,27 @@ class SourceCache:
         item = (img, *drawable(mask))
         self.items[position] = item
         if len(self.items) > self.size:
-            self.items.popitem(last=False)
+            if self.schedule is None:
+                self.items.popitem(last=False)
+            else:
+                others = [k for k in self.items if k != position]
+                del self.items[max(others, key=lambda k: next_use(self.uses, k, now))]
         return item
+
+
+def request_indices(schedule: list[int]) -> dict[int, list[int]]:
+    """Per keyframe, the (ascending) indices at which ``schedule`` requests it."""
+    uses: dict[int, list[int]] = {}
+    for i, k in enumerate(schedule):
+        uses.setdefault(k, []).append(i)
+    return uses
+
+
+def next_use(uses: dict[int, list[int]], k: int, now: int) -> float:
+    """Index of the first request of ``k`` after ``now`` (infinity when it is not needed again)."""
+    lst = uses.get(k, [])
+    i = bisect.bisect_right(lst, now)
+    return lst[i] if i < len(lst) else math.inf
 
 
 def _region_quads(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int):

@@ -12,14 +12,13 @@ the best lower bound minus the feather cut-off, so the map is exactly the one dr
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from companion.stitch.render import MIN_BLEND_WEIGHT, PlacedKeyframe
+from companion.stitch.render import MIN_BLEND_WEIGHT, PlacedKeyframe, next_use, request_indices
 
 Tile = tuple[int, int]
 
@@ -141,19 +140,25 @@ def best_order(width: int, height: int, tile_px: int, needs: dict[Tile, set[int]
     return min(candidates, key=lambda order: decodes(order, needs, cache_size))
 
 
+def requests(order: list[Tile], needs: dict[Tile, set[int]]) -> list[int]:
+    """The keyframe requests drawing the tiles in ``order`` makes (ascending position within a tile)."""
+    return [k for tile in order for k in sorted(needs.get(tile, ()))]
+
+
 def decodes(order: list[Tile], needs: dict[Tile, set[int]], cache_size: int) -> int:
-    """How many keyframe decodes drawing the tiles in ``order`` costs with an LRU cache of ``cache_size``."""
-    lru: OrderedDict[int, None] = OrderedDict()
+    """How many keyframe decodes drawing the tiles in ``order`` costs with the renderer's cache of ``cache_size``
+    keyframes, which drops the one needed again furthest ahead (render.SourceCache with a schedule)."""
+    seq = requests(order, needs)
+    uses = request_indices(seq)
+    cached: set[int] = set()
     count = 0
-    for tile in order:
-        for k in sorted(needs.get(tile, ())):
-            if k in lru:
-                lru.move_to_end(k)
-                continue
-            count += 1
-            lru[k] = None
-            if len(lru) > cache_size:
-                lru.popitem(last=False)
+    for now, k in enumerate(seq):
+        if k in cached:
+            continue
+        count += 1
+        cached.add(k)
+        if len(cached) > cache_size:
+            cached.remove(max(cached - {k}, key=lambda j: next_use(uses, j, now)))
     return count
 
 

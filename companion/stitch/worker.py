@@ -302,7 +302,6 @@ def stitch(
 
     # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB
     cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
-    sources = SourceCache(load, size=cache_size)
     in_memory = gw * gh <= cfg.max_in_memory_px
     canvas = np.zeros((gh, gw, 3), np.uint8) if in_memory else None
     cov_full = np.zeros((gh, gw), np.uint8) if in_memory else None
@@ -329,11 +328,17 @@ def stitch(
             "planned_decodes": plan.decodes,
             "keyframes_per_tile": {"max": max(per_tile, default=0), "mean": round(float(np.mean(per_tile or [0])), 2)},
         }
-    for x0, y0 in _progress(tiles, "render", progress):
+    drawn: dict[tuple[int, int], list[PlacedKeyframe]] = {}
+    for x0, y0 in tiles:
         w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
         near = [p for p in order if p.bbox[0] < x0 + w and p.bbox[2] > x0 and p.bbox[1] < y0 + h and p.bbox[3] > y0]
-        if needs is not None:
-            near = [p for p in near if p.position in needs[(x0, y0)]]
+        drawn[(x0, y0)] = near if needs is None else [p for p in near if p.position in needs[(x0, y0)]]
+    # with the plan, the cache knows every request ahead and keeps what is needed soonest
+    schedule = None if legacy else [p.position for tile in tiles for p in drawn[tile]]
+    sources = SourceCache(load, size=cache_size, schedule=schedule)
+    for x0, y0 in _progress(tiles, "render", progress):
+        w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
+        near = drawn[(x0, y0)]
         img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
         covered_px += int(np.count_nonzero(cov[max(reg[1] - y0, 0) : reg[3] - y0, max(reg[0] - x0, 0) : reg[2] - x0]))
         if in_memory:

@@ -67,6 +67,8 @@ def _config(args) -> StitchConfig:
 
 def _print(res: StitchResult) -> None:
     r = res.report
+    for w in r.get("warnings", []):
+        print(f"warning: {w}")
     print(f"map: {res.files.get('map') or res.files.get('tiles')}")
     print(f"preview (scale bar, re-fly areas in red): {res.files['preview']}")
     if res.mm_per_px:

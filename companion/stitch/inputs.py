@@ -70,12 +70,29 @@ class KeyframeInput:
 
 
 @dataclass(frozen=True)
+class SkippedKeyframe:
+    """A keyframe left out of the map because a file of it is missing or damaged (an SD card or a crash can do
+    that); the map of everything else is still made, and the report names each one."""
+
+    index: int | None  # None when the manifest line itself was unreadable
+    reason: str
+
+    def as_dict(self) -> dict:
+        return {"index": self.index, "reason": self.reason}
+
+    def warning(self) -> str:
+        who = f"keyframe {self.index}" if self.index is not None else "a keyframe"
+        return f"{who} skipped: {self.reason}"
+
+
+@dataclass(frozen=True)
 class StitchInput:
     keyframes: list[KeyframeInput]
     camera: CameraModel | None
     facade: FacadeGeometry | None
     standoff_m: float | None
     source: str  # "spool" or "recording"
+    skipped: tuple[SkippedKeyframe, ...] = ()  # damaged or missing keyframes, never drawn
 
     @property
     def has_poses(self) -> bool:
@@ -184,8 +201,10 @@ def load_spool(spool: Path) -> StitchInput:
         )
     camera, facade, standoff = _read_spool_meta(spool)
     keyframes: list[KeyframeInput] = []
+    skipped: list[SkippedKeyframe] = []
     seen: set[int] = set()
-    for lineno, line in enumerate(manifest.read_text().splitlines(), 1):
+    lines = manifest.read_text(errors="replace").splitlines()
+    for lineno, line in enumerate(lines, 1):
         if not line.strip():
             continue
         where = f"{manifest}:{lineno}"
@@ -193,9 +212,11 @@ def load_spool(spool: Path) -> StitchInput:
             rec = json.loads(line)
         except json.JSONDecodeError:
             # a torn last line is what a crash mid-append leaves: stop there, the next run picks it up
-            if lineno == len(manifest.read_text().splitlines()):
+            if lineno == len(lines):
                 break
-            raise CompanionError(f"{where} is not valid JSON", "repair or remove that line") from None
+            # a damaged line further up (a bad sector): that keyframe is lost, the others are not
+            skipped.append(SkippedKeyframe(None, f"{where} is not valid JSON"))
+            continue
         try:
             index = int(rec["index"])
             image = spool / rec["image"]
@@ -204,11 +225,14 @@ def load_spool(spool: Path) -> StitchInput:
         if index in seen:
             raise CompanionError(f"{where}: keyframe index {index} appears twice", "give each keyframe a new index")
         seen.add(index)
-        if not image.exists():
-            raise CompanionError(f"{where}: image {image} is missing", "the spool must write the JPEG before the line")
         mask = spool / rec["mask"] if rec.get("mask") else None
-        if mask is not None and not mask.exists():
-            raise CompanionError(f"{where}: mask {mask} is missing", "write the mask before the manifest line")
+        if not image.is_file():
+            skipped.append(SkippedKeyframe(index, f"image {image} is missing"))
+            continue
+        if mask is not None and not mask.is_file():
+            # without its mask the keyframe could draw background: leave it out rather than guess
+            skipped.append(SkippedKeyframe(index, f"mask {mask} is missing"))
+            continue
         overlap = rec.get("overlap_to_previous")
         keyframes.append(
             KeyframeInput(
@@ -216,16 +240,29 @@ def load_spool(spool: Path) -> StitchInput:
             )
         )
     if camera is None and keyframes:
-        # no intrinsics: the sizes still tell the principal point; focal from a nominal 70 degree lens
-        import cv2
-
-        img = cv2.imread(str(keyframes[0].image_path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise CompanionError(f"cannot decode {keyframes[0].image_path}", "write JPEG/PNG keyframes")
-        camera = CameraModel.from_hfov(img.shape[1], img.shape[0], 70.0) if facade is None else None
-        if camera is None:
+        if facade is not None:
             raise CompanionError(f"{spool}/spool.json has a facade but no camera", "add 'camera' to spool.json")
-    return StitchInput(keyframes, camera, facade, standoff, "spool")
+        # no intrinsics: the sizes still tell the principal point; focal from a nominal 70 degree lens. The size
+        # is the most common one of the first few readable images (one damaged keyframe must not decide it).
+        sizes = [s for s in (_image_size(kf.image_path) for kf in keyframes[:5]) if s is not None]
+        if not sizes:
+            raise CompanionError(
+                f"none of the first keyframe images of {spool} can be decoded", "write JPEG/PNG keyframes"
+            )
+        width, height = max(set(sizes), key=sizes.count)
+        camera = CameraModel.from_hfov(width, height, 70.0)
+    return StitchInput(keyframes, camera, facade, standoff, "spool", tuple(skipped))
+
+
+def _image_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) from the image header only, or None when it cannot be read."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except (OSError, UnidentifiedImageError):
+        return None
 
 
 # --- simulator recording ----------------------------------------------------------------------------------

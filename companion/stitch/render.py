@@ -8,6 +8,8 @@ narrow feather of width ``feather_px`` hides residual steps without ghosting lar
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -79,42 +81,89 @@ def seam_weight(mask: np.ndarray) -> np.ndarray:
     return d.astype(np.float32)
 
 
-class SourceCache:
-    """Decoded keyframes (image, mask, seam weight) with a small LRU so tiles do not re-read every file."""
+def drawable(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the ROI that is drawn, its seam weight). One pixel of erosion: JPEG ringing and mask resampling at the
+    ROI edge never reach the map."""
+    mask = cv2.erode(mask, np.ones((3, 3), np.uint8))
+    return mask, seam_weight(mask)
 
-    def __init__(self, loader: Callable[[int], tuple[np.ndarray, np.ndarray]], size: int = 12):
+
+class SourceCache:
+    """Decoded keyframes (image, mask, seam weight), a few at a time, so tiles do not re-read every file.
+
+    With the ``schedule`` of requests known in advance (the render plan), a full cache drops the keyframe that
+    is needed again furthest in the future (Belady's rule: the fewest decodes possible for that order);
+    without one, or once the requests leave the schedule, the least recently used."""
+
+    def __init__(
+        self,
+        loader: Callable[[int], tuple[np.ndarray, np.ndarray]],
+        size: int = 12,
+        schedule: list[int] | None = None,
+    ):
         self.loader, self.size = loader, size
+        self.decoded = 0  # how many times a keyframe was decoded (the render's main cost at 4K)
         self.items: OrderedDict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+        self.schedule, self.step = schedule, 0
+        self.uses = request_indices(schedule) if schedule is not None else {}
 
     def get(self, position: int):
+        now = self.step
+        if self.schedule is not None and (now >= len(self.schedule) or self.schedule[now] != position):
+            self.schedule = None  # off the plan: plain LRU from here on
+        self.step += 1
         if position in self.items:
             self.items.move_to_end(position)
             return self.items[position]
         img, mask = self.loader(position)
-        # one pixel of erosion: JPEG ringing and mask resampling at the ROI edge never reach the map
-        mask = cv2.erode(mask, np.ones((3, 3), np.uint8))
-        item = (img, mask, seam_weight(mask))
+        self.decoded += 1
+        item = (img, *drawable(mask))
         self.items[position] = item
         if len(self.items) > self.size:
-            self.items.popitem(last=False)
+            if self.schedule is None:
+                self.items.popitem(last=False)
+            else:
+                others = [k for k in self.items if k != position]
+                del self.items[max(others, key=lambda k: next_use(self.uses, k, now))]
         return item
 
 
-def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Per map pixel of the region, the keyframe pixel it shows (-1 outside the mesh)."""
+def request_indices(schedule: list[int]) -> dict[int, list[int]]:
+    """Per keyframe, the (ascending) indices at which ``schedule`` requests it."""
+    uses: dict[int, list[int]] = {}
+    for i, k in enumerate(schedule):
+        uses.setdefault(k, []).append(i)
+    return uses
+
+
+def next_use(uses: dict[int, list[int]], k: int, now: int) -> float:
+    """Index of the first request of ``k`` after ``now`` (infinity when it is not needed again)."""
+    lst = uses.get(k, [])
+    i = bisect.bisect_right(lst, now)
+    return lst[i] if i < len(lst) else math.inf
+
+
+def _region_quads(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int):
+    """(cell number, quad in region pixels) of every mesh cell that reaches the region, in drawing order.
+
+    A later cell wins the pixels on an edge it shares with an earlier one (both renderers keep this order)."""
     cy, cx = pk.src_px.shape[0] - 1, pk.src_px.shape[1] - 1
-    label = np.zeros((h, w), np.int32)
     off = np.array([x0, y0], dtype=float)
+    m = pk.mesh_px
     for r in range(cy):
         for c in range(cx):
-            quad = (
-                np.array([pk.mesh_px[r, c], pk.mesh_px[r, c + 1], pk.mesh_px[r + 1, c + 1], pk.mesh_px[r + 1, c]]) - off
-            )
+            quad = np.array([m[r, c], m[r, c + 1], m[r + 1, c + 1], m[r + 1, c]]) - off
             if quad[:, 0].max() < 0 or quad[:, 1].max() < 0 or quad[:, 0].min() >= w or quad[:, 1].min() >= h:
                 continue
-            cv2.fillConvexPoly(
-                label, np.round(quad * 16).astype(np.int32), r * cx + c + 1, lineType=cv2.LINE_8, shift=4
-            )
+            yield r * cx + c, quad
+
+
+def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Reference renderer: per map pixel of the region, the keyframe pixel it shows (-1 outside the mesh), from
+    the cell label of every pixel and its cell's homography in numpy (a 3x3 matrix gathered per pixel)."""
+    label = np.zeros((h, w), np.int32)
+    for k, quad in _region_quads(pk, x0, y0, w, h):
+        cv2.fillConvexPoly(label, np.round(quad * 16).astype(np.int32), k + 1, lineType=cv2.LINE_8, shift=4)
     ys, xs = np.nonzero(label)
     if len(xs) == 0:
         return None
@@ -129,10 +178,161 @@ def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.
     return mx, my
 
 
+_INVERSE = cv2.WARP_INVERSE_MAP
+_CONST = {"borderMode": cv2.BORDER_CONSTANT, "borderValue": 0}
+# A keyframe whose seam weight is below this fraction of the best one at a pixel is not drawn there: it would
+# move the blended value by < 0.03 grey levels per keyframe, and skipping it saves warping and blending the
+# ~5 keyframes that cover each map pixel at 80 % overlap where only the seam's two neighbours matter.
+MIN_BLEND_WEIGHT = 1e-4
+
+
+def _shift(x: float, y: float) -> np.ndarray:
+    return np.array([[1.0, 0.0, x], [0.0, 1.0, y], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class _Cell:
+    """One mesh cell of a layer: the box (region pixels) where it shows ROI, its quad inside that box, and the
+    homography from box pixels to keyframe pixels."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+    inside: np.ndarray  # uint8 0/255, (h, w): the cell's rasterised quad
+    to_src: np.ndarray
+
+
+@dataclass
+class _Layer:
+    """A keyframe over one map region: its ROI mask and seam weight there, and the cells that draw it."""
+
+    pk: PlacedKeyframe
+    image: np.ndarray  # the whole (gain-corrected) keyframe
+    x: int  # region origin in tile pixels
+    y: int
+    mask: np.ndarray  # uint8 0/255 (h, w)
+    weight: np.ndarray  # float32 (h, w): distance to the ROI edge, 0 outside the ROI
+    cells: list[_Cell]
+
+
+def _warp_seams(pk, mask, weight, x0, y0, w, h) -> tuple[np.ndarray, np.ndarray, list[_Cell]] | None:
+    """ROI mask and seam weight of keyframe ``pk`` over the map region, one ``cv2.warpPerspective`` per mesh
+    cell over the cell's box (homography, pixel positions and interpolation in OpenCV's C++), copied in through
+    the cell's rasterised quad. Cells that show only background are not kept (no image is needed there)."""
+    m = np.zeros((h, w), np.uint8)
+    d = np.zeros((h, w), np.float32)
+    cells = []
+    for k, quad in _region_quads(pk, x0, y0, w, h):
+        fixed = np.round(quad * 16).astype(np.int32)
+        # the quad's box (one pixel of margin), clipped to the region: the same pixels as rasterising the region
+        bx0 = max(int(np.floor(quad[:, 0].min())) - 1, 0)
+        by0 = max(int(np.floor(quad[:, 1].min())) - 1, 0)
+        bx1 = min(int(np.ceil(quad[:, 0].max())) + 2, w)
+        by1 = min(int(np.ceil(quad[:, 1].max())) + 2, h)
+        if bx1 <= bx0 or by1 <= by0:
+            continue
+        size = (bx1 - bx0, by1 - by0)
+        inside = np.zeros((size[1], size[0]), np.uint8)
+        cv2.fillConvexPoly(inside, fixed - np.int32([bx0 * 16, by0 * 16]), 255, lineType=cv2.LINE_8, shift=4)
+        to_src = pk.cell_inv[k] @ _shift(x0 + bx0, y0 + by0)
+        cm = cv2.warpPerspective(mask, to_src, size, flags=cv2.INTER_NEAREST | _INVERSE, **_CONST)
+        cv2.copyTo(cm, inside, m[by0:by1, bx0:bx1])
+        cv2.bitwise_and(cm, inside, dst=cm)
+        ex, ey, ew, eh = cv2.boundingRect(cm)
+        if ew == 0:
+            continue  # background only
+        keep = np.ascontiguousarray(inside[ey : ey + eh, ex : ex + ew])
+        to_src = to_src @ _shift(ex, ey)
+        cd = cv2.warpPerspective(weight, to_src, (ew, eh), flags=cv2.INTER_LINEAR | _INVERSE, **_CONST)
+        cv2.copyTo(cd, keep, d[by0 + ey : by0 + ey + eh, bx0 + ex : bx0 + ex + ew])
+        cells.append(_Cell(bx0 + ex, by0 + ey, ew, eh, keep, to_src))
+    if not cells:
+        return None
+    d = cv2.max(d, 1e-3)  # inside the ROI the weight is never 0 (0 means "not drawn")
+    return m, cv2.bitwise_and(d, d, mask=m), cells
+
+
+def _warp_image(layer: _Layer, where: np.ndarray) -> np.ndarray:
+    """The keyframe's pixels over the region, warped cell by cell, but only inside the boxes of ``where``."""
+    h, w = layer.mask.shape
+    im = np.zeros((h, w, 3), np.uint8)
+    for c in layer.cells:
+        need = cv2.bitwise_and(where[c.y : c.y + c.h, c.x : c.x + c.w], c.inside)
+        sx, sy, sw, sh = cv2.boundingRect(need)
+        if sw == 0:
+            continue
+        ci = cv2.warpPerspective(
+            layer.image, c.to_src @ _shift(sx, sy), (sw, sh), flags=cv2.INTER_LINEAR | _INVERSE, **_CONST
+        )
+        y, x = c.y + sy, c.x + sx
+        cv2.copyTo(ci, c.inside[sy : sy + sh, sx : sx + sw], im[y : y + sh, x : x + sw])
+    return im
+
+
+def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
+    """The fast renderer: seam weights of every keyframe first, then each keyframe's image is warped and blended
+    only where its weight matters (``MIN_BLEND_WEIGHT``); all per-pixel work in OpenCV."""
+    layers: list[_Layer] = []
+    for pk in placed:
+        bx0, by0, bx1, by1 = pk.bbox
+        rx0, ry0, rx1, ry1 = max(bx0, x0), max(by0, y0), min(bx1, x0 + w), min(by1, y0 + h)
+        if rx1 <= rx0 or ry1 <= ry0:
+            continue
+        img, mask, weight = sources.get(pk.position)
+        seams = _warp_seams(pk, mask, weight, rx0, ry0, rx1 - rx0, ry1 - ry0)
+        if seams is not None:
+            layers.append(_Layer(pk, img, rx0 - x0, ry0 - y0, *seams))
+    if not layers:
+        return np.zeros((h, w, 3), np.uint8), np.zeros((h, w), np.uint8)
+    dmax = np.zeros((h, w), np.float32)
+    for L in layers:
+        box = dmax[L.y : L.y + L.mask.shape[0], L.x : L.x + L.mask.shape[1]]
+        cv2.max(box, L.weight, dst=box)
+    acc = np.zeros((h, w, 3), np.float32)
+    wsum = np.zeros((h, w), np.float32)
+    inv_f = 1.0 / max(feather_px, 1e-3)
+    for L in layers:
+        lh, lw = L.mask.shape
+        # the feather: weight exp((d - dmax) / feather), 1 for the keyframe that owns the pixel (Voronoi seam)
+        e = cv2.addWeighted(L.weight, inv_f, dmax[L.y : L.y + lh, L.x : L.x + lw], -inv_f, 0.0)
+        cv2.exp(e, dst=e)
+        where = cv2.bitwise_and(cv2.compare(e, MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask)
+        bx, by, bw, bh = cv2.boundingRect(where)
+        if bw == 0:
+            continue
+        im = _warp_image(L, where)
+        sub = (slice(by, by + bh), slice(bx, bx + bw))
+        wgt = cv2.bitwise_and(e[sub], e[sub], mask=where[sub])
+        tile = (slice(L.y + by, L.y + by + bh), slice(L.x + bx, L.x + bx + bw))
+        cv2.add(wsum[tile], wgt, dst=wsum[tile])
+        cv2.add(acc[tile], cv2.multiply(im[sub], cv2.merge((wgt, wgt, wgt)), dtype=cv2.CV_32F), dst=acc[tile])
+    covered = cv2.compare(wsum, 0.0, cv2.CMP_GT)
+    inv = cv2.divide(1.0, wsum)  # OpenCV gives 0 where wsum is 0 (uncovered stays black)
+    out = cv2.multiply(acc, cv2.merge((inv, inv, inv)))
+    return cv2.convertScaleAbs(out), covered
+
+
+RENDERERS = ("warp", "pullback")
+
+
 def render_tile(
-    x0: int, y0: int, w: int, h: int, placed: list[PlacedKeyframe], sources: SourceCache, *, feather_px: float = 4.0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(BGR uint8 tile, coverage uint8 0/255, owner int32 = keyframe position or -1) for one map region."""
+    x0: int,
+    y0: int,
+    w: int,
+    h: int,
+    placed: list[PlacedKeyframe],
+    sources: SourceCache,
+    *,
+    feather_px: float = 4.0,
+    renderer: str = "warp",
+) -> tuple[np.ndarray, np.ndarray]:
+    """(BGR uint8 tile, coverage uint8 0/255) for one map region.
+
+    ``renderer="pullback"`` is the renderer as it was before the OpenCV one: per-pixel pull-back and blending
+    in numpy. It is kept as the reference the fast one is tested against and for side-by-side figures."""
+    if renderer == "warp":
+        return _render_tile_warp(x0, y0, w, h, placed, sources, feather_px)
     layers = []
     for pk in placed:
         bx0, by0, bx1, by1 = pk.bbox
@@ -152,14 +352,11 @@ def render_tile(
         d = np.where(m > 0, np.maximum(d, 1e-3), 0.0).astype(np.float32)
         layers.append((pk.position, (rx0 - x0, ry0 - y0), im, d))
     out = np.zeros((h, w, 3), np.float32)
-    owner = np.full((h, w), -1, np.int32)
     if not layers:
-        return out.astype(np.uint8), np.zeros((h, w), np.uint8), owner
+        return out.astype(np.uint8), np.zeros((h, w), np.uint8)
     dmax = np.zeros((h, w), np.float32)
-    for pos, (ox, oy), _im, d in layers:
+    for _pos, (ox, oy), _im, d in layers:
         sl = (slice(oy, oy + d.shape[0]), slice(ox, ox + d.shape[1]))
-        better = d > dmax[sl]
-        owner[sl][better] = pos
         dmax[sl] = np.maximum(dmax[sl], d)
     wsum = np.zeros((h, w), np.float32)
     for _pos, (ox, oy), im, d in layers:
@@ -169,4 +366,4 @@ def render_tile(
         wsum[sl] += wgt
     covered = wsum > 0
     out[covered] /= wsum[covered][:, None]
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8), np.where(covered, 255, 0).astype(np.uint8), owner
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8), np.where(covered, 255, 0).astype(np.uint8)

@@ -29,6 +29,14 @@ class SyntheticWall:
     seed: int = 0
 
 
+def wall_for_texture(texture: np.ndarray, mm_per_px: float, seed: int = 0) -> SyntheticWall:
+    """The wall a texture image covers at ``mm_per_px`` (for :func:`make_spool` with a real photograph)."""
+    h, w = texture.shape[:2]
+    return SyntheticWall(
+        length_m=w * mm_per_px / 1000, height_m=h * mm_per_px / 1000, texture_mm_per_px=mm_per_px, seed=seed
+    )
+
+
 def make_texture(wall: SyntheticWall) -> np.ndarray:
     rng = np.random.default_rng(wall.seed)
     w = int(round(wall.length_m * 1000 / wall.texture_mm_per_px))
@@ -128,8 +136,12 @@ def make_spool(
     seed: int = 0,
     jitter_deg: float = 0.0,
     hole_m: tuple[float, float, float, float] | None = None,
+    texture: np.ndarray | None = None,
 ) -> dict:
-    """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views)."""
+    """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views).
+
+    ``texture`` (BGR, row 0 = top of the wall) replaces the generated one, e.g. a real photograph of a wall; it
+    must cover ``wall`` at ``wall.texture_mm_per_px`` (see :func:`wall_for_texture`)."""
     out = Path(out_dir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -138,7 +150,15 @@ def make_spool(
     _, end_lon, _ = pymap3d.enu2geodetic(wall.length_m, 0.0, 0.0, start.lat, start.lon, start.alt_amsl_m)
     end_lon = float(end_lon)
     frame = FacadeFrame.from_wall(start, GeoPoint(start.lat, end_lon, 30.0))
-    texture = make_texture(wall)
+    if texture is None:
+        texture = make_texture(wall)
+    else:
+        want = (
+            round(wall.height_m * 1000 / wall.texture_mm_per_px),
+            round(wall.length_m * 1000 / wall.texture_mm_per_px),
+        )
+        if abs(texture.shape[0] - want[0]) > 1 or abs(texture.shape[1] - want[1]) > 1:
+            raise ValueError(f"texture is {texture.shape[1]}x{texture.shape[0]} px, the wall needs {want[1]}x{want[0]}")
     bg = _background(seed) if background else None
     fw = standoff_m * width / camera.focal_px
     fh = standoff_m * height / camera.focal_px

@@ -7,7 +7,7 @@ import json
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -16,19 +16,28 @@ import numpy as np
 from companion.errors import CompanionError
 from companion.progress import progress_bar
 from companion.stitch.align import global_alignment
-from companion.stitch.exposure import apply_gain, solve_gains
-from companion.stitch.features import cached_features, feature_key, load_image_and_mask
+from companion.stitch.exposure import apply_gain, apply_gain_numpy, solve_gains
+from companion.stitch.features import cached_features, detect_settings, feature_key, load_image_and_mask, load_mask
 from companion.stitch.geometry import (
     apply_h,
     camera_distance_to_wall,
     prior_plane_from_image,
     reference_plane_from_image,
 )
-from companion.stitch.inputs import StitchInput
+from companion.stitch.inputs import SkippedKeyframe, StitchInput
 from companion.stitch.mesh import mesh_for_keyframe
 from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
 from companion.stitch.pairs import PairSettings, candidate_pairs, load_pair, match_pair, save_pair
-from companion.stitch.render import MapGrid, PlacedKeyframe, SourceCache, place, render_tile
+from companion.stitch.render import (
+    RENDERERS,
+    MapGrid,
+    PlacedKeyframe,
+    SourceCache,
+    drawable,
+    place,
+    render_tile,
+)
+from companion.stitch.render_plan import plan_render
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +46,8 @@ log = logging.getLogger(__name__)
 class StitchConfig:
     work_width: int = 1600  # SIFT runs on a copy this wide (4K keyframes are downscaled for features only)
     max_features: int = 4000
+    contrast_threshold: float = 0.01  # SIFT; OpenCV's 0.04 finds too little on plain walls (the gate's setting)
+    equalize: bool = True  # CLAHE before SIFT, as the gate: plain cladding gives many more matchable features
     neighbours: int = 2  # sequence neighbours matched besides telemetry-overlapping keyframes
     ratio: float = 0.75
     ransac_px: float | None = None  # default: 0.4 % of the image width, at least 2 px
@@ -55,6 +66,7 @@ class StitchConfig:
     tile_px: int = 1024
     max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
     feather_px: float = 4.0
+    renderer: str = "warp"  # "warp": per-cell cv2.warpPerspective; "pullback": the per-pixel numpy reference
     gain_compensation: bool = True
     preview_width: int = 3000
     min_uncovered_m2: float = 0.02
@@ -85,13 +97,13 @@ def stitch(
     inp: StitchInput, out_dir: str | Path, config: StitchConfig | None = None, *, progress: bool = True
 ) -> StitchResult:
     cfg = config or StitchConfig()
+    if cfg.renderer not in RENDERERS:
+        raise CompanionError(f"unknown renderer {cfg.renderer!r}", f"use one of {', '.join(RENDERERS)}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    kfs = inp.keyframes
-    n = len(kfs)
-    if n < 2:
+    if len(inp.keyframes) < 2 and not inp.skipped:
         raise CompanionError(
-            f"the map needs at least 2 keyframes, the input has {n}",
+            f"the map needs at least 2 keyframes, the input has {len(inp.keyframes)}",
             "fly the scan (or wait for the spool to fill) and run again",
         )
     cam = inp.camera
@@ -103,18 +115,49 @@ def stitch(
         ratio=cfg.ratio, ransac_px=ransac_px, min_inliers=cfg.min_inliers, pose_gate_m=cfg.pose_gate_m
     )
 
-    # 1. features inside the ROI
+    # 1. features inside the ROI; a keyframe whose files are damaged is left out (and named), not fatal
     feat_dir = out / "cache" / "features"
-    feats, keys = [], []
-    for kf in _progress(kfs, "features", progress):
-        f = cached_features(kf, feat_dir, work_width=cfg.work_width, max_features=cfg.max_features)
-        if f.image_size != (W, H):
-            raise CompanionError(
-                f"keyframe {kf.index} is {f.image_size[0]}x{f.image_size[1]}, expected {W}x{H}",
-                "all keyframes of one stitch must come from the same camera mode",
+    feature_settings = detect_settings(cfg.work_width, cfg.max_features, cfg.contrast_threshold, cfg.equalize)
+    feats, keys, usable, skipped = [], [], [], list(inp.skipped)
+    for kf in _progress(inp.keyframes, "features", progress):
+        try:
+            f = cached_features(
+                kf,
+                feat_dir,
+                work_width=cfg.work_width,
+                max_features=cfg.max_features,
+                contrast_threshold=cfg.contrast_threshold,
+                equalize=cfg.equalize,
             )
+        except CompanionError as exc:
+            skipped.append(SkippedKeyframe(kf.index, exc.problem))
+            continue
+        except OSError as exc:
+            skipped.append(SkippedKeyframe(kf.index, f"cannot read its files ({exc})"))
+            continue
+        if f.image_size != (W, H):
+            skipped.append(
+                SkippedKeyframe(
+                    kf.index,
+                    f"image is {f.image_size[0]}x{f.image_size[1]}, the camera's are {W}x{H} "
+                    "(all keyframes of one stitch come from one camera mode)",
+                )
+            )
+            continue
         feats.append(f)
-        keys.append(feature_key(kf, {"w": cfg.work_width, "n": cfg.max_features, "v": 2}))
+        keys.append(feature_key(kf, feature_settings))
+        usable.append(kf)
+    for sk in skipped:
+        log.warning("%s", sk.warning())
+    if not usable:
+        reasons = "; ".join(sk.warning() for sk in skipped[:3]) + ("; ..." if len(skipped) > 3 else "")
+        raise CompanionError(
+            f"no usable keyframe is left: {reasons}",
+            "check the spool's frames/ directory (complete JPEG/PNG files, masks of the image size)",
+        )
+    inp = replace(inp, keyframes=usable, skipped=tuple(skipped))
+    kfs = inp.keyframes
+    n = len(kfs)
     t["features"] = time.perf_counter()
 
     # 2. telemetry priors
@@ -153,7 +196,7 @@ def stitch(
         r.i, r.j = i, j
         results.append(r)
     t["matching"] = time.perf_counter()
-    if not any(r.accepted for r in results) and not use_poses:
+    if n >= 2 and not any(r.accepted for r in results) and not use_poses:
         raise CompanionError(
             "no two keyframes could be registered (no shared features inside the ROI masks)",
             "check that keyframes overlap (gate threshold) and that the masks keep the facade",
@@ -251,12 +294,14 @@ def stitch(
     # 7. render tiles
     gains = solve_gains(n, accepted) if cfg.gain_compensation else np.ones(n)
 
+    legacy = cfg.renderer == "pullback"  # the render stage as it was before the OpenCV renderer (reference)
+
     def load(k):
         img, mask = load_image_and_mask(kfs[k])
-        return apply_gain(img, float(gains[k])), mask
+        return (apply_gain_numpy if legacy else apply_gain)(img, float(gains[k])), mask
 
     # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB
-    sources = SourceCache(load, size=int(np.clip(6e8 / (W * H * 8), 3, 16)))
+    cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
     in_memory = gw * gh <= cfg.max_in_memory_px
     canvas = np.zeros((gh, gw, 3), np.uint8) if in_memory else None
     cov_full = np.zeros((gh, gw), np.uint8) if in_memory else None
@@ -268,24 +313,47 @@ def stitch(
     covered_px = 0
     tiles_dir = out / "tiles"
     order = sorted(placed.values(), key=lambda p: p.bbox[0])
-    tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
-    for x0, y0 in _progress(tiles, "render", progress):
+    needs, planned = None, {}
+    if legacy:
+        tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
+    else:
+
+        def weight_of(k):
+            return drawable(load_mask(kfs[k], (W, H)))[1]
+
+        plan = plan_render(order, weight_of, gw, gh, cfg.tile_px, cfg.feather_px, cache_size)
+        tiles, needs = plan.order, plan.needs
+        per_tile = [len(v) for v in needs.values() if v]
+        planned = {
+            "planned_decodes": plan.decodes,
+            "keyframes_per_tile": {"max": max(per_tile, default=0), "mean": round(float(np.mean(per_tile or [0])), 2)},
+        }
+    drawn: dict[tuple[int, int], list[PlacedKeyframe]] = {}
+    for x0, y0 in tiles:
         w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
         near = [p for p in order if p.bbox[0] < x0 + w and p.bbox[2] > x0 and p.bbox[1] < y0 + h and p.bbox[3] > y0]
-        img, cov, _owner = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px)
+        drawn[(x0, y0)] = near if needs is None else [p for p in near if p.position in needs[(x0, y0)]]
+    # with the plan, the cache knows every request ahead and keeps what is needed soonest
+    schedule = None if legacy else [p.position for tile in tiles for p in drawn[tile]]
+    sources = SourceCache(load, size=cache_size, schedule=schedule)
+    for x0, y0 in _progress(tiles, "render", progress):
+        w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
+        near = drawn[(x0, y0)]
+        img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
         covered_px += int(np.count_nonzero(cov[max(reg[1] - y0, 0) : reg[3] - y0, max(reg[0] - x0, 0) : reg[2] - x0]))
         if in_memory:
             canvas[y0 : y0 + h, x0 : x0 + w] = img
             cov_full[y0 : y0 + h, x0 : x0 + w] = cov
         else:
             tiles_dir.mkdir(exist_ok=True)
-            cv2.imwrite(str(tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"), np.dstack((img, cov)))
+            cv2.imwrite(str(tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"), cv2.merge((img, cov)))
         px0, py0 = round(x0 * ps), round(y0 * ps)
         px1, py1 = min(pw, round((x0 + w) * ps)), min(ph, round((y0 + h) * ps))
         if px1 > px0 and py1 > py0:
             preview[py0:py1, px0:px1] = cv2.resize(img, (px1 - px0, py1 - py0), interpolation=cv2.INTER_AREA)
             cov_prev[py0:py1, px0:px1] = cv2.resize(cov, (px1 - px0, py1 - py0), interpolation=cv2.INTER_AREA)
     t["render"] = time.perf_counter()
+    render_info = {"renderer": cfg.renderer, "tiles": len(tiles), "keyframe_decodes": sources.decoded, **planned}
 
     # 8. coverage, residuals, files
     cov_for_holes = cov_full if in_memory else np.where(cov_prev > 127, 255, 0).astype(np.uint8)
@@ -331,6 +399,7 @@ def stitch(
         files,
         report_gains,
     )
+    report["render"] = render_info
     files["report"] = str(out / "report.json")
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
@@ -423,9 +492,11 @@ def _report(
     mmf = (lambda s: {k: (None if v is None else round(v * mm, 3)) for k, v in s.items()}) if mm else (lambda s: None)
     return {
         "source": inp.source,
-        "keyframes_in": len(kfs),
+        "keyframes_in": len(kfs) + len(inp.skipped),
         "keyframes_used": used,
+        "keyframes_skipped": [sk.as_dict() for sk in inp.skipped],
         "keyframes_dropped": dropped,
+        "warnings": [sk.warning() for sk in inp.skipped],
         "telemetry_prior": use_poses,
         "pairs_tried": len(results),
         "pairs_accepted": sum(r.accepted for r in results),

@@ -26,7 +26,13 @@ from companion.stitch.geometry import (
 )
 from companion.stitch.inputs import SkippedKeyframe, StitchInput
 from companion.stitch.mesh import mesh_for_keyframe
-from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
+from companion.stitch.output import (
+    UncoveredArea,
+    annotate_uncovered,
+    draw_scale_bar,
+    uncovered_areas,
+    write_georeferencing,
+)
 from companion.stitch.pairs import PairSettings, candidate_pairs, load_pair, match_pair, save_pair
 from companion.stitch.render import (
     RENDERERS,
@@ -400,11 +406,15 @@ def stitch(
         report_gains,
     )
     report["render"] = render_info
+    result = StitchResult(out, grid, mm, coverage_fraction, holes, report, canvas, cov_full, files)
+    # World file / CRS in wall metres, alpha for uncovered areas, the wall's geographic anchor (docs/OUTPUTS.md):
+    # written before report.json so the report lists them and a finished report means a finished map folder.
+    files.update(write_georeferencing(result, inp))
     files["report"] = str(out / "report.json")
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
     tmp.replace(out / "report.json")
-    return StitchResult(out, grid, mm, coverage_fraction, holes, report, canvas, cov_full, files)
+    return result
 
 
 def _write(path: Path, img: np.ndarray) -> str:

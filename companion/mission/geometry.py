@@ -8,8 +8,20 @@ import numpy as np
 import pymap3d
 
 from companion.errors import CompanionError
-from companion.geo import GeoPoint
+from companion.geo import FacadeFrame, GeoPoint
 from companion.mission.spec import Mission
+
+
+def wall_frame(mission: Mission) -> FacadeFrame:
+    """The facade frame of the mission's wall; a zero-length wall is a mission error, not a maths error."""
+    start, end = wall_ends(mission)
+    try:
+        return FacadeFrame.from_wall(start, end)
+    except ValueError:
+        raise CompanionError(
+            "the wall has zero length: facade.start and facade.end are the same point",
+            "give two different wall ends (start = left end, end = right end, seen from the drone)",
+        ) from None
 
 
 def wall_ends(mission: Mission) -> tuple[GeoPoint, GeoPoint]:

@@ -13,7 +13,7 @@ from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
 from companion.mission import firmware as fw
 from companion.mission import items as mi
-from companion.mission.geometry import footprint_enu, polyline_clearance, wall_ends
+from companion.mission.geometry import footprint_enu, polyline_clearance, wall_frame
 from companion.mission.spec import Mission
 
 # Nominal multirotor dynamics for the time estimate (a typical 1-2 kg inspection quad).
@@ -201,14 +201,7 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
     """Plan the scan of the whole wall, or only of ``regions`` (rectangles on the wall plane, frame edges reaching
     their edges: a re-fly, ``companion.mission.refly``); takeoff, transit, landing and the standoff and geofence
     checks are the same. Raises CompanionError when the mission cannot be flown safely."""
-    start, end = wall_ends(mission)
-    try:
-        frame = FacadeFrame.from_wall(start, end)
-    except ValueError:
-        raise CompanionError(
-            "the wall has zero length: facade.start and facade.end are the same point",
-            "give two different wall ends (start = left end, end = right end, seen from the drone)",
-        ) from None
+    frame = wall_frame(mission)
     if frame.length_m < 0.5:
         raise CompanionError(
             f"the wall is only {frame.length_m:.2f} m long", "check facade.start/end: they should be the wall's ends"

@@ -23,7 +23,7 @@ from pathlib import Path
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame
 from companion.mission.exports import render_outputs, write_outputs
-from companion.mission.geometry import wall_ends
+from companion.mission.geometry import wall_frame
 from companion.mission.planner import ScanPlan, WallRegion, camera_footprint, plan_scan, scan_extent
 from companion.mission.spec import Mission, load_mission
 
@@ -229,14 +229,7 @@ def plan_refly(mission: Mission, map_dir: str | Path, *, min_size_m: float = MIN
     """Plans the re-fly of ``map_dir``'s uncovered areas with ``mission``'s standoff, overlap, camera and rules;
     areas thinner than ``min_size_m`` (along or up) are left out and listed."""
     gaps = read_map_gaps(map_dir)
-    start, end = wall_ends(mission)
-    try:
-        frame = FacadeFrame.from_wall(start, end)
-    except ValueError:
-        raise CompanionError(
-            "the wall has zero length: facade.start and facade.end are the same point",
-            "give two different wall ends (start = left end, end = right end, seen from the drone)",
-        ) from None
+    frame = wall_frame(mission)
     check_same_wall(gaps, mission, frame)
     notes = []
     if gaps.wall is None:

@@ -73,3 +73,39 @@ def test_sim_arg_parsing():
     with pytest.raises(CompanionError) as err:
         _sim_options(["gusts"])
     assert "OPT=VALUE" in err.value.problem
+
+
+class _LossyMissionPlugin:
+    """mavsdk MissionRaw stand-in: the vehicle cancels the first ``failures`` uploads (items lost on the link, as the
+    simulator and PX4 do after their re-requests run out), then stores what it gets."""
+
+    def __init__(self, failures: int, result: str = "TRANSFER_CANCELLED"):
+        self.failures = failures
+        self.result = result
+        self.uploads = 0
+        self.stored = None
+
+    async def upload_mission(self, raw):
+        from mavsdk.asyncio.plugins.mission_raw import MissionRawError, MissionRawResult
+
+        self.uploads += 1
+        if self.uploads <= self.failures:
+            raise MissionRawError(MissionRawResult[self.result], "upload_mission()")
+        self.stored = raw
+
+    async def download_mission(self):
+        return self.stored
+
+
+@pytest.mark.parametrize("result", ["TRANSFER_CANCELLED", "TIMEOUT"])
+def test_upload_starts_again_after_the_link_lost_the_transfer(result):
+    import asyncio
+
+    from companion.flight.upload import upload_and_verify
+
+    plugin = _LossyMissionPlugin(failures=2, result=result)
+    asyncio.run(upload_and_verify(plugin, _items(), "px4", attempts=4))
+    assert plugin.uploads == 3
+    plugin = _LossyMissionPlugin(failures=4, result=result)
+    with pytest.raises(CompanionError, match="the link lost too much"):
+        asyncio.run(upload_and_verify(plugin, _items(), "px4", attempts=4))

@@ -27,6 +27,8 @@ _UPLOAD_FIXES = {
                         "(plan.mavlink_items('ardupilot') sends no NaN where ArduPilot refuses it)",
     "DENIED": "the vehicle refused the upload (busy or armed in a mission?): land, disarm and retry",
     "TIMEOUT": "the vehicle stopped answering during the upload: check the link quality and retry",
+    "TRANSFER_CANCELLED": "the vehicle gave up on the transfer (items lost on the link): check the link quality and "
+                          "retry",
     "PROTOCOL_ERROR": "the vehicle answered out of protocol: check for a second ground station on the link",
 }
 
@@ -67,16 +69,22 @@ def _culprit(items: Sequence[MissionItem], autopilot: str, result: str) -> str:
     return ": " + refusal.describe()
 
 
+_LINK_FAILURES = ("TIMEOUT", "TRANSFER_CANCELLED")
+
+
 async def _with_retries(what: str, coro_fn, attempts: int):
-    """Run a mission transfer, starting it again after a TIMEOUT: mavsdk gives up on an item after a few lost
-    round trips, which a 20 % lossy link reaches now and then; a refusal (any other result) is final."""
+    """Run a mission transfer, starting it again after a link failure: mavsdk gives up on an item after a few lost
+    round trips (TIMEOUT), and the vehicle gives up on a transfer whose items stop arriving (it answers
+    MAV_MISSION_OPERATION_CANCELLED, which mavsdk reports as TRANSFER_CANCELLED; the companion never cancels its own
+    transfers); a 20 % lossy link reaches either now and then. A refusal (any other result) is final."""
     for attempt in range(1, attempts + 1):
         try:
             return await coro_fn()
         except MissionRawError as exc:
-            if getattr(exc.result, "name", "") != "TIMEOUT" or attempt == attempts:
+            if getattr(exc.result, "name", "") not in _LINK_FAILURES or attempt == attempts:
                 raise
-            log.warning("%s timed out (attempt %d of %d), starting it again", what, attempt, attempts)
+            log.warning("%s failed on the link (%s, attempt %d of %d), starting it again", what, exc.result.name,
+                        attempt, attempts)
     return None
 
 
@@ -93,8 +101,8 @@ async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopi
     except MissionRawError as exc:
         name = getattr(exc.result, "name", str(exc.result))
         fix = _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")
-        if name == "TIMEOUT":
-            raise CompanionError(f"mission upload failed: the vehicle stopped answering ({name}, "
+        if name in _LINK_FAILURES:
+            raise CompanionError(f"mission upload failed: the link lost too much ({name}, "
                                  f"{attempts} attempts, {len(items)} items)", fix) from exc
         raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)"
                              + _culprit(items, autopilot, name), fix) from exc

@@ -50,14 +50,14 @@ def test_masker_turns_tagged_frame_into_masked_frame():
     rng = np.random.default_rng(0)
     image = rng.integers(0, 255, (360, 640, 3), dtype=np.uint8)
     tagged = TaggedFrame(Frame(index=7, capture_time_s=1.5, image=image), pose=None)
-    masked, roi = masker.mask(tagged)
+    masked, roi, disparity = masker.mask_measured(tagged)
     assert masker.stats.frames == 1 and len(masker.stats.depth_ms) == 1
     if masked is None:
         assert roi.empty and masker.stats.dropped_empty == 1
     else:
         assert isinstance(masked, MaskedFrame) and masked.tagged is tagged
         assert masked.mask.shape == (360, 640) and masked.mask.dtype == np.uint8
-        assert masked.disparity.shape == (192, 640)
+        assert disparity.shape == (192, 640)
 
 
 def test_masker_rejects_non_image():

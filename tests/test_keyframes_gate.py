@@ -34,7 +34,7 @@ def _run(gate, tex, views, blur=None):
 
 
 def _indices(kfs):
-    return [k.masked.tagged.frame.index for k in kfs]
+    return [k.index for k in kfs]
 
 
 def _truth_rule(views, rth):
@@ -56,7 +56,7 @@ def test_paper_example_keeps_i4_and_rejects_i5(tex):
     kfs = _run(_gate(), tex, views)
     assert _indices(kfs)[:2] == [0, 3]
     assert kfs[1].overlap_to_previous == pytest.approx(82.9, abs=0.5)
-    assert kfs[0].overlap_to_previous is None and kfs[0].extra["reason"] == "first"
+    assert kfs[0].overlap_to_previous is None and kfs[0].decision.reason == "first"
 
 
 @pytest.mark.parametrize("step", [14.0, 23.0, 31.0])
@@ -103,7 +103,7 @@ def test_tracking_lost_starts_new_segment_and_flags_gap(tex):
     assert 7 in got  # the last frame of the first segment is kept, not lost
     gap = [k for k in kfs if k.gap_before]
     assert _indices(gap) == [8] and gap[0].overlap_to_previous is None
-    assert gap[0].extra["segment"] == 1
+    assert gap[0].decision.segment == 1
     kinds = [e.kind for e in gate.pop_events()]
     assert GateEventKind.GAP in kinds
 
@@ -147,7 +147,7 @@ def test_sudden_jump_raises_overlap_warning_and_low_overlap_keyframe(tex):
     assert warned == [False, False, False, True, False]
     events = gate.pop_events()
     assert any(e.kind == GateEventKind.OVERLAP_WARNING and "slow down" in e.message for e in events)
-    low = [k for k in kfs if k.extra["low_overlap"]]
+    low = [k for k in kfs if k.decision.low_overlap]
     assert _indices(low) == [3]
     assert 2 in _indices(kfs)  # the last frame >= Rth before the jump is kept
 

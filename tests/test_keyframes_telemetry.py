@@ -47,7 +47,7 @@ def _config() -> GateConfig:
 
 def _run(gate: KeyframeGate, frames):
     kfs = list(gate.run(frames))
-    return kfs, [k.masked.tagged.frame.index for k in kfs]
+    return kfs, [k.index for k in kfs]
 
 
 def _pair_truth(scene, cams, idx):
@@ -161,8 +161,8 @@ def test_thin_wall_strip_does_not_keep_every_frame(scene, predictor):
     assert len(ours) <= _minimum(scene, cams) + 1
     assert min(_pair_truth(scene, cams, ours)) >= 77.0
     assert not any(k.gap_before for k in kfs)
-    told = [k for k in kfs[1:] if k.extra["overlap_source"] == "telemetry"]
-    assert told and all(k.extra["R_image"] is None and k.extra["R_telemetry"] is not None for k in told)
+    told = [k for k in kfs[1:] if k.decision.overlap_source == "telemetry"]
+    assert told and all(k.decision.R_image is None and k.decision.R_telemetry is not None for k in told)
 
 
 def test_noisy_gnss_with_a_bias_still_measures_the_wall(scene, predictor):
@@ -189,11 +189,11 @@ def test_pair_the_poses_put_below_rth_is_never_accepted(scene, predictor):
     frames = [scene.masked_frame(0, a), scene.masked_frame(1, b, pose=scene.pose(b, offset_m=(0.33, 0, 0)))]
     gate = KeyframeGate(_config(), predictor=predictor)
     kfs = list(gate.run(frames))
-    assert [k.masked.tagged.frame.index for k in kfs] == [0, 1]
-    second = kfs[1].extra
-    assert second["overlap_source"] == "telemetry_veto" and second["low_overlap"]
-    assert second["R_image"] == pytest.approx(80.9, abs=1.0) and second["R_telemetry"] < 77.0
-    assert kfs[1].overlap_to_previous == pytest.approx(second["R_telemetry"])
+    assert [k.index for k in kfs] == [0, 1]
+    second = kfs[1].decision
+    assert second.overlap_source == "telemetry_veto" and second.low_overlap
+    assert second.R_image == pytest.approx(80.9, abs=1.0) and second.R_telemetry < 77.0
+    assert kfs[1].overlap_to_previous == pytest.approx(second.R_telemetry)
     assert gate.telemetry_vetoes == 1
 
 
@@ -206,7 +206,7 @@ def test_frames_without_poses_keep_todays_decisions(scene, predictor):
     assert kfs[0].overlap_to_previous is None and today_kfs[0].overlap_to_previous is None
     for k, t in zip(kfs[1:], today_kfs[1:], strict=True):  # FLANN's random trees: equal to a few hundredths
         assert k.overlap_to_previous == pytest.approx(t.overlap_to_previous, abs=0.05)
-    assert all(k.extra["overlap_source"] in (None, "image") for k in kfs)
+    assert all(k.decision.overlap_source in (None, "image") for k in kfs)
 
 
 def test_chain_cross_check_decides_in_the_gate(scene, tmp_path):
@@ -222,7 +222,7 @@ def test_chain_cross_check_decides_in_the_gate(scene, tmp_path):
                       crosscheck=check)
     assert gate.predictor is check.predictor
     for i, c in enumerate(cams):
-        frame = scene.masked_frame(i, c, t_s=i / 3.0).tagged.frame
+        frame = scene.masked_frame(i, c, t_s=i / 3.0).frame
         chain.process(frame)
     chain.finish()
     idx = [e.index for e in chain.spool.entries]

@@ -12,6 +12,7 @@ import json
 import math
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import exifread
@@ -22,7 +23,7 @@ import xmltodict
 
 from companion.capture.telemetry import ClockMap
 from companion.cli import main
-from companion.records import Frame, Keyframe, MaskedFrame, Pose, TaggedFrame
+from companion.records import Frame, Keyframe, Pose
 from companion.spool import KeyframeSpool
 from companion.spool.camera import CameraTags, Intrinsics, camera_tags_for_mission, load_calibration
 from companion.spool.clock import TelemetryWallClock
@@ -48,7 +49,7 @@ def _keyframe(index: int, capture_time_s: float, yaw=20.0, gimbal_pitch=0.0) -> 
         roll_deg=1.0, pitch_deg=-2.0, yaw_deg=yaw, gimbal_pitch_deg=gimbal_pitch,
     )
     mask = np.full((H, W), 255, np.uint8)
-    return Keyframe(MaskedFrame(TaggedFrame(Frame(index, capture_time_s, image), pose), mask), None)
+    return Keyframe(Frame(index, capture_time_s, image), pose, mask)
 
 
 def _spool_one(tmp_path: Path, tags: CameraTags, capture_time_s=FLIGHT_UNIX, **kw) -> Path:
@@ -320,7 +321,7 @@ def test_pycolmap_registers_every_keyframe_with_the_exif_focal(tmp_path):
             img, mask, _ = view(texture, wall, cam, frame, float(along), up, 4.0, yaw_offset_deg=yaw, pitch_deg=pitch)
             lat, lon, alt = frame.facade_to_geodetic(along, 4.0, up)
             pose = Pose(k, float(lat), float(lon), float(alt), up, 0.0, pitch, (frame.yaw_facing_wall_deg + yaw) % 360)
-            spool.append(Keyframe(MaskedFrame(TaggedFrame(Frame(k, FLIGHT_UNIX + k, img), pose), mask), None))
+            spool.append(Keyframe(Frame(k, FLIGHT_UNIX + k, img), pose, mask))
             k += 1
     images = tmp_path / "images"
     images.mkdir()
@@ -345,7 +346,7 @@ def test_a_cropped_stream_is_spooled_without_a_wrong_focal(tmp_path, caplog):
     spool = KeyframeSpool(tmp_path, meta={"camera": {"width_px": 3840, "height_px": 2160, "hfov_deg": HFOV}},
                           camera_tags=tags)
     kf = _keyframe(1, FLIGHT_UNIX)
-    kf.masked.tagged.frame.image = kf.masked.tagged.frame.image[:, :1440]  # 1440 x 1080: 4:3
+    kf = replace(kf, frame=replace(kf.frame, image=kf.image[:, :1440]))  # 1440 x 1080: 4:3
     entry = spool.append(kf)
     exif = piexif.load((tmp_path / entry.image).read_bytes())["Exif"]
     assert piexif.ExifIFD.FocalLength not in exif and exif[piexif.ExifIFD.PixelXDimension] == 1440

@@ -16,7 +16,7 @@ import numpy as np
 import piexif
 import pytest
 
-from companion.records import Frame, Keyframe, MaskedFrame, Pose, TaggedFrame
+from companion.records import Frame, GateDecision, Keyframe, Pose
 from companion.spool import KeyframeSpool, SpoolFullError
 from companion.spool import writer as spool_writer
 from companion.spool.exif import read_xmp
@@ -39,8 +39,8 @@ def _keyframe(index: int, lat=37.5665123, lon=126.9781234) -> Keyframe:
         gimbal_pitch_deg=0.0,
         mission_item=5,
     )
-    tagged = TaggedFrame(Frame(index, 1_700_000_000.123 + index, image), pose)
-    return Keyframe(MaskedFrame(tagged, mask), overlap_to_previous=81.5, inliers=150)
+    decision = GateDecision(overlap_to_previous=81.5, inliers=150, reason="overlap")
+    return Keyframe(Frame(index, 1_700_000_000.123 + index, image), pose, mask, decision)
 
 
 def _dms_to_deg(dms) -> float:

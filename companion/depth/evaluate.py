@@ -138,9 +138,8 @@ def evaluate_recording(
     for i in indices:
         image = rec.image(i)
         tagged = TaggedFrame(Frame(index=i, capture_time_s=rec.capture_time(i), image=image), pose=None)
-        masked, roi = masker.mask(tagged)
+        _, roi, disp = masker.mask_measured(tagged)
         truth = rec.roi_mask(i)
-        disp = masker.session.disparity(image) if masked is None else masked.disparity
         result.frames.append(frame_eval(i, truth, disp, roi, depth_ms=masker.stats.depth_ms[-1],
                                         mask_ms=masker.stats.mask_ms[-1]))
         if save_dir is not None:

@@ -58,6 +58,12 @@ class Masker:
 
     def mask(self, tagged: TaggedFrame) -> tuple[MaskedFrame | None, RoiResult]:
         """Mask one frame; the MaskedFrame is None when the frame has no ROI (counted in ``stats``)."""
+        masked, roi, _ = self.mask_measured(tagged)
+        return masked, roi
+
+    def mask_measured(self, tagged: TaggedFrame) -> tuple[MaskedFrame | None, RoiResult, np.ndarray]:
+        """:meth:`mask` plus the network's disparity (model resolution), for evaluations that look at it; the
+        chain does not carry it."""
         image = tagged.frame.image
         t0 = time.perf_counter()
         disp = self.session.disparity(image)
@@ -73,8 +79,8 @@ class Masker:
         st.no_boundary += int(roi.no_boundary)
         if roi.empty:
             st.dropped_empty += 1
-            return None, roi
-        return MaskedFrame(tagged=tagged, mask=roi.mask, disparity=disp), roi
+            return None, roi, disp
+        return MaskedFrame(tagged=tagged, mask=roi.mask), roi, disp
 
     def _with_parallax(self, image, tagged: TaggedFrame, roi: RoiResult) -> RoiResult:
         from companion.depth.parallax import fuse_with_network

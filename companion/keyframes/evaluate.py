@@ -202,19 +202,19 @@ def evaluate_gate(
             mask = recording.roi_mask(i) if use_masks else None
         mf = masked_frame(i, recording.image(i), mask, t_s=recording.capture_time(i))
         if pose is not None:
-            mf = MaskedFrame(TaggedFrame(mf.tagged.frame, pose(i)), mf.mask)
+            mf = MaskedFrame(TaggedFrame(mf.frame, pose(i)), mf.mask)
         t0 = time.perf_counter()
         out = gate.push(mf)
         spent += time.perf_counter() - t0
         account(gate.last_step)
         for k in out:
-            keys.append(k.masked.tagged.frame.index)
+            keys.append(k.index)
             if k.gap_before:
                 gaps.append(keys[-1])
     t0 = time.perf_counter()
     out = gate.flush()
     spent += time.perf_counter() - t0
-    keys += [k.masked.tagged.frame.index for k in out]
+    keys += [k.index for k in out]
     kp_truth = [100.0 * recording.true_overlap(a, b) for a, b in zip(keys, keys[1:], strict=False)]
     minimum = minimum_keyframes(n, recording.true_overlap, cfg.rth)
     curve = overlap_curve(recording, cfg, curve_p, use_masks=use_masks, floor=curve_floor)

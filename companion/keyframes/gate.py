@@ -27,7 +27,7 @@ from companion.keyframes.features import FeatureConfig, FeatureExtractor, Featur
 from companion.keyframes.motion import WallMotion, WallMotionPredictor
 from companion.keyframes.overlap import OverlapConfig, OverlapEstimate, OverlapEstimator
 from companion.keyframes.sharpness import SharpnessReference, laplacian_variance
-from companion.records import Keyframe, MaskedFrame
+from companion.records import GateDecision, Keyframe, MaskedFrame
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,7 @@ class _Held:
 
     @property
     def index(self) -> int:
-        return self.masked.tagged.frame.index
+        return self.masked.index
 
 
 class KeyframeGate:
@@ -159,7 +159,7 @@ class KeyframeGate:
                 f"the gate takes MaskedFrame records, got {type(masked).__name__}",
                 "wrap frames as MaskedFrame(TaggedFrame(Frame(...), pose), mask) (mask all 255 when unmasked)",
             )
-        frame = masked.tagged.frame
+        frame = masked.frame
         feats = self._extractor.extract(frame.image, masked.mask)
         sharp = laplacian_variance(feats.work_gray, feats.work_mask)
         blurred = self._sharp_ref.is_blurred(sharp)
@@ -307,7 +307,7 @@ class KeyframeGate:
     def _predict(self, key: _Held, item: _Held) -> WallMotion | None:
         if self.predictor is None:
             return None
-        a, b = key.masked.tagged, item.masked.tagged
+        a, b = key.masked, item.masked
         if a.pose_stale or b.pose_stale:
             return None
         w, h = item.features.full_size
@@ -336,31 +336,29 @@ class KeyframeGate:
 
     def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool, reason: str) -> None:
         est = overlap
-        kf = Keyframe(
-            masked=item.masked,
-            overlap_to_previous=None if est is None else est.R,
-            inliers=0 if est is None else est.inliers,
-            gap_before=gap,
-            extra={
-                "reason": reason,
-                "segment": self._segment,
-                "previous_index": None if self._key is None else self._key.index,
-                "frames_since_previous": 0 if self._key is None else item.index - self._key.index,
-                "matches": 0 if est is None else est.matches,
-                "dx_px": None if est is None else est.dx,
-                "dy_px": None if est is None else est.dy,
-                "R_displacement": None if est is None else est.R_displacement,
-                "R_polygon": None if est is None else est.R_polygon,
-                "sharpness": item.sharpness,
-                "low_overlap": est is not None and est.known and est.percent < self.rth_percent,
-                # where R came from: "image", or the telemetry prediction ("telemetry": the image held too little
-                # wall to measure; "telemetry_veto": the poses overruled an image R >= Rth)
-                "overlap_source": None if est is None else est.source,
-                "R_image": None if est is None else (est.R_image if est.source != "image" else est.R),
-                "R_telemetry": None if est is None else est.R_telemetry,
-                "prediction_miss_px": None if est is None else est.prediction_miss_px,
-                "background_matches_rejected": 0 if est is None else est.rejected_matches,
-            },
+        kf = Keyframe.of(
+            item.masked,
+            GateDecision(
+                overlap_to_previous=None if est is None else est.R,
+                inliers=0 if est is None else est.inliers,
+                gap_before=gap,
+                reason=reason,
+                segment=self._segment,
+                previous_index=None if self._key is None else self._key.index,
+                frames_since_previous=0 if self._key is None else item.index - self._key.index,
+                matches=0 if est is None else est.matches,
+                dx_px=None if est is None else est.dx,
+                dy_px=None if est is None else est.dy,
+                R_displacement=None if est is None else est.R_displacement,
+                R_polygon=None if est is None else est.R_polygon,
+                sharpness=item.sharpness,
+                low_overlap=est is not None and est.known and est.percent < self.rth_percent,
+                overlap_source=None if est is None else est.source,
+                R_image=None if est is None else (est.R_image if est.source != "image" else est.R),
+                R_telemetry=None if est is None else est.R_telemetry,
+                prediction_miss_px=None if est is None else est.prediction_miss_px,
+                background_matches_rejected=0 if est is None else est.rejected_matches,
+            ),
         )
         self._key = item
         self._prev_R = 100.0

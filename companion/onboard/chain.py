@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -25,10 +25,21 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class ChainStats:
-    frames_in: int = 0
+class CaptureCounters:
+    """Counted by the capture thread alone (``LiveRunner``, or the offline cull's single thread): the chain's worker
+    never writes them, so no counter is incremented from two threads."""
+
     skipped_backlog: int = 0  # dropped before processing because the CPU could not keep up
     corrupt: int = 0
+
+
+@dataclass
+class ChainStats:
+    """Written only by the thread that runs :meth:`CullChain.process`; the capture thread's counters are in
+    ``capture`` and merged when read (``frames_in`` = processed + dropped from the backlog)."""
+
+    frames_processed: int = 0
+    capture: CaptureCounters = field(default_factory=CaptureCounters)
     stale_pose: int = 0
     before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
     dropped_no_roi: int = 0
@@ -46,10 +57,24 @@ class ChainStats:
     last_frame_wall_s: float | None = None
     warnings: list[str] = field(default_factory=list)
 
+    @property
+    def skipped_backlog(self) -> int:
+        return self.capture.skipped_backlog
+
+    @property
+    def corrupt(self) -> int:
+        return self.capture.corrupt
+
+    @property
+    def frames_in(self) -> int:
+        """Frames received: processed by the chain plus dropped from the backlog before it."""
+        return self.frames_processed + self.capture.skipped_backlog
+
     def as_dict(self) -> dict:
-        d = {k: v for k, v in self.__dict__.items() if k != "warnings"}
+        d = {"frames_in": self.frames_in, "skipped_backlog": self.skipped_backlog, "corrupt": self.corrupt}
+        d.update({k: v for k, v in self.__dict__.items() if k not in ("warnings", "capture")})
         span = (self.last_frame_wall_s or 0) - (self.first_frame_wall_s or 0)
-        d["processed_fps"] = round((self.frames_in - self.skipped_backlog) / span, 3) if span > 0 else None
+        d["processed_fps"] = round(self.frames_processed / span, 3) if span > 0 else None
         d["warnings"] = self.warnings[-20:]
         return d
 
@@ -100,7 +125,7 @@ class CullChain:
         st = self.stats
         st.first_frame_wall_s = st.first_frame_wall_s or now
         st.last_frame_wall_s = now
-        st.frames_in += 1
+        st.frames_processed += 1
         tagged = self.tagger.tag(frame)
         if tagged.pose is None and not self._seen_pose and self.require_telemetry:
             st.before_telemetry += 1
@@ -132,23 +157,25 @@ class CullChain:
                 self.warn(f"cannot mark the spool closed: {exc}")
         return out
 
-    def _cross_check(self, kf: Keyframe) -> None:
-        pose = kf.masked.tagged.pose
-        if kf.extra.get("overlap_source") in ("telemetry", "telemetry_veto"):
+    def _cross_check(self, kf: Keyframe) -> Keyframe:
+        """The keyframe as spooled: a new record flagged ``telemetry_overlap_suspect`` where the poses contradict
+        the image's overlap."""
+        pose = kf.pose
+        if kf.decision.overlap_source in ("telemetry", "telemetry_veto"):
             self.stats.telemetry_overlap_keyframes += 1
         if self.crosscheck is not None and not kf.gap_before:
             predicted = self.crosscheck.suspect(
                 kf.overlap_to_previous, self._last_key_pose, pose, self.gate.rth_percent
             )
             if predicted is not None:
-                kf.extra["overlap_suspect"] = True
-                kf.extra["overlap_telemetry"] = round(predicted, 2)
+                kf = replace(kf, telemetry_overlap_suspect=round(predicted, 2))
                 self.stats.telemetry_disagrees += 1
                 self.warn(
-                    f"keyframe {kf.masked.tagged.frame.index}: the images say {kf.overlap_to_previous:.1f} % overlap "
+                    f"keyframe {kf.index}: the images say {kf.overlap_to_previous:.1f} % overlap "
                     f"but the telemetry says {predicted:.1f} %: possible gap (background in the mask?)"
                 )
         self._last_key_pose = pose
+        return kf
 
     def _events(self) -> None:
         for ev in self.gate.pop_events():
@@ -165,7 +192,7 @@ class CullChain:
     def _spool(self, keyframes: list[Keyframe]) -> list[SpoolEntry]:
         out = []
         for kf in keyframes:
-            self._cross_check(kf)
+            kf = self._cross_check(kf)
             if self.spool_disabled:
                 continue
             try:

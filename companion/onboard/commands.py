@@ -68,7 +68,7 @@ def run_cull(args: argparse.Namespace) -> int:
             bar.update(1)
             bar.set_postfix(keyframes=chain.stats.keyframes)
         chain.finish()
-    chain.stats.corrupt = source.stats.corrupt
+    chain.stats.capture.corrupt = source.stats.corrupt
     stats = chain.stats.as_dict()
     (args.out / "cull_report.json").write_text(json.dumps(stats, indent=1))
     print(

@@ -208,9 +208,9 @@ def _build(
         ).start()
 
     def on_keyframe(kf, entry) -> None:
-        log.debug("keyframe %d saved (overlap to previous %s)", kf.masked.tagged.frame.index, kf.overlap_to_previous)
+        log.debug("keyframe %d saved (overlap to previous %s)", kf.index, kf.overlap_to_previous)
         if camera_component is not None:
-            camera_component.publish(kf.masked.tagged.pose, entry.image)
+            camera_component.publish(kf.pose, entry.image)
 
     chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, capture_clock=capture_clock,
                         on_keyframe=on_keyframe)

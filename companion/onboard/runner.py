@@ -52,9 +52,8 @@ class LiveRunner:
             except queue.Full:
                 try:
                     dropped = self.queue.get_nowait()
-                    if dropped is not _END:
-                        self.chain.stats.skipped_backlog += 1
-                        self.chain.stats.frames_in += 1
+                    if dropped is not _END:  # counted by this (capture) thread only
+                        self.chain.stats.capture.skipped_backlog += 1
                 except queue.Empty:
                     pass
 
@@ -80,7 +79,7 @@ class LiveRunner:
             log.error("capture stopped: %s", one_line(exc))
             self.chain.warn(f"camera {self.source.name} failed: {exc}")
         finally:
-            self.chain.stats.corrupt = self.source.stats.corrupt
+            self.chain.stats.capture.corrupt = self.source.stats.corrupt
             self.queue.put(_END)
 
     def _work_loop(self) -> None:

@@ -180,13 +180,12 @@ class KeyframeSpool:
 
     def append(self, keyframe: Keyframe) -> SpoolEntry | None:
         """Make ``keyframe`` durable; returns its entry, or None if this frame was already spooled (resume)."""
-        tagged = keyframe.masked.tagged
-        frame = tagged.frame
+        frame = keyframe.frame
         if frame.index in self._spooled:
             return None
         stem = f"kf_{frame.index:06d}"
         entry = SpoolEntry(frame.index, f"{stem}.jpg", f"{stem}_mask.png", f"{stem}.json")
-        pose = tagged.pose
+        pose = keyframe.pose
         capture_unix = self.capture_clock.unix_time(frame.capture_time_s)
         capture_utc = None if capture_unix is None else dt.datetime.fromtimestamp(capture_unix, tz=dt.UTC)
         if capture_utc is None:
@@ -201,13 +200,15 @@ class KeyframeSpool:
             "capture_time_s": frame.capture_time_s,
             "capture_utc": capture_utc.isoformat() if capture_utc is not None else None,
             "pose": pose_dict(pose),
-            "pose_stale": tagged.pose_stale,
+            "pose_stale": keyframe.pose_stale,
             "overlap_to_previous": keyframe.overlap_to_previous,
             "inliers": keyframe.inliers,
             "gap_before": keyframe.gap_before,
             "settings": self.settings,
-            **keyframe.extra,
+            **keyframe.decision.as_dict(),
         }
+        if keyframe.overlap_suspect:
+            sidecar.update(overlap_suspect=True, overlap_telemetry=keyframe.telemetry_overlap_suspect)
         line = {
             "index": frame.index,
             "image": entry.image,
@@ -217,13 +218,13 @@ class KeyframeSpool:
             "pose": pose_dict(pose),
             "overlap_to_previous": keyframe.overlap_to_previous,
             "gap_before": keyframe.gap_before,
-            "overlap_suspect": bool(keyframe.extra.get("overlap_suspect", False)),
+            "overlap_suspect": keyframe.overlap_suspect,
         }
         try:
             self._check_camera_size(frame.image.shape[1], frame.image.shape[0])
             self._write_meta(frame.image.shape[1], frame.image.shape[0])
             jpeg = encode_tagged_jpeg(frame.image, pose, capture_utc, self.camera_tags)
-            ok, mask_png = cv2.imencode(".png", keyframe.masked.mask)
+            ok, mask_png = cv2.imencode(".png", keyframe.mask)
             if not ok:
                 raise ValueError("mask PNG encoding failed")
             _write_atomic(self.dir / entry.image, jpeg)

@@ -12,7 +12,6 @@ truth log, the same error on the true position.
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import sys
 import tempfile
@@ -24,6 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from companion.files import read_jsonl  # noqa: E402
 from companion.flight import fly_mission_sync, read_telemetry_log  # noqa: E402
 from companion.mission import items as mi  # noqa: E402
 from companion.mission import load_mission, plan_scan  # noqa: E402
@@ -82,13 +82,11 @@ def measure(plan, items, rows, standoff_m: float) -> dict:
 def truth_error(plan, truth_path: Path, standoff_m: float, t_ranges) -> dict:
     """Same error on the simulator's true position (50 Hz) during the scan-leg time ranges (boot seconds)."""
     t, lat, lon, alt = [], [], [], []
-    with open(truth_path) as f:
-        for line in f:
-            p = json.loads(line)
-            t.append(p["t_s"])
-            lat.append(p["lat"])
-            lon.append(p["lon"])
-            alt.append(p["alt_amsl_m"])
+    for p in read_jsonl(truth_path, skip_bad=False):
+        t.append(p["t_s"])
+        lat.append(p["lat"])
+        lon.append(p["lon"])
+        alt.append(p["alt_amsl_m"])
     t = np.array(t)
     mask = np.zeros(t.size, bool)
     for a, b in t_ranges:

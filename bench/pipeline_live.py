@@ -20,8 +20,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from companion.files import read_jsonl  # noqa: E402
 from companion.onboard.live import run_live_scan  # noqa: E402
-from sim.evaluate_live import TruthTrack, keyframe_overlaps, read_jsonl, tagging_errors  # noqa: E402
+from companion.spool.layout import MANIFEST  # noqa: E402
+from sim.evaluate_live import TruthTrack, keyframe_overlaps, tagging_errors  # noqa: E402
 from sim.rig import SitlRig  # noqa: E402
 
 
@@ -55,7 +57,7 @@ def main() -> int:
     wall = time.monotonic() - wall0
     cpu = _cpu_s() - cpu0
     st = res.stats
-    lines = read_jsonl(out / "spool" / "manifest.jsonl")
+    lines = read_jsonl(out / "spool" / MANIFEST)
     tag = tagging_errors(lines, TruthTrack(truth_log))
     pairs = keyframe_overlaps(lines, rec, 100.0 * rig.plan.mission.overlap)
     processed = st.frames_in - st.skipped_backlog - st.before_telemetry

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.spool.layout import MANIFEST
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.features import detect
 from companion.stitch.pairs import PairSettings, match_pair
@@ -132,7 +133,7 @@ def main(argv=None) -> int:
         margin_m=0.02,
         texture=texture,
     )
-    n = len((spool / "manifest.jsonl").read_text().splitlines())
+    n = len((spool / MANIFEST).read_text().splitlines())
     print(
         f"plain wall from {Path(args.photo).name}: {wall.length_m:.2f} x {wall.height_m:.2f} m at "
         f"{args.mm_per_px} mm/px, {n} keyframes {width}x{height}, neighbours overlap {args.overlap:.0%}"

@@ -47,12 +47,13 @@ def plan_for_camera(mission_path: Path, fps: float):
 
 def run_demo(args: argparse.Namespace) -> int:
     from companion.onboard.live import run_live_scan
-    from companion.stitch.inputs import load_spool
+    from companion.spool.layout import MANIFEST
+    from companion.spool.reader import load_spool
     from companion.stitch.worker import stitch
     from sim.rig import SitlRig
 
     out: Path = args.out
-    if (out / "spool" / "manifest.jsonl").exists():
+    if (out / "spool" / MANIFEST).exists():
         raise CompanionError(
             f"{out} already holds a demo run", f"pass a new --out directory or remove {out} to start over"
         )

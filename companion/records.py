@@ -5,16 +5,31 @@ Stages exchange only these; none reaches into another stage's internals.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
+from enum import StrEnum
 
 import numpy as np
+
+from companion.attitude import gimbal_camera_angles
+
+
+class GimbalSource(StrEnum):
+    """Where a pose's gimbal angles came from."""
+
+    TELEMETRY = "telemetry"  # the gimbal's own attitude report (GIMBAL_DEVICE_ATTITUDE_STATUS)
+    PLAN = "plan"  # the mission's gimbal command, once the vehicle has passed it (no gimbal telemetry)
 
 
 @dataclass(frozen=True)
 class Pose:
-    """Vehicle/camera pose from telemetry. Angles in degrees; yaw clockwise from north."""
+    """Vehicle pose from telemetry, and the camera gimbal's angles. Angles in degrees; yaw clockwise from north.
 
-    time_s: float
+    The gimbal is stabilised (no camera roll): ``gimbal_pitch_deg`` from the horizon (down negative),
+    ``gimbal_yaw_deg`` relative to the vehicle's heading. Each is None when unknown (never a made-up 0);
+    ``gimbal_source`` says where known ones came from.
+    """
+
+    time_s: float  # autopilot time (MAVLink time_boot_ms / 1000)
     lat: float
     lon: float
     alt_amsl_m: float
@@ -23,8 +38,75 @@ class Pose:
     pitch_deg: float
     yaw_deg: float
     velocity_ned_m_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    gimbal_pitch_deg: float = 0.0
+    gimbal_pitch_deg: float | None = None
     mission_item: int = -1
+    gimbal_yaw_deg: float | None = None
+    gimbal_source: GimbalSource | None = None
+
+    def camera_angles(self) -> tuple[float, float, float]:
+        """(yaw, pitch, roll) of the camera on its stabilised gimbal (``companion.attitude.gimbal_camera_angles``:
+        an unknown gimbal angle is taken as level and forward)."""
+        return gimbal_camera_angles(self.yaw_deg, self.gimbal_pitch_deg, self.gimbal_yaw_deg)
+
+    def to_json(self) -> dict:
+        """The one JSON form of a pose: telemetry-log rows, the spool's manifest and sidecars all use it."""
+        return pose_json(**{f.name: getattr(self, f.name) for f in fields(self)})
+
+    @classmethod
+    def from_json(cls, row: dict) -> Pose | None:
+        """A Pose from :meth:`to_json`'s form (a telemetry-log row or a spooled pose; extra keys are ignored);
+        None when the row lacks a time, a position fix or an attitude."""
+        keys = ("t_boot_s", "lat", "lon", "alt_amsl_m", "roll_deg", "pitch_deg", "yaw_deg")
+        if row is None or any(row.get(k) is None for k in keys):
+            return None
+        source = row.get("gimbal_source")
+        return cls(
+            time_s=float(row["t_boot_s"]),
+            lat=float(row["lat"]),
+            lon=float(row["lon"]),
+            alt_amsl_m=float(row["alt_amsl_m"]),
+            relative_alt_m=float(row.get("rel_alt_m") or 0.0),
+            roll_deg=float(row["roll_deg"]),
+            pitch_deg=float(row["pitch_deg"]),
+            yaw_deg=float(row["yaw_deg"]) % 360.0,
+            velocity_ned_m_s=tuple(float(row.get(k) or 0.0) for k in ("vn_m_s", "ve_m_s", "vd_m_s")),
+            gimbal_pitch_deg=_optional_float(row.get("gimbal_pitch_deg")),
+            mission_item=int(row["mission_item"]) if row.get("mission_item") is not None else -1,
+            gimbal_yaw_deg=_optional_float(row.get("gimbal_yaw_deg")),
+            gimbal_source=GimbalSource(source) if source is not None else None,
+        )
+
+
+def pose_json(
+    *,
+    time_s: float | None,
+    lat: float | None,
+    lon: float | None,
+    alt_amsl_m: float | None,
+    relative_alt_m: float | None,
+    roll_deg: float | None,
+    pitch_deg: float | None,
+    yaw_deg: float | None,
+    velocity_ned_m_s: tuple[float | None, float | None, float | None] = (None, None, None),
+    gimbal_pitch_deg: float | None = None,
+    mission_item: int = -1,
+    gimbal_yaw_deg: float | None = None,
+    gimbal_source: str | None = None,
+) -> dict:
+    """Pose fields -> their JSON keys. The telemetry recorder calls it with what it has so far (None where a
+    stream has not arrived yet); :meth:`Pose.to_json` with a whole pose. The keys are the telemetry log's columns
+    (docs/FLIGHT.md), the one place they are spelled."""
+    vn, ve, vd = velocity_ned_m_s
+    return {
+        "t_boot_s": time_s, "lat": lat, "lon": lon, "alt_amsl_m": alt_amsl_m, "rel_alt_m": relative_alt_m,
+        "roll_deg": roll_deg, "pitch_deg": pitch_deg, "yaw_deg": yaw_deg, "vn_m_s": vn, "ve_m_s": ve, "vd_m_s": vd,
+        "gimbal_pitch_deg": gimbal_pitch_deg, "gimbal_yaw_deg": gimbal_yaw_deg,
+        "gimbal_source": None if gimbal_source is None else str(gimbal_source), "mission_item": mission_item,
+    }
+
+
+def _optional_float(value) -> float | None:
+    return None if value is None else float(value)
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,6 @@ overlap of consecutive keyframes from the camera recording's geometry. Used by t
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,11 +10,8 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
+from companion.files import read_jsonl
 from sim.camera.recording import load_recording
-
-
-def read_jsonl(path: Path) -> list[dict]:
-    return [json.loads(x) for x in Path(path).read_text().splitlines() if x.strip()]
 
 
 class TruthTrack:

@@ -7,7 +7,6 @@ at its ends); the heading counts over the whole leg except the first and last 2 
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -15,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pymap3d
+
+from companion.files import read_jsonl
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class LegReport:
 
 
 def read_truth_log(path: Path) -> list[dict]:
-    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+    return read_jsonl(path, skip_bad=False)
 
 
 def _wrap(deg: float) -> float:

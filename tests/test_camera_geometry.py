@@ -10,9 +10,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from companion.attitude import angles_from_rotation
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
-from sim.camera.model import CameraModel, TruePose, angles_from_rotation, project, unproject
+from sim.camera.model import CameraModel, TruePose, project, unproject
 from sim.camera.overlap import clip_to_rect, footprint_on_wall, overlap_ratio, polygon_area
 
 FRAME = FacadeFrame.from_wall(GeoPoint(37.56650, 126.97800, 30.0), GeoPoint(37.56650, 126.97830, 30.0))

@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from companion.attitude import euler_to_quat, quat_to_euler
 from companion.capture.tagging import FrameTagger
-from companion.capture.telemetry import ClockMap, TelemetryBuffer, euler_to_quat, quat_to_euler
+from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.records import Frame, Pose
 
 
@@ -15,7 +16,7 @@ def _pose(t, lat=37.0, yaw=0.0, roll=0.0, pitch=0.0, alt=40.0):
 
 def test_euler_quaternion_round_trip():
     for angles in ((10.0, -20.0, 350.0), (0.0, 0.0, 0.0), (-45.0, 30.0, 90.0)):
-        r, p, y = quat_to_euler(euler_to_quat(*angles))
+        r, p, y = quat_to_euler(euler_to_quat(roll_deg=angles[0], pitch_deg=angles[1], yaw_deg=angles[2]))
         assert (r, p, y % 360) == pytest.approx((angles[0], angles[1], angles[2] % 360), abs=1e-9)
 
 

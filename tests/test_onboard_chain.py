@@ -16,6 +16,7 @@ from companion.keyframes.synthetic import render, sweep, textured_wall, true_ove
 from companion.onboard.runner import LiveRunner
 from companion.onboard.setup import build_chain
 from companion.records import Frame, Pose
+from companion.spool.layout import CLOSED, CULL_REPORT, MANIFEST
 
 
 def _scan(n=40, step=14):
@@ -49,7 +50,7 @@ def test_chain_keyframes_meet_overlap_target(tmp_path):
     for i, img in enumerate(images):
         chain.process(Frame(i, i / 10.0, img))
     chain.finish()
-    lines = [json.loads(x) for x in (tmp_path / "manifest.jsonl").read_text().splitlines()]
+    lines = [json.loads(x) for x in (tmp_path / MANIFEST).read_text().splitlines()]
     idx = [x["index"] for x in lines]
     assert idx[0] == 0 and idx[-1] == len(images) - 1 and len(idx) >= 4
     for a, b in zip(idx, idx[1:], strict=False):
@@ -58,7 +59,7 @@ def test_chain_keyframes_meet_overlap_target(tmp_path):
             assert true_overlap(views[a], views[b + 1]) < 0.80 + 0.03
     assert all(x["pose"] is not None for x in lines)
     assert chain.stats.keyframes == len(idx) and chain.stats.stale_pose == 0
-    assert (tmp_path / "CLOSED").exists()  # a following stitcher makes its final map
+    assert (tmp_path / CLOSED).exists()  # a following stitcher makes its final map
 
 
 def test_live_runner_skips_backlog_but_never_a_keyframe(tmp_path):
@@ -76,7 +77,7 @@ def test_live_runner_skips_backlog_but_never_a_keyframe(tmp_path):
     assert runner.error is None
     st = chain.stats
     assert st.skipped_backlog > 0 and st.frames_in == len(images)
-    idx = [json.loads(x)["index"] for x in (tmp_path / "manifest.jsonl").read_text().splitlines()]
+    idx = [json.loads(x)["index"] for x in (tmp_path / MANIFEST).read_text().splitlines()]
     assert idx == sorted(set(idx)) and idx[-1] <= len(images) - 1 and len(idx) == st.keyframes
 
 
@@ -117,12 +118,12 @@ def test_cull_cli_on_image_folder(tmp_path):
         "50",
     ]
     assert main(args) == 0
-    report = json.loads((out / "cull_report.json").read_text())
+    report = json.loads((out / CULL_REPORT).read_text())
     assert report["corrupt"] == 1 and report["keyframes"] >= 3 and report["stale_pose"] == 0
     side = json.loads(next(out.glob("kf_*.json")).read_text())
     assert side["pose"]["mission_item"] == 3 and side["settings"]["rth"] == 0.8
     # Resuming on the same directory adds no duplicates.
     assert main(args) == 0
-    idx = [json.loads(x)["index"] for x in (out / "manifest.jsonl").read_text().splitlines()]
+    idx = [json.loads(x)["index"] for x in (out / MANIFEST).read_text().splitlines()]
     assert len(idx) == len(set(idx)) == report["keyframes"]
     assert np.all(np.diff(idx) > 0)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from companion.spool.layout import MANIFEST
 from sim.rig import ROOT, SitlRig
 
 pytestmark = pytest.mark.sitl
@@ -36,7 +37,7 @@ def test_kill_9_mid_flight_then_restart_loses_nothing(tmp_path):
         with open(tmp_path / "run1.log", "w") as log:
             first = _companion(mission, rig, out, log)
             deadline = time.monotonic() + 120
-            manifest = out / "manifest.jsonl"
+            manifest = out / MANIFEST
             while time.monotonic() < deadline:  # kill once a few keyframes are reported
                 if manifest.exists() and len(manifest.read_text().splitlines()) >= 4:
                     break

@@ -25,6 +25,7 @@ from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.mission import load_mission, plan_scan
 from companion.onboard.live import NoKeyframesError, TelemetryLogTailer, run_live_scan
 from companion.records import Pose
+from companion.spool.layout import CULL_REPORT, MANIFEST
 
 SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
@@ -87,9 +88,9 @@ def test_image_folder_capture_is_paced_on_the_autopilot_clock(tmp_path, plan, mo
     # The fake telemetry moves ~1 cm per frame while the images sweep 14 px: the gate (which trusts the wall motion
     # predicted from telemetry) keeps few keyframes; what matters here is that every frame was placed and tagged.
     assert st.frames_in == 30 and st.keyframes >= 2, st.as_dict()
-    keyframes = [json.loads(x) for x in (tmp_path / "spool" / "manifest.jsonl").read_text().splitlines()]
+    keyframes = [json.loads(x) for x in (tmp_path / "spool" / MANIFEST).read_text().splitlines()]
     for kf in keyframes:  # tagged at their own time: the pose interpolated from the rows around it
-        assert kf["pose"]["time_s"] == pytest.approx(kf["capture_time_s"])
+        assert Pose.from_json(kf["pose"]).time_s == pytest.approx(kf["capture_time_s"])
         assert kf["pose"]["lon"] == pytest.approx(126.978 + kf["capture_time_s"] * 1e-6, abs=1e-9)
 
 
@@ -135,7 +136,7 @@ def test_recording_older_than_the_flight_is_an_error_not_zero_keyframes(tmp_path
     assert "kept no keyframe" in text and "older than the flight's first telemetry sample" in text, text
     assert "t = 0.00 .. 0.97 s" in text and "t = 20.00 s" in text and "fix:" in text
     assert err.value.result.flight.completed
-    report = json.loads((tmp_path / "spool" / "cull_report.json").read_text())
+    report = json.loads((tmp_path / "spool" / CULL_REPORT).read_text())
     assert any("older than the flight's first telemetry sample" in w and "; fix:" in w for w in report["warnings"])
     assert all("\n" not in w for w in report["warnings"])  # warnings stay one log line each
     assert len((tmp_path / "spool" / "telemetry.jsonl").read_text().splitlines()) == 21  # nothing lost
@@ -182,7 +183,7 @@ def test_cull_that_places_no_frame_is_an_error_with_the_offset_to_use(tmp_path, 
     err = capsys.readouterr().err
     assert "kept no keyframe" in err and "all 25 frames are older than the first telemetry sample" in err, err
     assert "t = 0.00 .. 2.40 s" in err and "t = 50.00 .. 52.90 s" in err and "--time-offset 50.00" in err
-    assert (tmp_path / "spool" / "cull_report.json").exists()
+    assert (tmp_path / "spool" / CULL_REPORT).exists()
     assert main([*args, "--time-offset", "50"]) == 0  # the suggested fix works
 
 

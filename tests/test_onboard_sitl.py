@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from companion.onboard.live import run_live_scan
+from companion.spool.layout import MANIFEST, META
 from sim.evaluate_live import TruthTrack, keyframe_overlaps, tagging_errors
 from sim.rig import SitlRig
 
@@ -34,7 +35,7 @@ def test_live_culling_in_sitl_meets_overlap_and_tagging_accuracy(tmp_path):
                             end_action="land", flight_timeout_s=600)  # fmt: skip
     assert res.flight.completed and res.flight.landed and res.flight.disarmed
     assert res.capture_error is None
-    lines = [json.loads(x) for x in (spool / "manifest.jsonl").read_text().splitlines()]
+    lines = [json.loads(x) for x in (spool / MANIFEST).read_text().splitlines()]
     assert len(lines) >= 5, res.stats.as_dict()
 
     # Tagging accuracy against the vehicle's true pose at each keyframe's capture time.
@@ -55,7 +56,7 @@ def test_live_culling_in_sitl_meets_overlap_and_tagging_accuracy(tmp_path):
     from test_outputs_exif import exiftool
 
     flown = [json.loads(x)["t_wall"] for x in res.telemetry_log.read_text().splitlines()]
-    focal_px = json.loads((spool / "spool.json").read_text())["camera"]["K"][0][0]
+    focal_px = json.loads((spool / META).read_text())["camera"]["K"][0][0]
     for kf in lines:
         t = exiftool(str(spool / kf["image"]))
         when = datetime.datetime.strptime(t["Composite:SubSecDateTimeOriginal"], "%Y:%m:%d %H:%M:%S.%f%z")

@@ -27,6 +27,7 @@ from companion.records import Frame, Keyframe, Pose
 from companion.spool import KeyframeSpool
 from companion.spool.camera import CameraTags, Intrinsics, camera_tags_for_mission, load_calibration
 from companion.spool.clock import TelemetryWallClock
+from companion.spool.layout import MANIFEST, META
 
 W, H, HFOV = 1920, 1080, 69.0
 TRUE_FOCAL_PX = (W / 2) / math.tan(math.radians(HFOV / 2))
@@ -152,7 +153,7 @@ def test_pycolmap_takes_a_calibrated_focal(tmp_path):
     tags = CameraTags("companion", "sim-pinhole", load_calibration(calib), 13.2)
     path = _spool_one(tmp_path / "spool", tags)
     assert pycolmap.infer_camera_from_image(path).focal_length == pytest.approx(2811.0 / 2, rel=1e-4)
-    cam = json.loads((tmp_path / "spool" / "spool.json").read_text())["camera"]
+    cam = json.loads((tmp_path / "spool" / META).read_text())["camera"]
     assert cam["K"][0][0] == pytest.approx(2811.0 / 2) and cam["K"][1][2] == pytest.approx(1077.5 / 2)
     assert cam["distortion_opencv"] == [-0.11, 0.09, 0.0004, -0.0002, -0.03]
     assert cam["intrinsics_source"] == str(calib) and cam["sensor_width_mm"] == 13.2
@@ -235,7 +236,7 @@ def test_cull_dates_images_from_the_telemetry_wall_clock(tmp_path):
     args = ["cull", str(frames), "--telemetry", str(log), "--out", str(out), "--no-mask", "--fps", "10",
             "--time-offset", "50"]
     assert main(args) == 0
-    for line in (out / "manifest.jsonl").read_text().splitlines():
+    for line in (out / MANIFEST).read_text().splitlines():
         rec = json.loads(line)
         t = exiftool(str(out / rec["image"]))
         expected = dt.datetime.fromtimestamp(boot_to_unix + 0.03 + 50.0 + rec["index"] / 10.0, tz=dt.UTC)
@@ -351,7 +352,7 @@ def test_a_cropped_stream_is_spooled_without_a_wrong_focal(tmp_path, caplog):
     exif = piexif.load((tmp_path / entry.image).read_bytes())["Exif"]
     assert piexif.ExifIFD.FocalLength not in exif and exif[piexif.ExifIFD.PixelXDimension] == 1440
     assert "another aspect ratio" in caplog.text and "without a focal length" in caplog.text
-    assert "K" not in json.loads((tmp_path / "spool.json").read_text())["camera"]
+    assert "K" not in json.loads((tmp_path / META).read_text())["camera"]
 
 
 def test_a_camera_without_make_and_model_still_gets_both():

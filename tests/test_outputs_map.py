@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
+from companion.spool.layout import META
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.output import WallAnchor, write_georeferencing
 from companion.stitch.synthetic import SyntheticWall, make_spool
@@ -100,7 +101,7 @@ def test_sidecar_anchors_the_wall_and_the_keyframes(spool, mapped):
     res, inp, files = mapped
     doc = json.loads(Path(files["georef"]).read_text())
     wall = doc["wall"]
-    meta = json.loads((d / "spool.json").read_text())["facade"]
+    meta = json.loads((d / META).read_text())["facade"]
     assert wall["start"] == {"lat": pytest.approx(meta["start"]["lat"]), "lon": pytest.approx(meta["start"]["lon"])}
     assert wall["end"]["lat"] == pytest.approx(meta["end"]["lat"], abs=1e-9)
     assert wall["end"]["lon"] == pytest.approx(meta["end"]["lon"], abs=1e-9)

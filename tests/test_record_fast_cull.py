@@ -9,6 +9,7 @@ from pathlib import Path
 
 from companion.cli import main
 from companion.flight.telemetry_log import TelemetryRecorder
+from companion.spool.layout import CULL_REPORT, MANIFEST
 
 SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
@@ -35,8 +36,8 @@ def test_cull_runs_on_a_fast_recording_and_tags_true_poses(tmp_path):
     # The recording as it is: its frame folder and its telemetry log, no offsets or glue.
     assert main(["cull", str(rec / "frames"), "--telemetry", str(rec / "telemetry.jsonl"), "--out", str(spool),
                  "--mission", str(SMALL_WALL), "--no-mask"]) == 0
-    keyframes = [json.loads(x) for x in (spool / "manifest.jsonl").read_text().splitlines()]
-    report = json.loads((spool / "cull_report.json").read_text())
+    keyframes = [json.loads(x) for x in (spool / MANIFEST).read_text().splitlines()]
+    report = json.loads((spool / CULL_REPORT).read_text())
     assert len(keyframes) >= 4 and report["frames_in"] == 30 and report["stale_pose"] == 0, report
     m_per_deg_lat = 111_000.0
     m_per_deg_lon = m_per_deg_lat * math.cos(math.radians(37.5665))

@@ -16,10 +16,12 @@ import numpy as np
 import piexif
 import pytest
 
+from companion.files import TEMP_GLOB
 from companion.records import Frame, GateDecision, Keyframe, Pose
 from companion.spool import KeyframeSpool, SpoolFullError
 from companion.spool import writer as spool_writer
 from companion.spool.exif import read_xmp
+from companion.spool.layout import CLOSED, MANIFEST, META
 
 
 def _keyframe(index: int, lat=37.5665123, lon=126.9781234) -> Keyframe:
@@ -49,9 +51,9 @@ def _dms_to_deg(dms) -> float:
 
 def test_keyframe_files_and_tags(tmp_path):
     spool = KeyframeSpool(tmp_path, meta={"camera": {"width_px": 3840, "height_px": 2160, "hfov_deg": 69.0}})
-    assert not (tmp_path / "spool.json").exists()  # written with the first keyframe, at its real size
+    assert not (tmp_path / META).exists()  # written with the first keyframe, at its real size
     entry = spool.append(_keyframe(7))
-    assert json.loads((tmp_path / "spool.json").read_text())["camera"] == {
+    assert json.loads((tmp_path / META).read_text())["camera"] == {
         "width_px": 160,
         "height_px": 120,
         "hfov_deg": 69.0,
@@ -70,7 +72,7 @@ def test_keyframe_files_and_tags(tmp_path):
     side = json.loads((tmp_path / entry.sidecar).read_text())
     assert side["overlap_to_previous"] == 81.5 and side["inliers"] == 150 and side["pose"]["mission_item"] == 5
     # The stitching worker reads exactly this spool.
-    from companion.stitch.inputs import load_spool
+    from companion.spool.reader import load_spool
 
     inp = load_spool(tmp_path)
     assert [k.index for k in inp.keyframes] == [7] and inp.keyframes[0].pose is not None
@@ -80,17 +82,17 @@ def test_resume_skips_duplicates_and_cuts_torn_line(tmp_path):
     spool = KeyframeSpool(tmp_path)
     for i in (1, 5, 9):
         spool.append(_keyframe(i))
-    with open(tmp_path / "manifest.jsonl", "ab") as fh:
+    with open(tmp_path / MANIFEST, "ab") as fh:
         fh.write(b'{"index": 13, "image": "kf_0000')  # crash mid-append
     again = KeyframeSpool(tmp_path)
     assert [e.index for e in again.entries] == [1, 5, 9]
     assert again.append(_keyframe(5)) is None
     again.append(_keyframe(13))
     again.close()
-    assert (tmp_path / "CLOSED").exists()
+    assert (tmp_path / CLOSED).exists()
     KeyframeSpool(tmp_path)  # reopening for a resumed flight: not closed any more
-    assert not (tmp_path / "CLOSED").exists()
-    lines = (tmp_path / "manifest.jsonl").read_text().splitlines()
+    assert not (tmp_path / CLOSED).exists()
+    lines = (tmp_path / MANIFEST).read_text().splitlines()
     assert [json.loads(x)["index"] for x in lines] == [1, 5, 9, 13]
 
 
@@ -98,14 +100,14 @@ def test_disk_full_is_a_clear_error_and_loses_nothing(tmp_path, monkeypatch):
     spool = KeyframeSpool(tmp_path)
     spool.append(_keyframe(1))
 
-    def full(path, data):
+    def full(path, data, **kw):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(spool_writer, "_write_atomic", full)
+    monkeypatch.setattr(spool_writer, "write_atomic", full)
     with pytest.raises(SpoolFullError, match="disk full") as exc:
         spool.append(_keyframe(2))
     assert "free space" in exc.value.fix
-    assert [json.loads(x)["index"] for x in (tmp_path / "manifest.jsonl").read_text().splitlines()] == [1]
+    assert [json.loads(x)["index"] for x in (tmp_path / MANIFEST).read_text().splitlines()] == [1]
 
 
 CRASH_WRITER = textwrap.dedent(
@@ -140,4 +142,4 @@ def test_kill_9_mid_write_loses_no_reported_keyframe(tmp_path):
     for e in spool.entries:  # every manifest entry has complete files
         assert (tmp_path / e.image).stat().st_size > 0 and (tmp_path / e.mask).exists()
         json.loads((tmp_path / e.sidecar).read_text())
-    assert not list(tmp_path.glob(".*.tmp"))
+    assert not list(tmp_path.glob(TEMP_GLOB))

@@ -16,6 +16,7 @@ import pytest
 
 from companion.cli import main
 from companion.errors import CompanionError
+from companion.spool.layout import MANIFEST
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.features import read_image
 from companion.stitch.synthetic import SyntheticWall, make_spool
@@ -28,7 +29,7 @@ TRUNCATED, GARBAGE, MISSING, BAD_MASK = 5, 11, 17, 23
 def damaged(tmp_path_factory):
     d = tmp_path_factory.mktemp("spool")
     make_spool(d, WALL, width=320, height=180, overlap=0.8)
-    lines = (d / "manifest.jsonl").read_text().splitlines()
+    lines = (d / MANIFEST).read_text().splitlines()
     assert len(lines) >= 30
     jpg = (d / "frames" / f"{TRUNCATED:06d}.jpg").read_bytes()
     (d / "frames" / f"{TRUNCATED:06d}.jpg").write_bytes(jpg[: len(jpg) // 2])  # a torn write
@@ -37,7 +38,7 @@ def damaged(tmp_path_factory):
     cv2.imwrite(str(d / "frames" / f"{BAD_MASK:06d}_mask.png"), np.full((90, 160), 255, np.uint8))
     # a bad sector in the middle of the manifest: one line unreadable (the keyframe after BAD_MASK)
     lines[BAD_MASK + 1] = lines[BAD_MASK + 1][:20] + "\x00\x00" + lines[BAD_MASK + 1][22:]
-    (d / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    (d / MANIFEST).write_text("\n".join(lines) + "\n")
     return d, len(lines)
 
 
@@ -107,8 +108,8 @@ def test_no_usable_keyframe_left_is_an_error_that_names_them(damaged, tmp_path):
     d, _ = damaged
     only_bad = tmp_path / "bad"
     shutil.copytree(d, only_bad)
-    lines = (only_bad / "manifest.jsonl").read_text().splitlines()
-    (only_bad / "manifest.jsonl").write_text("\n".join(lines[k] for k in (TRUNCATED, GARBAGE, BAD_MASK)) + "\n")
+    lines = (only_bad / MANIFEST).read_text().splitlines()
+    (only_bad / MANIFEST).write_text("\n".join(lines[k] for k in (TRUNCATED, GARBAGE, BAD_MASK)) + "\n")
     with pytest.raises(CompanionError, match="no usable keyframe is left") as err:
         stitch(load_input(only_bad), tmp_path / "out", StitchConfig(cells=(4, 3)), progress=False)
     assert f"keyframe {TRUNCATED} skipped" in err.value.problem
@@ -120,8 +121,8 @@ def test_one_good_keyframe_left_still_gives_its_map(damaged, tmp_path):
     d, _ = damaged
     spool = tmp_path / "one"
     shutil.copytree(d, spool)
-    lines = (spool / "manifest.jsonl").read_text().splitlines()
-    (spool / "manifest.jsonl").write_text("\n".join(lines[k] for k in (0, GARBAGE)) + "\n")
+    lines = (spool / MANIFEST).read_text().splitlines()
+    (spool / MANIFEST).write_text("\n".join(lines[k] for k in (0, GARBAGE)) + "\n")
     res = stitch(load_input(spool), tmp_path / "out", StitchConfig(cells=(4, 3)), progress=False)
     assert res.report["keyframes_used"] == [0]
     assert 0.0 < res.coverage_fraction < 0.5

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
+from companion.spool.reader import CameraModel, CameraPose, FacadeGeometry, camera_attitude
 from companion.stitch.geometry import apply_h, is_sane_homography, prior_plane_from_image
-from companion.stitch.inputs import CameraModel, CameraPose, FacadeGeometry, camera_attitude, rotation_enu_from_cam
 from companion.stitch.mesh import mesh_for_keyframe, weighted_dlt
 
 H_TRUE = np.array([[1.1, 0.05, 3.0], [-0.02, 0.95, -2.0], [1e-4, -2e-4, 1.0]])
@@ -75,7 +76,7 @@ def test_homography_sanity(H, ok):
 
 
 def test_camera_axes_level_and_facing_north():
-    R = rotation_enu_from_cam(0.0, 0.0, 0.0)
+    R = camera_rotation_enu(yaw_deg=0.0, pitch_deg=0.0, roll_deg=0.0)
     assert np.allclose(R[:, 2], [0, 1, 0])  # forward = north
     assert np.allclose(R[:, 0], [1, 0, 0])  # right = east
     assert np.allclose(R[:, 1], [0, 0, -1])  # image down = down
@@ -96,7 +97,7 @@ def test_prior_puts_the_image_centre_in_front_of_the_camera():
     frame = FacadeFrame.from_wall(start, GeoPoint(37.5665, 126.9783, 30.0))
     facade = FacadeGeometry(frame, 12.0)
     lat, lon, alt = frame.facade_to_geodetic(10.0, 4.0, 6.0)
-    R = rotation_enu_from_cam(0, 0, frame.yaw_facing_wall_deg)
+    R = camera_rotation_enu(yaw_deg=frame.yaw_facing_wall_deg, pitch_deg=0.0)
     P = prior_plane_from_image(CameraPose(float(lat), float(lon), float(alt), R), facade)
     assert np.allclose(apply_h(P, np.array([[0.0, 0.0]])), [[10.0, 6.0]], atol=1e-4)
     # one normalised unit to the right is standoff metres along the wall; image down is wall down

@@ -11,6 +11,7 @@ import pytest
 
 from companion.cli import main
 from companion.errors import CompanionError
+from companion.spool.layout import CLOSED, MANIFEST
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.evaluate import map_accuracy, truth_on_grid
 from companion.stitch.features import Features
@@ -138,12 +139,12 @@ def test_affine_fallback_when_a_homography_cannot_be_trusted():
 
 
 def _write(spool_dir, lines):
-    (spool_dir / "manifest.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
+    (spool_dir / MANIFEST).write_text("".join(json.dumps(x) + "\n" for x in lines))
 
 
 def test_bad_inputs_give_clear_errors(spool, tmp_path):
     d, _ = spool
-    lines = [json.loads(x) for x in (d / "manifest.jsonl").read_text().splitlines()]
+    lines = [json.loads(x) for x in (d / MANIFEST).read_text().splitlines()]
     bad = tmp_path / "bad"
     shutil.copytree(d, bad)
     _write(bad, lines[:1])
@@ -164,8 +165,8 @@ def test_torn_last_manifest_line_is_ignored(spool, tmp_path):
     d, _ = spool
     torn = tmp_path / "torn"
     shutil.copytree(d, torn)
-    text = (torn / "manifest.jsonl").read_text()
-    (torn / "manifest.jsonl").write_text(text + '{"index": 99, "ima')
+    text = (torn / MANIFEST).read_text()
+    (torn / MANIFEST).write_text(text + '{"index": 99, "ima')
     assert len(load_input(torn).keyframes) == len(text.splitlines())
 
 
@@ -181,13 +182,13 @@ def test_follow_mode_updates_as_keyframes_arrive(spool, tmp_path):
     d, _ = spool
     live = tmp_path / "live"
     shutil.copytree(d, live)
-    lines = (d / "manifest.jsonl").read_text().splitlines(keepends=True)
-    (live / "manifest.jsonl").write_text("".join(lines[:4]))
+    lines = (d / MANIFEST).read_text().splitlines(keepends=True)
+    (live / MANIFEST).write_text("".join(lines[:4]))
     updates = []
 
     def fake_sleep(_):
-        (live / "manifest.jsonl").write_text("".join(lines))
-        (live / "CLOSED").touch()
+        (live / MANIFEST).write_text("".join(lines))
+        (live / CLOSED).touch()
 
     last = follow(live, tmp_path / "out", poll_s=0, sleep=fake_sleep, on_update=updates.append)
     assert [len(u.report["keyframes_used"]) for u in updates] == [4, len(lines)]

@@ -9,47 +9,12 @@ capture time lies beyond the newest sample by more than a short extrapolation wi
 from __future__ import annotations
 
 import bisect
-import math
 import threading
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-import numpy as np
-
+from companion.attitude import euler_to_quat, quat_to_euler, slerp
 from companion.records import Pose
-
-
-def euler_to_quat(roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
-    """Aerospace ZYX Euler angles -> unit quaternion (w, x, y, z), body to NED."""
-    r, p, y = (math.radians(v) / 2.0 for v in (roll_deg, pitch_deg, yaw_deg))
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return np.array(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
-    )
-
-
-def quat_to_euler(q: np.ndarray) -> tuple[float, float, float]:
-    w, x, y, z = q
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return math.degrees(roll), math.degrees(pitch), math.degrees(yaw) % 360.0
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
-    dot = float(np.dot(q0, q1))
-    if dot < 0.0:  # take the short way round
-        q1, dot = -q1, -dot
-    if dot > 0.9995:
-        q = q0 + t * (q1 - q0)
-        return q / np.linalg.norm(q)
-    theta = math.acos(dot)
-    return (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
 
 
 @dataclass(frozen=True)
@@ -144,15 +109,17 @@ class TelemetryBuffer:
 
 
 def _with_time(p: Pose, t: float) -> Pose:
-    return Pose(**{**p.__dict__, "time_s": t})
+    return replace(p, time_s=t)
 
 
 def interpolate(a: Pose, b: Pose, s: float, t: float) -> Pose:
     def lerp(x: float, y: float) -> float:
         return x + s * (y - x)
 
-    q = slerp(euler_to_quat(a.roll_deg, a.pitch_deg, a.yaw_deg), euler_to_quat(b.roll_deg, b.pitch_deg, b.yaw_deg), s)
+    q = slerp(euler_to_quat(yaw_deg=a.yaw_deg, pitch_deg=a.pitch_deg, roll_deg=a.roll_deg),
+              euler_to_quat(yaw_deg=b.yaw_deg, pitch_deg=b.pitch_deg, roll_deg=b.roll_deg), s)
     roll, pitch, yaw = quat_to_euler(q)
+    nearer = b if s >= 0.5 else a
     return Pose(
         time_s=t,
         lat=lerp(a.lat, b.lat),
@@ -163,30 +130,24 @@ def interpolate(a: Pose, b: Pose, s: float, t: float) -> Pose:
         pitch_deg=pitch,
         yaw_deg=yaw,
         velocity_ned_m_s=tuple(lerp(x, y) for x, y in zip(a.velocity_ned_m_s, b.velocity_ned_m_s, strict=True)),
-        gimbal_pitch_deg=lerp(a.gimbal_pitch_deg, b.gimbal_pitch_deg),
-        mission_item=b.mission_item if s >= 0.5 else a.mission_item,
+        gimbal_pitch_deg=_lerp_known(a.gimbal_pitch_deg, b.gimbal_pitch_deg, s),
+        mission_item=nearer.mission_item,
+        gimbal_yaw_deg=_lerp_known(a.gimbal_yaw_deg, b.gimbal_yaw_deg, s),
+        gimbal_source=nearer.gimbal_source,
     )
+
+
+def _lerp_known(x: float | None, y: float | None, s: float) -> float | None:
+    """Linear between two known values; where one is unknown (the gimbal was commanded between the samples) the
+    nearer sample's value, unknown included."""
+    if x is not None and y is not None:
+        return x + s * (y - x)
+    return y if s >= 0.5 else x
 
 
 def pose_from_log_row(row: dict) -> Pose | None:
     """A Pose from one telemetry-log line (``companion fly --telemetry-log``); None if it lacks a fix or a time."""
-    t = row.get("t_boot_s")
-    keys = ("lat", "lon", "alt_amsl_m", "roll_deg", "pitch_deg", "yaw_deg")
-    if t is None or any(row.get(k) is None for k in keys):
-        return None
-    return Pose(
-        time_s=float(t),
-        lat=float(row["lat"]),
-        lon=float(row["lon"]),
-        alt_amsl_m=float(row["alt_amsl_m"]),
-        relative_alt_m=float(row.get("rel_alt_m") or 0.0),
-        roll_deg=float(row["roll_deg"]),
-        pitch_deg=float(row["pitch_deg"]),
-        yaw_deg=float(row["yaw_deg"]) % 360.0,
-        velocity_ned_m_s=tuple(float(row.get(k) or 0.0) for k in ("vn_m_s", "ve_m_s", "vd_m_s")),
-        gimbal_pitch_deg=float(row.get("gimbal_pitch_deg") or 0.0),
-        mission_item=int(row.get("mission_item", -1) if row.get("mission_item") is not None else -1),
-    )
+    return Pose.from_json(row)
 
 
 def buffer_from_log(rows: list[dict], max_gap_s: float = 0.5) -> TelemetryBuffer:

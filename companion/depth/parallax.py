@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from companion.attitude import camera_rotation_enu
 from companion.errors import CompanionError
 
 
@@ -141,15 +142,6 @@ def pick_reference(positions: list[np.ndarray], current: np.ndarray,
     return None
 
 
-def camera_axes_enu(yaw_deg: float, pitch_deg: float) -> np.ndarray:
-    """R_world_from_cam (ENU) of a level camera (gimbal: no roll) heading ``yaw_deg`` clockwise from north,
-    pitched ``pitch_deg`` up; columns are the camera's x (right), y (down), z (forward) axes."""
-    psi, th = np.radians(yaw_deg), np.radians(pitch_deg)
-    fwd = np.array([np.sin(psi) * np.cos(th), np.cos(psi) * np.cos(th), np.sin(th)])
-    right = np.array([np.cos(psi), -np.sin(psi), 0.0])
-    return np.column_stack([right, np.cross(fwd, right), fwd])
-
-
 class SequenceParallax:
     """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
 
@@ -180,7 +172,8 @@ class SequenceParallax:
         k = pick_reference([h[1] for h in self._history], pos, self.params)
         result = None
         if k is not None and self._history[k][0].shape == image.shape:
-            R = camera_axes_enu(pose.yaw_deg, pose.gimbal_pitch_deg)  # the gimbal holds the camera level
+            yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level
+            R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
             t = camera_translation(R, self._history[k][1], R, pos)
             if np.hypot(t[0], t[1]) > 1e-6:
                 fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)

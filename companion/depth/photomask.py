@@ -12,7 +12,6 @@ its mask, then the unreadable ones are reported together.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.files import write_atomic
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 
@@ -60,9 +60,7 @@ def _write_png(path: Path, mask: np.ndarray) -> None:
     ok, buf = cv2.imencode(".png", mask)
     if not ok:  # pragma: no cover - PNG encoding of a uint8 image does not fail
         raise CompanionError(f"could not encode {path}", "report this as a bug")
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(buf.tobytes())
-    os.replace(tmp, path)
+    write_atomic(path, buf.tobytes())
 
 
 def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,

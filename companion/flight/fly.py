@@ -37,7 +37,7 @@ from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, rea
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
 from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item
-from companion.flight.telemetry_log import TelemetryRecorder
+from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
 from companion.mission.firmware import flight_parameters as firmware_flight_parameters
@@ -400,7 +400,8 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
         await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
         first_seq = await start_from_first_item(vehicle)
         async with FlightParameters(vehicle.param, wanted) as params, \
-                TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None) as rec:
+                TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None,
+                                  planned_gimbal=PlannedGimbal.from_items(items)) as rec:
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,
                               end_action=end_action, progress=progress, link_dead_s=link_dead_s,
                               stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz)

@@ -1,5 +1,12 @@
 """Telemetry recorder: keeps the latest value of each telemetry stream and writes one JSON line per position
-sample, flushed as written, so a crash or a cut link loses nothing already received."""
+sample, flushed as written, so a crash or a cut link loses nothing already received.
+
+Each row is a pose in its one JSON form (``companion.records.pose_json``) plus the flight state. The camera
+gimbal's angles come from the gimbal's own attitude report (GIMBAL_DEVICE_ATTITUDE_STATUS) when the vehicle sends
+one; PX4 and ArduPilot SITL without a configured gimbal send none (notes/real-firmware.md), and mavsdk's gimbal
+plugin reports nothing without it either. Then they come from the plan's gimbal command once the vehicle has
+passed that item, and before that they are unknown (null). ``gimbal_source`` says which.
+"""
 
 from __future__ import annotations
 
@@ -10,10 +17,61 @@ import logging
 import math
 import time
 from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
+from companion.attitude import quat_to_euler
+from companion.files import read_jsonl
+from companion.mission import items as mi
+from companion.records import GimbalSource, pose_json
+
 log = logging.getLogger(__name__)
+
+_GIMBAL_YAW_LOCK = 16  # GIMBAL_DEVICE_FLAGS: yaw held in the earth frame (older senders)
+_GIMBAL_YAW_IN_VEHICLE_FRAME = 32
+_GIMBAL_YAW_IN_EARTH_FRAME = 64
+_GIMBAL_REPORT_FRESH_S = 2.0  # a gimbal report older than this (monotonic seconds) is not the gimbal's angle now
+
+
+@dataclass(frozen=True)
+class PlannedGimbal:
+    """The plan's gimbal command: angles the gimbal holds once the vehicle has passed mission item ``seq``."""
+
+    seq: int
+    pitch_deg: float
+    yaw_deg: float | None  # relative to the vehicle's heading
+
+    @classmethod
+    def from_items(cls, items: Sequence[mi.MissionItem]) -> PlannedGimbal | None:
+        """The first gimbal-manager or mount-control item of a mission, or None when it commands no gimbal."""
+        for it in items:
+            if it.command == mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:
+                pitch, yaw = it.param1, it.param2
+            elif it.command == mi.MAV_CMD_DO_MOUNT_CONTROL:
+                pitch, yaw = it.param1, it.param3
+            else:
+                continue
+            if math.isfinite(pitch):
+                return cls(int(it.seq), float(pitch), float(yaw) if math.isfinite(yaw) else None)
+        return None
+
+
+def gimbal_from_status(fields: dict, vehicle_yaw_deg: float | None) -> tuple[float, float | None]:
+    """(pitch from the horizon, yaw relative to the vehicle's heading) of a GIMBAL_DEVICE_ATTITUDE_STATUS message.
+
+    Its quaternion's yaw is in the earth frame when the flags say so (YAW_IN_EARTH_FRAME, or YAW_LOCK without
+    YAW_IN_VEHICLE_FRAME), else relative to the vehicle; pitch is always from the horizon (the gimbal is
+    stabilised). An earth-frame yaw without a vehicle yaw to subtract is unknown (None)."""
+    _, pitch, yaw = quat_to_euler(fields["q"])
+    flags = int(fields.get("flags") or 0)
+    earth = bool(flags & _GIMBAL_YAW_IN_EARTH_FRAME) or (
+        bool(flags & _GIMBAL_YAW_LOCK) and not flags & _GIMBAL_YAW_IN_VEHICLE_FRAME
+    )
+    if earth:
+        yaw = None if vehicle_yaw_deg is None else yaw - vehicle_yaw_deg
+    return pitch, None if yaw is None else (yaw + 180.0) % 360.0 - 180.0
 
 
 def _num(x: float) -> float | None:
@@ -42,8 +100,10 @@ class TelemetryRecorder:
 
     REBOOT_BACKSTEP_S = 1.0  # time_boot_ms going back by more than this is a new boot, not reordering
 
-    def __init__(self, vehicle, path: Path | None = None):
+    def __init__(self, vehicle, path: Path | None = None, *, planned_gimbal: PlannedGimbal | None = None):
         self.vehicle = vehicle
+        self.planned_gimbal = planned_gimbal
+        self._gimbal_report: tuple[float, float, float | None] | None = None  # (monotonic time, pitch, yaw)
         self.path = Path(path) if path else None
         self._file: IO[str] | None = None
         self.state: dict = {"mission_item": -1, "mission_total": 0, "armed": None, "in_air": None,
@@ -83,7 +143,8 @@ class TelemetryRecorder:
             self._tasks.append(asyncio.create_task(coro))
         direct = getattr(self.vehicle, "direct", None)
         if direct is not None:
-            for name, handler in (("ATTITUDE", self._on_raw_att), ("GLOBAL_POSITION_INT", self._on_raw_pos)):
+            for name, handler in (("ATTITUDE", self._on_raw_att), ("GLOBAL_POSITION_INT", self._on_raw_pos),
+                                  ("GIMBAL_DEVICE_ATTITUDE_STATUS", self._on_gimbal_status)):
                 self._tasks.append(asyncio.create_task(self._follow(direct.subscribe_message(name), handler)))
         return self
 
@@ -157,6 +218,23 @@ class TelemetryRecorder:
             self._prev_att, self._raw_att = self._raw_att, (f["time_boot_ms"] / 1000.0, roll, pitch, yaw % 360.0)
             self._flush_positions()
 
+    def _on_gimbal_status(self, msg) -> None:
+        with contextlib.suppress(ValueError, TypeError, KeyError, IndexError):
+            pitch, yaw = gimbal_from_status(json.loads(msg.fields_json), self.state.get("yaw_deg"))
+            self._gimbal_report = (time.monotonic(), pitch, yaw)
+
+    def _gimbal(self) -> dict:
+        """The gimbal's angles for a row now: its own fresh report, else the plan's command once passed."""
+        report = self._gimbal_report
+        if report is not None and time.monotonic() - report[0] <= _GIMBAL_REPORT_FRESH_S:
+            return {"gimbal_pitch_deg": report[1], "gimbal_yaw_deg": report[2],
+                    "gimbal_source": GimbalSource.TELEMETRY}
+        plan = self.planned_gimbal
+        if plan is not None and self.state["mission_item"] > plan.seq:
+            return {"gimbal_pitch_deg": plan.pitch_deg, "gimbal_yaw_deg": plan.yaw_deg,
+                    "gimbal_source": GimbalSource.PLAN}
+        return {}
+
     def _on_raw_pos(self, msg) -> None:
         """GLOBAL_POSITION_INT carries the autopilot's time_boot_ms: once it flows, rows are stamped with it, so
         frames can be tagged by interpolation at their capture time (mavsdk's Position has no timestamp). A row
@@ -190,37 +268,31 @@ class TelemetryRecorder:
             roll, pitch, yaw = att
         else:
             roll, pitch, yaw = st.get("roll_deg"), st.get("pitch_deg"), st.get("yaw_deg")
-        row = {
-            "t_wall": round(time.time(), 4), "t_boot_s": t_boot, "lat": lat, "lon": lon,
-            "alt_amsl_m": alt, "rel_alt_m": rel, "roll_deg": roll, "pitch_deg": pitch, "yaw_deg": yaw,
-            "vn_m_s": vel[0], "ve_m_s": vel[1], "vd_m_s": vel[2],
-            "mission_item": st["mission_item"], "mission_total": st["mission_total"],
-            "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"],
-        }
-        self._file.write(json.dumps(row) + "\n")
+        pose = pose_json(time_s=t_boot, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=rel, roll_deg=roll,
+                         pitch_deg=pitch, yaw_deg=yaw, velocity_ned_m_s=vel, mission_item=st["mission_item"],
+                         **self._gimbal())
+        self._file.write(json.dumps(self._row(pose)) + "\n")
+
+    def _row(self, pose: dict) -> dict:
+        st = self.state
+        return {"t_wall": round(time.time(), 4), **pose, "mission_total": st["mission_total"],
+                "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"]}
 
     def _write(self, p) -> None:
         self.samples += 1
         st = self.state
         if self._file is None:
             return
-        row = {
-            "t_wall": round(time.time(), 4), "t_boot_s": st.get("t_boot_s"),
-            "lat": _num(p.latitude_deg), "lon": _num(p.longitude_deg),
-            "alt_amsl_m": _num(p.absolute_altitude_m), "rel_alt_m": _num(p.relative_altitude_m),
-            "roll_deg": st.get("roll_deg"), "pitch_deg": st.get("pitch_deg"), "yaw_deg": st.get("yaw_deg"),
-            "vn_m_s": st.get("vn_m_s"), "ve_m_s": st.get("ve_m_s"), "vd_m_s": st.get("vd_m_s"),
-            "mission_item": st["mission_item"], "mission_total": st["mission_total"],
-            "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"],
-        }
-        self._file.write(json.dumps(row) + "\n")
+        pose = pose_json(
+            time_s=st.get("t_boot_s"), lat=_num(p.latitude_deg), lon=_num(p.longitude_deg),
+            alt_amsl_m=_num(p.absolute_altitude_m), relative_alt_m=_num(p.relative_altitude_m),
+            roll_deg=st.get("roll_deg"), pitch_deg=st.get("pitch_deg"), yaw_deg=st.get("yaw_deg"),
+            velocity_ned_m_s=(st.get("vn_m_s"), st.get("ve_m_s"), st.get("vd_m_s")), mission_item=st["mission_item"],
+            **self._gimbal(),
+        )
+        self._file.write(json.dumps(self._row(pose)) + "\n")
 
 
 def read_telemetry_log(path: Path) -> list[dict]:
     """All samples of a telemetry log (a torn last line from a crash is skipped)."""
-    rows = []
-    with open(path) as f:
-        for line in f:
-            with contextlib.suppress(json.JSONDecodeError):
-                rows.append(json.loads(line))
-    return rows
+    return read_jsonl(path)

@@ -18,24 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.attitude import camera_rotation_enu
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame
 from companion.keyframes.overlap import convex_intersection_area
 from companion.records import Pose
-
-
-def camera_rotation_enu(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
-    """3x3 rotation taking camera axes (x right, y down, z forward; OpenCV) to ENU vectors.
-
-    Yaw clockwise from north, pitch up positive, roll right side down positive.
-    """
-    psi, th, phi = (math.radians(v) for v in (yaw_deg, pitch_deg, roll_deg))
-    forward = np.array([math.sin(psi) * math.cos(th), math.cos(psi) * math.cos(th), math.sin(th)])
-    right_level = np.array([math.cos(psi), -math.sin(psi), 0.0])
-    down_level = np.cross(forward, right_level)
-    right = math.cos(phi) * right_level + math.sin(phi) * down_level
-    down = np.cross(forward, right)
-    return np.column_stack([right, down, forward])
 
 
 @dataclass(frozen=True)
@@ -91,7 +78,8 @@ class WallMotionPredictor:
     def _camera(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
         """(camera centre in facade coordinates, rotation facade <- camera)."""
         centre = np.array([float(v) for v in self.frame.geodetic_to_facade(pose.lat, pose.lon, pose.alt_amsl_m)])
-        rot = self._basis().T @ camera_rotation_enu(pose.yaw_deg, pose.gimbal_pitch_deg, 0.0)
+        yaw, pitch, roll = pose.camera_angles()
+        rot = self._basis().T @ camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
         return centre, rot
 
     @staticmethod
@@ -105,8 +93,7 @@ class WallMotionPredictor:
         (a pose missing or not finite, a camera behind the wall plane or looking past it)."""
         if a is None or b is None:
             return None
-        values = (a.lat, a.lon, a.alt_amsl_m, a.yaw_deg, a.gimbal_pitch_deg,
-                  b.lat, b.lon, b.alt_amsl_m, b.yaw_deg, b.gimbal_pitch_deg)
+        values = (a.lat, a.lon, a.alt_amsl_m, *a.camera_angles(), b.lat, b.lon, b.alt_amsl_m, *b.camera_angles())
         if not all(math.isfinite(float(v)) for v in values):
             return None
         (ca, ra), (cb, rb) = self._camera(a), self._camera(b)

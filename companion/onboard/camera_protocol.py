@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from pymavlink import mavutil
 
-from companion.capture.telemetry import euler_to_quat
+from companion.attitude import euler_to_quat
 from companion.records import Pose
 
 log = logging.getLogger(__name__)
@@ -171,7 +171,8 @@ class MavlinkCamera:
     def _send_captured(self, im: CapturedImage) -> None:
         p = im.pose
         if p is not None:
-            q = [float(v) for v in euler_to_quat(0.0, p.gimbal_pitch_deg, p.yaw_deg)]
+            yaw, pitch, roll = p.camera_angles()
+            q = [float(v) for v in euler_to_quat(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)]
             lat, lon = int(p.lat * 1e7), int(p.lon * 1e7)
             alt, rel = int(p.alt_amsl_m * 1000), int(p.relative_alt_m * 1000)
         else:

@@ -10,10 +10,12 @@ from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, buffer_from_log
 from companion.errors import CompanionError
+from companion.files import write_atomic
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.setup import build_chain
 from companion.progress import progress_bar
 from companion.spool.clock import TelemetryWallClock
+from companion.spool.layout import CULL_REPORT
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,7 +72,7 @@ def run_cull(args: argparse.Namespace) -> int:
         chain.finish()
     chain.stats.capture.corrupt = source.stats.corrupt
     stats = chain.stats.as_dict()
-    (args.out / "cull_report.json").write_text(json.dumps(stats, indent=1))
+    write_atomic(args.out / CULL_REPORT, json.dumps(stats, indent=1), durable=True)
     print(
         f"{stats['frames_in']} frames -> {chain.stats.keyframes} keyframes in {args.out} "
         f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose, "

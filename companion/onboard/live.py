@@ -19,11 +19,13 @@ from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer, pose_from_log_row
 from companion.errors import CompanionError
+from companion.files import write_atomic
 from companion.onboard.chain import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.runner import LiveRunner
 from companion.onboard.setup import build_chain
 from companion.spool.clock import CaptureClock, TelemetryWallClock, UnixCaptureClock
+from companion.spool.layout import CULL_REPORT
 
 log = logging.getLogger(__name__)
 
@@ -184,7 +186,7 @@ def run_live_scan(
         if camera_component is not None:
             camera_component.close()
     stats = chain.stats
-    (out / "cull_report.json").write_text(json.dumps(stats.as_dict(), indent=1))
+    write_atomic(out / CULL_REPORT, json.dumps(stats.as_dict(), indent=1), durable=True)
     error = str(runner.error) if runner.error else None
     result = LiveScanResult(flight, stats, out, telemetry_log, error)
     empty = explain_empty_cull(stats, tagger)

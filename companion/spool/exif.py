@@ -97,8 +97,8 @@ def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
     if pose is None:
         return b""
     camera = camera or CameraTags()
-    # the gimbal yaw follows the body in our missions: camera heading = body heading (rounded first: 359.999 -> 0.00)
-    cam_yaw = round(pose.yaw_deg, 2) % 360.0
+    cam_yaw, cam_pitch, _ = pose.camera_angles()  # the gimbal's heading and tilt
+    cam_yaw = round(cam_yaw, 2) % 360.0  # rounded first: 359.999 -> 0.00
     fields = {
         "drone-dji:GpsLatitude": f"{pose.lat:.9f}",
         "drone-dji:GpsLongitude": f"{pose.lon:.9f}",
@@ -113,11 +113,11 @@ def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
         fields.update({
             "drone-dji:GimbalRollDegree": "+0.00",
             "drone-dji:GimbalYawDegree": f"{cam_yaw:+.2f}",
-            "drone-dji:GimbalPitchDegree": f"{pose.gimbal_pitch_deg:+.2f}",
+            "drone-dji:GimbalPitchDegree": f"{cam_pitch:+.2f}",
         })
     fields.update({
         "Camera:Yaw": f"{cam_yaw:.2f}",
-        "Camera:Pitch": f"{pose.gimbal_pitch_deg + 90.0:.2f}",  # Pix4D: 0 = nadir, 90 = horizontal
+        "Camera:Pitch": f"{cam_pitch + 90.0:.2f}",  # Pix4D: 0 = nadir, 90 = horizontal
         "Camera:Roll": "0.00",  # the gimbal holds the camera level
     })
     attrs = "\n   ".join(f'{k}="{v}"' for k, v in fields.items())

@@ -1,16 +1,10 @@
 """Durable keyframe spool: the hand-off from the onboard gate to the stitching worker.
 
-Layout (read by companion/stitch/inputs.py; format in docs/STITCH.md):
-  spool.json              camera, facade and standoff (written once, atomically)
-  kf_NNNNNN.jpg           full-resolution keyframe, EXIF GPS/time + XMP orientation
-  kf_NNNNNN_mask.png      ROI mask (OpenDroneMap's <image>_mask.png naming)
-  kf_NNNNNN.json          sidecar: telemetry, overlap, inliers, frame index, model and thresholds
-  manifest.jsonl          one line per keyframe, appended + fsynced only after its files are durable
-  CLOSED                  written when the flight (or offline cull) is over
-
-A keyframe is "reported" once its manifest line is on disk; a crash at any moment loses none of those and never
-leaves a half-written file under a final name (files are written to a temp name, fsynced, then renamed).
-Reopening the same directory resumes: a torn last manifest line is cut off and frames already spooled are skipped.
+Layout and file names: ``companion/spool/layout.py``; the reader beside this writer: ``reader.py``; the format:
+docs/STITCH.md. A keyframe is "reported" once its manifest line is on disk; a crash at any moment loses none of
+those and never leaves a half-written file under a final name (files are written to a temp name, fsynced, then
+renamed). Reopening the same directory resumes: a torn last manifest line is cut off and frames already spooled
+are skipped.
 """
 
 from __future__ import annotations
@@ -20,73 +14,24 @@ import errno
 import json
 import logging
 import os
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 
 from companion.errors import CompanionError
-from companion.records import Keyframe, Pose
+from companion.files import TEMP_GLOB, append_durable, write_atomic
+from companion.records import Keyframe
 from companion.spool.camera import CameraTags
 from companion.spool.clock import CaptureClock, UnixCaptureClock
 from companion.spool.exif import encode_tagged_jpeg
+from companion.spool.layout import CLOSED, MANIFEST, META, SpoolEntry
 
 log = logging.getLogger(__name__)
-MANIFEST = "manifest.jsonl"
-META = "spool.json"
-CLOSED = "CLOSED"  # the flight is over: a following stitcher finishes (docs/STITCH.md)
 
 
 class SpoolFullError(CompanionError):
     """The disk is full: keyframes can no longer be saved (flight supervision must carry on regardless)."""
-
-
-@dataclass(frozen=True)
-class SpoolEntry:
-    index: int  # frame index in the capture stream
-    image: str
-    mask: str
-    sidecar: str
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def pose_dict(pose: Pose | None) -> dict | None:
-    if pose is None:
-        return None
-    return {
-        "time_s": pose.time_s,
-        "lat": pose.lat,
-        "lon": pose.lon,
-        "alt_amsl_m": pose.alt_amsl_m,
-        "relative_alt_m": pose.relative_alt_m,
-        "roll_deg": pose.roll_deg,
-        "pitch_deg": pose.pitch_deg,
-        "yaw_deg": pose.yaw_deg,
-        "velocity_ned_m_s": list(pose.velocity_ned_m_s),
-        "gimbal_pitch_deg": pose.gimbal_pitch_deg,
-        "gimbal_yaw_deg": 0.0,
-        "mission_item": pose.mission_item,
-    }
 
 
 class KeyframeSpool:
@@ -136,14 +81,13 @@ class KeyframeSpool:
             if line.strip():
                 rec = json.loads(line)
                 entries.append(SpoolEntry(int(rec["index"]), rec["image"], rec["mask"], rec["sidecar"]))
-        for stale in self.dir.glob(".*.tmp"):
+        for stale in self.dir.glob(TEMP_GLOB):
             stale.unlink(missing_ok=True)
         return entries
 
     def close(self) -> None:
         """Mark the spool complete (``CLOSED``) so a stitcher in follow mode makes its final map."""
-        _write_atomic(self.dir / CLOSED, b"")
-        _fsync_dir(self.dir)
+        write_atomic(self.dir / CLOSED, b"", durable=True)
 
     def _check_camera_size(self, width: int, height: int) -> None:
         """A camera delivering another aspect ratio than its model (a crop) keeps spooling, without a focal: the
@@ -170,7 +114,7 @@ class KeyframeSpool:
             named = {"make": tags.make, "model": tags.model, "sensor_width_mm": tags.sensor_width_mm}
             camera.update({k: v for k, v in named.items() if v is not None})
             meta["camera"] = camera
-        _write_atomic(self.dir / META, json.dumps(meta, indent=1).encode())
+        write_atomic(self.dir / META, json.dumps(meta, indent=1), durable=True)
 
     def __len__(self) -> int:
         return len(self.entries)
@@ -183,8 +127,7 @@ class KeyframeSpool:
         frame = keyframe.frame
         if frame.index in self._spooled:
             return None
-        stem = f"kf_{frame.index:06d}"
-        entry = SpoolEntry(frame.index, f"{stem}.jpg", f"{stem}_mask.png", f"{stem}.json")
+        entry = SpoolEntry.for_frame(frame.index)
         pose = keyframe.pose
         capture_unix = self.capture_clock.unix_time(frame.capture_time_s)
         capture_utc = None if capture_unix is None else dt.datetime.fromtimestamp(capture_unix, tz=dt.UTC)
@@ -199,7 +142,7 @@ class KeyframeSpool:
             "index": frame.index,
             "capture_time_s": frame.capture_time_s,
             "capture_utc": capture_utc.isoformat() if capture_utc is not None else None,
-            "pose": pose_dict(pose),
+            "pose": None if pose is None else pose.to_json(),
             "pose_stale": keyframe.pose_stale,
             "overlap_to_previous": keyframe.overlap_to_previous,
             "inliers": keyframe.inliers,
@@ -215,7 +158,7 @@ class KeyframeSpool:
             "mask": entry.mask,
             "sidecar": entry.sidecar,
             "capture_time_s": frame.capture_time_s,
-            "pose": pose_dict(pose),
+            "pose": sidecar["pose"],
             "overlap_to_previous": keyframe.overlap_to_previous,
             "gap_before": keyframe.gap_before,
             "overlap_suspect": keyframe.overlap_suspect,
@@ -227,14 +170,10 @@ class KeyframeSpool:
             ok, mask_png = cv2.imencode(".png", keyframe.mask)
             if not ok:
                 raise ValueError("mask PNG encoding failed")
-            _write_atomic(self.dir / entry.image, jpeg)
-            _write_atomic(self.dir / entry.mask, mask_png.tobytes())
-            _write_atomic(self.dir / entry.sidecar, json.dumps(sidecar, indent=1).encode())
-            _fsync_dir(self.dir)
-            with open(self.dir / MANIFEST, "ab") as fh:
-                fh.write((json.dumps(line) + "\n").encode())
-                fh.flush()
-                os.fsync(fh.fileno())
+            write_atomic(self.dir / entry.image, jpeg, durable=True)
+            write_atomic(self.dir / entry.mask, mask_png.tobytes(), durable=True)
+            write_atomic(self.dir / entry.sidecar, json.dumps(sidecar, indent=1), durable=True)
+            append_durable(self.dir / MANIFEST, json.dumps(line))
         except OSError as exc:
             if exc.errno in (errno.ENOSPC, errno.EDQUOT):
                 raise SpoolFullError(

@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.files import atomic_path
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
 from companion.stitch.inputs import KeyframeInput
 
@@ -148,7 +149,6 @@ def cached_features(
         equalize=equalize,
     )
     cache_dir.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size), lum=feats.luminance)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size), lum=feats.luminance)
     return feats

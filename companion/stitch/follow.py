@@ -14,7 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from companion.errors import CompanionError
-from companion.stitch.inputs import load_spool
+from companion.spool.layout import CLOSED, MANIFEST
+from companion.spool.reader import load_spool
 from companion.stitch.worker import StitchConfig, StitchResult, stitch
 
 log = logging.getLogger(__name__)
@@ -36,11 +37,11 @@ def follow(
     spool = Path(spool)
     done_n, last_change, last = 0, time.monotonic(), None
     while True:
-        closed = (spool / "CLOSED").exists()
+        closed = (spool / CLOSED).exists()
         try:
             inp = load_spool(spool)
         except CompanionError as exc:
-            if not (spool / "manifest.jsonl").exists() and not closed:
+            if not (spool / MANIFEST).exists() and not closed:
                 inp = None  # the spool is not started yet
             else:
                 raise exc

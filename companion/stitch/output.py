@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.files import atomic_path, write_atomic
 from companion.stitch.render import MapGrid
 
 
@@ -246,10 +247,7 @@ def _xml(text: str) -> str:
 
 
 def _write_text(path: Path, text: str) -> str:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-    return str(path)
+    return str(write_atomic(path, text))
 
 
 def tiles_vrt(grid: MapGrid, tiles: list[tuple[str, int, int, int, int]], wkt: str | None) -> str:
@@ -316,10 +314,10 @@ def write_georeferencing(result, inp, *, name: str | None = None) -> dict[str, s
     wkt = facade_crs_wkt(name or out.name) if rectified and wall is not None else None
     if result.map_image is not None and result.coverage is not None:
         bgra = np.dstack((result.map_image, result.coverage))
-        tmp = out / "map.tmp.png"
-        if not cv2.imwrite(str(tmp), bgra):
-            raise CompanionError(f"cannot write {out / 'map.png'}", "check free disk space and permissions of --out")
-        tmp.replace(out / "map.png")
+        with atomic_path(out / "map.png") as tmp:
+            if not cv2.imwrite(str(tmp), bgra):
+                raise CompanionError(f"cannot write {out / 'map.png'}",
+                                     "check free disk space and permissions of --out")
         files["map"] = str(out / "map.png")
         if wkt:
             files["world_file"] = _write_text(out / "map.pgw", world_file_text(grid))

@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from companion.files import atomic_path
 from companion.stitch.features import Features
 from companion.stitch.geometry import apply_h, is_sane_homography
 
@@ -184,12 +185,11 @@ def _spread(pts: np.ndarray, w: int, h: int) -> float:
 
 def save_pair(path: Path, r: PairResult) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
     arrays = {"summary": np.array(json.dumps(r.summary()))}
     if r.accepted:
         arrays.update(H=r.H, pts_i=r.pts_i, pts_j=r.pts_j)
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        np.savez(tmp, **arrays)
 
 
 def load_pair(path: Path) -> PairResult | None:

@@ -16,8 +16,10 @@ import cv2
 import numpy as np
 import pymap3d
 
+from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
-from companion.stitch.inputs import CameraModel, rotation_enu_from_cam
+from companion.spool.layout import MANIFEST, META
+from companion.stitch.inputs import CameraModel
 
 
 @dataclass(frozen=True)
@@ -92,7 +94,7 @@ def view(
     hole_m: tuple[float, float, float, float] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(image, mask, R_enu_from_cam) of a camera at facade (along, standoff, up) looking at the wall."""
-    R = rotation_enu_from_cam(0.0, pitch_deg, frame.yaw_facing_wall_deg + yaw_offset_deg)
+    R = camera_rotation_enu(yaw_deg=frame.yaw_facing_wall_deg + yaw_offset_deg, pitch_deg=pitch_deg)
     e, n, u = frame.facade_to_enu(along_m, standoff_m, up_m)
     C = np.array([float(e), float(n), float(u)])
     de, dn = frame.along_enu
@@ -231,6 +233,6 @@ def make_spool(
         },
         "standoff_m": standoff_m,
     }
-    (out / "spool.json").write_text(json.dumps(spool_meta, indent=1))
-    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    (out / META).write_text(json.dumps(spool_meta, indent=1))
+    (out / MANIFEST).write_text("\n".join(lines) + "\n")
     return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.files import atomic_path, write_atomic
 from companion.progress import progress_bar
 from companion.stitch.align import global_alignment
 from companion.stitch.exposure import apply_gain, apply_gain_numpy, solve_gains
@@ -411,17 +412,14 @@ def stitch(
     # written before report.json so the report lists them and a finished report means a finished map folder.
     files.update(write_georeferencing(result, inp))
     files["report"] = str(out / "report.json")
-    tmp = out / "report.json.tmp"
-    tmp.write_text(json.dumps(report, indent=1))
-    tmp.replace(out / "report.json")
+    write_atomic(out / "report.json", json.dumps(report, indent=1), durable=True)
     return result
 
 
 def _write(path: Path, img: np.ndarray) -> str:
-    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
-    if not cv2.imwrite(str(tmp), img):
-        raise CompanionError(f"cannot write {path}", "check free disk space and permissions of --out")
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), img):
+            raise CompanionError(f"cannot write {path}", "check free disk space and permissions of --out")
     return str(path)
 
 

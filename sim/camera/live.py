@@ -27,10 +27,11 @@ import cv2
 import numpy as np
 import pymap3d
 
+from companion.attitude import camera_rotation_enu
 from companion.capture.simcam import DEFAULT_PORT, encode_message
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame
-from sim.camera.model import TruePose, rotation_world_from_cam
+from sim.camera.model import TruePose
 from sim.camera.recording import RecordingWriter, camera_from_mission, facade_meta, resolve_mission
 from sim.camera.render import AutoExposure
 from sim.camera.scene import Scene
@@ -82,7 +83,7 @@ def camera_pose(msg: dict, frame: FacadeFrame, *, yaw_rate_deg_s: float = 0.0) -
                                    o.lat, o.lon, o.alt_amsl_m)
     yaw = (float(msg["yaw_deg"]) + float(msg.get("gimbal_yaw_deg", 0.0))) % 360.0
     pitch = float(msg.get("gimbal_pitch_deg", 0.0))
-    R = rotation_world_from_cam(yaw, pitch, 0.0)
+    R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=0.0)
     w_world = np.array([0.0, 0.0, -math.radians(yaw_rate_deg_s)])  # yaw is clockwise: about -up
     return TruePose(
         position_enu=np.array([float(e), float(n), float(u)]),

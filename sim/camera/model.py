@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from companion.attitude import camera_rotation_enu
 from companion.errors import CompanionError
 
 
@@ -55,30 +56,6 @@ class CameraModel:
         return CameraModel(width=int(width_px), height=height, hfov_deg=self.hfov_deg)
 
 
-def rotation_world_from_cam(yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0) -> np.ndarray:
-    """Camera attitude: yaw clockwise from north, pitch up positive, roll right-wing-down positive."""
-    psi, th, phi = (math.radians(v) for v in (yaw_deg, pitch_deg, roll_deg))
-    fwd = np.array([math.sin(psi) * math.cos(th), math.cos(psi) * math.cos(th), math.sin(th)])
-    right0 = np.array([math.cos(psi), -math.sin(psi), 0.0])
-    down0 = np.cross(fwd, right0)
-    # roll turns the image clockwise as seen by the camera: right axis tilts towards down
-    right = math.cos(phi) * right0 + math.sin(phi) * down0
-    down = np.cross(fwd, right)
-    return np.column_stack([right, down, fwd])
-
-
-def angles_from_rotation(R_world_from_cam: np.ndarray) -> tuple[float, float, float]:
-    """Inverse of :func:`rotation_world_from_cam`: (yaw, pitch, roll) in degrees."""
-    right, down, fwd = (R_world_from_cam[:, i] for i in range(3))
-    pitch = math.degrees(math.asin(max(-1.0, min(1.0, fwd[2]))))
-    yaw = math.degrees(math.atan2(fwd[0], fwd[1])) % 360.0
-    psi = math.radians(yaw)
-    right0 = np.array([math.cos(psi), -math.sin(psi), 0.0])
-    down0 = np.cross(fwd, right0)
-    roll = math.degrees(math.atan2(float(right @ down0), float(right @ right0)))
-    return yaw, pitch, roll
-
-
 @dataclass(frozen=True)
 class TruePose:
     """Exact camera pose at one capture instant (ground truth; only sim/ and evaluations read it)."""
@@ -96,7 +73,7 @@ class TruePose:
 
     @classmethod
     def from_angles(cls, position_enu, yaw_deg: float, pitch_deg: float, roll_deg: float = 0.0, **kw) -> TruePose:
-        R = rotation_world_from_cam(yaw_deg, pitch_deg, roll_deg)
+        R = camera_rotation_enu(yaw_deg=yaw_deg, pitch_deg=pitch_deg, roll_deg=roll_deg)
         return cls(np.asarray(position_enu, dtype=float), R, float(yaw_deg), float(pitch_deg), float(roll_deg), **kw)
 
     def to_json(self) -> dict:

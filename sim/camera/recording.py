@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.files import read_jsonl
 from companion.geo import FacadeFrame, GeoPoint
 from companion.progress import progress_bar
 from companion.records import Frame
@@ -123,11 +124,7 @@ class Recording:
             raise CompanionError(f"{self.path} is not a recording (no meta.json)",
                                  "point at a directory written by generate_recording or `companion sim record`")
         self.meta = json.loads(meta_p.read_text(encoding="utf-8"))
-        self._truth = []
-        with open(self.path / "truth.jsonl", encoding="utf-8") as f:
-            for line in f:
-                if line.strip():
-                    self._truth.append(json.loads(line))
+        self._truth = read_jsonl(self.path / "truth.jsonl", skip_bad=False)
         cam = self.meta["camera"]
         self.width = int(cam["width"])
         self.height = int(cam["height"])

@@ -6,9 +6,10 @@ What the flight code stores, the rows here store the same way: time as the autop
 milliseconds; the kinematic flight's clock starts at 0 at the first scan waypoint), position as
 GLOBAL_POSITION_INT quantises it (1e-7 degree, millimetre altitude, centimetre per second velocity), ``t_wall`` the
 companion's clock when the row was written. The kinematic model has a stabilised camera and no body dynamics:
-the vehicle yaw is the camera's, roll and pitch are the camera's small attitude wobble around the gimbal pitch
-(the gimbal pitch itself is not a telemetry column, as in a flown log). There is no mission progress
-(``mission_item`` -1, as the flight code writes before the autopilot reports one).
+the vehicle yaw is the camera's, roll and pitch are the camera's small attitude wobble around the gimbal pitch,
+and the gimbal pitch is the mission's command (``gimbal_source: plan``), as a flown log without gimbal telemetry
+has it once the vehicle passed the gimbal item. There is no mission progress (``mission_item`` -1, as the flight
+code writes before the autopilot reports one).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import json
 import math
 from pathlib import Path
 
+from companion.records import GimbalSource, pose_json
 from sim.camera.trajectory import KinematicFlight
 
 
@@ -34,15 +36,15 @@ def telemetry_rows(flight: KinematicFlight, t_start_s: float, t_end_s: float, *,
         pose = flight.pose(t)
         ve, vn, vu = (float(v) for v in pose.velocity_enu_m_s)
         alt = round(pose.alt_amsl_m, 3)
-        rows.append({
-            "t_wall": round(epoch_unix_s + t, 4), "t_boot_s": t,
-            "lat": round(pose.lat * 1e7) / 1e7, "lon": round(pose.lon * 1e7) / 1e7,
-            "alt_amsl_m": alt, "rel_alt_m": round(alt - home_alt_amsl_m, 3),
-            "roll_deg": pose.roll_deg, "pitch_deg": pose.pitch_deg - flight.gimbal_pitch_deg,
-            "yaw_deg": pose.yaw_deg % 360.0,
-            "vn_m_s": round(vn, 2), "ve_m_s": round(ve, 2), "vd_m_s": round(-vu, 2),
-            "mission_item": -1, "mission_total": 0, "flight_mode": "MISSION", "armed": True, "in_air": True,
-        })
+        row = pose_json(
+            time_s=t, lat=round(pose.lat * 1e7) / 1e7, lon=round(pose.lon * 1e7) / 1e7, alt_amsl_m=alt,
+            relative_alt_m=round(alt - home_alt_amsl_m, 3), roll_deg=pose.roll_deg,
+            pitch_deg=pose.pitch_deg - flight.gimbal_pitch_deg, yaw_deg=pose.yaw_deg % 360.0,
+            velocity_ned_m_s=(round(vn, 2), round(ve, 2), round(-vu, 2)), mission_item=-1,
+            gimbal_pitch_deg=flight.gimbal_pitch_deg, gimbal_yaw_deg=0.0, gimbal_source=GimbalSource.PLAN,
+        )
+        rows.append({"t_wall": round(epoch_unix_s + t, 4), **row, "mission_total": 0, "flight_mode": "MISSION",
+                     "armed": True, "in_air": True})
     return rows
 
 

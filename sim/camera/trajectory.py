@@ -14,9 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.attitude import camera_rotation_enu
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame
-from sim.camera.model import TruePose, rotation_world_from_cam
+from sim.camera.model import TruePose
 from sim.camera.noise import value_noise
 
 
@@ -146,8 +147,8 @@ class KinematicFlight:
         h = 1e-3
         p2, _, yaw2, pitch2, roll2 = self._attitude(t + h)
         vel_f = (p2 - p) / h
-        R = rotation_world_from_cam(yaw, pitch, roll)
-        R2 = rotation_world_from_cam(yaw2, pitch2, roll2)
+        R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
+        R2 = camera_rotation_enu(yaw_deg=yaw2, pitch_deg=pitch2, roll_deg=roll2)
         W = (R2 @ R.T - np.eye(3)) / h  # skew matrix of the world angular velocity
         w_world = np.array([W[2, 1], W[0, 2], W[1, 0]])
         e, n, u = self.frame.facade_to_enu(*p)

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from companion.depth.training.data import FrameSet, augment_crop, load_frames, sample_batch
 from companion.depth.training.networks import Monodepth2, disp_to_depth, encoder_state_dict
 from companion.errors import CompanionError
+from companion.files import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -121,9 +122,8 @@ def initial_weights(path: Path) -> dict:
 
 
 def _save_checkpoint(path: Path, model, opt, step: int, elapsed_s: float) -> None:
-    tmp = path.with_suffix(".tmp")
-    torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step, "elapsed_s": elapsed_s}, tmp)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:
+        torch.save({"model": model.state_dict(), "opt": opt.state_dict(), "step": step, "elapsed_s": elapsed_s}, tmp)
 
 
 @torch.no_grad()

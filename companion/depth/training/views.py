@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from companion.depth.training.data import FrameSet
+from companion.files import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -81,9 +82,8 @@ def cached_views(
             log.info("rendering %d views of scene seed %d", n_views, seed)
             fs = render_views(seed, n_views, height, width, max_depth)
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(".tmp.npz")
-            np.savez(tmp, images=fs.images, depths=fs.depths.astype(np.float16), masks=fs.roi_masks)
-            tmp.replace(path)
+            with atomic_path(path) as tmp:
+                np.savez(tmp, images=fs.images, depths=fs.depths.astype(np.float16), masks=fs.roi_masks)
         parts.append(fs)
     return FrameSet(
         np.concatenate([p.images for p in parts]),

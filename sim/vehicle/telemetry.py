@@ -12,6 +12,7 @@ import math
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
+from companion.attitude import euler_to_quat
 from sim.vehicle import flavours as fl
 
 log = logging.getLogger(__name__)
@@ -26,14 +27,6 @@ SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR
            | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS
            | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY)
 PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
-
-
-def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> list[float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy]
 
 
 class TelemetryStreams:
@@ -85,7 +78,7 @@ class TelemetryStreams:
 
     def _attitude_q(self):
         st = self.model.state
-        q = quaternion_from_euler(math.radians(st.roll_deg), math.radians(st.pitch_deg), math.radians(st.yaw_deg))
+        q = [float(v) for v in euler_to_quat(yaw_deg=st.yaw_deg, pitch_deg=st.pitch_deg, roll_deg=st.roll_deg)]
         return self.mav.attitude_quaternion_encode(int(self.t * 1000), *q, 0.0, 0.0, 0.0)
 
     def _local_position(self):

@@ -44,6 +44,7 @@ from companion.stitch.render import (
     render_tile,
 )
 from companion.stitch.render_plan import plan_render
+from companion.viewer import write_viewer
 
 log = logging.getLogger(__name__)
 
@@ -414,6 +415,7 @@ def stitch(
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))
     tmp.replace(out / "report.json")
+    files["viewer"] = write_viewer(out, {kf.index: kf.image_path for kf in inp.keyframes})  # docs/OUTPUTS.md
     return result
 
 

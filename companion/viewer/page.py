@@ -139,14 +139,17 @@ def viewer_data(
     }
 
 
-def write_viewer(map_dir: str | Path, keyframe_images: Mapping[int, Path] | None = None) -> str:
+def write_viewer(map_dir: str | Path, keyframe_images: Mapping[int | str, Path] | None = None) -> str:
     """Writes ``viewer.html`` and ``viewer/`` into a finished map folder; returns the page's path.
 
     ``keyframe_images`` (keyframe index -> image file) are linked into the folder so a click on a footprint
-    shows the original photo; without them the page still shows the footprints. The old viewer is replaced only
+    shows the original photo; without them (None) the photos of the viewer being replaced are kept, and the page
+    still shows the footprints. The old viewer is replaced only
     once the new one is complete.
     """
     out = Path(map_dir)
+    if keyframe_images is None:  # rewriting a viewer without the spool keeps the photos it already has
+        keyframe_images = {p.name: p for p in (out / ASSETS / "keyframes").glob("*")}
     georef = _read_json(out / "map_georef.json")
     report = _read_json(out / "report.json")
     reader = MapReader.open(out)
@@ -157,10 +160,12 @@ def write_viewer(map_dir: str | Path, keyframe_images: Mapping[int, Path] | None
     info = write_pyramid(reader, tmp / "tiles", url_prefix=f"{ASSETS}/tiles/")
     _coverage_overlay(tmp / "tiles", info, tmp / "coverage.png")
     images: dict[int, str] = {}
-    wanted = {k["index"] for k in georef.get("keyframes", [])}
-    for index, src in (keyframe_images or {}).items():
+    by_name = {k["image"]: k["index"] for k in georef.get("keyframes", [])}
+    wanted = set(by_name.values())
+    for key, src in keyframe_images.items():
         src = Path(src)
-        if index in wanted and src.exists():
+        index = by_name.get(key) if isinstance(key, str) else key  # an index, or an image name (old viewer)
+        if index in wanted and src.exists() and index not in images:
             (tmp / "keyframes").mkdir(exist_ok=True)
             _link_or_copy(src, tmp / "keyframes" / src.name)
             images[index] = f"{ASSETS}/keyframes/{src.name}"

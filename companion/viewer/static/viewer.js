@@ -67,7 +67,7 @@
   });
   coverage.addTo(map);
   refly.addTo(map);
-  footprints.addTo(map);
+  if (D.keyframes.length <= 30) { footprints.addTo(map); }  // hundreds of outlines hide the wall: off, clicks still work
   var overlays = { 'uncovered wall (red tint)': coverage, 're-fly areas': refly, 'keyframe footprints': footprints };
   L.control.layers(null, overlays, { collapsed: false, position: 'topright' }).addTo(map);
   if (metres) { L.control.scale({ imperial: false, maxWidth: 200 }).addTo(map); }

@@ -283,3 +283,26 @@ def test_measured_distance_between_two_landmarks_is_the_wall_distance(page, mapp
     true_mm = 1000 * math.hypot(LANDMARKS[1][0] - LANDMARKS[0][0], LANDMARKS[1][1] - LANDMARKS[0][1])
     assert measured_mm == pytest.approx(true_mm, rel=0.02)
     print(f"zoom -{zoom_out}: measured {measured_mm:.0f} mm, true {true_mm:.0f} mm")
+
+
+def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
+    """Stitched without telemetry: no geotransform, no footprints; the re-fly areas land on their map pixels."""
+    s, along0, up_top, w, h = 0.01, -2.0, 3.0, 600, 300  # plane units per pixel, pixel-centre origin, size
+    bgra = np.full((h, w, 4), 200, np.uint8)
+    bgra[100:150, 200:300] = 0  # the hole
+    cv2.imwrite(str(tmp_path / "map.png"), bgra)
+    georef = {"scale_known": False, "geotransform": None, "size_px": [w, h], "keyframes": []}
+    (tmp_path / "map_georef.json").write_text(json.dumps(georef))
+    hole = {"along_min_m": along0 + 199.5 * s, "along_max_m": along0 + 299.5 * s}
+    hole |= {"up_min_m": up_top - 149.5 * s, "up_max_m": up_top - 99.5 * s, "area_m2": 0.5}
+    report = {
+        "coverage_fraction": 0.97,
+        "uncovered_areas_m": [hole],
+        "map": {"width_px": w, "height_px": h, "along_m": [along0, along0 + w * s], "up_m": [up_top - h * s, up_top]},
+    }
+    (tmp_path / "report.json").write_text(json.dumps(report))
+    write_viewer(tmp_path)
+    data = _data(tmp_path)
+    assert data["frame"]["units"] == "px" and data["mm_per_px"] is None and data["keyframes"] == []
+    left, right, bottom, top = data["refly"][0]["rect"]  # page units: x right, y up (= minus the map row)
+    assert [left, right, -top, -bottom] == pytest.approx([200, 300, 100, 150])

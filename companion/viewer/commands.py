@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import json
 import webbrowser
 from pathlib import Path
 
 from companion.errors import CompanionError
-from companion.viewer.page import PAGE, write_viewer
+from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
 
 
@@ -43,8 +44,9 @@ def run(args) -> int:
     page = mapdir / PAGE
     if args.rebuild or args.spool or not page.exists():
         write_viewer(mapdir, _keyframe_images(args.spool))
-        if args.spool is None:
-            print("note: keyframe photos not linked (the map's spool was not given): pass --spool SPOOL to add them")
+        footprints = json.loads((mapdir / "map_georef.json").read_text()).get("keyframes", [])
+        if footprints and not any((mapdir / ASSETS / "keyframes").glob("*")):
+            print("note: the keyframe photos are not in the viewer: pass --spool SPOOL (the map's spool) to add them")
     if args.no_serve:
         print(f"viewer: {page.resolve().as_uri()}")
         return 0

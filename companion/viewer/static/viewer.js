@@ -50,14 +50,22 @@
     return e;
   }
 
+  function fmtArea(a) {  // a re-fly area: wall metres, or map pixels when the scale is unknown
+    var r = a.rect;
+    if (metres) {
+      return 'along ' + r[0].toFixed(2) + '..' + r[1].toFixed(2) + ' m, up ' + r[2].toFixed(2) + '..' +
+        r[3].toFixed(2) + ' m, ' + a.area_m2.toFixed(2) + ' m\u00b2';
+    }
+    return 'x ' + r[0].toFixed(0) + '..' + r[1].toFixed(0) + ' px, y ' + (-r[3]).toFixed(0) + '..' +
+      (-r[2]).toFixed(0) + ' px';
+  }
+
   // --- overlays: uncovered wall, re-fly areas, keyframe footprints -------------------------------------------
   var coverage = L.imageOverlay(D.coverage.overlay, bounds, { interactive: false });
   var refly = L.layerGroup(D.refly.map(function (a) {
     var r = a.rect;
     return L.rectangle([[r[2], r[0]], [r[3], r[1]]], { color: '#e33', weight: 2, fillOpacity: 0.08 })
-      .bindTooltip('re-fly: along ' + a.along_min_m.toFixed(2) + '..' + a.along_max_m.toFixed(2) +
-        ', up ' + a.up_min_m.toFixed(2) + '..' + a.up_max_m.toFixed(2) +
-        (metres ? ' m, ' + a.area_m2.toFixed(2) + ' m\u00b2' : ''), { sticky: true });
+      .bindTooltip('re-fly: ' + fmtArea(a), { sticky: true });
   }));
   var footprints = L.layerGroup();
   D.keyframes.forEach(function (kf) {
@@ -227,15 +235,15 @@
     if (D.coverage.fraction !== null && D.coverage.fraction !== undefined) {
       facts.push('coverage ' + (100 * D.coverage.fraction).toFixed(1) + ' %, ' + D.refly.length + ' re-fly area(s)');
     }
-    facts.push(D.keyframes.length + ' keyframe footprints: click the map to see the photos of a point');
+    facts.push(D.keyframes.length ? D.keyframes.length + ' keyframe footprints: click the map to see the photos of a point'
+      : 'no keyframe footprints (they need the telemetry poses)');
     facts.forEach(function (f) { el('div', '', box, f); });
     if (D.refly.length) {
       var list = el('ol', 'refly-list', box);
       D.refly.slice(0, 12).forEach(function (a) {
         var r = a.rect;
         var item = el('li', '', list);
-        var link = el('a', '', item, 'along ' + a.along_min_m.toFixed(2) + '..' + a.along_max_m.toFixed(2) +
-          ', up ' + a.up_min_m.toFixed(2) + '..' + a.up_max_m.toFixed(2));
+        var link = el('a', '', item, fmtArea(a));
         link.href = '#';
         L.DomEvent.on(link, 'click', function (ev) {
           L.DomEvent.preventDefault(ev);

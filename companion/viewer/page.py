@@ -139,19 +139,22 @@ def viewer_data(
     }
 
 
-def write_viewer(map_dir: str | Path, keyframe_images: Mapping[int | str, Path] | None = None) -> str:
+def write_viewer(
+    map_dir: str | Path, keyframe_images: Mapping[int | str, Path] | None = None, *, report: dict | None = None
+) -> str:
     """Writes ``viewer.html`` and ``viewer/`` into a finished map folder; returns the page's path.
 
     ``keyframe_images`` (keyframe index -> image file) are linked into the folder so a click on a footprint
     shows the original photo; without them (None) the photos of the viewer being replaced are kept, and the page
-    still shows the footprints. The old viewer is replaced only
-    once the new one is complete.
+    still shows the footprints. ``report`` is the stitch report (default: the folder's ``report.json``; the
+    stitcher passes it before writing that file, so a finished report means a finished folder, viewer included).
+    The old viewer is replaced only once the new one is complete.
     """
     out = Path(map_dir)
     if keyframe_images is None:  # rewriting a viewer without the spool keeps the photos it already has
         keyframe_images = {p.name: p for p in (out / ASSETS / "keyframes").glob("*")}
     georef = _read_json(out / "map_georef.json")
-    report = _read_json(out / "report.json")
+    report = report if report is not None else _read_json(out / "report.json")
     reader = MapReader.open(out)
     tmp, old = out / f".{ASSETS}.tmp", out / f".{ASSETS}.old"
     for stale in (tmp, old):

@@ -156,6 +156,19 @@ def test_view_serves_the_folder_over_http(mapped):
         thread.join(timeout=30)
 
 
+def test_view_links_the_photos_of_a_spool_into_a_folder_that_lacks_them(mapped, tmp_path, capsys):
+    out, _, _, spool = mapped
+    copy = tmp_path / "map"
+    shutil.copytree(out, copy, ignore=shutil.ignore_patterns("cache", ASSETS, PAGE))
+    assert main(["view", str(copy), "--no-serve"]) == 0  # no viewer yet: written, without photos
+    said = capsys.readouterr().out
+    assert "--spool" in said and (copy / PAGE).resolve().as_uri() in said
+    assert all(k["image"] is None for k in _data(copy)["keyframes"])
+    assert main(["view", str(copy), "--spool", str(spool), "--no-serve"]) == 0
+    assert "--spool" not in capsys.readouterr().out
+    assert all((copy / k["image"]).is_file() for k in _data(copy)["keyframes"])
+
+
 def test_view_of_a_folder_without_a_map_is_a_clear_error(tmp_path, capsys):
     assert main(["view", str(tmp_path), "--no-serve"]) == 2
     err = capsys.readouterr().err

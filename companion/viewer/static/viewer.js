@@ -227,8 +227,10 @@
 
   var info = L.control({ position: 'topright' });
   info.onAdd = function () {
-    var box = el('div', 'viewer-panel viewer-info');
-    el('div', 'viewer-title', box, D.title);
+    var panel = el('div', 'viewer-panel viewer-info');
+    var box = el('details', '', panel);  // a click on the title folds the panel away from the map
+    box.open = true;
+    el('summary', 'viewer-title', box, D.title);
     var facts = [];
     if (D.mm_per_px) { facts.push(D.mm_per_px.toFixed(2) + ' mm/px, ' + F.width_px + ' x ' + F.height_px + ' px'); }
     else { facts.push('scale unknown (no telemetry): lengths in map pixels'); }
@@ -251,9 +253,9 @@
         });
       });
     }
-    L.DomEvent.disableClickPropagation(box);
-    L.DomEvent.disableScrollPropagation(box);
-    return box;
+    L.DomEvent.disableClickPropagation(panel);
+    L.DomEvent.disableScrollPropagation(panel);
+    return panel;
   };
   info.addTo(map);
 

@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.files import write_atomic
 from companion.viewer.tiles import MapReader, PyramidInfo, level_image, write_pyramid
 
 PAGE = "viewer.html"
@@ -181,7 +182,5 @@ def write_viewer(
     tmp.rename(final)
     shutil.rmtree(old, ignore_errors=True)
     page = out / PAGE
-    page_tmp = out / f".{PAGE}.tmp"
-    page_tmp.write_text(_HTML.format(title=html.escape(title), assets=ASSETS))
-    page_tmp.replace(page)
+    write_atomic(page, _HTML.format(title=html.escape(title), assets=ASSETS))
     return str(page)

@@ -70,20 +70,20 @@ def test_sequence_drops_the_background_only_photos_and_lowers_the_error(photo_pa
     assert sequence["error"] < single["error"] - 0.10, (single, sequence)
 
 
-def test_photos_without_motion_keep_the_network_mask(photo_pass, tmp_path):
-    """The same photo four times: no parallax, so the network alone decides, as without --sequence."""
+def test_photos_without_motion_keep_the_network_mask(photo_pass, tmp_path, capsys):
+    """The same photo four times: no parallax, so the network alone decides, as without --sequence, and says so."""
     folder, _ = photo_pass
     photo = folder / "IMG_0005.png"
     copies = []
     for k in range(4):
         copies.append(tmp_path / f"same_{k}.png")
         copies[-1].write_bytes(photo.read_bytes())
-    masker = Masker()
-    single = mask_photos(copies, tmp_path / "single", masker)
-    sequence = mask_photos(copies, tmp_path / "sequence", masker, sequence=True)
-    assert not any(m.by_parallax for m in sequence)
-    for a, b in zip(single, sequence, strict=True):
-        assert np.array_equal(cv2.imread(str(a.mask_path)), cv2.imread(str(b.mask_path)))
+    single = mask_photos(copies, tmp_path / "single", Masker())
+    assert main(["mask", *map(str, copies), "--out", str(tmp_path / "sequence"), "--sequence"]) == 0
+    printed = capsys.readouterr().out
+    assert "(parallax)" not in printed and "the network alone decided every mask" in printed
+    for m in single:
+        assert np.array_equal(cv2.imread(str(m.mask_path)), cv2.imread(str(tmp_path / "sequence" / m.mask_path.name)))
 
 
 def test_unreadable_photo_in_a_sequence_is_named_after_the_others_are_written(photo_pass, tmp_path):

@@ -135,6 +135,9 @@ def cmd_mask(args) -> int:
                           sequence=args.sequence)
     dropped = sum(m.no_near_surface for m in results)
     print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
+    if args.sequence and not any(m.by_parallax for m in results):
+        print("--sequence: no neighbouring photos showed usable motion, so the network alone decided every mask "
+              "(photos of one pass along the wall, in capture order, are needed)")
     return 0
 
 

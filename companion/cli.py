@@ -19,6 +19,7 @@ COMMAND_MODULES = [
     "companion.depth.commands",
     "companion.keyframes.commands",
     "companion.stitch.commands",
+    "companion.viewer.commands",
     "sim.camera.commands",
 ]
 

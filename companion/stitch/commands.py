@@ -81,6 +81,7 @@ def _print(res: StitchResult) -> None:
     for a in res.uncovered[:10]:
         print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
     print(f"report: {res.files['report']}")
+    print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 
 
 def run(args) -> int:

@@ -19,15 +19,9 @@ import time
 from pathlib import Path
 
 from companion.errors import CompanionError
-from companion.flight.simulator import SimulatorProcess, terminate
+from companion.flight.simulator import SimulatorProcess, free_port, terminate
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class SitlRig:

@@ -6,7 +6,7 @@ side by side without clashing with a simulator someone already runs on 14540.
 
 from __future__ import annotations
 
-from companion.flight.simulator import ROOT, free_udp_port
+from companion.flight.simulator import ROOT, free_port
 from companion.flight.simulator import SimulatorProcess as SitlVehicle
 
-__all__ = ["ROOT", "SitlVehicle", "free_udp_port"]
+__all__ = ["ROOT", "SitlVehicle", "free_port"]

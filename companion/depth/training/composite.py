@@ -25,6 +25,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from companion.attitude import camera_rotation_enu
 from companion.depth.realdata import RealPhoto, Split, facade_mask, list_real_photos, load_image
 from companion.errors import CompanionError
 
@@ -134,10 +135,9 @@ def camera_matrix(rng: np.random.Generator, height: int, width: int, aspect: flo
 
 
 def _rotation(yaw_deg: float, pitch_deg: float) -> np.ndarray:
-    y, p = np.radians(yaw_deg), np.radians(pitch_deg)
-    ry = np.array([[np.cos(y), 0, np.sin(y)], [0, 1, 0], [-np.sin(y), 0, np.cos(y)]])
-    rx = np.array([[1, 0, 0], [0, np.cos(p), -np.sin(p)], [0, np.sin(p), np.cos(p)]])
-    return ry @ rx
+    """A camera turned by ``yaw_deg`` / ``pitch_deg``, in the axes of the level camera it was turned from."""
+    level = camera_rotation_enu(yaw_deg=0.0, pitch_deg=0.0)
+    return level.T @ camera_rotation_enu(yaw_deg=yaw_deg, pitch_deg=pitch_deg)
 
 
 def plane_depth(K: np.ndarray, normal: np.ndarray, offset: float, height: int, width: int) -> np.ndarray:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
 from companion.keyframes.overlap import convex_intersection_area
 from companion.records import Frame, MaskedFrame, Pose, TaggedFrame
@@ -161,11 +162,9 @@ class WallCamera:
     def rotation(self) -> np.ndarray:
         """Columns: the camera's right, down and forward axes in facade coordinates (along, out, up).
 
-        The facade axes are left-handed (along x out = down), hence down = right x forward."""
-        psi, th = math.radians(self.yaw_deg), math.radians(self.pitch_deg)
-        forward = np.array([math.sin(psi) * math.cos(th), -math.cos(psi) * math.cos(th), math.sin(th)])
-        right = np.array([math.cos(psi), math.sin(psi), 0.0])
-        return np.column_stack([right, np.cross(right, forward), forward])
+        (along, -out, up) is a right-handed frame in which facing the wall is heading 0, so the camera's attitude
+        there is ``camera_rotation_enu``'s; flipping the out row gives the (left-handed) facade axes."""
+        return np.diag([1.0, -1.0, 1.0]) @ camera_rotation_enu(yaw_deg=self.yaw_deg, pitch_deg=self.pitch_deg)
 
     @property
     def centre(self) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Start the SITL vehicle (``python -m sim vehicle``) as a child process on free ports, and stop it again.
 
 Used by ``companion fly --sitl``, the demo and the tests: each run gets its own MAVLink port, so it never
-collides with a simulator or autopilot already using 14540.
+collides with a simulator or autopilot already using 14540. The child runs in the caller's working directory and
+finds ``sim`` where this process found it (a checkout or an installed wheel), never through the checkout's path.
 """
 
 from __future__ import annotations
@@ -16,7 +17,15 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 
-ROOT = Path(__file__).resolve().parents[2]
+# The directory holding the ``sim`` package, so the child's ``python -m sim`` imports this same copy of it.
+PACKAGE_PARENT = Path(__file__).resolve().parents[1]
+
+
+def child_environment() -> dict[str, str]:
+    """This process's environment with ``sim``'s parent directory first on PYTHONPATH (a no-op for a wheel, which
+    is on the interpreter's path already; a source checkout run without installing still works)."""
+    path = os.environ.get("PYTHONPATH", "")
+    return dict(os.environ, PYTHONPATH=str(PACKAGE_PARENT) + (os.pathsep + path if path else ""))
 
 
 def free_udp_port() -> int:
@@ -63,8 +72,7 @@ class SimulatorProcess:
 
     def start(self) -> SimulatorProcess:
         self._log = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
-        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.proc = subprocess.Popen(self.args, cwd=ROOT, stdout=self._log, stderr=self._log, env=env)
+        self.proc = subprocess.Popen(self.args, stdout=self._log, stderr=self._log, env=child_environment())
         time.sleep(0.3)
         if self.proc.poll() is not None:
             raise CompanionError(f"the simulator exited at start (code {self.proc.returncode})",

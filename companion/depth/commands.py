@@ -1,13 +1,13 @@
-"""CLI: ``companion depth export|train|average|run``, ``companion mask IMAGES``, ``companion eval mask REC``."""
+"""CLI: ``companion depth export|train|average|run`` and ``companion mask IMAGES``."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.plugins import provided
 
 log = logging.getLogger(__name__)
 
@@ -62,9 +62,10 @@ def cmd_export(args) -> int:
 
 def cmd_train(args) -> int:
     _need_torch()
-    from companion.depth.training.recordings import ensure_recordings
     from companion.depth.training.train import TrainConfig, train
 
+    if args.seeds or args.eval_seeds:
+        ensure_recordings = provided("ensure_recordings", "recording simulator scenes for training (--seeds)")
     out = Path(args.out)
     recs = [Path(p) for p in args.recordings or []]
     evals = [Path(p) for p in args.eval_recordings or []]
@@ -136,32 +137,6 @@ def cmd_mask(args) -> int:
     return 0
 
 
-def cmd_eval_mask(args) -> int:
-    from companion.depth.evaluate import evaluate_recording
-    from companion.depth.masker import Masker
-
-    masker = Masker(args.model)
-    summaries = []
-    for rec in args.recordings:
-        ev = evaluate_recording(rec, masker, stride=args.stride, max_frames=args.max_frames, save_dir=args.save)
-        s = ev.summary()
-        summaries.append(s)
-        print(f"{rec}: {s['frames']} frames, pixel error ratio mean {100 * s['error_mean']:.2f} % "
-              f"p95 {100 * s['error_p95']:.2f} % max {100 * s['error_max']:.2f} %; ROI nearer than background in "
-              f"{100 * s['roi_nearer_fraction']:.0f} % of {s['frames_with_both_sides']} frames with both; "
-              f"dropped {s['dropped_empty']} (true empty {s['true_empty']}, "
-              f"dropped with facade {s['dropped_with_facade']})")
-    if args.json:
-        Path(args.json).write_text(json.dumps(summaries, indent=1))
-    return 0
-
-
-def _eval_subparsers(subparsers):
-    from companion.cli import shared_group
-
-    return shared_group(subparsers, "eval", "measure a pipeline stage against simulator ground truth")
-
-
 def register(subparsers) -> None:
     depth = subparsers.add_parser("depth", help="depth model: export, train, run on images")
     dsub = depth.add_subparsers(dest="depth_command", required=True)
@@ -222,12 +197,3 @@ def register(subparsers) -> None:
     p.add_argument("--model", default=None, help="ONNX depth model (default: the shipped one)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: cores - 1)")
     p.set_defaults(func=cmd_mask)
-
-    p = _eval_subparsers(subparsers).add_parser("mask", help="depth mask error ratio against simulator masks")
-    p.add_argument("recordings", nargs="+", help="recording folder(s) (held-out seeds)")
-    p.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
-    p.add_argument("--stride", type=int, default=1)
-    p.add_argument("--max-frames", type=int, default=None)
-    p.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures")
-    p.add_argument("--json", default=None, help="write the summaries to this JSON file")
-    p.set_defaults(func=cmd_eval_mask)

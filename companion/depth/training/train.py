@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from companion.depth.training.data import FrameSet, augment_crop, load_frames, sample_batch
 from companion.depth.training.networks import Monodepth2, disp_to_depth, encoder_state_dict
 from companion.errors import CompanionError
+from companion.plugins import provided
 
 log = logging.getLogger(__name__)
 
@@ -149,12 +150,11 @@ def training_frames(
     cfg: TrainConfig, recordings: list[Path], view_seeds: list[int], stride: int, n_views: int
 ) -> FrameSet:
     """Frames of recordings and random-view scenes (rendered once into ``cfg.out/data``), depth as float16."""
-    from companion.depth.training.views import cached_views
-
     parts = []
     if recordings:
         parts.append(load_frames(recordings, cfg.height, cfg.width, cfg.max_depth, stride))
     if view_seeds:
+        cached_views = provided("training_views", "training on random-view simulator scenes (--view-seeds)")
         parts.append(cached_views(cfg.out / "data", view_seeds, n_views, cfg.height, cfg.width, cfg.max_depth))
     # depth kept as float16 in memory (metres to 0.05 %): ~0.25 MB per frame instead of 0.5
     return FrameSet(

@@ -45,8 +45,10 @@ def register_plugin(sub: argparse._SubParsersAction, module: str, commands: tupl
         if exc.name != package:
             raise  # the plugin is there but broken: show the real error
         for name in commands:
-            p = sub.add_parser(name, help=f"(needs the {package} package, not installed)", add_help=False)
-            p.add_argument("rest", nargs=argparse.REMAINDER)
+            # takes whatever follows (options included: no prefix character) so the error names what is missing
+            p = sub.add_parser(name, help=f"(needs the {package} package, not installed)", add_help=False,
+                               prefix_chars="\0")
+            p.add_argument("rest", nargs="*")
             p.set_defaults(func=_missing_plugin(module))
         return False
     plugin.register(sub)

@@ -101,24 +101,14 @@ def cmd_average(args) -> int:
 
 def cmd_run(args) -> int:
     """Mask image files and save frame | disparity | masked frame pictures (for looking at real photos)."""
-    import cv2
-    import numpy as np
-
-    from companion.depth.evaluate import save_visual
+    from companion.depth.inspect import inspect_images
     from companion.depth.masker import Masker
-    from companion.records import Frame, TaggedFrame
 
-    masker = Masker(args.model)
-    for n, name in enumerate(args.images):
-        image = cv2.imread(str(name), cv2.IMREAD_COLOR)
-        if image is None:
-            raise CompanionError(f"cannot read image {name}", "pass JPEG/PNG files")
-        _, roi = masker.mask(TaggedFrame(Frame(n, 0.0, image), pose=None))
-        disp = masker.session.disparity(image)
-        save_visual(Path(args.out) / f"{Path(name).stem}.jpg", image, disp, roi.mask, None)
-        print(f"{name}: ROI {100 * roi.roi_fraction:.1f} % of the frame, regions {roi.n_regions}, "
+    for seen in inspect_images(args.images, Path(args.out), Masker(args.model)):
+        roi = seen.roi
+        print(f"{seen.image}: ROI {100 * roi.roi_fraction:.1f} % of the frame, regions {roi.n_regions}, "
               f"no_boundary={roi.no_boundary}, empty={roi.empty}, "
-              f"disparity p5/p50/p95 = {' / '.join(f'{v:.4f}' for v in np.percentile(disp, [5, 50, 95]))}")
+              f"disparity p5/p50/p95 = {' / '.join(f'{v:.4f}' for v in seen.disparity_p5_p50_p95)}")
     return 0
 
 

@@ -6,8 +6,11 @@ import argparse
 import logging
 from pathlib import Path
 
+from companion.depth.session import DEFAULT_SIZE
+from companion.depth.training.config import TrainConfig
 from companion.errors import CompanionError
 from companion.plugins import provided
+from companion.resources import DEMO_MISSION_NAME, mission_argument
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +138,8 @@ def register(subparsers) -> None:
     p.add_argument("--encoder", required=True, help="encoder.pth (official key layout)")
     p.add_argument("--decoder", required=True, help="depth.pth (official key layout)")
     p.add_argument("--out", required=True, help="output .onnx")
-    p.add_argument("--size", type=_size, default=(192, 640), help="input HEIGHTxWIDTH (default 192x640)")
+    p.add_argument("--size", type=_size, default=DEFAULT_SIZE,
+                   help="input HEIGHTxWIDTH (default {}x{})".format(*DEFAULT_SIZE))
     p.add_argument("--source", default=None, help="metadata: where the weights come from")
     p.add_argument("--licence", default="as licensed by the checkpoint's owner", help="metadata: weights licence")
     p.add_argument("--opset", type=int, default=17)
@@ -143,30 +147,34 @@ def register(subparsers) -> None:
 
     p = dsub.add_parser("train", help="train the Monodepth2 model on simulator recordings (needs .[train])")
     p.add_argument("--out", required=True, help="run folder (checkpoints, logs, model.onnx); resumes if present")
-    p.add_argument("--mission", default="missions/demo-facade.yaml", help="mission the recordings fly")
+    p.add_argument("--mission", type=mission_argument, default=DEMO_MISSION_NAME,
+                   help=f"mission the recordings fly, a YAML or a shipped mission's name (default {DEMO_MISSION_NAME})")
     p.add_argument("--seeds", type=_seeds, default=None, help="training recording seeds, e.g. 0-23")
     p.add_argument("--eval-seeds", type=_seeds, default=None, help="held-out seeds, e.g. 100-103")
     p.add_argument("--view-seeds", type=_seeds, default=None, help="random-viewpoint scene seeds, e.g. 0-23")
     p.add_argument("--eval-view-seeds", type=_seeds, default=None, help="held-out random-view scenes, e.g. 1000-1003")
-    p.add_argument("--views-per-seed", type=int, default=50)
+    p.add_argument("--views-per-seed", type=int, default=TrainConfig.views_per_seed)
     p.add_argument("--recordings", nargs="*", help="existing training recording folders")
     p.add_argument("--eval-recordings", nargs="*", help="existing held-out recording folders")
     p.add_argument("--width-px", type=int, default=640, help="recording width in pixels")
     p.add_argument("--stride", type=int, default=2, help="keep every n-th camera frame of a recording")
-    p.add_argument("--size", type=_size, default=(192, 640), help="model input HEIGHTxWIDTH")
-    p.add_argument("--crop", type=_size, default=(128, 320), help="training crop HEIGHTxWIDTH (CPU speed)")
-    p.add_argument("--batch", type=int, default=8)
-    p.add_argument("--model-width", type=float, default=0.25, help="channel width factor (1.0 = original)")
-    p.add_argument("--lr", type=float, default=1e-4)
-    p.add_argument("--max-minutes", type=float, default=45.0, help="wall-time budget")
-    p.add_argument("--max-steps", type=int, default=1_000_000)
-    p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
+    p.add_argument("--size", type=_size, default=(TrainConfig.height, TrainConfig.width),
+                   help="model input HEIGHTxWIDTH")
+    p.add_argument("--crop", type=_size, default=TrainConfig.crop, help="training crop HEIGHTxWIDTH (CPU speed)")
+    p.add_argument("--batch", type=int, default=TrainConfig.batch)
+    p.add_argument("--model-width", type=float, default=TrainConfig.model_width,
+                   help="channel width factor (1.0 = original)")
+    p.add_argument("--lr", type=float, default=TrainConfig.lr)
+    p.add_argument("--max-minutes", type=float, default=TrainConfig.max_minutes, help="wall-time budget")
+    p.add_argument("--max-steps", type=int, default=TrainConfig.max_steps)
+    p.add_argument("--threads", type=int, default=TrainConfig.threads, help="torch threads (1 on a shared machine)")
     p.add_argument("--init-from", default=None,
                    help="fine-tune: start from this run folder's weights or a Monodepth2 .onnx (e.g. the shipped one)")
     p.add_argument("--real-photos", default=None,
                    help="shared data folder (../shared/data): mix in composites of its train-split real photos "
                         "(makes the model research / non-commercial)")
-    p.add_argument("--real-fraction", type=float, default=0.5, help="share of each batch from real photos")
+    p.add_argument("--real-fraction", type=float, default=TrainConfig.real_fraction,
+                   help="share of each batch from real photos")
     p.set_defaults(func=cmd_train)
 
     p = dsub.add_parser("average", help="uniform weight average of training runs (a model soup) -> verified ONNX")

@@ -1,16 +1,17 @@
 """Thin command line: parses arguments and calls library functions; each area registers its own subcommands.
 
-The simulator's commands (``sim``, ``record``, ``demo``, ``eval``) are a plugin: ``sim/commands.py`` registers them
-when the simulator package is installed, so companion never imports sim; without it they say what is missing.
+The simulator's commands (``sim``, ``record``, ``demo``, ``eval``) are a plugin (``companion.plugins``):
+``sim/commands.py`` registers them when the simulator package is installed, so companion never imports sim; without
+it they say what is missing.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import sys
 
+from companion import plugins
 from companion.depth import commands as depth_commands
 from companion.errors import CompanionError
 from companion.mission import commands as mission_commands
@@ -20,15 +21,13 @@ from companion.stitch import commands as stitch_commands
 # Each module here defines ``register(subparsers)`` adding its subcommands; a subcommand's parser sets
 # ``func`` (called with the parsed args; returns an exit code or None).
 COMMAND_MODULES = (onboard_commands, mission_commands, depth_commands, stitch_commands)
-# Plugin modules, imported by name when installed; each also defines ``COMMANDS``, the top-level names it adds.
-PLUGIN_MODULES = {"sim.commands": ("sim", "record", "demo", "eval")}
 
 
 def _missing_plugin(module: str):
     def run(args: argparse.Namespace) -> int:
         raise CompanionError(
-            f"`companion {args.command}` is a simulator command, and the simulator package (sim, for {module}) is "
-            "not installed here",
+            f"`companion {args.command}` is provided by the {module.split('.')[0]} package ({module}), which is not "
+            "installed here",
             "install companion with its simulator (the companion wheel ships sim; in a checkout: pip install -e .)",
         )
 
@@ -39,11 +38,8 @@ def register_plugin(sub: argparse._SubParsersAction, module: str, commands: tupl
     """Register ``module``'s commands; when its package is not installed, register each command name as one that
     says so (instead of argparse's "invalid choice"). True if the plugin loaded."""
     package = module.split(".")[0]
-    try:
-        plugin = importlib.import_module(module)
-    except ModuleNotFoundError as exc:
-        if exc.name != package:
-            raise  # the plugin is there but broken: show the real error
+    plugin = plugins.load_plugin(module)
+    if plugin is None:
         for name in commands:
             # takes whatever follows (options included: no prefix character) so the error names what is missing
             p = sub.add_parser(name, help=f"(needs the {package} package, not installed)", add_help=False,
@@ -65,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMAND_MODULES:
         module.register(sub)
-    for name, commands in PLUGIN_MODULES.items():
+    for name, commands in plugins.PLUGIN_MODULES.items():
         register_plugin(sub, name, commands)
     return parser
 

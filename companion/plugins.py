@@ -1,6 +1,9 @@
-"""What companion needs from the simulator, provided by the simulator: companion names each need here, ``sim``
-fills it in when it is imported (``sim/__init__.py``), so no module of companion imports sim and a companion
-installed without sim still plans, flies, culls and stitches. A need nobody provided is an error naming it.
+"""Optional packages that extend companion, and what companion needs from them.
+
+The simulator is one: companion names each need here, ``sim`` fills it in when it is imported (``sim/__init__.py``)
+and adds its commands (``sim/commands.py``), so no module of companion imports sim and a companion installed without
+sim still plans, flies, culls and stitches. Plugins are imported by the names in ``PLUGIN_MODULES`` (the CLI's
+plugin hook, and the first time a need is asked for); a need nobody provided is an error naming it.
 
 Needs (name: signature):
 
@@ -13,12 +16,31 @@ Needs (name: signature):
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 from companion.errors import CompanionError
+
+# module -> the top-level commands it adds (its ``register(subparsers)``); the CLI names them when it is missing
+PLUGIN_MODULES: dict[str, tuple[str, ...]] = {"sim.commands": ("sim", "record", "demo", "eval")}
+_LOADED: dict[str, ModuleType | None] = {}
+
+
+def load_plugin(module: str) -> ModuleType | None:
+    """Import the plugin ``module``; None when its package is not installed. A plugin that is installed but fails
+    to import raises, so its real error shows."""
+    if module not in _LOADED:
+        try:
+            _LOADED[module] = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name != module.split(".")[0]:
+                raise
+            _LOADED[module] = None
+    return _LOADED[module]
 
 
 @dataclass(frozen=True)
@@ -44,6 +66,9 @@ def provide(name: str, function: Callable[..., Any]) -> None:
 
 def provided(name: str, needed_for: str) -> Callable[..., Any]:
     """The function that fills ``name``, or a clear error saying ``needed_for`` needs the simulator package."""
+    if name not in _PROVIDED:
+        for module in PLUGIN_MODULES:
+            load_plugin(module)
     try:
         return _PROVIDED[name]
     except KeyError:

@@ -14,7 +14,7 @@ from companion.keyframes.gate import GateConfig
 from companion.keyframes.overlap import METHODS, OverlapConfig
 
 # The top-level commands this module adds; the CLI names them when sim is not installed.
-COMMANDS = ("sim", "record", "demo", "eval")  # the same names as companion.cli.PLUGIN_MODULES lists
+COMMANDS = ("sim", "record", "demo", "eval")  # the same names as companion.plugins.PLUGIN_MODULES lists
 
 
 def register(sub: argparse._SubParsersAction) -> None:

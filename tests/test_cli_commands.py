@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from companion import cli
+from companion import cli, plugins
 from companion.errors import CompanionError
 from companion.plugins import provided
 
@@ -51,7 +51,7 @@ def test_the_readme_command_table_matches_the_parser():
 def test_the_simulator_commands_register_from_sim_once():
     import sim.commands
 
-    assert cli.PLUGIN_MODULES["sim.commands"] == sim.commands.COMMANDS
+    assert plugins.PLUGIN_MODULES["sim.commands"] == sim.commands.COMMANDS
     commands = subcommands(cli.build_parser())
     for name in sim.commands.COMMANDS:
         parsers = [commands[name], *subcommands(commands[name]).values()]
@@ -62,10 +62,11 @@ def test_the_simulator_commands_register_from_sim_once():
 
 
 def test_without_the_simulator_its_commands_name_what_is_missing(monkeypatch, capsys, tmp_path):
-    monkeypatch.setattr(cli, "PLUGIN_MODULES", {"simulator_not_installed.commands": ("demo", "eval")})
+    monkeypatch.setattr(plugins, "PLUGIN_MODULES", {"simulator_not_installed.commands": ("demo", "eval")})
     assert cli.main(["demo", "--out", str(tmp_path / "demo")]) == 2
     err = capsys.readouterr().err
-    assert "`companion demo` is a simulator command" in err and "not installed" in err and "fix:" in err
+    assert "`companion demo` is provided by the simulator_not_installed package" in err
+    assert "not installed" in err and "fix:" in err
     assert not (tmp_path / "demo").exists()
     assert cli.main(["plan", "demo-facade", "--out", str(tmp_path / "plan")]) == 0  # the rest still works
 
@@ -75,7 +76,7 @@ def test_a_broken_plugin_is_not_mistaken_for_a_missing_one(monkeypatch, tmp_path
     (tmp_path / "brokenplugin" / "__init__.py").write_text("")
     (tmp_path / "brokenplugin" / "commands.py").write_text("import a_module_that_does_not_exist\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(cli, "PLUGIN_MODULES", {"brokenplugin.commands": ("demo",)})
+    monkeypatch.setattr(plugins, "PLUGIN_MODULES", {"brokenplugin.commands": ("demo",)})
     with pytest.raises(ModuleNotFoundError, match="a_module_that_does_not_exist"):
         cli.build_parser()
 

@@ -93,6 +93,17 @@ def test_companion_never_imports_sim():
     assert not offending, "companion must not import sim (sim registers what it provides):\n" + "\n".join(offending)
 
 
+def test_companion_reaches_sim_only_through_the_named_plugin_hook():
+    """The one place companion names sim is ``companion.plugins.PLUGIN_MODULES`` (an optional plugin, imported by
+    name when installed); any other string naming a sim module would be an import in disguise."""
+    named = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.startswith("sim."):
+                named.append((str(path.relative_to(ROOT)), node.value))
+    assert named == [("companion/plugins.py", "sim.commands")], named
+
+
 def test_no_import_cycle_between_the_parts_of_companion():
     graph = part_graph()
     assert graph["onboard"].keys() >= {"flight", "capture", "depth", "keyframes", "spool"}  # the walk sees imports

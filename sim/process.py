@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import sysconfig
 import time
 from pathlib import Path
 
@@ -22,8 +23,12 @@ PACKAGE_PARENT = Path(__file__).resolve().parents[1]
 
 
 def child_environment() -> dict[str, str]:
-    """This process's environment with ``sim``'s parent directory first on PYTHONPATH (a no-op for a wheel, which
-    is on the interpreter's path already; a source checkout run without installing still works)."""
+    """This process's environment, with ``sim``'s parent directory first on PYTHONPATH when sim runs from a source
+    tree (an installed sim is on the child interpreter's own path already, and its site-packages must not move
+    ahead of the standard library)."""
+    installed = {Path(sysconfig.get_paths()[key]).resolve() for key in ("purelib", "platlib")}
+    if PACKAGE_PARENT in installed:
+        return dict(os.environ)
     path = os.environ.get("PYTHONPATH", "")
     return dict(os.environ, PYTHONPATH=str(PACKAGE_PARENT) + (os.pathsep + path if path else ""))
 

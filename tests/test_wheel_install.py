@@ -82,3 +82,18 @@ def test_wheel_registers_the_simulator_commands(installed):
     helped = _run([bin_dir / "companion", "--help"], cwd=work, env=env).stdout
     for command in ("demo", "record", "eval", "sim"):
         assert command in helped
+
+
+def test_the_installed_simulator_starts_outside_the_checkout(installed):
+    bin_dir, env, work = installed
+    script = (
+        "import time\n"
+        "from sim.process import SimulatorProcess, child_environment\n"
+        "assert 'PYTHONPATH' not in child_environment(), 'an installed sim needs no PYTHONPATH'\n"
+        "sim = SimulatorProcess(speedup=1.0, log_path='vehicle.log').start()\n"
+        "time.sleep(3.0)\n"
+        "alive = sim.proc.poll() is None\n"
+        "sim.stop()\n"
+        "assert alive, open('vehicle.log').read()\n"
+    )
+    _run([bin_dir / "python", "-c", script], cwd=work, env=env, timeout=120)

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from companion.errors import CompanionError
+from companion.stitch import view_command
 from companion.stitch.follow import follow
 from companion.stitch.inputs import load_input
 from companion.stitch.worker import StitchConfig, StitchResult, stitch
@@ -49,6 +50,7 @@ def register(sub) -> None:
     p.add_argument("--tile-px", type=int, default=defaults.tile_px, help="render tile size (bounds memory)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
+    view_command.register(sub)  # `companion view MAPDIR`: the map's viewer
 
 
 def _config(args) -> StitchConfig:
@@ -85,6 +87,7 @@ def _print(res: StitchResult) -> None:
     for a in res.uncovered[:10]:
         print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
     print(f"report: {res.files['report']}")
+    print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 
 
 def run(args) -> int:

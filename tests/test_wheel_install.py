@@ -41,7 +41,8 @@ def installed(tmp_path_factory) -> tuple[Path, dict, Path]:
     wheel = next((tmp / "dist").glob("companion-*.whl"))
     names = zipfile.ZipFile(wheel).namelist()
     for shipped in ("companion/models/monodepth2-sim-r18w025.onnx", "companion/models/monodepth2-real-nc-r18w025.onnx",
-                    "companion/missions/demo-facade.yaml", "sim/__main__.py", "sim/commands.py"):
+                    "companion/missions/demo-facade.yaml", "companion/viewer/static/leaflet/LICENSE", "sim/__main__.py",
+                    "sim/commands.py"):
         assert shipped in names, f"the wheel lacks {shipped}"
     venv = tmp / "venv"
     _run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", venv], cwd=tmp, env=env)

@@ -96,3 +96,11 @@ def test_a_shipped_mission_is_planned_by_name_and_an_unknown_name_is_refused(tmp
     err = capsys.readouterr().err
     assert "neither a file nor a shipped mission" in err and "demo-facade" in err
     assert not (tmp_path / "other").exists()
+
+
+def test_fly_refuses_a_capture_it_cannot_run_before_anything_starts(tmp_path, capsys):
+    assert cli.main(["fly", "demo-facade", "--capture", "sim"]) == 2
+    assert "--capture needs --out DIR" in capsys.readouterr().err
+    assert cli.main(["fly", "demo-facade", "--capture", "sim", "--out", str(tmp_path / "spool")]) == 2
+    assert "--capture sim needs --sitl" in capsys.readouterr().err
+    assert not (tmp_path / "spool").exists()

@@ -33,8 +33,10 @@ def child_environment() -> dict[str, str]:
     return dict(os.environ, PYTHONPATH=str(PACKAGE_PARENT) + (os.pathsep + path if path else ""))
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A localhost port free right now for ``kind`` (UDP by default, ``socket.SOCK_STREAM`` for TCP): the one
+    helper the simulator, the rig, the benches and the tests take their ports from."""
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
@@ -60,8 +62,8 @@ class SimulatorProcess:
 
     def __init__(self, *, speedup: float = 20.0, seed: int = 0, log_path: Path | None = None,
                  mavlink_port: int | None = None, pose_port: int | None = None, **options):
-        self.port = mavlink_port or free_udp_port()
-        self.pose_port = pose_port if pose_port is not None else free_udp_port()
+        self.port = mavlink_port or free_port()
+        self.pose_port = pose_port if pose_port is not None else free_port()
         self.url = f"udpin://127.0.0.1:{self.port}"
         self.args = [sys.executable, "-m", "sim", "vehicle", "--mavlink-port", str(self.port), "--pose-port",
                      str(self.pose_port), "--speedup", str(speedup), "--seed", str(seed)]

@@ -18,13 +18,7 @@ import time
 from pathlib import Path
 
 from companion.errors import CompanionError
-from sim.process import SimulatorProcess, child_environment, terminate
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from sim.process import SimulatorProcess, child_environment, free_port, terminate
 
 
 class SitlRig:

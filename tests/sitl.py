@@ -9,8 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from sim.process import SimulatorProcess as SitlVehicle
-from sim.process import free_udp_port
+from sim.process import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
-__all__ = ["ROOT", "SitlVehicle", "free_udp_port"]
+__all__ = ["ROOT", "SitlVehicle", "free_port"]

@@ -122,11 +122,16 @@ def cmd_mask(args) -> int:
 
     def report(m) -> None:
         what = "no near surface: all-zero mask" if m.no_near_surface else f"ROI {100 * m.roi_fraction:.1f} %"
-        print(f"{m.image}: {what} -> {m.mask_path}", flush=True)
+        how = " (parallax)" if m.by_parallax else ""
+        print(f"{m.image}: {what}{how} -> {m.mask_path}", flush=True)
 
-    results = mask_photos(args.images, args.out, Masker(args.model, threads=args.threads), on_mask=report)
+    results = mask_photos(args.images, args.out, Masker(args.model, threads=args.threads), on_mask=report,
+                          sequence=args.sequence)
     dropped = sum(m.no_near_surface for m in results)
     print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
+    if args.sequence and not any(m.by_parallax for m in results):
+        print("--sequence: no neighbouring photos showed usable motion, so the network alone decided every mask "
+              "(photos of one pass along the wall, in capture order, are needed)")
     return 0
 
 
@@ -194,4 +199,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="folder for the masks (created if missing)")
     p.add_argument("--model", default=None, help="ONNX depth model (default: the shipped one)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: cores - 1)")
+    p.add_argument("--sequence", action="store_true",
+                   help="the photos are one pass along the wall in capture order (folders: sorted by name): "
+                        "motion parallax between neighbours corrects each mask (docs/DEPTH.md)")
     p.set_defaults(func=cmd_mask)

@@ -79,9 +79,6 @@ class StitchConfig:
     min_uncovered_m2: float = 0.02
     uncovered_cell_m: float = 0.1  # holes are reported on this grid (re-fly planning, not pixel accuracy)
 
-    def digest(self) -> str:
-        return hashlib.sha1(json.dumps(asdict(self), sort_keys=True, default=str).encode()).hexdigest()[:10]
-
 
 @dataclass
 class StitchResult:

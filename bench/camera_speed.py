@@ -85,8 +85,8 @@ def _poses(port: int, frame, stop: threading.Event, speed_m_s: float = 0.7) -> N
 def bench_live(mission_path: Path, width: int, fps: float, seconds: float, renderer: str) -> dict:
     """The live camera process's own loop (render, then JPEG + stream on its delivery thread) fed real-time
     poses for ``seconds``: frames sent and dropped, and CPU of this process (camera + pose sender) per second."""
-    from companion.flight.simulator import free_port
     from sim.camera.live import LiveCamera, LiveConfig
+    from sim.process import free_port
 
     pose_port = free_port()
     cam = LiveCamera(mission_path, LiveConfig(pose_port=pose_port, stream_port=free_port(socket.SOCK_STREAM),

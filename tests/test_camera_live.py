@@ -12,10 +12,10 @@ import pytest
 
 from companion.capture.simcam import SimCameraSource
 from companion.errors import CompanionError
-from companion.flight.simulator import free_port
 from companion.mission import load_mission, plan_scan
 from sim.camera.live import LiveCamera, LiveConfig, camera_pose, interpolate_pose
 from sim.camera.recording import load_recording
+from sim.process import free_port
 
 MISSION = "missions/demo-facade.yaml"
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pymavlink import mavutil
 
-from companion.flight.simulator import free_port
 from companion.onboard.camera_protocol import CameraDescription, MavlinkCamera
 from companion.records import Pose
+from sim.process import free_port
 
 mav = mavutil.mavlink
 

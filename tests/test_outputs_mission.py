@@ -62,7 +62,7 @@ def test_mavsdk_imports_the_plan_with_its_geofence(planned, tmp_path):
     from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
     from pymavlink import mavutil
 
-    from companion.flight.simulator import free_port
+    from sim.process import free_port
 
     plan, files = planned
     path = tmp_path / "m.plan"

@@ -1,7 +1,8 @@
 """Start the SITL vehicle (``python -m sim vehicle``) as a child process on free ports, and stop it again.
 
 Used by ``companion fly --sitl``, the demo and the tests: each run gets its own MAVLink port, so it never
-collides with a simulator or autopilot already using 14540.
+collides with a simulator or autopilot already using 14540. The child runs in the caller's working directory and
+finds ``sim`` where this process found it (a checkout or an installed wheel), never through the checkout's path.
 """
 
 from __future__ import annotations
@@ -11,12 +12,25 @@ import signal
 import socket
 import subprocess
 import sys
+import sysconfig
 import time
 from pathlib import Path
 
 from companion.errors import CompanionError
 
-ROOT = Path(__file__).resolve().parents[2]
+# The directory holding the ``sim`` package, so the child's ``python -m sim`` imports this same copy of it.
+PACKAGE_PARENT = Path(__file__).resolve().parents[1]
+
+
+def child_environment() -> dict[str, str]:
+    """This process's environment, with ``sim``'s parent directory first on PYTHONPATH when sim runs from a source
+    tree (an installed sim is on the child interpreter's own path already, and its site-packages must not move
+    ahead of the standard library)."""
+    installed = {Path(sysconfig.get_paths()[key]).resolve() for key in ("purelib", "platlib")}
+    if PACKAGE_PARENT in installed:
+        return dict(os.environ)
+    path = os.environ.get("PYTHONPATH", "")
+    return dict(os.environ, PYTHONPATH=str(PACKAGE_PARENT) + (os.pathsep + path if path else ""))
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
@@ -65,8 +79,7 @@ class SimulatorProcess:
 
     def start(self) -> SimulatorProcess:
         self._log = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
-        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.proc = subprocess.Popen(self.args, cwd=ROOT, stdout=self._log, stderr=self._log, env=env)
+        self.proc = subprocess.Popen(self.args, stdout=self._log, stderr=self._log, env=child_environment())
         time.sleep(0.3)
         if self.proc.poll() is not None:
             raise CompanionError(f"the simulator exited at start (code {self.proc.returncode})",

@@ -1,4 +1,7 @@
-"""`companion view MAPDIR`: opens the inspector's viewer of a stitched map (writing it first if it is missing)."""
+"""`companion view MAPDIR`: opens the inspector's viewer of a stitched map (writing it first if it is missing).
+
+Registered with `companion stitch` (stitch/commands.py): it reads the map's spool through the stitcher's inputs, and
+the stitcher writes the viewer, so the command sits above both (no stitch <-> viewer import cycle)."""
 
 from __future__ import annotations
 
@@ -8,6 +11,7 @@ import webbrowser
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.stitch.inputs import load_input
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
 
@@ -16,7 +20,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "view",
         help="open the inspector's viewer of a stitched map (tiles, coverage, re-fly areas, photos, mm)",
-        description=__doc__,
+        description=__doc__.split("\n\n")[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     p.add_argument("mapdir", help="the --out folder of `companion stitch`")
@@ -32,8 +36,6 @@ def register(sub) -> None:
 def _keyframe_images(spool: str | None) -> dict[int, Path] | None:
     if spool is None:
         return None
-    from companion.stitch.inputs import load_input
-
     return {kf.index: kf.image_path for kf in load_input(spool).keyframes}
 
 

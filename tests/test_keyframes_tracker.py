@@ -44,7 +44,7 @@ def test_dropped_frames_are_bridged_by_the_telemetry_prior(texture):
     for prior in (True, False):
         tracker = WallTracker()
         tracker.anchor(0, render(texture, views[0]))
-        for a, b in zip(kept, kept[1:]):
+        for a, b in zip(kept, kept[1:], strict=False):
             step = _shift_prior(-8.0 * (b - a)) if prior else None
             track = tracker.track(b, render(texture, views[b]), step_prior=step)
         if prior:

@@ -7,6 +7,7 @@ import pytest
 
 from companion.errors import CompanionError
 from companion.keyframes.motion import WallMotion
+from companion.keyframes.overlap import eq2_overlap
 from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 from companion.keyframes.tracker import TrackerConfig, WallTracker
 
@@ -21,7 +22,7 @@ def texture():
 def _shift_prior(dx: float, dy: float = 0.0) -> WallMotion:
     """A telemetry prior that says the wall moved by (dx, dy) px (image content shift)."""
     H_ = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy], [0.0, 0.0, 1.0]])
-    return WallMotion(H_, 100.0, dx, dy, 0.0)
+    return WallMotion(H_, eq2_overlap(dx, dy, W, H), dx, dy, 0.0)
 
 
 def test_overlap_follows_truth_every_frame(texture):
@@ -96,3 +97,15 @@ def test_bad_config_and_missing_anchor_name_the_fix():
         TrackerConfig(work_width_px=10)
     with pytest.raises(CompanionError, match="anchor"):
         WallTracker().track(0, np.zeros((H, W, 3), np.uint8))
+
+
+def test_flow_that_contradicts_the_telemetry_gives_way_to_it(texture):
+    """A static texture (a far background) does not move, but the telemetry says the wall moved a fifth of the
+    frame: the flow is not following the wall, so the telemetry's overlap stands in."""
+    image = render(texture, sweep(texture, 1, 1.0, W, H)[0])
+    tracker = WallTracker()
+    tracker.anchor(0, image)
+    agree = tracker.track(1, image, anchor_prior=_shift_prior(-3.2))  # within the tolerance: the flow decides
+    assert agree.source == "flow" and agree.overlap_percent == pytest.approx(100.0, abs=0.1)
+    track = tracker.track(2, image, anchor_prior=_shift_prior(-128.0))
+    assert track.source == "telemetry" and track.overlap_percent == pytest.approx(80.0)

@@ -39,6 +39,9 @@ class TrackerConfig:
     window_px: int = 21
     pyramid_levels: int = 3
     max_fb_error_px: float = 1.0  # forward-backward round trip (working px) a point must come back within
+    # The flow says the overlap is this many points above the telemetry's: it follows something that does not
+    # move like the wall (a far background, a reflection), and the telemetry's prediction stands in.
+    max_telemetry_disagreement: float = 10.0
 
     def __post_init__(self) -> None:
         if self.work_width_px < 64:
@@ -148,7 +151,11 @@ class WallTracker:
         self._prev_gray, self._prev_index = gray, frame_index
         if shift is not None and prev is not None:
             (sx, sy), n = shift
-            return self._record(frame_index, prev[0] + sx, prev[1] + sy, "flow", n)
+            w, h = self._size
+            dx, dy = prev[0] + sx, prev[1] + sy
+            if anchor_prior is None or (eq2_overlap(dx, dy, w, h) - anchor_prior.overlap_percent
+                                        <= self.config.max_telemetry_disagreement):
+                return self._record(frame_index, dx, dy, "flow", n)
         self._points = self._seed(gray)  # pick the track up again from this frame
         if anchor_prior is not None:
             return self._record(frame_index, anchor_prior.dx, anchor_prior.dy, "telemetry", 0)

@@ -45,6 +45,7 @@ class ChainStats:
     telemetry_overlap_keyframes: int = 0  # keyframes whose overlap the poses gave (too little wall to measure)
     spool_errors: int = 0
     busy_s: float = 0.0
+    cpu_s: float = 0.0  # CPU time of the thread running the chain (the depth model's own threads not included)
     first_frame_wall_s: float | None = None
     last_frame_wall_s: float | None = None
     warnings: list[str] = field(default_factory=list)
@@ -105,7 +106,7 @@ class CullChain:
         self.on_warning(message)
 
     def process(self, frame: Frame) -> list[SpoolEntry]:
-        now = time.monotonic()
+        now, cpu0 = time.monotonic(), time.thread_time()
         st = self.stats
         st.first_frame_wall_s = st.first_frame_wall_s or now
         st.last_frame_wall_s = now
@@ -126,6 +127,7 @@ class CullChain:
         self._events()
         out = self._spool(keyframes)
         st.busy_s += time.monotonic() - now
+        st.cpu_s += time.thread_time() - cpu0
         return out
 
     def finish(self) -> list[SpoolEntry]:

@@ -9,9 +9,10 @@ frame whose MEASURED R is >= Rth, followed by the first one below (which makes i
 so a keyframe costs about two measurements instead of one per frame. Every measurement also re-seats the tracker
 (its summed flow is replaced by the measured shift), so drift never outlives a keyframe.
 
-When the tracker loses the wall (no texture, no telemetry), the newest frame is measured, as a chain without a
-tracker would; frames that arrive while a search runs wait in the runner's queue (or are dropped there, oldest
-first): frames, never a keyframe below Rth, because the search only uses frames it measured.
+When the tracker loses the wall (no texture, no telemetry), the held frames are decided at once with the newest one
+measured too, as a chain without a tracker would. Frames that arrive while a search runs wait in the runner's
+queue (or are dropped there, oldest first): they cost frames, never a keyframe below Rth, because the search only
+uses frames it measured.
 """
 
 from __future__ import annotations
@@ -88,14 +89,11 @@ class TrackedSelection:
                                    self._motion(self._anchor_tagged, tagged))
         self._prev = tagged
         self._tracked += 1
-        if not track.known:
-            self._lost += 1
-            self._held.clear()
-            self._masked.clear()
-            return self._measure_and_push(tagged)
         self._hold(tagged)
-        rth = self.gate.rth_percent
-        if track.overlap_percent < rth - self.schedule.resolve_below:
+        if not track.known:  # the wall is lost: decide now on what is held, the newest frame measured too
+            self._lost += 1
+            return self._search()
+        if track.overlap_percent < self.gate.rth_percent - self.schedule.resolve_below:
             return self._search()
         return []
 

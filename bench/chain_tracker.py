@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -66,18 +68,24 @@ class TrueOverlap:
         return None if motion is None else motion.overlap_percent
 
     def minimum_keyframes(self, t0: float, t1: float, rth: float, step_s: float = 1 / 30) -> int:
-        """The paper's rule on the truth, every ``step_s``: the next keyframe is the last time still >= Rth
-        (a time the wall is out of view starts a new segment)."""
-        count, key, last_ok, t = 1, t0, t0, t0 + step_s
-        while t <= t1:
+        """The paper's rule on the truth, every ``step_s``: the next keyframe is the last time still >= Rth; a
+        stretch with the wall out of view ends the segment and the first time it is back starts a new one."""
+        count, key, last_ok = 0, None, None
+        for t in np.arange(t0, t1 + 1e-9, step_s):
+            if key is None:
+                if self.percent(t, t) is not None:
+                    key = last_ok = t
+                    count += 1
+                continue
             r = self.percent(key, t)
-            if r is None or r < rth:
-                count += 1
-                key = last_ok if (r is not None and last_ok > key) else t
-                last_ok = key
-            else:
+            if r is None:
+                key = None
+            elif r >= rth:
                 last_ok = t
-            t += step_s
+            else:
+                key = last_ok if last_ok > key else t
+                last_ok = key
+                count += 1
         return count
 
 

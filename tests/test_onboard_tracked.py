@@ -62,6 +62,14 @@ def test_dropped_frames_cost_frames_never_a_keyframe_below_rth(scan):
     assert len(tracked) <= 6
 
 
+def test_a_track_that_jumps_across_the_band_still_keeps_a_frame_above_rth(scan):
+    views, frames = scan
+    tracked, _, _ = _select(frames, keep=lambda i: i % 8 == 0)  # 56 px = 11.7 points of overlap per frame kept
+    assert tracked == [0, 8, 16, 24, 32, 40, 48]  # each the last kept frame still >= 80 %
+    for a, b in zip(tracked, tracked[1:], strict=False):
+        assert true_overlap(views[a], views[b]) >= 0.80
+
+
 def test_untrackable_frames_are_measured_one_by_one():
     blank = [masked_frame(i, np.full((H, W, 3), 120, np.uint8)) for i in range(6)]
     _, selection, masked_calls = _select(blank)

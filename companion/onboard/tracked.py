@@ -112,10 +112,12 @@ class TrackedSelection:
 
     # -- holding and searching ----------------------------------------------------------------------------
     def _hold(self, tagged: TaggedFrame) -> None:
-        """Keep the newest frame and the frames in the band above Rth; older ones above the band are not needed."""
-        self._held.append(tagged)
+        """Keep the newest frame, the frames in the band above Rth and the last frame above the band: when frames
+        were dropped and the track jumped across the band in one step, that one is the frame still >= Rth."""
         limit = self.gate.rth_percent + self.schedule.hold_above
-        keep = [t for t in self._held[:-1] if (self.tracker.predicted(t.frame.index) or 100.0) <= limit]
+        above = [t for t in self._held if (self.tracker.predicted(t.frame.index) or 100.0) > limit]
+        last_above = above[-1] if above else None
+        keep = [t for t in self._held if t is last_above or (self.tracker.predicted(t.frame.index) or 100.0) <= limit]
         keep.append(tagged)
         while len(keep) > self.schedule.max_held:
             keep.pop(0)

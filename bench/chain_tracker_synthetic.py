@@ -2,7 +2,8 @@
 along a synthetic wall (``companion.keyframes.synthetic.WallScene``: textured wall, far background, exact poses and
 true overlap), rendered ahead of time, JPEG-encoded, and replayed in real time through the live runner.
 
-    python bench/chain_tracker_synthetic.py [--fps 30] [--width 1280] [--speed 1.0] [--length 24] [--busy-core]
+    python bench/chain_tracker_synthetic.py [--fps 30] [--width 1280] [--speed 1.0] [--length 24] [--speedup 1]
+                                            [--busy-core]
 
 Why beside bench/chain_tracker.py: the SITL camera renders 1280 px frames at a few per second on a loaded 2-core
 machine (docs/BENCHMARKS.md, camera simulator), so in SITL the chain never sees 30 fps; here the frames arrive at
@@ -47,14 +48,14 @@ class PacedJpegSource(FrameSource):
     """Frames released at their capture times on the wall clock (a real camera), decoded from JPEG as the
     simulator camera's stream is."""
 
-    def __init__(self, jpegs: list[bytes], fps: float):
+    def __init__(self, jpegs: list[bytes], fps: float, speedup: float = 1.0):
         super().__init__()
-        self.jpegs, self.fps = jpegs, fps
+        self.jpegs, self.fps, self.speedup = jpegs, fps, speedup
 
     def __iter__(self):
         t0 = time.monotonic()
         for i, data in enumerate(self.jpegs):
-            delay = t0 + i / self.fps - time.monotonic()
+            delay = t0 + i / (self.fps * self.speedup) - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
             self.stats.delivered += 1
@@ -78,7 +79,8 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path) -> dict
     gate = KeyframeGate(GateConfig(), predictor)
     chain = CullChain(FrameTagger(buffer, ClockMap(fixed_offset_s=0.0)), Masker(), gate, KeyframeSpool(out / name),
                       track=MeasureSchedule() if name == "tracker" else None)  # fmt: skip
-    runner = LiveRunner(PacedJpegSource(jpegs, args.fps), chain, queue_size=30 if name == "tracker" else 3)
+    source = PacedJpegSource(jpegs, args.fps, args.speedup)
+    runner = LiveRunner(source, chain, queue_size=30 if name == "tracker" else 3)
     wall0 = time.monotonic()
     runner.run_until_done(poll_s=0.05)
     wall = time.monotonic() - wall0
@@ -93,6 +95,7 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path) -> dict
         "frames_skipped_for_cpu": st.skipped_backlog,
         "frames_measured": st.frames_measured,
         "chain_thread_cpu_share_of_one_core": round(st.cpu_s / wall, 3),
+        "chain_cpu_s_per_simulated_s": round(st.cpu_s / span, 3),
         "keyframes": st.keyframes,
         "minimum_from_truth": minimum_keyframes(scene, cams, 100.0 * chain.gate.config.rth),
         "lowest_true_overlap_of_a_pair_percent": round(min(pairs), 1) if pairs else None,
@@ -124,6 +127,8 @@ def main() -> int:
     p.add_argument("--width", type=int, default=1280)
     p.add_argument("--speed", type=float, default=1.0, help="scan speed along the wall, m/s")
     p.add_argument("--length", type=float, default=24.0, help="length of the scan leg, m")
+    p.add_argument("--speedup", type=float, default=1.0,
+                   help="replay rate (simulated s per wall s); below 1 gives a starved chain more CPU per frame")
     p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
     p.add_argument("--out", type=Path)

@@ -38,7 +38,7 @@ class MeasureSchedule:
 
     hold_above: float = 6.0
     resolve_below: float = 1.5
-    max_held: int = 90
+    max_held: int = 45  # 1.5 s of a 30 fps camera; the band itself is about 10 frames at the planned speed
     tracker: TrackerConfig = TrackerConfig()
 
     def __post_init__(self) -> None:
@@ -46,7 +46,7 @@ class MeasureSchedule:
             raise CompanionError(f"hold_above={self.hold_above} and resolve_below={self.resolve_below} must be > 0",
                                  "use e.g. hold_above=6, resolve_below=1.5 (percentage points)")
         if self.max_held < 2:
-            raise CompanionError(f"max_held={self.max_held} cannot hold a frame pair", "use e.g. 90")
+            raise CompanionError(f"max_held={self.max_held} cannot hold a frame pair", "use e.g. 45")
 
 
 @dataclass(frozen=True)

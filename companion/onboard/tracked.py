@@ -115,9 +115,9 @@ class TrackedSelection:
         """Keep the newest frame, the frames in the band above Rth and the last frame above the band: when frames
         were dropped and the track jumped across the band in one step, that one is the frame still >= Rth."""
         limit = self.gate.rth_percent + self.schedule.hold_above
-        above = [t for t in self._held if (self.tracker.predicted(t.frame.index) or 100.0) > limit]
+        above = [t for t in self._held if self._predicted(t, 100.0) > limit]
         last_above = above[-1] if above else None
-        keep = [t for t in self._held if t is last_above or (self.tracker.predicted(t.frame.index) or 100.0) <= limit]
+        keep = [t for t in self._held if t is last_above or self._predicted(t, 100.0) <= limit]
         keep.append(tagged)
         while len(keep) > self.schedule.max_held:
             keep.pop(0)
@@ -126,12 +126,16 @@ class TrackedSelection:
         kept = {t.frame.index for t in keep}
         self._masked = {i: m for i, m in self._masked.items() if i in kept}
 
+    def _predicted(self, tagged: TaggedFrame, unknown: float) -> float:
+        """The tracker's overlap of a held frame with the keyframe; ``unknown`` where it has none."""
+        value = self.tracker.predicted(tagged.frame.index)
+        return unknown if value is None else value
+
     def _search(self) -> list[Keyframe]:
         """Find the last held frame whose measured R is >= Rth and hand it, then the next one, to the gate."""
         self._searches += 1
         held, rth = self._held, self.gate.rth_percent
-        start = max((i for i, t in enumerate(held) if (self.tracker.predicted(t.frame.index) or 0.0) >= rth),
-                    default=0)
+        start = max((i for i, t in enumerate(held) if self._predicted(t, 0.0) >= rth), default=0)
         last_above, first_below = self._bracket(start)
         plan = [held[i] for i in (last_above, first_below) if i is not None]
         if not plan:  # nothing measurable held: the newest frame decides, as without a tracker

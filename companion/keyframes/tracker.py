@@ -40,8 +40,10 @@ class TrackerConfig:
     pyramid_levels: int = 3
     max_fb_error_px: float = 1.0  # forward-backward round trip (working px) a point must come back within
     # The flow says the overlap is this many points above the telemetry's: it follows something that does not
-    # move like the wall (a far background, a reflection), and the telemetry's prediction stands in.
-    max_telemetry_disagreement: float = 10.0
+    # move (all) like the wall (roof line, far background, a reflection), and the telemetry's prediction stands in.
+    # Tight, as the gate's own telemetry veto (3 points): a flow that lags makes the chain measure too late, one
+    # that leads only makes it measure early.
+    max_telemetry_disagreement: float = 3.0
 
     def __post_init__(self) -> None:
         if self.work_width_px < 64:

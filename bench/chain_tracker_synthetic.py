@@ -80,7 +80,8 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path) -> dict
     chain = CullChain(FrameTagger(buffer, ClockMap(fixed_offset_s=0.0)), Masker(), gate, KeyframeSpool(out / name),
                       track=MeasureSchedule() if name == "tracker" else None)  # fmt: skip
     source = PacedJpegSource(jpegs, args.fps, args.speedup)
-    runner = LiveRunner(source, chain, queue_size=30 if name == "tracker" else 3)
+    tracked = name == "tracker"
+    runner = LiveRunner(source, chain, queue_size=30 if tracked else 3, drop="thin" if tracked else "oldest")
     wall0 = time.monotonic()
     runner.run_until_done(poll_s=0.05)
     wall = time.monotonic() - wall0

@@ -153,7 +153,8 @@ def run_live_scan(
     except BaseException:
         source.close()
         raise
-    runner = LiveRunner(source, chain, queue_size=queue_size or (_TRACKED_QUEUE if track else 3))
+    runner = LiveRunner(source, chain, queue_size=queue_size or (_TRACKED_QUEUE if track else 3),
+                        drop="thin" if track else "oldest")
     flight = _fly_while_culling(plan, connect_url, telemetry_log, fly_kwargs, tailer=tailer, runner=runner,
                                 source=source, paced=paced, camera_component=camera_component)
     return _report(flight, chain, runner, out, telemetry_log, capture, paced)

@@ -1,4 +1,4 @@
-"""A camera that stops delivering gives a clear warning; `companion sim record --fast` writes a recording."""
+"""A camera that stops delivering gives a clear warning; `companion record --fast` writes a recording."""
 
 from __future__ import annotations
 
@@ -64,7 +64,7 @@ def test_sim_record_fast_writes_a_recording(tmp_path, capsys):
 
     mission = Path(__file__).parent / "data" / "small-wall.yaml"
     out = tmp_path / "rec"
-    assert main(["sim", "record", str(mission), "--out", str(out), "--fast", "--max-frames", "3", "--width", "96"]) == 0
+    assert main(["record", str(mission), "--out", str(out), "--fast", "--max-frames", "3", "--width", "96"]) == 0
     meta = json.loads((out / "meta.json").read_text())
     assert meta["frames"] == 3 and len(list((out / "frames").glob("*.jpg"))) == 3
     assert "recorded 3 frames" in capsys.readouterr().out

@@ -44,6 +44,7 @@ from companion.stitch.render import (
     render_tile,
 )
 from companion.stitch.render_plan import plan_render
+from companion.viewer import write_viewer
 
 log = logging.getLogger(__name__)
 
@@ -77,9 +78,6 @@ class StitchConfig:
     preview_width: int = 3000
     min_uncovered_m2: float = 0.02
     uncovered_cell_m: float = 0.1  # holes are reported on this grid (re-fly planning, not pixel accuracy)
-
-    def digest(self) -> str:
-        return hashlib.sha1(json.dumps(asdict(self), sort_keys=True, default=str).encode()).hexdigest()[:10]
 
 
 @dataclass
@@ -410,6 +408,7 @@ def stitch(
     # World file / CRS in wall metres, alpha for uncovered areas, the wall's geographic anchor (docs/OUTPUTS.md):
     # written before report.json so the report lists them and a finished report means a finished map folder.
     files.update(write_georeferencing(result, inp))
+    files["viewer"] = write_viewer(out, {kf.index: kf.image_path for kf in inp.keyframes}, report=report)
     files["report"] = str(out / "report.json")
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=1))

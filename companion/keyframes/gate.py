@@ -14,6 +14,10 @@ static far background cannot), a pair the poses put below Rth - ``telemetry_marg
 the image says, and where the image holds too little wall to measure (a thin strip at the wall's end) the
 predicted overlap decides and the keyframe's record says so (``overlap_source``). Frames without poses are
 decided by the image alone, as in the paper.
+
+``measure`` gives R against the current keyframe without deciding anything, so a scheduler that holds frames back
+(``companion.onboard.tracked``) can find the last frame still >= Rth among them and push only that one and the
+next; the features and the estimate it computed are reused by the push.
 """
 
 from __future__ import annotations

@@ -11,10 +11,12 @@ per scan leg:
 * standoff: the largest |horizontal distance to the wall plane - planned standoff| over the same samples as the
   heading.
 
-A sample belongs to a leg when its projection on the leg falls inside it and it is within ``--max-cross`` metres
-of the leg measured in the wall's plane (along / up); the distance out from the wall is not used to pick samples,
-so a vehicle that drifts off the standoff is measured, not dropped. It also prints the mission items reached (the
-highest mission progress seen / the total) and whether the log ends landed and disarmed.
+A sample belongs to a leg when its projection on the leg falls inside it, it is within ``--max-cross`` metres of
+the leg measured in the wall's plane (along / up) and within ``--max-out`` metres (default 2) of the standoff
+distance: generous, so a vehicle that drifts off the standoff is measured, not dropped, while the take-off climb or
+the transit far out from the wall (which can pass the same along / up position) is not taken for a scan leg.
+It also prints the mission items reached (the highest mission progress seen / the total) and whether the log
+ends landed and disarmed.
 
 Exit status: 0 when every judged figure is within its limit (heading 3 deg, speed 15 %, standoff 0.3 m, all items,
 landed, disarmed), 1 otherwise. Works on any autopilot's log: nothing in it depends on the firmware.
@@ -90,8 +92,8 @@ def _usable(row: dict) -> bool:
     return all(row.get(k) is not None for k in keys) and bool(row.get("in_air"))
 
 
-def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, core: float = 0.6, trim: float = 0.02
-                ) -> list[LegFigures]:
+def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: float = 2.0, core: float = 0.6,
+                trim: float = 0.02) -> list[LegFigures]:
     """One ``LegFigures`` per scan leg of ``plan`` from telemetry ``rows`` (``read_telemetry_log``)."""
     frame = plan.frame
     wall_yaw = frame.yaw_facing_wall_deg
@@ -117,7 +119,8 @@ def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, core: float = 
         u = (b - a) / length
         s = (pos - a) @ u
         cross = np.abs((pos - a) @ np.array([-u[1], u[0]]))
-        on_leg = (cross <= max_cross_m) & (s >= trim * length) & (s <= (1.0 - trim) * length)
+        on_leg = ((cross <= max_cross_m) & (np.abs(out - standoff) <= max_out_m)
+                  & (s >= trim * length) & (s <= (1.0 - trim) * length))
         middle = on_leg & (np.abs(s - length / 2.0) <= core * length / 2.0)
         speeds = vel[middle] @ u
         legs.append(LegFigures(
@@ -165,12 +168,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("telemetry_log", type=Path, help="the file given to companion fly --telemetry-log")
     ap.add_argument("--max-cross", type=float, default=1.0,
                     help="metres from a leg, in the wall's plane, for a sample to count on it (default 1)")
+    ap.add_argument("--max-out", type=float, default=2.0,
+                    help="metres from the standoff distance for a sample to count on a leg (default 2)")
     args = ap.parse_args(argv)
     plan = plan_scan(load_mission(args.mission))
     print(f"{args.mission.name}: {len(plan.scan_legs)} scan legs, wall-facing heading "
           f"{plan.frame.yaw_facing_wall_deg:.2f} deg, standoff {plan.mission.standoff_m} m, "
           f"planned scan speed {plan.estimates.scan_speed_m_s:.3f} m/s; log {args.telemetry_log}")
-    fig = flight_figures(plan, read_telemetry_log(args.telemetry_log), max_cross_m=args.max_cross)
+    fig = flight_figures(plan, read_telemetry_log(args.telemetry_log), max_cross_m=args.max_cross,
+                         max_out_m=args.max_out)
     print(report(fig))
     return 0 if fig.passed else 1
 

@@ -86,3 +86,19 @@ def test_items_and_final_state_are_judged(plan):
     rows[-1]["mission_item"] = 20  # stopped at item 20 of 36
     short = judge.flight_figures(plan, rows)
     assert (short.items_reached, short.items_total, short.passed) == (20, 36, False)
+
+
+def test_takeoff_climb_far_from_the_wall_is_not_a_scan_leg(plan):
+    """Real ArduCopter: the take-off climb (13 m out from the wall) passes the along / up position of the middle
+    strip; it must not be judged as that strip flown 9 m off the standoff at 2.5 m/s."""
+    judge = _judge()
+    frame, o = plan.frame, plan.frame.origin
+    climb = []
+    for up in np.arange(0.0, 18.0, 0.25):
+        e, n, z = frame.facade_to_enu(plan.waypoints[14].along_m, 13.0, up)
+        lat, lon, alt = pymap3d.enu2geodetic(float(e), float(n), float(z), o.lat, o.lon, o.alt_amsl_m)
+        climb.append({"lat": lat, "lon": lon, "alt_amsl_m": alt, "yaw_deg": 90.0, "vn_m_s": 0.0, "ve_m_s": 0.0,
+                      "vd_m_s": -2.5, "mission_item": 1, "mission_total": 36, "armed": True, "in_air": True})
+    fig = judge.flight_figures(plan, climb + synthetic_rows(plan))
+    assert fig.passed
+    assert max(g.max_standoff_error_m for g in fig.legs) < 0.01

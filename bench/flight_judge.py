@@ -72,7 +72,7 @@ class LegFigures:
 @dataclass(frozen=True)
 class FlightFigures:
     legs: list[LegFigures]
-    items_reached: int  # highest mission progress seen (mavsdk's "current", 1-based once finished)
+    items_reached: int  # highest mission progress seen (mavsdk's "current"; = total once finished)
     items_total: int
     landed: bool | None  # the log's last in-air state is False
     disarmed: bool | None  # the log's last armed state is False
@@ -90,6 +90,24 @@ def _wrap_deg(deg: np.ndarray) -> np.ndarray:
 def _usable(row: dict) -> bool:
     keys = ("lat", "lon", "alt_amsl_m", "yaw_deg", "vn_m_s", "ve_m_s", "vd_m_s")
     return all(row.get(k) is not None for k in keys) and bool(row.get("in_air"))
+
+
+def _first_pass(mask: np.ndarray, s: np.ndarray, length: float) -> np.ndarray:
+    """Only the first run of consecutive samples that covers at least half the leg: the scan pass. A later pass
+    over the same stretch is something else (real ArduCopter climbed back up the last strip to the transit
+    altitude after scanning it)."""
+    idx = np.flatnonzero(mask)
+    if idx.size == 0:
+        return mask
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    for run in runs:
+        if np.ptp(s[run]) >= 0.5 * length:
+            break
+    else:
+        run = runs[0]
+    out = np.zeros_like(mask)
+    out[run] = True
+    return out
 
 
 def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: float = 2.0, core: float = 0.6,
@@ -119,8 +137,8 @@ def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: flo
         u = (b - a) / length
         s = (pos - a) @ u
         cross = np.abs((pos - a) @ np.array([-u[1], u[0]]))
-        on_leg = ((cross <= max_cross_m) & (np.abs(out - standoff) <= max_out_m)
-                  & (s >= trim * length) & (s <= (1.0 - trim) * length))
+        on_leg = _first_pass(((cross <= max_cross_m) & (np.abs(out - standoff) <= max_out_m)
+                              & (s >= trim * length) & (s <= (1.0 - trim) * length)), s, length)
         middle = on_leg & (np.abs(s - length / 2.0) <= core * length / 2.0)
         speeds = vel[middle] @ u
         legs.append(LegFigures(
@@ -138,8 +156,15 @@ def flight_figures(plan, rows: list[dict], **kw) -> FlightFigures:
     total = max((r["mission_total"] for r in rows if r.get("mission_total") is not None), default=0)
     in_air = [r["in_air"] for r in rows if r.get("in_air") is not None]
     armed = [r["armed"] for r in rows if r.get("armed") is not None]
+    landed = (not in_air[-1]) if in_air else None
+    disarmed = (not armed[-1]) if armed else None
+    if total > 0 and reached == total - 1 and landed and disarmed:
+        # the last item (LAND) was being flown and the vehicle is down and disarmed: it is done. ArduCopter never
+        # reports progress past it (its current item goes back to 1 after landing); mavsdk counts it only after
+        # MISSION_ITEM_REACHED, which the log does not hold.
+        reached = total
     return FlightFigures(legs=leg_figures(plan, rows, **kw), items_reached=reached, items_total=total,
-                         landed=(not in_air[-1]) if in_air else None, disarmed=(not armed[-1]) if armed else None)
+                         landed=landed, disarmed=disarmed)
 
 
 def report(fig: FlightFigures) -> str:

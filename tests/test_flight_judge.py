@@ -50,7 +50,8 @@ def synthetic_rows(plan, yaw_offset_deg=0.0, speed_factor=1.0, out_error_m=0.0, 
                                                                                  + yaw_offset_deg) % 360.0,
                          "vn_m_s": u[0] * v * dn, "ve_m_s": u[0] * v * de, "vd_m_s": -u[1] * v,
                          "mission_item": 10, "mission_total": total, "armed": True, "in_air": True})
-    rows.append({**rows[-1], "mission_item": total, "in_air": not land, "armed": not land})
+    rows.append({**rows[-1], "mission_item": total - 1, "in_air": True, "armed": True})  # flying the LAND item
+    rows.append({**rows[-1], "in_air": not land, "armed": not land})
     return rows
 
 
@@ -83,9 +84,22 @@ def test_items_and_final_state_are_judged(plan):
     airborne = judge.flight_figures(plan, synthetic_rows(plan, land=False))
     assert (airborne.landed, airborne.disarmed, airborne.passed) == (False, False, False)
     rows = synthetic_rows(plan)
-    rows[-1]["mission_item"] = 20  # stopped at item 20 of 36
+    rows[-1]["mission_item"] = rows[-2]["mission_item"] = 20  # landed at item 20 of 36
     short = judge.flight_figures(plan, rows)
     assert (short.items_reached, short.items_total, short.passed) == (20, 36, False)
+    done = judge.flight_figures(plan, synthetic_rows(plan))  # down and disarmed in the last item: all done
+    assert (done.items_reached, done.items_total) == (36, 36)
+
+
+def test_a_second_pass_over_a_leg_is_not_the_scan(plan):
+    """Real ArduCopter climbed back up the last strip (1.5 -> 18 m) after scanning it down; that climb is not the
+    scan of the last leg."""
+    judge = _judge()
+    rows = synthetic_rows(plan)
+    last = [r for r in rows[:-2]][-150:]
+    climb = [{**r, "vd_m_s": -r["vd_m_s"] * 3.0} for r in reversed(last)]
+    fig = judge.flight_figures(plan, rows[:-2] + climb + rows[-2:])
+    assert fig.passed and fig.legs[-1].speed_error < 0.01
 
 
 def test_takeoff_climb_far_from_the_wall_is_not_a_scan_leg(plan):

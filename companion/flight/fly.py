@@ -422,6 +422,8 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
                 raise
             sup.t0 = time.monotonic()
             reason = await sup.run()
+            if reason == "link":
+                params.unreachable = "the link is dead"
             if reason == "refused":
                 if rec.state["armed"]:
                     try:

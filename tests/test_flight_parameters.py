@@ -115,6 +115,21 @@ def test_a_failed_restore_is_reported_with_the_value_to_set_by_hand():
     assert fp.restore_failures == ["A (set it back to 1)"] and [c.name for c in fp.applied] == ["A"]
 
 
+def test_no_restore_is_attempted_over_a_dead_link():
+    """Real ArduCopter SITL, --link-dead 20: the restore over the dead link waited 5 s for mavsdk's retries, past
+    the limit. Once the link is known dead, the values to set by hand are reported at once."""
+    p = _Params({"A": 1.0})
+
+    async def flight():
+        async with FlightParameters(p, {"A": 3.0}) as fp:
+            fp.unreachable = "the link is dead"
+        return fp
+
+    fp = asyncio.run(flight())
+    assert fp.restore_failures == ["A (set it back to 1)"]
+    assert p.writes == [("A", 3.0)]  # set for the flight; no write attempted over the dead link
+
+
 def test_px4_int_parameters_are_bytewise_in_the_float():
     # why the type matters: PX4 sends NAV_DLL_ACT=2 as the float whose bytes are the int 2, a denormal ~2.8e-45
     raw = struct.unpack("<f", struct.pack("<i", 2))[0]

@@ -139,7 +139,8 @@ def test_dead_link_ends_supervision_at_the_configured_limit(tmp_path):
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out
-    assert "stopped by link" in out and "1 link loss(es) (1 never restored)" in out
+    # the open loss is counted; on a loaded machine a 1 s threshold may also count short, closed losses before it
+    assert "stopped by link" in out and re.search(r"\d+ link loss\(es\) \(1 never restored\)", out), out
     assert "limit 5 s" in out
     flown_s = int(re.search(r"NOT landed, still ARMED, (\d+) s,", out).group(1))
     assert flown_s < 60, out  # supervision ended at the limit, not at the 1800 s flight timeout

@@ -159,3 +159,16 @@ def test_recorder_notices_time_since_boot_going_backwards():
     assert rec.reboot is None
     rec._on_boot_time(2.5)
     assert rec.reboot is not None and "100.1 s to 2.5 s" in rec.reboot
+
+
+def test_recorder_compares_each_stream_only_with_itself():
+    """Real ArduCopter SITL at speed-up 5 on a loaded machine: an ATTITUDE handled after a GLOBAL_POSITION_INT
+    1.2 s newer (separate subscriptions, separate queues) was taken for a restart and ended a good flight."""
+    rec = TelemetryRecorder(SimpleNamespace(), None)
+    rec._on_boot_time(512.9, "GLOBAL_POSITION_INT")
+    rec._on_boot_time(511.7, "ATTITUDE")  # lagging stream, not a restart
+    rec._on_boot_time(513.0, "GLOBAL_POSITION_INT")
+    rec._on_boot_time(512.0, "ATTITUDE")
+    assert rec.reboot is None
+    rec._on_boot_time(3.0, "ATTITUDE")  # the autopilot really restarted
+    assert rec.reboot is not None and "512.0 s to 3.0 s" in rec.reboot

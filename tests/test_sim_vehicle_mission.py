@@ -187,3 +187,27 @@ def test_low_battery_triggers_rtl():
         assert v.mode == fl.RTL and v.battery_failsafe
     finally:
         v.close()
+
+
+def test_ardupilot_refuses_more_than_650_items_and_says_so():
+    """Real ArduCopter 4.7.0-dev SITL: a 1628-item upload -> MISSION_ACK NO_SPACE, then the STATUSTEXT "Only 650
+    items are supported"; 650 items fit. (The simulator used to take up to 500 on both flavours, silently.)"""
+    gcs = mavlink.MAVLink(None, srcSystem=245, srcComponent=190)
+    for autopilot, limit, text in (("ardupilot", 650, "Only 650 items are supported"), ("px4", 500, None)):
+        v = SimVehicle(VehicleConfig(autopilot=autopilot, pose_port=None, target=("127.0.0.1", 9)))
+        try:
+            sent = []
+            v.mav.send = sent.append
+            for count in (limit + 1, limit):
+                for m in v.mav.parse_buffer(gcs.mission_count_encode(1, 1, count, 0).pack(gcs)) or []:
+                    assert v.missions.handle(m)
+            kinds = [m.get_type() for m in sent]
+            assert sent[0].get_type() == "MISSION_ACK" and sent[0].type == mavlink.MAV_MISSION_NO_SPACE
+            said = [m.text.decode() if isinstance(m.text, bytes) else m.text
+                    for m in sent if m.get_type() == "STATUSTEXT"]
+            assert said == ([text] if text else [])
+            if text:
+                assert sent[1].get_type() == "STATUSTEXT" and sent[1].severity == mavlink.MAV_SEVERITY_WARNING
+            assert kinds[-1].startswith("MISSION_REQUEST") and sent[-1].seq == 0  # the limit itself is accepted
+        finally:
+            v.close()

@@ -88,6 +88,7 @@ class FlightParameters:
         self.changes: list[ParamChange] = []  # still to restore
         self.applied: list[ParamChange] = []  # everything set for the flight (kept for the report)
         self.restore_failures: list[str] = []
+        self.unreachable: str | None = None  # why the vehicle cannot be reached: the restore is not attempted
 
     async def __aenter__(self) -> FlightParameters:
         try:
@@ -116,6 +117,14 @@ class FlightParameters:
         """Put every changed parameter back (newest first). Shielded: a Ctrl-C during the restore does not cut it."""
         changes, self.changes = self.changes, []
         for ch in reversed(changes):
+            if self.unreachable:
+                # a dead link: each write would only wait for mavsdk's retries to run out (5 s on real ArduCopter
+                # SITL) and push the end past the --link-dead limit; say what to set by hand instead
+                text = ParamValue(ch.name, ch.before, ch.is_int).text()
+                self.restore_failures.append(f"{ch.name} (set it back to {text})")
+                log.error("parameter %s not restored to %s: %s; set it on the ground station", ch.name, text,
+                          self.unreachable)
+                continue
             try:
                 await asyncio.shield(write_parameter(self.param, ch.name, ch.before, ch.is_int))
                 value = ParamValue(ch.name, ch.before, ch.is_int)

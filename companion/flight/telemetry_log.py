@@ -113,7 +113,7 @@ class TelemetryRecorder:
         self.was_in_air = False
         self.was_armed = False  # latched likewise: armed at some point while recording
         self.reboot: str | None = None
-        self._boot_time_max: float | None = None
+        self._boot_time_max: dict[str, float] = {}  # per message stream
         self.status_events: list[tuple[float, str, str]] = []  # (monotonic time, severity name, text)
         self.samples = 0
         self.last_sample_wall: float | None = None
@@ -182,14 +182,19 @@ class TelemetryRecorder:
         self.status_events.append((time.monotonic(), s.type.name, s.text))
         log.info("vehicle says %s", text)
 
-    def _on_boot_time(self, t_boot_s: float) -> None:
-        """Notice an autopilot restart: its clock since boot runs backwards."""
-        top = self._boot_time_max
+    def _on_boot_time(self, t_boot_s: float, stream: str = "") -> None:
+        """Notice an autopilot restart: its clock since boot runs backwards within one message stream.
+
+        Each stream (ATTITUDE, GLOBAL_POSITION_INT) is compared only with itself: the two arrive through separate
+        subscriptions whose queues are drained by separate tasks, so on a loaded machine one can lag the other by
+        more than a second of autopilot time (real ArduCopter SITL at speed-up 5: an ATTITUDE 1.2 s older than the
+        GLOBAL_POSITION_INT handled before it). Within one stream the order is the autopilot's."""
+        top = self._boot_time_max.get(stream)
         if top is not None and t_boot_s < top - self.REBOOT_BACKSTEP_S and self.reboot is None:
             self.reboot = (f"the autopilot restarted: its time since boot went back from {top:.1f} s to "
                            f"{t_boot_s:.1f} s")
             log.error("%s", self.reboot)
-        self._boot_time_max = t_boot_s if top is None else max(top, t_boot_s)
+        self._boot_time_max[stream] = t_boot_s if top is None else max(top, t_boot_s)
 
     def _on_state(self, key: str, value: bool) -> None:
         """Armed / in-air changes also get a row (with the last position), so the log ends in the final state."""
@@ -214,7 +219,7 @@ class TelemetryRecorder:
         with contextlib.suppress(ValueError, TypeError, KeyError):
             f = json.loads(msg.fields_json)
             roll, pitch, yaw = (math.degrees(f[k]) for k in ("roll", "pitch", "yaw"))
-            self._on_boot_time(f["time_boot_ms"] / 1000.0)
+            self._on_boot_time(f["time_boot_ms"] / 1000.0, "ATTITUDE")
             self._prev_att, self._raw_att = self._raw_att, (f["time_boot_ms"] / 1000.0, roll, pitch, yaw % 360.0)
             self._flush_positions()
 
@@ -245,7 +250,7 @@ class TelemetryRecorder:
                              f["relative_alt"] / 1000.0, (f["vx"] / 100.0, f["vy"] / 100.0, f["vz"] / 100.0))
         except (ValueError, TypeError, KeyError):
             return
-        self._on_boot_time(self._raw_pos[0])
+        self._on_boot_time(self._raw_pos[0], "GLOBAL_POSITION_INT")
         self._pending.append(self._raw_pos)
         self._flush_positions()
 

@@ -67,7 +67,7 @@ class VehicleConfig:
     gps_glitch_m: float = 5.0
     gps_glitch_s: float = 3.0
     duration_s: float | None = None
-    max_mission_items: int = 500
+    max_mission_items: int | None = None  # None: the firmware's own (flavour.max_mission_items)
     system_id: int = 1
     params: dict[str, float] = field(default_factory=dict)  # parameter values at boot, over the flavour's defaults
 
@@ -121,9 +121,11 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.home_item = mi.MissionItem(0, mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
                                         round(cfg.home.lat * 1e7), round(cfg.home.lon * 1e7), cfg.home.alt_amsl_m)
         self.missions = MissionServer(
-            self.mav, self._send, self.flavour.validate, self._on_new_mission, cfg.max_mission_items,
+            self.mav, self._send, self.flavour.validate, self._on_new_mission,
+            self.flavour.max_mission_items if cfg.max_mission_items is None else cfg.max_mission_items,
             transform_upload=lambda items: self.flavour.transform_upload(items, self.home_item),
-            transform_download=lambda items: self.flavour.transform_download(items, self.home_item))
+            transform_download=lambda items: self.flavour.transform_download(items, self.home_item),
+            on_too_many=self._too_many_items)
         self.pose_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if cfg.pose_port else None
         self.truth_file = open(cfg.truth_log, "w") if cfg.truth_log else None  # noqa: SIM115 (closed in close())
 
@@ -205,6 +207,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
 
     def _send(self, msg) -> None:
         self.mav.send(msg)
+
+    def _too_many_items(self, limit: int) -> None:
+        if self.flavour.too_many_items_text:
+            self.statustext(mavlink.MAV_SEVERITY_WARNING, self.flavour.too_many_items_text.format(n=limit))
 
     def statustext(self, severity: int, text: str) -> None:
         log.info("statustext: %s", text)

@@ -62,7 +62,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gps-glitch-at", type=float, metavar="S", help="GPS jumps at this simulated time, s")
     p.add_argument("--gps-glitch-m", type=float, default=5.0, help="GPS glitch size, metres")
     p.add_argument("--gps-glitch-s", type=float, default=3.0, help="GPS glitch length, simulated seconds")
-    p.add_argument("--max-mission-items", type=int, default=500, help="larger uploads are refused (NO_SPACE)")
+    p.add_argument("--max-mission-items", type=int, default=None,
+                   help="larger uploads are refused (NO_SPACE); default the firmware's: PX4 500, ArduCopter 650")
     p.add_argument("--duration", type=float, help="exit after this much simulated time, s")
     p.add_argument("--params", type=_params, default={}, metavar="NAME=VALUE,...",
                    help="parameter values at boot, over the flavour's defaults (e.g. WP_YAW_BEHAVIOR=0)")

@@ -70,6 +70,8 @@ class Px4:
     name = "px4"
     autopilot = mavlink.MAV_AUTOPILOT_PX4
     first_seq = 0
+    max_mission_items = 500  # a larger MISSION_COUNT is refused with NO_SPACE
+    too_many_items_text: str | None = None  # STATUSTEXT (WARNING) after that refusal, {n} = the limit
     param_bytewise = True
     default_rates_hz = {
         "HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "GPS_RAW_INT": 5.0, "GLOBAL_POSITION_INT": 10.0,
@@ -138,6 +140,10 @@ class ArduCopter(Px4):
     first_seq = 1
     param_bytewise = False
     default_rates_hz = {"HEARTBEAT": 1.0}
+    # real ArduCopter 4.7.0-dev SITL refused a 1628-item upload with NO_SPACE, then said "Only 650 items are
+    # supported" (MissionItemProtocol::handle_mission_count: ack first, then the text)
+    max_mission_items = 650
+    too_many_items_text = "Only {n} items are supported"
     params = {
         "WPNAV_SPEED": 500.0, "WPNAV_SPEED_UP": 250.0, "WPNAV_SPEED_DN": 150.0, "WPNAV_RADIUS": 200.0,
         "WP_YAW_BEHAVIOR": 2,

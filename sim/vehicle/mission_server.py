@@ -54,8 +54,10 @@ class MissionServer:
     def __init__(self, mav: mavlink.MAVLink, send: Callable[[object], None],
                  validate: Callable[[MissionItem, int], int | None], on_new_mission: Callable[[list], None],
                  max_items: int = 500, transform_upload: Callable[[list], list] | None = None,
-                 transform_download: Callable[[list], list] | None = None):
+                 transform_download: Callable[[list], list] | None = None,
+                 on_too_many: Callable[[int], None] | None = None):
         self.mav = mav
+        self.on_too_many = on_too_many  # told the limit after a too-large MISSION_COUNT was refused
         self.send = send
         self.validate = validate
         self.on_new_mission = on_new_mission
@@ -105,6 +107,8 @@ class MissionServer:
         if msg.count > self.max_items:
             log.info("mission upload refused: %d items > %d", msg.count, self.max_items)
             self._ack(src, mavlink.MAV_MISSION_NO_SPACE, msg.mission_type)
+            if self.on_too_many is not None:
+                self.on_too_many(self.max_items)
             return
         if msg.count == 0:
             self.lists[msg.mission_type] = []

@@ -101,6 +101,17 @@ def test_upload_the_vehicle_rejects_gives_a_clear_error(plan, tmp_path):
     assert "TOO_MANY_MISSION_ITEMS" in err.value.problem and "shorten" in err.value.fix
 
 
+def test_rejected_upload_errors_before_the_health_wait(plan, tmp_path):
+    """Real ArduCopter SITL refused a too-long mission only after its ~40 s EKF wait, because the companion
+    uploaded after the health wait. The upload now comes first (once the vehicle sends SYS_STATUS): the refusal is
+    the error, not the health timeout."""
+    sim = SitlVehicle(speedup=1, autopilot="ardupilot", gps_ready_after=600, max_mission_items=10,
+                      log_path=tmp_path / "sim.log")
+    with sim as v, pytest.raises(CompanionError) as err:
+        _fly(plan, v.url, health_timeout_s=30.0, connect_timeout_s=60.0)
+    assert "rejected the mission upload" in err.value.problem and "TOO_MANY_MISSION_ITEMS" in err.value.problem
+
+
 def test_unsupported_item_is_rejected(tmp_path):
     items = [
         mi.MissionItem(0, 6, mi.MAV_CMD_NAV_TAKEOFF, 1, 1, 0.0, 0.0, 0.0, math.nan, 375663800, 1269781500, 5.0),

@@ -110,6 +110,22 @@ async def request_rates(vehicle: Vehicle, rate_hz: float) -> None:
         log.warning("telemetry rate requests refused: %s", "; ".join(failed))
 
 
+async def wait_initialised(vehicle: Vehicle, timeout_s: float) -> bool:
+    """Wait for the first SYS_STATUS: ArduPilot sends it only once the vehicle has finished its start-up
+    (``GCS_MAVLINK::send_sys_status``), and before that refuses every mission upload (real ArduCopter SITL, 1 s
+    after boot: NO_SPACE, "Only 0 items are supported"). PX4 sends it from the start. False on timeout."""
+
+    async def _first():
+        async for _ in vehicle.direct.subscribe_message("SYS_STATUS"):
+            return
+
+    try:
+        await asyncio.wait_for(_first(), timeout_s)
+        return True
+    except TimeoutError:
+        return False
+
+
 async def check_home(vehicle: Vehicle, planned, *, max_alt_diff_m: float = 3.0, warn_distance_m: float = 50.0):
     """Compare the vehicle's home with the plan's takeoff point. Scan heights are relative to home, so a home at a
     different altitude shifts the whole scan up or down next to the wall: refuse that; warn about distance."""

@@ -32,6 +32,7 @@ from companion.flight.connection import (
     connect,
     request_rates,
     wait_healthy,
+    wait_initialised,
 )
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
 from companion.flight.parameters import FlightParameters, ParamChange
@@ -388,6 +389,11 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
     try:
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
+        # upload before the health wait, once the vehicle is up: a mission it refuses is an error at once, not
+        # after its EKF converged (real ArduCopter SITL: about 40 s after boot)
+        if not await wait_initialised(vehicle, health_timeout_s):
+            log.warning("no SYS_STATUS within %g s: uploading anyway", health_timeout_s)
+        await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
         await select_arming_mode(vehicle)
         await wait_healthy(vehicle, health_timeout_s, when_only_armable_missing=lambda: select_arming_mode(vehicle))
         if getattr(plan, "home", None) is not None:
@@ -397,7 +403,6 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
         wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
         wanted.update(flight_parameters or {})
         wanted.update(overrides)
-        await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
         first_seq = await start_from_first_item(vehicle)
         async with FlightParameters(vehicle.param, wanted) as params, \
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None) as rec:

@@ -26,7 +26,7 @@ from companion.stitch.features import KeyframeFeatures, load_image_and_mask
 from companion.stitch.layout import MapLayout
 from companion.stitch.output import annotate_uncovered
 from companion.stitch.pairs import PairResult, RegisteredPairs
-from companion.stitch.report import MapCoverage
+from companion.stitch.report import MapCoverage, pair_summary
 
 _DRAWING_WIDTH_PX = 1600  # match drawings and the mesh picture are at most this wide
 _MAX_LINES = 150  # inlier lines drawn per pair
@@ -140,17 +140,8 @@ class StageDebug:
 
 
 def _pair_doc(r: PairResult, kfs) -> dict:
-    return {
-        "a": kfs[r.i].index,
-        "b": kfs[r.j].index,
-        "accepted": r.accepted,
-        "model": r.model,
-        "reason": r.reason,
-        "matches": r.matches,
-        "inliers": r.inliers,
-        "ransac_rms_px": r.rms_px,
-        "H": r.H,
-    }
+    """The report's entry with the reason (also for accepted pairs: empty) and the model's homography."""
+    return {**pair_summary(r, kfs), "reason": r.reason, "H": r.H}
 
 
 def _draw_matches(found: KeyframeFeatures, r: PairResult) -> np.ndarray:

@@ -172,7 +172,7 @@ def _pair_entries(run: StitchRun) -> tuple[list[dict], list[float], list[float]]
     px_per_unit = 1.0 / run.layout.grid.m_per_px
     glob, loc, entries = [], [], []
     for r in run.aligned.pairs:
-        entry = _pair_summary(r, kfs)
+        entry = pair_summary(r, kfs)
         if not r.accepted:
             entry["reason"] = r.reason
         elif r.i in placed and r.j in placed:
@@ -191,7 +191,8 @@ def _pair_entries(run: StitchRun) -> tuple[list[dict], list[float], list[float]]
     return entries, glob, loc
 
 
-def _pair_summary(r: PairResult, kfs) -> dict:
+def pair_summary(r: PairResult, kfs) -> dict:
+    """A pair as the report lists it: spool indices, outcome, model, matches, inliers, RANSAC rms."""
     return {
         "a": kfs[r.i].index,
         "b": kfs[r.j].index,

@@ -14,9 +14,9 @@ from companion.cli import main
 from companion.stitch import StitchConfig, Stitcher, load_input
 from companion.stitch.align import AlignedKeyframes
 from companion.stitch.canvas import RenderedMap
-from companion.stitch.features import KeyframeFeatures
+from companion.stitch.features import Features, KeyframeFeatures
 from companion.stitch.layout import MapLayout
-from companion.stitch.pairs import RegisteredPairs
+from companion.stitch.pairs import PairSettings, RegisteredPairs, match_pair
 from companion.stitch.priors import PlanePriors
 from companion.stitch.report import StitchReport, StitchRun
 from companion.stitch.synthetic import SyntheticWall, make_spool
@@ -103,3 +103,22 @@ def test_debug_dir_holds_each_stages_decisions(debug_run):
 def test_no_debug_dir_writes_nothing_beside_the_map(spool, tmp_path):
     Stitcher(CONFIG, progress=False).stitch(load_input(spool), tmp_path / "out")
     assert not any(p.name.startswith(("1-", "2-", "3-", "4-", "5-")) for p in tmp_path.rglob("*"))
+
+
+def test_a_pair_registers_the_same_whatever_ran_before():
+    """FLANN's kd-trees draw from OpenCV's global RNG: unseeded, a pair's matches depended on what ran before it
+    (the previous pair's RANSAC, or nothing when that pair came from the cache), so a follow-mode pass and a
+    one-shot stitch of the same keyframes could differ."""
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(20, 1900, (3000, 2)).astype(np.float32)
+    desc = rng.random((3000, 128)).astype(np.float32)
+    noisy = (desc + rng.normal(0, 0.25, desc.shape)).astype(np.float32)  # approximate search matters here
+    fi = Features(pts, desc, (1920, 1080), np.full(3000, 100.0, np.float32))
+    fj = Features(pts + np.float32([40.0, 5.0]), noisy, (1920, 1080), np.full(3000, 100.0, np.float32))
+    results = []
+    for history in (1, 2, 3):
+        cv2.setRNGSeed(history)  # whatever used OpenCV's RNG before this pair
+        r = match_pair(0, 1, fi, fj, settings=PairSettings(ratio=0.8))
+        results.append((r.matches, r.inliers, r.accepted))
+    assert results[0][0] > 1000 and results[0][2]
+    assert results[1] == results[0] and results[2] == results[0]

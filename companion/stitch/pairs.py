@@ -135,6 +135,9 @@ def match_pair(
     """Registers keyframe i onto keyframe j. Priors are image-normalised -> plane homographies."""
     if len(fi.keypoints) < settings.min_inliers_affine or len(fj.keypoints) < settings.min_inliers_affine:
         return PairResult(i, j, False, "none", "too few features inside the ROI masks")
+    # FLANN's randomised kd-trees and RANSAC both draw from OpenCV's RNG: seeded per pair, so the same keyframes
+    # always give the same map, whatever ran before (earlier pairs, pairs taken from the cache in follow mode)
+    cv2.setRNGSeed(1000003 * i + j)
     found = _distinctive_matches(fi, fj, settings.ratio)
     n_good = found.distinctive
     if n_good < settings.min_inliers_affine:
@@ -148,7 +151,7 @@ def match_pair(
             return PairResult(i, j, False, "none", why, matches=n_good)
     w, h = fi.image_size
     corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], dtype=float)
-    cv2.setRNGSeed(1000003 * i + j)  # RANSAC draws: the same keyframes always give the same map
+    cv2.setRNGSeed(1000003 * i + j)  # RANSAC's draws as well
     model, H, inl = _fit_model(found.pts_i, found.pts_j, corners, settings, (w, h))
     if H is None:
         return PairResult(i, j, False, "none", "no consistent homography or affine model", matches=n_good)

@@ -86,7 +86,7 @@ def bench_live(mission_path: Path, width: int, fps: float, seconds: float, rende
     """The live camera process's own loop (render, then JPEG + stream on its delivery thread) fed real-time
     poses for ``seconds``: frames sent and dropped, and CPU of this process (camera + pose sender) per second."""
     from sim.camera.live import LiveCamera, LiveConfig
-    from sim.rig import free_port
+    from sim.process import free_port
 
     pose_port = free_port()
     cam = LiveCamera(mission_path, LiveConfig(pose_port=pose_port, stream_port=free_port(socket.SOCK_STREAM),

@@ -14,10 +14,12 @@ import tempfile
 from pathlib import Path
 
 from companion.flight import fly_mission_sync
-from companion.flight.simulator import ROOT, SimulatorProcess
 from companion.mission import load_mission, plan_scan
 from companion.mission.firmware import flight_parameters
 from sim.evaluate_scan import read_truth_log, scan_leg_reports, worst
+from sim.process import SimulatorProcess
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:

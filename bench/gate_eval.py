@@ -65,7 +65,7 @@ def parse_pose_noise(text: str | None) -> PoseNoise:
     return PoseNoise(bias_m=(v[0], v[1], v[2]), bias_yaw_deg=v[3], sigma_m=v[4], sigma_deg=v[5])
 
 
-def main() -> None:
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mission", default="missions/demo-facade.yaml")
     ap.add_argument("--recording", default=None, help="existing recording folder (skips generation)")
@@ -85,37 +85,31 @@ def main() -> None:
     ap.add_argument("--verbose", action="store_true", help="print each run's full report")
     ap.add_argument("--plot", default=None, help="PNG for the R-vs-q curve (paper Fig. 9) of the first run")
     ap.add_argument("--curve-p", type=int, default=0, help="reference frame p of the R-vs-q curve")
-    args = ap.parse_args()
+    return ap
 
+
+def recording_dir(args) -> Path:
+    """--recording as given, else a recording of --mission generated once into a folder named by its settings."""
     if args.recording:
-        rec_dir = Path(args.recording)
-    else:
-        from sim.camera.recording import generate_recording
+        return Path(args.recording)
+    from sim.camera.recording import generate_recording
 
-        name = Path(args.mission).stem
-        rec_dir = Path(args.out or f"/tmp/gate_eval_{name}_w{args.width}_s{args.stride}_n{args.max_frames}_"
-                                   f"seed{args.seed}")
-        if not (rec_dir / "meta.json").exists():
-            t0 = time.perf_counter()
-            generate_recording(args.mission, rec_dir, seed=args.seed, width_px=args.width, stride=args.stride,
-                               max_frames=args.max_frames)
-            print(f"generated {rec_dir} in {time.perf_counter() - t0:.0f} s")
-    from sim.camera.recording import load_recording
+    name = Path(args.mission).stem
+    rec_dir = Path(args.out or f"/tmp/gate_eval_{name}_w{args.width}_s{args.stride}_n{args.max_frames}_"
+                               f"seed{args.seed}")
+    if not (rec_dir / "meta.json").exists():
+        t0 = time.perf_counter()
+        generate_recording(args.mission, rec_dir, seed=args.seed, width_px=args.width, stride=args.stride,
+                           max_frames=args.max_frames)
+        print(f"generated {rec_dir} in {time.perf_counter() - t0:.0f} s")
+    return rec_dir
 
-    rec = load_recording(rec_dir)
-    cfg = GateConfig(rth=args.rth, features=FeatureConfig(long_side_px=args.long_side),
-                     overlap=OverlapConfig(method=args.method))
-    masks = ["none"] if args.no_mask else [m.strip() for m in args.masks.split(",") if m.strip()]
-    gates = [g.strip() for g in args.gates.split(",") if g.strip()]
-    noise = parse_pose_noise(args.pose_noise)
+
+def run_configurations(rec, cfg: GateConfig, args, masks: list[str], gates: list[str], noise: PoseNoise) -> list:
+    """One gate evaluation per (mask, gate) pair, in order, each announced when done; (mask, gate, evaluation)."""
     standoff = rec.meta.get("standoff_m")
     predictor = WallMotionPredictor(rec.frame, float(rec.meta["camera"]["hfov_deg"]),
                                     float(standoff) if standoff else None)
-    print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
-    print(f"recording {rec_dir}: {len(rec)} frames {rec.width}x{rec.height}, mission {rec.meta.get('mission')}, "
-          f"generator {rec.meta.get('generator')}")
-    print(f"telemetry: true camera poses{'' if noise.exact else f' + {noise}'}; wall at the planned standoff "
-          f"{standoff} m")
     rows = []
     rec_masks = None
     for mask in masks:
@@ -139,19 +133,45 @@ def main() -> None:
             rows.append((mask, gate, ev))
             print(f"done: mask {mask}, gate {gate}: {len(ev.keyframes)} keyframes, lowest pair "
                   f"{min(ev.keyframe_pair_truth, default=float('nan')):.1f} %", flush=True)
-    print()
-    print(format_table(rows, args.rth))
-    # The same keyframe pairs measured on the VISIBLE wall only (footprints cut to the wall rectangle), over pairs
-    # whose first frame shows wall: near a wall's end this is lower than the plane overlap that Eq. 2 measures.
+    return rows
+
+
+def print_visible_wall_table(rec, rows: list, rth: float) -> None:
+    """The same keyframe pairs measured on the VISIBLE wall only (footprints cut to the wall rectangle), over pairs
+    whose first frame shows wall: near a wall's end this is lower than the plane overlap that Eq. 2 measures."""
     print(f"\n| mask | gate | keyframes showing no wall | visible-wall overlap of keyframe pairs: min | "
-          f"pairs < {100 * args.rth - 3:.0f} % |")
+          f"pairs < {100 * rth - 3:.0f} % |")
     print("|---|---|---|---|---|")
     for mask, gate, ev in rows:
         shows = {k: bool(rec.roi_mask(k).any()) for k in ev.keyframes}
         seen = [100.0 * rec.true_overlap(a, b, wall_only=True)
                 for a, b in zip(ev.keyframes, ev.keyframes[1:], strict=False) if shows[a]]
         print(f"| {mask} | {gate} | {sum(not v for v in shows.values())} of {len(ev.keyframes)} | "
-              f"{min(seen, default=float('nan')):.1f} % | {sum(v < 100 * args.rth - 3 for v in seen)} of {len(seen)} |")
+              f"{min(seen, default=float('nan')):.1f} % | {sum(v < 100 * rth - 3 for v in seen)} of {len(seen)} |")
+
+
+def main() -> None:
+    args = _parser().parse_args()
+    rec_dir = recording_dir(args)
+    from sim.camera.recording import load_recording
+
+    rec = load_recording(rec_dir)
+    cfg = GateConfig(rth=args.rth, features=FeatureConfig(long_side_px=args.long_side),
+                     overlap=OverlapConfig(method=args.method))
+    masks = ["none"] if args.no_mask else [m.strip() for m in args.masks.split(",") if m.strip()]
+    gates = [g.strip() for g in args.gates.split(",") if g.strip()]
+    noise = parse_pose_noise(args.pose_noise)
+    standoff = rec.meta.get("standoff_m")
+    print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    print(f"recording {rec_dir}: {len(rec)} frames {rec.width}x{rec.height}, mission {rec.meta.get('mission')}, "
+          f"generator {rec.meta.get('generator')}")
+    print(f"telemetry: true camera poses{'' if noise.exact else f' + {noise}'}; wall at the planned standoff "
+          f"{standoff} m")
+    rows = run_configurations(rec, cfg, args, masks, gates, noise)
+    print()
+    print(format_table(rows, args.rth))
+    print_visible_wall_table(rec, rows, args.rth)
+
 
 if __name__ == "__main__":
     main()

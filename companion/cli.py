@@ -1,39 +1,54 @@
-"""Thin command line: parses arguments and calls library functions; each area registers its own subcommands."""
+"""Thin command line: parses arguments and calls library functions; each area registers its own subcommands.
+
+The simulator's commands (``sim``, ``record``, ``demo``, ``eval``) are a plugin (``companion.plugins``):
+``sim/commands.py`` registers them when the simulator package is installed, so companion never imports sim; without
+it they say what is missing.
+"""
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
 import sys
 
+from companion import plugins
+from companion.depth import commands as depth_commands
 from companion.errors import CompanionError
+from companion.mission import commands as mission_commands
+from companion.onboard import commands as onboard_commands
+from companion.stitch import commands as stitch_commands
 
 # Each module here defines ``register(subparsers)`` adding its subcommands; a subcommand's parser sets
 # ``func`` (called with the parsed args; returns an exit code or None).
-COMMAND_MODULES = [
-    "companion.flight.commands",
-    "companion.mission.commands",
-    "companion.demo",
-    "companion.onboard.commands",
-    "companion.depth.commands",
-    "companion.keyframes.commands",
-    "companion.stitch.commands",
-    "sim.camera.commands",
-]
+COMMAND_MODULES = (onboard_commands, mission_commands, depth_commands, stitch_commands)
 
 
-def shared_group(subparsers, name: str, help: str):
-    """Subcommands of a group several areas add to (``companion eval mask``, ``companion eval gate``): the first
-    caller creates the group, later callers get the same sub-parser collection."""
-    parser = subparsers._name_parser_map.get(name)  # noqa: SLF001 - argparse offers no public lookup
-    if parser is None:
-        parser = subparsers.add_parser(name, help=help)
-    sub = getattr(parser, "_companion_sub", None)
-    if sub is None:
-        sub = parser.add_subparsers(dest=f"{name}_what", required=True)
-        parser._companion_sub = sub
-    return sub
+def _missing_plugin(module: str):
+    def run(args: argparse.Namespace) -> int:
+        raise CompanionError(
+            f"`companion {args.command}` is provided by the {module.split('.')[0]} package ({module}), which is not "
+            "installed here",
+            "install companion with its simulator (the companion wheel ships sim; in a checkout: pip install -e .)",
+        )
+
+    return run
+
+
+def register_plugin(sub: argparse._SubParsersAction, module: str, commands: tuple[str, ...]) -> bool:
+    """Register ``module``'s commands; when its package is not installed, register each command name as one that
+    says so (instead of argparse's "invalid choice"). True if the plugin loaded."""
+    package = module.split(".")[0]
+    plugin = plugins.load_plugin(module)
+    if plugin is None:
+        for name in commands:
+            # takes whatever follows (options included: no prefix character) so the error names what is missing
+            p = sub.add_parser(name, help=f"(needs the {package} package, not installed)", add_help=False,
+                               prefix_chars="\0")
+            p.add_argument("rest", nargs="*")
+            p.set_defaults(func=_missing_plugin(module))
+        return False
+    plugin.register(sub)
+    return True
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,8 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    for module in COMMAND_MODULES:
+        module.register(sub)
+    for name, commands in plugins.PLUGIN_MODULES.items():
+        register_plugin(sub, name, commands)
     return parser
 
 

@@ -2,8 +2,8 @@
 # Creates .venv and installs companion; `bootstrap.sh train` also installs the torch export/training extra
 # (the tests need it for the Monodepth2 exporter round trip). Called by scripts/demo and scripts/test.
 # `bootstrap.sh train test-tools` (scripts/test) also installs the Debian readers the output tests run (exiftool,
-# gdalinfo) when it runs as root with apt-get (CI); anyone else is told the command and the tests that need them fail
-# with the same fix.
+# gdalinfo, and chromium for the map viewer, driven by playwright from the dev extra) when it runs as root with
+# apt-get (CI); anyone else is told the command and the tests that need them fail with the same fix.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -44,6 +44,7 @@ if [ "$extra" = test-tools ]; then
     missing=""
     command -v exiftool >/dev/null || missing="$missing libimage-exiftool-perl"
     command -v gdalinfo >/dev/null || missing="$missing gdal-bin"
+    command -v chromium >/dev/null || missing="$missing chromium"
     if [ -n "$missing" ]; then
         if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
             echo "installing the output readers the tests use:$missing" >&2

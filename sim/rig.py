@@ -10,7 +10,6 @@ The camera starts first (so it sees every pose), then the vehicle. Logs go to ``
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import socket
 import subprocess
@@ -19,15 +18,7 @@ import time
 from pathlib import Path
 
 from companion.errors import CompanionError
-from companion.flight.simulator import SimulatorProcess, terminate
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from sim.process import SimulatorProcess, child_environment, free_port, terminate
 
 
 class SitlRig:
@@ -83,10 +74,10 @@ class SitlRig:
             args += ["--record", str(self.record_dir)]
             if self.record_max_out_m is not None:
                 args += ["--record-max-out", str(self.record_max_out_m)]
-        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
         cam_log_path = self.log_dir / "camera.log"
         self._cam_log = open(cam_log_path, "w")  # noqa: SIM115 (lives as long as the process)
-        self.camera = subprocess.Popen(args, cwd=ROOT, stdout=self._cam_log, stderr=subprocess.STDOUT, env=env)
+        self.camera = subprocess.Popen(args, stdout=self._cam_log, stderr=subprocess.STDOUT,
+                                       env=child_environment())
         deadline = time.monotonic() + 60.0
         while "frames on tcp" not in cam_log_path.read_text():
             if self.camera.poll() is not None or time.monotonic() > deadline:

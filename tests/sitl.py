@@ -6,7 +6,11 @@ side by side without clashing with a simulator someone already runs on 14540.
 
 from __future__ import annotations
 
-from companion.flight.simulator import ROOT, free_udp_port
-from companion.flight.simulator import SimulatorProcess as SitlVehicle
+from pathlib import Path
 
-__all__ = ["ROOT", "SitlVehicle", "free_udp_port"]
+from sim.process import SimulatorProcess as SitlVehicle
+from sim.process import free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+
+__all__ = ["ROOT", "SitlVehicle", "free_port"]

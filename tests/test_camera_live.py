@@ -15,14 +15,9 @@ from companion.errors import CompanionError
 from companion.mission import load_mission, plan_scan
 from sim.camera.live import LiveCamera, LiveConfig, camera_pose, interpolate_pose
 from sim.camera.recording import load_recording
+from sim.process import free_port
 
 MISSION = "missions/demo-facade.yaml"
-
-
-def free_port(kind=socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class FakeVehicle(threading.Thread):

@@ -2,24 +2,17 @@
 
 from __future__ import annotations
 
-import socket
-
 from pymavlink import mavutil
 
 from companion.onboard.camera_protocol import CameraDescription, MavlinkCamera
 from companion.records import Pose
+from sim.process import free_port
 
 mav = mavutil.mavlink
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_camera_information_and_captured_images():
-    port = _free_port()
+    port = free_port()
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
     cam = MavlinkCamera(f"udpout:127.0.0.1:{port}", CameraDescription(width_px=3840, height_px=2160)).start()
     try:

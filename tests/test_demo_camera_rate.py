@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from companion.demo import plan_for_camera, run_demo
 from companion.errors import CompanionError
 from companion.mission import load_mission, plan_scan
+from sim.demo import plan_for_camera, run_demo
 from sim.rig import SitlRig
 
 MISSION = Path("missions/demo-facade.yaml")

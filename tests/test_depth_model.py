@@ -82,3 +82,19 @@ def test_depth_run_command_writes_pictures(tmp_path, capsys):
     pic = cv2.imread(str(tmp_path / "DJI_0981_rgb_640.jpg"))
     assert pic is not None and pic.shape[1] == 3 * 640  # frame | disparity | masked frame
     assert main(["depth", "run", str(tmp_path / "nope.jpg"), "--out", str(tmp_path)]) == 2
+
+
+def test_depth_run_runs_the_network_once_per_image(tmp_path, monkeypatch):
+    from companion.depth.session import DepthSession
+
+    calls = []
+    original = DepthSession.disparity
+
+    def counted(self, image):
+        calls.append(image.shape)
+        return original(self, image)
+
+    monkeypatch.setattr(DepthSession, "disparity", counted)
+    photo = str(FIXTURES / "DJI_0981_rgb_640.jpg")
+    assert main(["depth", "run", photo, photo, "--out", str(tmp_path)]) == 0
+    assert len(calls) == 2

@@ -14,7 +14,7 @@ from companion.errors import CompanionError
 from companion.flight import fly_mission_sync, read_telemetry_log
 from companion.mission import items as mi
 from companion.mission import load_mission, plan_scan
-from tests.sitl import ROOT, SitlVehicle, free_udp_port
+from tests.sitl import ROOT, SitlVehicle, free_port
 
 pytestmark = pytest.mark.sitl
 
@@ -85,7 +85,7 @@ def test_five_second_link_outage_is_survived(plan, tmp_path):
 
 
 def test_no_vehicle_gives_a_clear_error_within_the_timeout(plan):
-    url = f"udpin://127.0.0.1:{free_udp_port()}"
+    url = f"udpin://127.0.0.1:{free_port()}"
     t0 = time.monotonic()
     with pytest.raises(CompanionError) as err:
         _fly(plan, url, connect_timeout_s=2.0)

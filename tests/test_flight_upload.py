@@ -7,10 +7,10 @@ import math
 import pytest
 
 from companion.errors import CompanionError
-from companion.flight.commands import _sim_options
 from companion.flight.fly import mission_items_for
 from companion.flight.upload import compare_missions, from_raw, to_raw
 from companion.mission.items import MissionItem
+from companion.onboard.commands import sim_options as _sim_options
 
 
 def _items():

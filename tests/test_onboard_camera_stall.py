@@ -1,4 +1,4 @@
-"""A camera that stops delivering gives a clear warning; `companion sim record --fast` writes a recording."""
+"""A camera that stops delivering gives a clear warning; `companion record --fast` writes a recording."""
 
 from __future__ import annotations
 
@@ -19,8 +19,9 @@ from companion.onboard.setup import build_chain
 from companion.records import Pose
 
 
-def _silent_camera(server: socket.socket, frames: int, hold_s: float) -> None:
+def _silent_camera(server: socket.socket, frames: int, hold_s: float, warm_up_s: float = 0.0) -> None:
     conn, _ = server.accept()
+    time.sleep(warm_up_s)  # building its scene before the first frame
     img = np.random.default_rng(0).integers(0, 255, (90, 160, 3), dtype=np.uint8)
     for k in range(frames):
         ok, jpg = cv2.imencode(".jpg", img)
@@ -48,12 +49,22 @@ def test_camera_that_stops_delivering_is_reported(tmp_path):
     assert chain.stats.keyframes >= 1  # what arrived before the stall was still culled and spooled
 
 
+def test_a_camera_slow_to_its_first_frame_is_not_a_stall():
+    server = socket.create_server(("127.0.0.1", 0))
+    threading.Thread(target=_silent_camera, args=(server, 2, 1.5, 1.2), daemon=True).start()
+    with SimCameraSource("127.0.0.1", server.getsockname()[1], idle_timeout_s=0.5, first_frame_timeout_s=5.0) as src:
+        frames = list(src)
+    server.close()
+    assert len(frames) == 2 and src.stats.stalls == 1  # the warm-up waited; the silence after frame 2 did not
+    assert src.stats.notes == ["no frame for 0.5 s"]
+
+
 def test_sim_record_fast_writes_a_recording(tmp_path, capsys):
     from pathlib import Path
 
     mission = Path(__file__).parent / "data" / "small-wall.yaml"
     out = tmp_path / "rec"
-    assert main(["sim", "record", str(mission), "--out", str(out), "--fast", "--max-frames", "3", "--width", "96"]) == 0
+    assert main(["record", str(mission), "--out", str(out), "--fast", "--max-frames", "3", "--width", "96"]) == 0
     meta = json.loads((out / "meta.json").read_text())
     assert meta["frames"] == 3 and len(list((out / "frames").glob("*.jpg"))) == 3
     assert "recorded 3 frames" in capsys.readouterr().out

@@ -126,3 +126,18 @@ def test_cull_cli_on_image_folder(tmp_path):
     idx = [json.loads(x)["index"] for x in (out / "manifest.jsonl").read_text().splitlines()]
     assert len(idx) == len(set(idx)) == report["keyframes"]
     assert np.all(np.diff(idx) > 0)
+
+
+def test_a_thinning_buffer_keeps_waiting_frames_spread_over_the_busy_time():
+    from companion.onboard.runner import FrameBuffer
+
+    image = np.zeros((2, 2, 3), np.uint8)
+    thin, oldest = FrameBuffer(10, "thin"), FrameBuffer(10, "oldest")
+    dropped_thin = [thin.put(Frame(i, i / 30.0, image)) for i in range(100)]  # a worker busy for 100 frames
+    dropped_old = [oldest.put(Frame(i, i / 30.0, image)) for i in range(100)]
+    assert sum(d is not None for d in dropped_thin) == sum(d is not None for d in dropped_old) == 90
+    kept_thin = [thin.get().index for _ in range(10)]
+    kept_old = [oldest.get().index for _ in range(10)]
+    assert kept_old == list(range(90, 100))  # a 90-frame hole: the stretch of wall flown meanwhile is lost
+    assert kept_thin[0] == 0 and kept_thin[-1] == 99 and kept_thin == sorted(kept_thin)
+    assert max(b - a for a, b in zip(kept_thin, kept_thin[1:], strict=False)) <= 16  # 11 on average

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from sim.rig import ROOT, SitlRig
+from sim.rig import SitlRig
 
 pytestmark = pytest.mark.sitl
+ROOT = Path(__file__).resolve().parents[1]
 SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
 

@@ -62,12 +62,12 @@ def test_mavsdk_imports_the_plan_with_its_geofence(planned, tmp_path):
     from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
     from pymavlink import mavutil
 
-    from companion.flight.simulator import free_udp_port
+    from sim.process import free_port
 
     plan, files = planned
     path = tmp_path / "m.plan"
     path.write_bytes(files[f"{plan.mission.name}.plan"])
-    port = free_udp_port()
+    port = free_port()
     stop = threading.Event()
 
     def heartbeat():

@@ -76,15 +76,18 @@ class SimCameraSource(FrameSource):
 
     Undecodable frames are skipped and counted (``stats.corrupt``); the iteration ends when the camera closes
     the stream or, with ``idle_timeout_s``, when no frame arrived for that long (counted in ``stats.stalls``).
+    Until the first frame the wait is ``first_frame_timeout_s`` (when longer): the camera builds its scene textures
+    before it renders, which takes a loaded companion computer well over the idle timeout.
     """
 
     name = "simcam"
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *, connect_timeout_s: float = 5.0,
-                 idle_timeout_s: float | None = None):
+                 idle_timeout_s: float | None = None, first_frame_timeout_s: float = 60.0):
         super().__init__()
         self.host, self.port = host, port
         self.idle_timeout_s = idle_timeout_s
+        first = None if idle_timeout_s is None else max(idle_timeout_s, first_frame_timeout_s)
         deadline = time.monotonic() + connect_timeout_s
         last: OSError | None = None
         self.sock: socket.socket | None = None
@@ -100,7 +103,7 @@ class SimCameraSource(FrameSource):
                 f"cannot connect to the simulated camera at {host}:{port} ({last})",
                 "start it first: python -m sim camera MISSION.yaml --stream-port PORT (and the vehicle)",
             )
-        self.sock.settimeout(idle_timeout_s)
+        self.sock.settimeout(first)
 
     def __iter__(self) -> Iterator[Frame]:
         while self.sock is not None:
@@ -108,7 +111,8 @@ class SimCameraSource(FrameSource):
                 msg = read_message(self.sock)
             except TimeoutError:
                 self.stats.stalls += 1
-                self.stats.notes.append(f"no frame for {self.idle_timeout_s} s")
+                waited = self.sock.gettimeout() if self.sock is not None else self.idle_timeout_s
+                self.stats.notes.append(f"no frame for {waited} s")
                 return
             except OSError as exc:
                 log.warning("simulated camera connection lost: %s", exc)
@@ -120,6 +124,8 @@ class SimCameraSource(FrameSource):
             if image is None or image.ndim != 3:
                 self.stats.corrupt += 1
                 continue
+            if self.stats.delivered == 0 and self.sock is not None:
+                self.sock.settimeout(self.idle_timeout_s)  # warmed up: from now on a silence this long is a stall
             self.stats.delivered += 1
             yield Frame(index=int(header["index"]), capture_time_s=float(header["capture_time_s"]), image=image)
 

@@ -11,14 +11,13 @@ log = logging.getLogger(__name__)
 
 
 class FrameTagger:
-    """Also keeps the span of frame times it saw on the autopilot clock (and how many it could not map there), so
-    a run that placed no frame can say how the frames' times and the telemetry's missed each other."""
+    """Also keeps the span of frame times it saw on the autopilot clock, so a run that placed no frame can say how
+    the frames' times and the telemetry's missed each other."""
 
     def __init__(self, buffer: TelemetryBuffer, clock: ClockMap):
         self.buffer = buffer
         self.clock = clock
         self.stale_count = 0
-        self.unmapped_count = 0  # frames seen before the camera clock could be mapped to the autopilot clock
         self.earliest_frame_s: float | None = None  # autopilot clock
         self.latest_frame_s: float | None = None
 
@@ -26,7 +25,6 @@ class FrameTagger:
         t = self.clock.to_autopilot(frame.capture_time_s)
         if t is None:
             self.stale_count += 1
-            self.unmapped_count += 1
             return TaggedFrame(frame, None, pose_stale=True)
         self.earliest_frame_s = t if self.earliest_frame_s is None else min(self.earliest_frame_s, t)
         self.latest_frame_s = t if self.latest_frame_s is None else max(self.latest_frame_s, t)

@@ -1,13 +1,16 @@
-"""CLI: ``companion depth export|train|average|run``, ``companion mask IMAGES``, ``companion eval mask REC``."""
+"""CLI: ``companion depth export|train|average|run`` and ``companion mask IMAGES``."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 from pathlib import Path
 
+from companion.depth.session import DEFAULT_SIZE
+from companion.depth.training.config import TrainConfig
 from companion.errors import CompanionError
+from companion.plugins import provided
+from companion.resources import DEMO_MISSION_NAME, mission_argument
 
 log = logging.getLogger(__name__)
 
@@ -62,9 +65,10 @@ def cmd_export(args) -> int:
 
 def cmd_train(args) -> int:
     _need_torch()
-    from companion.depth.training.recordings import ensure_recordings
     from companion.depth.training.train import TrainConfig, train
 
+    if args.seeds or args.eval_seeds:
+        ensure_recordings = provided("ensure_recordings", "recording simulator scenes for training (--seeds)")
     out = Path(args.out)
     recs = [Path(p) for p in args.recordings or []]
     evals = [Path(p) for p in args.eval_recordings or []]
@@ -100,24 +104,14 @@ def cmd_average(args) -> int:
 
 def cmd_run(args) -> int:
     """Mask image files and save frame | disparity | masked frame pictures (for looking at real photos)."""
-    import cv2
-    import numpy as np
-
-    from companion.depth.evaluate import save_visual
+    from companion.depth.inspect import inspect_images
     from companion.depth.masker import Masker
-    from companion.records import Frame, TaggedFrame
 
-    masker = Masker(args.model)
-    for n, name in enumerate(args.images):
-        image = cv2.imread(str(name), cv2.IMREAD_COLOR)
-        if image is None:
-            raise CompanionError(f"cannot read image {name}", "pass JPEG/PNG files")
-        _, roi = masker.mask(TaggedFrame(Frame(n, 0.0, image), pose=None))
-        disp = masker.session.disparity(image)
-        save_visual(Path(args.out) / f"{Path(name).stem}.jpg", image, disp, roi.mask, None)
-        print(f"{name}: ROI {100 * roi.roi_fraction:.1f} % of the frame, regions {roi.n_regions}, "
+    for seen in inspect_images(args.images, Path(args.out), Masker(args.model)):
+        roi = seen.roi
+        print(f"{seen.image}: ROI {100 * roi.roi_fraction:.1f} % of the frame, regions {roi.n_regions}, "
               f"no_boundary={roi.no_boundary}, empty={roi.empty}, "
-              f"disparity p5/p50/p95 = {' / '.join(f'{v:.4f}' for v in np.percentile(disp, [5, 50, 95]))}")
+              f"disparity p5/p50/p95 = {' / '.join(f'{v:.4f}' for v in seen.disparity_p5_p50_p95)}")
     return 0
 
 
@@ -128,38 +122,17 @@ def cmd_mask(args) -> int:
 
     def report(m) -> None:
         what = "no near surface: all-zero mask" if m.no_near_surface else f"ROI {100 * m.roi_fraction:.1f} %"
-        print(f"{m.image}: {what} -> {m.mask_path}", flush=True)
+        how = " (parallax)" if m.by_parallax else ""
+        print(f"{m.image}: {what}{how} -> {m.mask_path}", flush=True)
 
-    results = mask_photos(args.images, args.out, Masker(args.model, threads=args.threads), on_mask=report)
+    results = mask_photos(args.images, args.out, Masker(args.model, threads=args.threads), on_mask=report,
+                          sequence=args.sequence)
     dropped = sum(m.no_near_surface for m in results)
     print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
+    if args.sequence and not any(m.by_parallax for m in results):
+        print("--sequence: no neighbouring photos showed usable motion, so the network alone decided every mask "
+              "(photos of one pass along the wall, in capture order, are needed)")
     return 0
-
-
-def cmd_eval_mask(args) -> int:
-    from companion.depth.evaluate import evaluate_recording
-    from companion.depth.masker import Masker
-
-    masker = Masker(args.model)
-    summaries = []
-    for rec in args.recordings:
-        ev = evaluate_recording(rec, masker, stride=args.stride, max_frames=args.max_frames, save_dir=args.save)
-        s = ev.summary()
-        summaries.append(s)
-        print(f"{rec}: {s['frames']} frames, pixel error ratio mean {100 * s['error_mean']:.2f} % "
-              f"p95 {100 * s['error_p95']:.2f} % max {100 * s['error_max']:.2f} %; ROI nearer than background in "
-              f"{100 * s['roi_nearer_fraction']:.0f} % of {s['frames_with_both_sides']} frames with both; "
-              f"dropped {s['dropped_empty']} (true empty {s['true_empty']}, "
-              f"dropped with facade {s['dropped_with_facade']})")
-    if args.json:
-        Path(args.json).write_text(json.dumps(summaries, indent=1))
-    return 0
-
-
-def _eval_subparsers(subparsers):
-    from companion.cli import shared_group
-
-    return shared_group(subparsers, "eval", "measure a pipeline stage against simulator ground truth")
 
 
 def register(subparsers) -> None:
@@ -170,7 +143,8 @@ def register(subparsers) -> None:
     p.add_argument("--encoder", required=True, help="encoder.pth (official key layout)")
     p.add_argument("--decoder", required=True, help="depth.pth (official key layout)")
     p.add_argument("--out", required=True, help="output .onnx")
-    p.add_argument("--size", type=_size, default=(192, 640), help="input HEIGHTxWIDTH (default 192x640)")
+    p.add_argument("--size", type=_size, default=DEFAULT_SIZE,
+                   help="input HEIGHTxWIDTH (default {}x{})".format(*DEFAULT_SIZE))
     p.add_argument("--source", default=None, help="metadata: where the weights come from")
     p.add_argument("--licence", default="as licensed by the checkpoint's owner", help="metadata: weights licence")
     p.add_argument("--opset", type=int, default=17)
@@ -178,30 +152,34 @@ def register(subparsers) -> None:
 
     p = dsub.add_parser("train", help="train the Monodepth2 model on simulator recordings (needs .[train])")
     p.add_argument("--out", required=True, help="run folder (checkpoints, logs, model.onnx); resumes if present")
-    p.add_argument("--mission", default="missions/demo-facade.yaml", help="mission the recordings fly")
+    p.add_argument("--mission", type=mission_argument, default=DEMO_MISSION_NAME,
+                   help=f"mission the recordings fly, a YAML or a shipped mission's name (default {DEMO_MISSION_NAME})")
     p.add_argument("--seeds", type=_seeds, default=None, help="training recording seeds, e.g. 0-23")
     p.add_argument("--eval-seeds", type=_seeds, default=None, help="held-out seeds, e.g. 100-103")
     p.add_argument("--view-seeds", type=_seeds, default=None, help="random-viewpoint scene seeds, e.g. 0-23")
     p.add_argument("--eval-view-seeds", type=_seeds, default=None, help="held-out random-view scenes, e.g. 1000-1003")
-    p.add_argument("--views-per-seed", type=int, default=50)
+    p.add_argument("--views-per-seed", type=int, default=TrainConfig.views_per_seed)
     p.add_argument("--recordings", nargs="*", help="existing training recording folders")
     p.add_argument("--eval-recordings", nargs="*", help="existing held-out recording folders")
     p.add_argument("--width-px", type=int, default=640, help="recording width in pixels")
     p.add_argument("--stride", type=int, default=2, help="keep every n-th camera frame of a recording")
-    p.add_argument("--size", type=_size, default=(192, 640), help="model input HEIGHTxWIDTH")
-    p.add_argument("--crop", type=_size, default=(128, 320), help="training crop HEIGHTxWIDTH (CPU speed)")
-    p.add_argument("--batch", type=int, default=8)
-    p.add_argument("--model-width", type=float, default=0.25, help="channel width factor (1.0 = original)")
-    p.add_argument("--lr", type=float, default=1e-4)
-    p.add_argument("--max-minutes", type=float, default=45.0, help="wall-time budget")
-    p.add_argument("--max-steps", type=int, default=1_000_000)
-    p.add_argument("--threads", type=int, default=1, help="torch threads (1 on a shared machine)")
+    p.add_argument("--size", type=_size, default=(TrainConfig.height, TrainConfig.width),
+                   help="model input HEIGHTxWIDTH")
+    p.add_argument("--crop", type=_size, default=TrainConfig.crop, help="training crop HEIGHTxWIDTH (CPU speed)")
+    p.add_argument("--batch", type=int, default=TrainConfig.batch)
+    p.add_argument("--model-width", type=float, default=TrainConfig.model_width,
+                   help="channel width factor (1.0 = original)")
+    p.add_argument("--lr", type=float, default=TrainConfig.lr)
+    p.add_argument("--max-minutes", type=float, default=TrainConfig.max_minutes, help="wall-time budget")
+    p.add_argument("--max-steps", type=int, default=TrainConfig.max_steps)
+    p.add_argument("--threads", type=int, default=TrainConfig.threads, help="torch threads (1 on a shared machine)")
     p.add_argument("--init-from", default=None,
                    help="fine-tune: start from this run folder's weights or a Monodepth2 .onnx (e.g. the shipped one)")
     p.add_argument("--real-photos", default=None,
                    help="shared data folder (../shared/data): mix in composites of its train-split real photos "
                         "(makes the model research / non-commercial)")
-    p.add_argument("--real-fraction", type=float, default=0.5, help="share of each batch from real photos")
+    p.add_argument("--real-fraction", type=float, default=TrainConfig.real_fraction,
+                   help="share of each batch from real photos")
     p.set_defaults(func=cmd_train)
 
     p = dsub.add_parser("average", help="uniform weight average of training runs (a model soup) -> verified ONNX")
@@ -221,13 +199,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="folder for the masks (created if missing)")
     p.add_argument("--model", default=None, help="ONNX depth model (default: the shipped one)")
     p.add_argument("--threads", type=int, default=None, help="onnxruntime threads (default: cores - 1)")
+    p.add_argument("--sequence", action="store_true",
+                   help="the photos are one pass along the wall in capture order (folders: sorted by name): "
+                        "motion parallax between neighbours corrects each mask (docs/DEPTH.md)")
     p.set_defaults(func=cmd_mask)
-
-    p = _eval_subparsers(subparsers).add_parser("mask", help="depth mask error ratio against simulator masks")
-    p.add_argument("recordings", nargs="+", help="recording folder(s) (held-out seeds)")
-    p.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
-    p.add_argument("--stride", type=int, default=1)
-    p.add_argument("--max-frames", type=int, default=None)
-    p.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures")
-    p.add_argument("--json", default=None, help="write the summaries to this JSON file")
-    p.set_defaults(func=cmd_eval_mask)

@@ -11,6 +11,7 @@ import numpy as np
 from companion.depth.masker import Masker
 from companion.depth.roi import RoiResult
 from companion.errors import CompanionError
+from companion.plugins import provided
 from companion.records import Frame, TaggedFrame
 
 
@@ -125,13 +126,10 @@ def evaluate_recording(
     save_dir: str | Path | None = None,
 ) -> MaskEval:
     """Mask every ``stride``-th frame of a recording and compare with its true ROI masks."""
-    try:
-        from sim.camera.recording import load_recording
-    except ImportError as exc:  # pragma: no cover - sim ships with companion
-        raise CompanionError("the simulator package is not installed", "pip install -e . in the repository") from exc
+    open_recording = provided("open_recording", "measuring the mask against a simulator recording")
     if not Path(path).is_dir():
         raise CompanionError(f"recording not found: {path}", "pass a folder written by the camera simulator")
-    rec = load_recording(path)
+    rec = open_recording(path)
     masker = masker or Masker()
     result = MaskEval(recording=str(path))
     indices = list(range(0, len(rec), max(1, stride)))[: max_frames or None]

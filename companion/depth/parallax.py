@@ -71,20 +71,25 @@ def _grey(image: np.ndarray, width: int) -> np.ndarray:
     return cv2.resize(g, size, interpolation=cv2.INTER_AREA)
 
 
-def parallax_depth(ref_image: np.ndarray, cur_image: np.ndarray, translation_cam_m: np.ndarray, fx_px: float,
-                   params: ParallaxParams | None = None) -> ParallaxResult:
-    """Depth from the parallax of ``cur_image`` against ``ref_image`` (same camera; ``fx_px`` at full width)."""
+@dataclass(frozen=True)
+class DenseFlow:
+    """Dense flow of the current frame against the reference at work resolution: ``cur(x) ~ ref(x + flow(x))``,
+    and where it can be trusted (textured, forward-backward consistent, tracked to a point inside the reference).
+    """
+
+    flow: np.ndarray  # H x W x 2, pixels at work resolution
+    trusted: np.ndarray  # H x W bool
+    work_width: int  # pixels
+    frame_width: int  # pixels of the frames the flow was computed from
+
+
+def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxParams | None = None) -> DenseFlow:
+    """DIS optical flow both ways between two frames of the same camera, at ``params.work_width``."""
     p = params or ParallaxParams()
-    t = np.asarray(translation_cam_m, float)
-    base = float(np.hypot(t[0], t[1]))
-    if base <= 1e-6:
-        raise CompanionError("no sideways camera motion between the two frames",
-                             "use the network alone for hovering frames, or a reference frame further back")
     if ref_image.shape != cur_image.shape:
         raise CompanionError(f"frames differ in size: {ref_image.shape} vs {cur_image.shape}",
                              "compare frames of the same camera")
     cur, ref = _grey(cur_image, p.work_width), _grey(ref_image, p.work_width)
-    f = fx_px * p.work_width / cur_image.shape[1]
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
     fwd = dis.calc(cur, ref, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
     bwd = dis.calc(ref, cur, None)
@@ -92,19 +97,44 @@ def parallax_depth(ref_image: np.ndarray, cur_image: np.ndarray, translation_cam
     xx, yy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     back = cv2.remap(bwd, xx + fwd[..., 0], yy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     fb_err = np.hypot(fwd[..., 0] + back[..., 0], fwd[..., 1] + back[..., 1])
-    direction = np.array([t[0], t[1]]) / base
-    along = fwd[..., 0] * direction[0] + fwd[..., 1] * direction[1]
-    with np.errstate(divide="ignore"):
-        depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
     gx = cv2.Sobel(cur, cv2.CV_32F, 1, 0, ksize=3) / 4.0
     gy = cv2.Sobel(cur, cv2.CV_32F, 0, 1, ksize=3) / 4.0
     texture = cv2.boxFilter(np.hypot(gx, gy), -1, (7, 7))
     tx, ty = xx + fwd[..., 0], yy + fwd[..., 1]
     inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # tracked to a point inside the reference
     trusted = (texture >= p.min_texture) & (fb_err <= p.max_fb_error_px) & inside
-    near = trusted & (depth < p.max_near_depth_m)
-    far = trusted & ~near
-    return ParallaxResult(depth, trusted, near, far, p)
+    return DenseFlow(fwd, trusted, p.work_width, cur_image.shape[1])
+
+
+def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float,
+                    params: ParallaxParams | None = None) -> ParallaxResult:
+    """Depth = f x baseline / (flow along the baseline's image direction); near and far where the flow is trusted.
+    ``fx_px`` is the focal length at full frame width."""
+    p = params or ParallaxParams()
+    t = np.asarray(translation_cam_m, float)
+    base = float(np.hypot(t[0], t[1]))
+    if base <= 1e-6:
+        raise CompanionError("no sideways camera motion between the two frames",
+                             "use the network alone for hovering frames, or a reference frame further back")
+    f = fx_px * flow.work_width / flow.frame_width
+    fwd = flow.flow
+    direction = np.array([t[0], t[1]]) / base
+    along = fwd[..., 0] * direction[0] + fwd[..., 1] * direction[1]
+    with np.errstate(divide="ignore"):
+        depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
+    near = flow.trusted & (depth < p.max_near_depth_m)
+    far = flow.trusted & ~near
+    return ParallaxResult(depth, flow.trusted, near, far, p)
+
+
+def parallax_depth(ref_image: np.ndarray, cur_image: np.ndarray, translation_cam_m: np.ndarray, fx_px: float,
+                   params: ParallaxParams | None = None) -> ParallaxResult:
+    """Depth from the parallax of ``cur_image`` against ``ref_image`` (same camera; ``fx_px`` at full width)."""
+    t = np.asarray(translation_cam_m, float)
+    if float(np.hypot(t[0], t[1])) <= 1e-6:
+        raise CompanionError("no sideways camera motion between the two frames",
+                             "use the network alone for hovering frames, or a reference frame further back")
+    return depth_from_flow(dense_flow(ref_image, cur_image, params), t, fx_px, params)
 
 
 def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult) -> tuple[np.ndarray, bool]:

@@ -13,7 +13,7 @@ its mask, then the unreadable ones are reported together.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +33,7 @@ class PhotoMask:
     mask_path: Path
     roi_fraction: float  # share of the photo kept as facade (0 for a photo with no near surface)
     no_near_surface: bool  # the masker found only far background: the mask is all zero
+    by_parallax: bool = False  # --sequence: parallax confirmed or corrected the network's mask
 
 
 def mask_name(image: Path) -> str:
@@ -65,17 +66,12 @@ def _write_png(path: Path, mask: np.ndarray) -> None:
     os.replace(tmp, path)
 
 
-def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
-                on_mask: Callable[[PhotoMask], None] | None = None) -> list[PhotoMask]:
-    """Mask each photo with the depth masker (default: the shipped model) and write ``<stem>_mask.png``.
+def _read(path: Path) -> np.ndarray | None:
+    return cv2.imread(str(path), cv2.IMREAD_COLOR)
 
-    Raises CompanionError before writing anything when two photos would get the same mask name or ``out_dir``
-    is a file, and after writing every readable photo's mask when some photos could not be read.
-    """
-    from companion.depth.masker import Masker
-    from companion.records import Frame, TaggedFrame
 
-    paths = expand_images(images)
+def _checked_out_dir(out_dir: str | Path, paths: list[Path]) -> Path:
+    """``out_dir``, refused when it is a file or when two photos would get the same mask name."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise CompanionError(f"--out {out} is a file", "give a folder for the masks (it is created if missing)")
@@ -85,20 +81,58 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
         if other != p:
             raise CompanionError(f"{other} and {p} would both get the mask {mask_name(p)}",
                                  "mask photos with the same name into separate --out folders")
-    out.mkdir(parents=True, exist_ok=True)
-    masker = masker or Masker()
-    results: list[PhotoMask] = []
-    unreadable: list[Path] = []
+    return out
+
+
+def _single_photo_masks(paths: list[Path], masker) -> Iterator[tuple[int, np.ndarray | None, bool, bool]]:
+    """(index, mask or None when unreadable, no near surface, judged by parallax) from the network alone."""
+    from companion.records import Frame, TaggedFrame
+
     for n, path in enumerate(paths):
-        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+        image = _read(path)
         if image is None:
-            unreadable.append(path)
+            yield n, None, False, False
             continue
         _, roi = masker.mask(TaggedFrame(Frame(index=n, capture_time_s=0.0, image=image), pose=None))
-        mask = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
-        target = out / mask_name(path)
+        yield n, (roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)), roi.empty, False
+
+
+def _sequence_masks(paths: list[Path], masker) -> Iterator[tuple[int, np.ndarray | None, bool, bool]]:
+    """The same from the network and the pass's parallax (companion/depth/sequence.py)."""
+    from companion.depth.sequence import mask_sequence
+
+    for n, m in mask_sequence(paths, masker, _read):
+        yield (n, None, False, False) if m is None else (n, m.mask, m.no_near_surface, m.parallax)
+
+
+def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
+                on_mask: Callable[[PhotoMask], None] | None = None, *, sequence: bool = False) -> list[PhotoMask]:
+    """Mask each photo with the depth masker (default: the shipped model) and write ``<stem>_mask.png``.
+
+    ``sequence``: the photos are one pass along the wall in capture order; the motion parallax between
+    neighbouring photos confirms or corrects each network mask and drops photos of only far background
+    (companion/depth/sequence.py; docs/DEPTH.md says what it changes).
+
+    Raises CompanionError before writing anything when two photos would get the same mask name or ``out_dir``
+    is a file, and after writing every readable photo's mask when some photos could not be read.
+    """
+    from companion.depth.masker import Masker
+
+    paths = expand_images(images)
+    out = _checked_out_dir(out_dir, paths)
+    out.mkdir(parents=True, exist_ok=True)
+    masker = masker or Masker()
+    masks = _sequence_masks(paths, masker) if sequence else _single_photo_masks(paths, masker)
+    results: list[PhotoMask] = []
+    unreadable: list[Path] = []
+    for n, mask, no_near_surface, by_parallax in masks:
+        if mask is None:
+            unreadable.append(paths[n])
+            continue
+        target = out / mask_name(paths[n])
         _write_png(target, mask)
-        result = PhotoMask(path, target, 0.0 if roi.empty else roi.roi_fraction, roi.empty)
+        share = 0.0 if no_near_surface else float(np.count_nonzero(mask)) / mask.size
+        result = PhotoMask(paths[n], target, share, no_near_surface, by_parallax)
         results.append(result)
         if on_mask is not None:
             on_mask(result)

@@ -147,17 +147,8 @@ def boundary_map(disparity: np.ndarray, params: RoiParams) -> tuple[np.ndarray, 
     return edges, thr
 
 
-def extract_roi(
-    disparity: np.ndarray,
-    out_size: tuple[int, int] | None = None,
-    params: RoiParams | None = None,
-) -> RoiResult:
-    """Segment the near facade from the far background in a disparity image (higher = nearer).
-
-    ``out_size`` is (width, height) of the full-resolution frame; the mask is computed at the disparity's
-    resolution and resized (linear interpolation of the 0/1 mask, then 0.5 threshold, for smooth edges).
-    """
-    params = params or RoiParams()
+def _disparity_image(disparity: np.ndarray) -> np.ndarray:
+    """The disparity as a finite, non-negative float32 H x W image (a network's 1x1xHxW or 1xHxW squeezed)."""
     d = np.asarray(disparity)
     if d.ndim == 4 and d.shape[:2] == (1, 1):
         d = d[0, 0]
@@ -171,34 +162,57 @@ def extract_roi(
     d = d.astype(np.float32)
     if not np.all(np.isfinite(d)):
         raise CompanionError("disparity contains NaN or inf", "check the depth model output (disparity, not depth)")
-    d = np.maximum(d, 0.0)
-    h, w = d.shape
-    out_w, out_h = out_size if out_size is not None else (w, h)
+    return np.maximum(d, 0.0)
 
-    edges, thr = boundary_map(d, params)
+
+@dataclass(frozen=True)
+class _Regions:
+    """The regions between depth boundaries: a label image (0 = boundary), the ids of the regions large enough
+    not to be pepper noise, and per label the disparity sum and pixel count."""
+
+    labels: np.ndarray
+    n_labels: int
+    ids: list[int]
+    sums: np.ndarray
+    counts: np.ndarray
+
+    def mean(self, i: int) -> float:
+        return self.sums[i] / max(self.counts[i], 1)
+
+    def pooled_mean(self, ids: list[int]) -> float:
+        return float(sum(self.sums[i] for i in ids) / sum(self.counts[i] for i in ids))
+
+
+def _regions_between_boundaries(d: np.ndarray, edges: np.ndarray, params: RoiParams) -> _Regions:
+    """4-connected regions of the non-boundary pixels; when the boundary covers everything (pathological noise)
+    the whole frame is one region."""
     n, labels, stats, _ = _components(~edges, 4)
     min_area = max(4, int(params.min_component_frac * d.size))
     region_ids = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= min_area]
-    if not region_ids:  # the boundary covers everything (pathological noise): treat the frame as one region
+    if not region_ids:
         n, labels, region_ids = 2, np.ones_like(labels), [1]
     flat = labels.ravel()
     sums = np.bincount(flat, weights=d.ravel(), minlength=n + 1)
     counts = np.bincount(flat, minlength=n + 1)
-    means = {i: sums[i] / max(counts[i], 1) for i in region_ids}
-    nearest = max(means.values())
+    return _Regions(labels, n, region_ids, sums, counts)
 
-    kept = [i for i in region_ids if means[i] >= params.near_ratio * nearest]
-    dropped = [i for i in region_ids if i not in kept]
-    is_dropped = np.zeros(n, bool)
+
+def _nearer_pixels(d: np.ndarray, regions: _Regions, params: RoiParams) -> tuple[np.ndarray, list[int]]:
+    """Boolean keep-mask of the near side and the ids of the regions kept: regions within ``near_ratio`` of the
+    nearest one, then a disparity cut (midway between kept and dropped, and ``far_cut_ratio`` of the facade),
+    then pepper islands and holes removed."""
+    means = {i: regions.mean(i) for i in regions.ids}
+    nearest = max(means.values())
+    kept = [i for i in regions.ids if means[i] >= params.near_ratio * nearest]
+    dropped = [i for i in regions.ids if i not in kept]
+    is_dropped = np.zeros(regions.n_labels, bool)
     is_dropped[dropped] = True
-    in_dropped = is_dropped[labels]  # boundary pixels (label 0) are decided by the cut below
+    in_dropped = is_dropped[regions.labels]  # boundary pixels (label 0) are decided by the cut below
     cut = 0.0
     if dropped:
-        kept_mean = float(sum(sums[i] for i in kept) / sum(counts[i] for i in kept))
-        drop_mean = float(sum(sums[i] for i in dropped) / sum(counts[i] for i in dropped))
         # Pixels on the boundary (and tiny regions) go to the side their disparity is closer to; the same cut
         # also trims background that leaked into a kept region through a gap in the boundary.
-        cut = 0.5 * (kept_mean + drop_mean)
+        cut = 0.5 * (regions.pooled_mean(kept) + regions.pooled_mean(dropped))
     if params.far_cut_ratio > 0:
         # Surfaces that run on continuously from the facade into the distance (a roof seen from above, the
         # ground, a side wall) cross no boundary; their parts far behind the facade are cut by depth alone.
@@ -210,6 +224,36 @@ def extract_roi(
         min_island = max(4, int(params.min_component_frac * d.size))
         keep = _remove_small(keep, min_island, connectivity=4)
         keep = ~_remove_small(~keep, min_island, connectivity=4)  # fill pepper holes in the ROI
+    return keep, kept
+
+
+def _mask_at_size(keep: np.ndarray, out_w: int, out_h: int) -> np.ndarray:
+    """The 0/255 mask at the output size (linear interpolation of the 0/1 mask, then 0.5 threshold: smooth edges)."""
+    h, w = keep.shape
+    if (out_w, out_h) != (w, h):
+        soft = cv2.resize(keep.astype(np.float32), (out_w, out_h), interpolation=cv2.INTER_LINEAR)
+        return np.where(soft >= 0.5, 255, 0).astype(np.uint8)
+    return np.where(keep, 255, 0).astype(np.uint8)
+
+
+def extract_roi(
+    disparity: np.ndarray,
+    out_size: tuple[int, int] | None = None,
+    params: RoiParams | None = None,
+) -> RoiResult:
+    """Segment the near facade from the far background in a disparity image (higher = nearer).
+
+    ``out_size`` is (width, height) of the full-resolution frame; the mask is computed at the disparity's
+    resolution and resized (linear interpolation of the 0/1 mask, then 0.5 threshold, for smooth edges).
+    """
+    params = params or RoiParams()
+    d = _disparity_image(disparity)
+    h, w = d.shape
+    out_w, out_h = out_size if out_size is not None else (w, h)
+
+    edges, thr = boundary_map(d, params)
+    regions = _regions_between_boundaries(d, edges, params)
+    keep, kept = _nearer_pixels(d, regions, params)
     if params.min_roi_disparity is not None and (not keep.any() or float(d[keep].mean()) < params.min_roi_disparity):
         # Judged on what is finally kept, not on the nearest region's mean: a wall joined to the sky through a
         # gap in the boundary (a wall end fading into the ground) makes one region whose mean is the sky's.
@@ -218,32 +262,24 @@ def extract_roi(
             empty=True,
             no_boundary=False,
             roi_fraction=0.0,
-            n_regions=len(region_ids),
+            n_regions=len(regions.ids),
             n_kept=0,
             roi_mean_disparity=float("nan"),
             background_mean_disparity=float(np.mean(d)),
             gradient_threshold=thr,
         )
-    no_boundary = bool(keep.all())  # nothing cut: the whole frame is facade
 
-    if (out_w, out_h) != (w, h):
-        soft = cv2.resize(keep.astype(np.float32), (out_w, out_h), interpolation=cv2.INTER_LINEAR)
-        mask = np.where(soft >= 0.5, 255, 0).astype(np.uint8)
-    else:
-        mask = np.where(keep, 255, 0).astype(np.uint8)
-
+    mask = _mask_at_size(keep, out_w, out_h)
     roi_px = keep.sum()
-    roi_mean = float(d[keep].mean()) if roi_px else float("nan")
-    bg_mean = float(d[~keep].mean()) if roi_px < keep.size else float("nan")
     return RoiResult(
         mask=mask,
         empty=bool(roi_px == 0),
-        no_boundary=no_boundary,
+        no_boundary=bool(keep.all()),  # nothing cut: the whole frame is facade
         roi_fraction=float(np.count_nonzero(mask)) / mask.size,
-        n_regions=len(region_ids),
+        n_regions=len(regions.ids),
         n_kept=len(kept),
-        roi_mean_disparity=roi_mean,
-        background_mean_disparity=bg_mean,
+        roi_mean_disparity=float(d[keep].mean()) if roi_px else float("nan"),
+        background_mean_disparity=float(d[~keep].mean()) if roi_px < keep.size else float("nan"),
         gradient_threshold=thr,
     )
 

@@ -15,18 +15,12 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.resources import DEFAULT_MODEL_NAME, SHIPPED_MODEL_FILES, shipped_model
 
 log = logging.getLogger(__name__)
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
-# The models shipped in the package, selectable by name (mission ``depth_model``, ``--model``). "sim": trained on our
-# simulator only (BSD-3-Clause). "real-nc": fine-tuned on real facade photos whose licences are research /
-# non-commercial, so the model is too (README.md, docs/DEPTH.md).
-SHIPPED_MODELS = {
-    "sim": MODELS_DIR / "monodepth2-sim-r18w025.onnx",
-    "real-nc": MODELS_DIR / "monodepth2-real-nc-r18w025.onnx",
-}
-DEFAULT_MODEL_NAME = "sim"
+# The models shipped in the package, selectable by name (mission ``depth_model``, ``--model``): companion/resources.py.
+SHIPPED_MODELS = {name: shipped_model(name) for name in SHIPPED_MODEL_FILES}
 DEFAULT_MODEL = SHIPPED_MODELS[DEFAULT_MODEL_NAME]
 
 

@@ -73,10 +73,6 @@ async def write_parameter(param_plugin, name: str, value: float, is_int: bool) -
                              "check the value's range for this firmware, or set it on the ground station") from exc
 
 
-async def read_parameters(param_plugin, names) -> dict[str, ParamValue]:
-    return {name: await read_parameter(param_plugin, name) for name in names}
-
-
 def _same(a: float, b: float, is_int: bool) -> bool:
     return int(round(a)) == int(round(b)) if is_int else math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
 

@@ -152,6 +152,78 @@ def telemetry_poses(recording, frame, noise: PoseNoise | None = None) -> Callabl
     return pose
 
 
+@dataclass
+class _GateTally:
+    """What the gate did over a recording, accumulated frame by frame: keyframes, gaps, every known R beside
+    its truth, unknown comparisons, overlap warnings, where each R came from, and the time spent in the gate."""
+
+    keys: list[int] = field(default_factory=list)
+    gaps: list[int] = field(default_factory=list)
+    pairs: list[PairError] = field(default_factory=list)
+    sources: Counter = field(default_factory=Counter)
+    unknown: int = 0
+    warnings: int = 0
+    spent_s: float = 0.0
+
+    def count_step(self, step, recording) -> None:
+        """Every comparison of one gate step scored against the recording's true overlap."""
+        for c in step.comparisons:
+            e = c.estimate
+            self.sources[e.source if e.known else "unknown"] += 1
+            if e.known:
+                truth = 100.0 * recording.true_overlap(c.ref_index, c.frame_index)
+                pair = PairError(c.ref_index, c.frame_index, e.percent, truth, e.R_displacement, e.R_polygon)
+                self.pairs.append(pair)
+            else:
+                self.unknown += 1
+        self.warnings += int(step.overlap_warning)
+
+    def timed(self, call, *args):
+        """``call(*args)``'s result, its duration added to the gate time."""
+        t0 = time.perf_counter()
+        out = call(*args)
+        self.spent_s += time.perf_counter() - t0
+        return out
+
+
+def _gate_input(
+    recording,
+    i: int,
+    use_masks: bool,
+    pose: Callable[[int], Pose | None] | None,
+    mask_of: Callable[[int], np.ndarray | None] | None,
+) -> MaskedFrame | None:
+    """Frame ``i`` as the gate sees it: its mask (``mask_of``'s, the recording's truth, or none) and pose; None
+    when ``mask_of`` finds no ROI (the onboard chain drops such a frame)."""
+    if mask_of is not None:
+        mask = mask_of(i)
+        if mask is None:
+            return None
+    else:
+        mask = recording.roi_mask(i) if use_masks else None
+    mf = masked_frame(i, recording.image(i), mask, t_s=recording.capture_time(i))
+    if pose is not None:
+        mf = MaskedFrame(TaggedFrame(mf.tagged.frame, pose(i)), mf.mask)
+    return mf
+
+
+def _run_gate(gate: KeyframeGate, recording, frames: Callable[[int], MaskedFrame | None]) -> _GateTally:
+    """Pushes every frame of ``recording`` through ``gate`` in order, then flushes it."""
+    tally = _GateTally()
+    for i in range(len(recording)):
+        mf = frames(i)
+        if mf is None:
+            continue
+        out = tally.timed(gate.push, mf)
+        tally.count_step(gate.last_step, recording)
+        for k in out:
+            tally.keys.append(k.masked.tagged.frame.index)
+            if k.gap_before:
+                tally.gaps.append(tally.keys[-1])
+    tally.keys += [k.masked.tagged.frame.index for k in tally.timed(gate.flush)]
+    return tally
+
+
 def evaluate_gate(
     recording,
     config: GateConfig | None = None,
@@ -173,66 +245,23 @@ def evaluate_gate(
         raise CompanionError(f"the recording has {n} frame(s)", "evaluate a recording with at least 2 frames")
     cfg = config or GateConfig()
     gate = KeyframeGate(cfg, predictor=predictor if pose is not None else None)
-    sources: Counter = Counter()
-    keys: list[int] = []
-    gaps: list[int] = []
-    pairs: list[PairError] = []
-    unknown = 0
-    warnings = 0
-    spent = 0.0
-
-    def account(step) -> None:
-        nonlocal unknown, warnings
-        for c in step.comparisons:
-            e = c.estimate
-            sources[e.source if e.known else "unknown"] += 1
-            if e.known:
-                truth = 100.0 * recording.true_overlap(c.ref_index, c.frame_index)
-                pairs.append(PairError(c.ref_index, c.frame_index, e.percent, truth, e.R_displacement, e.R_polygon))
-            else:
-                unknown += 1
-        warnings += int(step.overlap_warning)
-
-    for i in range(n):
-        if mask_of is not None:
-            mask = mask_of(i)
-            if mask is None:
-                continue
-        else:
-            mask = recording.roi_mask(i) if use_masks else None
-        mf = masked_frame(i, recording.image(i), mask, t_s=recording.capture_time(i))
-        if pose is not None:
-            mf = MaskedFrame(TaggedFrame(mf.tagged.frame, pose(i)), mf.mask)
-        t0 = time.perf_counter()
-        out = gate.push(mf)
-        spent += time.perf_counter() - t0
-        account(gate.last_step)
-        for k in out:
-            keys.append(k.masked.tagged.frame.index)
-            if k.gap_before:
-                gaps.append(keys[-1])
-    t0 = time.perf_counter()
-    out = gate.flush()
-    spent += time.perf_counter() - t0
-    keys += [k.masked.tagged.frame.index for k in out]
-    kp_truth = [100.0 * recording.true_overlap(a, b) for a, b in zip(keys, keys[1:], strict=False)]
-    minimum = minimum_keyframes(n, recording.true_overlap, cfg.rth)
-    curve = overlap_curve(recording, cfg, curve_p, use_masks=use_masks, floor=curve_floor)
+    tally = _run_gate(gate, recording, lambda i: _gate_input(recording, i, use_masks, pose, mask_of))
+    keys = tally.keys
     return GateEvaluation(
         frames=n,
         rth=cfg.rth,
         method=cfg.overlap.method,
         keyframes=keys,
-        gaps=gaps,
-        pairs=pairs,
-        unknown=unknown,
-        keyframe_pair_truth=kp_truth,
-        minimum_keyframes=minimum,
-        warnings=warnings,
-        gate_seconds=spent,
-        curve=curve,
+        gaps=tally.gaps,
+        pairs=tally.pairs,
+        unknown=tally.unknown,
+        keyframe_pair_truth=[100.0 * recording.true_overlap(a, b) for a, b in zip(keys, keys[1:], strict=False)],
+        minimum_keyframes=minimum_keyframes(n, recording.true_overlap, cfg.rth),
+        warnings=tally.warnings,
+        gate_seconds=tally.spent_s,
+        curve=overlap_curve(recording, cfg, curve_p, use_masks=use_masks, floor=curve_floor),
         curve_p=curve_p,
-        sources=dict(sources),
+        sources=dict(tally.sources),
         telemetry=gate.predictor is not None,
     )
 

@@ -14,6 +14,10 @@ static far background cannot), a pair the poses put below Rth - ``telemetry_marg
 the image says, and where the image holds too little wall to measure (a thin strip at the wall's end) the
 predicted overlap decides and the keyframe's record says so (``overlap_source``). Frames without poses are
 decided by the image alone, as in the paper.
+
+``measure`` gives R against the current keyframe without deciding anything, so a scheduler that holds frames back
+(``companion.onboard.tracked``) can find the last frame still >= Rth among them and push only that one and the
+next; the features and the estimate it computed are reused by the push.
 """
 
 from __future__ import annotations
@@ -57,6 +61,9 @@ class GateConfig:
         """Rth from the mission's ``overlap`` (fraction), 0.80 when the mission has none."""
         rth = getattr(mission, "overlap", None)
         return cls(rth=float(rth) if rth is not None else 0.80, **overrides)
+
+
+_MAX_LOOKED = 8  # frames whose features ``measure`` keeps for a following push
 
 
 class GateEventKind(StrEnum):
@@ -138,6 +145,11 @@ class KeyframeGate:
         self.last_step: GateStep | None = None
         self.frames_in = 0
         self.keyframes_out = 0
+        self.measured = 0  # frames whose features were extracted (each costs the SIFT extraction)
+        # Frames ``measure`` looked at (features) and what it measured, reused by a push of the same frame;
+        # bounded: a scheduler looks at a few frames around a decision, then pushes one or two of them.
+        self._looked: dict[int, _Held] = {}
+        self._looked_est: dict[tuple[int, int], OverlapEstimate] = {}
 
     # -- public -------------------------------------------------------------------------------------------
     @property
@@ -153,19 +165,36 @@ class KeyframeGate:
         events, self._events = self._events, []
         return events
 
+    @property
+    def keyframe_index(self) -> int | None:
+        """Frame index of the current keyframe (the reference new frames are compared with)."""
+        return None if self._key is None else self._key.index
+
+    @property
+    def candidate_index(self) -> int | None:
+        return None if self._cand is None else self._cand.index
+
+    def measure(self, masked: MaskedFrame) -> OverlapEstimate | None:
+        """R(current keyframe, this frame) without deciding anything (None before the first keyframe or when the
+        ROI has too few features). A scheduler uses it to find the last frame still >= Rth among frames it held
+        back; the features and the estimate are kept for a ``push`` of the same frame, which then costs nothing
+        more."""
+        item = self._held(masked)
+        self._looked[item.index] = item
+        while len(self._looked) > _MAX_LOOKED:
+            self._looked.pop(next(iter(self._looked)))
+        if self._key is None or len(item.features) < self.config.overlap.min_matches:
+            return None
+        pair = (self._key.index, item.index)
+        if pair not in self._looked_est:
+            self._looked_est[pair] = self._estimate(self._key, item, count=False)
+        return self._looked_est[pair]
+
     def push(self, masked: MaskedFrame) -> list[Keyframe]:
-        if not isinstance(masked, MaskedFrame):
-            raise CompanionError(
-                f"the gate takes MaskedFrame records, got {type(masked).__name__}",
-                "wrap frames as MaskedFrame(TaggedFrame(Frame(...), pose), mask) (mask all 255 when unmasked)",
-            )
+        item = self._held(masked)
+        self._sharp_ref.update(item.sharpness)
         frame = masked.tagged.frame
-        feats = self._extractor.extract(frame.image, masked.mask)
-        sharp = laplacian_variance(feats.work_gray, feats.work_mask)
-        blurred = self._sharp_ref.is_blurred(sharp)
-        self._sharp_ref.update(sharp)
-        item = _Held(masked, feats, sharp, blurred)
-        step = GateStep(frame.index, "rejected", sharp, blurred)
+        step = GateStep(frame.index, "rejected", item.sharpness, item.blurred)
         self.last_step = step
         self.frames_in += 1
         self._out = []
@@ -173,8 +202,24 @@ class KeyframeGate:
             self._decide(item, step)
         finally:
             self._events.extend(step.events)
+            self._looked = {i: h for i, h in self._looked.items() if i > frame.index}
+            self._looked_est = {p: e for p, e in self._looked_est.items() if p[1] in self._looked}
         out, self._out = self._out, []
         return out
+
+    def _held(self, masked: MaskedFrame) -> _Held:
+        if not isinstance(masked, MaskedFrame):
+            raise CompanionError(
+                f"the gate takes MaskedFrame records, got {type(masked).__name__}",
+                "wrap frames as MaskedFrame(TaggedFrame(Frame(...), pose), mask) (mask all 255 when unmasked)",
+            )
+        looked = self._looked.get(masked.tagged.frame.index)
+        if looked is not None and looked.masked is masked:
+            return looked
+        feats = self._extractor.extract(masked.tagged.frame.image, masked.mask)
+        self.measured += 1
+        sharp = laplacian_variance(feats.work_gray, feats.work_mask)
+        return _Held(masked, feats, sharp, self._sharp_ref.is_blurred(sharp))
 
     def flush(self) -> list[Keyframe]:
         """End of stream: the held candidate becomes the last keyframe."""
@@ -314,11 +359,23 @@ class KeyframeGate:
         return self.predictor.predict(a.pose, b.pose, w, h)
 
     def _compare(self, key: _Held, item: _Held, step: GateStep) -> OverlapEstimate:
+        est = self._looked_est.get((key.index, item.index))
+        if est is not None:  # measured already; counted now that it decides
+            self.telemetry_vetoes += int(est.source == "telemetry_veto")
+            self.telemetry_fallbacks += int(est.source == "telemetry")
+        else:
+            est = self._estimate(key, item, count=True)
+        step.comparisons.append(Comparison(key.index, item.index, est))
+        return est
+
+    def _estimate(self, key: _Held, item: _Held, count: bool) -> OverlapEstimate:
         prior = self._predict(key, item)
         est = self._estimator.estimate(key.features, item.features, prior=prior)
         if prior is not None:
             est = self._with_telemetry(est, prior)
-        step.comparisons.append(Comparison(key.index, item.index, est))
+            if count:
+                self.telemetry_vetoes += int(est.source == "telemetry_veto")
+                self.telemetry_fallbacks += int(est.source == "telemetry")
         return est
 
     def _with_telemetry(self, est: OverlapEstimate, prior: WallMotion) -> OverlapEstimate:
@@ -328,10 +385,8 @@ class KeyframeGate:
         floor = self.rth_percent - 100.0 * self.config.telemetry_margin
         if est.known:
             if est.percent >= self.rth_percent and predicted < floor:
-                self.telemetry_vetoes += 1
                 return replace(est, R=predicted, source="telemetry_veto", R_image=est.R, R_telemetry=predicted)
             return replace(est, R_telemetry=predicted)
-        self.telemetry_fallbacks += 1
         return replace(est, R=predicted, source="telemetry", R_telemetry=predicted)
 
     def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool, reason: str) -> None:

@@ -1,4 +1,4 @@
-"""`companion plan` (and, until the SITL pieces land, `companion demo`): plan a mission and write its exports;
+"""`companion plan`: plan a mission and write its exports;
 `--refly MAPDIR` plans only the uncovered areas of a stitched map (``companion.mission.refly``)."""
 
 from __future__ import annotations
@@ -10,13 +10,13 @@ from companion.mission.exports import flight_parameters_by_autopilot, render_out
 from companion.mission.planner import ScanPlan, plan_scan
 from companion.mission.refly import MIN_AREA_SIZE_M, refly_to_dir
 from companion.mission.spec import load_mission
-
-DEFAULT_MISSION = Path(__file__).resolve().parents[2] / "missions" / "demo-facade.yaml"
+from companion.resources import mission_argument, shipped_missions
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("plan", help="plan a facade scan and write mission exports + a review plot")
-    p.add_argument("mission", type=Path, help="mission YAML (see missions/)")
+    p.add_argument("mission", type=mission_argument,
+                   help=f"mission YAML, or a shipped mission's name ({', '.join(shipped_missions())})")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.add_argument(
         "--refly",

@@ -197,23 +197,20 @@ def _nearest_first(strips: list, p: tuple[float, float], q: tuple[float, float])
     return (p, q)
 
 
-def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> ScanPlan:
-    """Plan the scan of the whole wall, or only of ``regions`` (rectangles on the wall plane, frame edges reaching
-    their edges: a re-fly, ``companion.mission.refly``); takeoff, transit, landing and the standoff and geofence
-    checks are the same. Raises CompanionError when the mission cannot be flown safely."""
-    frame = wall_frame(mission)
-    if frame.length_m < 0.5:
-        raise CompanionError(
-            f"the wall is only {frame.length_m:.2f} m long", "check facade.start/end: they should be the wall's ends"
-        )
-    m = mission
-    fp = camera_footprint(m)
-    d = m.standoff_m
-    wall_h = m.facade.height_m
-    mg = m.margins
-    warnings: list[str] = []
+@dataclass(frozen=True)
+class _Takeoff:
+    """Where the vehicle takes off and lands, in the facade frame, and the altitude shift to heights above it."""
 
-    # Home is the takeoff point on the ground; mission altitudes are relative to it.
+    home: GeoPoint
+    along_m: float
+    out_m: float
+    up_to_rel_m: float  # add to a facade up_m to get the altitude above home (mission altitudes are relative to it)
+
+
+def _takeoff_point(m: Mission, frame: FacadeFrame) -> _Takeoff:
+    """Home is the takeoff point on the ground: the mission's, checked to be on the drone's side at least the
+    standoff out, or by default mid-wall 6 m beyond the standoff."""
+    d = m.standoff_m
     if m.takeoff is not None:
         home_alt = (
             m.takeoff.ground_alt_amsl_m if m.takeoff.ground_alt_amsl_m is not None else m.facade.ground_alt_amsl_m
@@ -231,37 +228,58 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
         ta, to = frame.length_m / 2.0, d + 6.0
         lat, lon, _ = frame.facade_to_geodetic(ta, to, 0.0)
         home = GeoPoint(float(lat), float(lon), m.facade.ground_alt_amsl_m)
-    up_to_rel = m.facade.ground_alt_amsl_m - home.alt_amsl_m  # add to up_m to get altitude above home
+    return _Takeoff(home, ta, to, m.facade.ground_alt_amsl_m - home.alt_amsl_m)
 
-    extent = scan_extent(m, frame.length_m)
-    low_centre = extent.up_min_m + fp.height_m / 2.0
+
+def _uncovered_bottom_warnings(m: Mission, extent: WallRegion) -> list[str]:
+    """The warning for a wall base below the lowest frame the bottom clearance allows (none when it is seen)."""
     uncovered_bottom = max(0.0, extent.up_min_m)
-    if uncovered_bottom > 0:
-        warnings.append(
-            f"the bottom {uncovered_bottom:.2f} m of the wall is below the lowest frame (bottom clearance "
-            f"{mg.bottom_clearance_m} m): lower margins.bottom_clearance_m or inspect it from the ground"
-        )
-    if regions is not None and not regions:
-        raise CompanionError("no wall region to scan was given", "give at least one region, or none for the whole wall")
-    kf_spacing = (fp.height_m if m.pattern == "vertical" else fp.width_m) * (1.0 - m.overlap)
-    strips, strip_step = _strips(m, fp, kf_spacing, low_centre, [extent] if regions is None else list(regions))
-    side_extent = fp.width_m if m.pattern == "vertical" else fp.height_m
-    side_achieved = 1.0 - strip_step / side_extent if strip_step > 0 else 1.0
+    if uncovered_bottom <= 0:
+        return []
+    return [
+        f"the bottom {uncovered_bottom:.2f} m of the wall is below the lowest frame (bottom clearance "
+        f"{m.margins.bottom_clearance_m} m): lower margins.bottom_clearance_m or inspect it from the ground"
+    ]
 
-    v_scan, limited_by = _scan_speed(m, fp, kf_spacing)
-    v_transit = m.max_speed_m_s
-    yaw = frame.yaw_facing_wall_deg
-    default_transit = wall_h + mg.roof_m + 5.0 + up_to_rel
+
+def _entrance_exit_altitudes(m: Mission, up_to_rel: float) -> tuple[float, float]:
+    """Altitudes above home at which the vehicle arrives at and leaves the wall: the mission's, else the transit
+    altitude (by default 5 m above the roof margin). Both must clear the bottom clearance."""
+    default_transit = m.facade.height_m + m.margins.roof_m + 5.0 + up_to_rel
     transit_rel = m.transit_alt_m if m.transit_alt_m is not None else default_transit
     entrance_rel = m.entrance_alt_m if m.entrance_alt_m is not None else transit_rel
     exit_rel = m.exit_alt_m if m.exit_alt_m is not None else transit_rel
     for label, rel in (("entrance_alt_m", entrance_rel), ("exit_alt_m", exit_rel)):
-        if rel < mg.bottom_clearance_m:
+        if rel < m.margins.bottom_clearance_m:
             raise CompanionError(
-                f"{label}={rel} m is below the bottom clearance of {mg.bottom_clearance_m} m",
+                f"{label}={rel} m is below the bottom clearance of {m.margins.bottom_clearance_m} m",
                 f"raise {label} (it is measured above the takeoff point)",
             )
+    return entrance_rel, exit_rel
 
+
+@dataclass(frozen=True)
+class _PathSpeeds:
+    scan_m_s: float
+    transit_m_s: float
+
+
+def _waypoints(
+    m: Mission,
+    frame: FacadeFrame,
+    takeoff: _Takeoff,
+    strips: list[tuple[tuple[float, float], tuple[float, float]]],
+    altitudes: tuple[float, float],
+    speeds: _PathSpeeds,
+) -> tuple[list[Waypoint], list[tuple[int, int]]]:
+    """The flight as waypoints: takeoff to the entrance altitude, transit above the first strip at the standoff,
+    each strip (a settle hold at its start), climb to the exit altitude, transit home, land; and the index pairs
+    of the scan legs."""
+    d = m.standoff_m
+    yaw = frame.yaw_facing_wall_deg
+    up_to_rel = takeoff.up_to_rel_m
+    ta, to = takeoff.along_m, takeoff.out_m
+    entrance_rel, exit_rel = altitudes
     wps: list[Waypoint] = []
 
     def add(along: float, out: float, up: float, speed: float, kind: str, hold: float = 0.0, accept=SCAN_ACCEPTANCE_M):
@@ -285,32 +303,66 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
 
     first = strips[0][0]
     add(ta, to, entrance_rel - up_to_rel, NOMINAL_CLIMB_M_S, "takeoff", accept=TRANSIT_ACCEPTANCE_M)
-    add(first[0], d, entrance_rel - up_to_rel, v_transit, "transit", accept=TRANSIT_ACCEPTANCE_M)
+    add(first[0], d, entrance_rel - up_to_rel, speeds.transit_m_s, "transit", accept=TRANSIT_ACCEPTANCE_M)
     scan_legs: list[tuple[int, int]] = []
     for (a0, z0), (a1, z1) in strips:
-        add(a0, d, z0, v_scan, "scan", hold=SCAN_START_HOLD_S)
-        add(a1, d, z1, v_scan, "scan")
+        add(a0, d, z0, speeds.scan_m_s, "scan", hold=SCAN_START_HOLD_S)
+        add(a1, d, z1, speeds.scan_m_s, "scan")
         scan_legs.append((len(wps) - 2, len(wps) - 1))
     last = strips[-1][1]
-    add(last[0], d, exit_rel - up_to_rel, v_scan, "transit", accept=TRANSIT_ACCEPTANCE_M)
-    add(ta, to, exit_rel - up_to_rel, v_transit, "transit", accept=TRANSIT_ACCEPTANCE_M)
+    add(last[0], d, exit_rel - up_to_rel, speeds.scan_m_s, "transit", accept=TRANSIT_ACCEPTANCE_M)
+    add(ta, to, exit_rel - up_to_rel, speeds.transit_m_s, "transit", accept=TRANSIT_ACCEPTANCE_M)
     add(ta, to, -up_to_rel, NOMINAL_LAND_M_S, "land")
+    return wps, scan_legs
 
-    _check_clearance(m, frame, home, wps, d)
-    _check_geofence(m, home, wps)
 
-    path_len, flight_time = _path_estimates(wps)
+def _expected_keyframes(wps: list[Waypoint], scan_legs: list[tuple[int, int]], kf_spacing: float) -> int:
+    """Keyframes a gate at the mission's overlap keeps: one per keyframe spacing along each leg, plus its start."""
     expected_kf = 0
     for i, j in scan_legs:
         leg = math.dist((wps[i].along_m, wps[i].up_m), (wps[j].along_m, wps[j].up_m))
         expected_kf += math.ceil(leg / kf_spacing - 1e-9) + 1
+    return expected_kf
+
+
+def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> ScanPlan:
+    """Plan the scan of the whole wall, or only of ``regions`` (rectangles on the wall plane, frame edges reaching
+    their edges: a re-fly, ``companion.mission.refly``); takeoff, transit, landing and the standoff and geofence
+    checks are the same. Raises CompanionError when the mission cannot be flown safely."""
+    frame = wall_frame(mission)
+    if frame.length_m < 0.5:
+        raise CompanionError(
+            f"the wall is only {frame.length_m:.2f} m long", "check facade.start/end: they should be the wall's ends"
+        )
+    m = mission
+    fp = camera_footprint(m)
+    takeoff = _takeoff_point(m, frame)
+
+    extent = scan_extent(m, frame.length_m)
+    warnings = _uncovered_bottom_warnings(m, extent)
+    if regions is not None and not regions:
+        raise CompanionError("no wall region to scan was given", "give at least one region, or none for the whole wall")
+    kf_spacing = (fp.height_m if m.pattern == "vertical" else fp.width_m) * (1.0 - m.overlap)
+    low_centre = extent.up_min_m + fp.height_m / 2.0
+    strips, strip_step = _strips(m, fp, kf_spacing, low_centre, [extent] if regions is None else list(regions))
+    side_extent = fp.width_m if m.pattern == "vertical" else fp.height_m
+    side_achieved = 1.0 - strip_step / side_extent if strip_step > 0 else 1.0
+
+    v_scan, limited_by = _scan_speed(m, fp, kf_spacing)
+    altitudes = _entrance_exit_altitudes(m, takeoff.up_to_rel_m)
+    wps, scan_legs = _waypoints(m, frame, takeoff, strips, altitudes, _PathSpeeds(v_scan, m.max_speed_m_s))
+
+    _check_clearance(m, frame, takeoff.home, wps, m.standoff_m)
+    _check_geofence(m, takeoff.home, wps)
+
+    path_len, flight_time = _path_estimates(wps)
     est = PlanEstimates(
         path_length_m=path_len,
         flight_time_s=flight_time,
         scan_speed_m_s=v_scan,
         speed_limited_by=limited_by,
         keyframe_spacing_m=kf_spacing,
-        expected_keyframes=expected_kf,
+        expected_keyframes=_expected_keyframes(wps, scan_legs, kf_spacing),
         frames_per_keyframe=effective_fps(m) * kf_spacing / v_scan,
         motion_blur_px=v_scan * m.camera.exposure_s / (fp.gsd_mm_per_px / 1000.0),
         gsd_mm_per_px=fp.gsd_mm_per_px,
@@ -319,9 +371,9 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
         strips=len(strips),
         strip_spacing_m=float(abs(strip_step)),
         side_overlap_achieved=float(side_achieved),
-        uncovered_bottom_m=uncovered_bottom,
+        uncovered_bottom_m=max(0.0, extent.up_min_m),
     )
-    return ScanPlan(m, frame, home, wps, scan_legs, fp, est, warnings)
+    return ScanPlan(m, frame, takeoff.home, wps, scan_legs, fp, est, warnings)
 
 
 def _path_estimates(wps: list[Waypoint]) -> tuple[float, float]:

@@ -12,6 +12,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from companion.errors import CompanionError
+from companion.resources import SHIPPED_MODEL_FILES
 
 # Below this standoff a gust or a GPS glitch can put the propellers into the wall.
 MIN_SAFE_STANDOFF_M = 2.0
@@ -236,9 +237,7 @@ def load_mission(path: str | Path) -> Mission:
             )
         camera = mission.camera.model_copy(update={"calibration": str(calibration)})
         mission = mission.model_copy(update={"camera": camera})
-    from companion.depth.session import SHIPPED_MODELS
-
-    if mission.depth_model is not None and mission.depth_model not in SHIPPED_MODELS:  # a name stays a name
+    if mission.depth_model is not None and mission.depth_model not in SHIPPED_MODEL_FILES:  # a name stays a name
         model = (path.parent / mission.depth_model).resolve()
         if not model.is_file():
             raise CompanionError(

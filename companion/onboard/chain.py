@@ -18,7 +18,8 @@ from companion.depth.masker import Masker
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateEventKind, KeyframeGate
 from companion.onboard.crosscheck import OverlapCrossCheck
-from companion.records import Frame, Keyframe, MaskedFrame
+from companion.onboard.tracked import MeasureSchedule, TrackedSelection
+from companion.records import Frame, Keyframe, MaskedFrame, TaggedFrame
 from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 
 log = logging.getLogger(__name__)
@@ -32,6 +33,8 @@ class ChainStats:
     stale_pose: int = 0
     before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
     dropped_no_roi: int = 0
+    frames_tracked: int = 0  # followed by the wall tracker only (cheap); 0 without a tracker
+    frames_measured: int = 0  # depth mask + SIFT measurement (every processed frame without a tracker)
     keyframes: int = 0
     already_spooled: int = 0  # resumed run: keyframes found in the spool already
     overlap_warnings: int = 0
@@ -42,6 +45,7 @@ class ChainStats:
     telemetry_overlap_keyframes: int = 0  # keyframes whose overlap the poses gave (too little wall to measure)
     spool_errors: int = 0
     busy_s: float = 0.0
+    cpu_s: float = 0.0  # CPU time of the thread running the chain (the depth model's own threads not included)
     first_frame_wall_s: float | None = None
     last_frame_wall_s: float | None = None
     warnings: list[str] = field(default_factory=list)
@@ -61,7 +65,11 @@ def one_line(text: str) -> str:
 
 class CullChain:
     """Frames before the first telemetry sample are not culled (``require_telemetry``): they cannot be placed on
-    the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped."""
+    the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped.
+
+    ``track`` (a ``MeasureSchedule``): every frame is tracked cheaply and only the frames around each keyframe
+    decision are masked and measured (``companion.onboard.tracked``); None masks and measures every frame.
+    """
 
     def __init__(
         self,
@@ -74,6 +82,7 @@ class CullChain:
         on_warning: Callable[[str], None] | None = None,
         require_telemetry: bool = True,
         crosscheck: OverlapCrossCheck | None = None,
+        track: MeasureSchedule | None = None,
     ):
         self.tagger = tagger
         self.masker = masker
@@ -89,6 +98,7 @@ class CullChain:
             gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
         self._seen_pose = False
+        self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track)
 
     def warn(self, message: str) -> None:
         message = one_line(message)
@@ -96,7 +106,7 @@ class CullChain:
         self.on_warning(message)
 
     def process(self, frame: Frame) -> list[SpoolEntry]:
-        now = time.monotonic()
+        now, cpu0 = time.monotonic(), time.thread_time()
         st = self.stats
         st.first_frame_wall_s = st.first_frame_wall_s or now
         st.last_frame_wall_s = now
@@ -107,23 +117,23 @@ class CullChain:
             return []
         self._seen_pose = self._seen_pose or tagged.pose is not None
         st.stale_pose += int(tagged.pose_stale)
-        if self.masker is not None:
-            masked = self.masker(tagged)
-            if masked is None:
-                st.dropped_no_roi += 1
-                return []
-        else:  # no depth model requested: the whole frame is ROI
-            masked = MaskedFrame(tagged, np.full(frame.image.shape[:2], 255, np.uint8))
-        keyframes = self.gate.push(masked)
+        if self.selection is not None:
+            keyframes = self.selection.offer(tagged)
+            st.frames_tracked = self.selection.counts.tracked
+        else:
+            masked = self._mask(tagged)
+            keyframes = [] if masked is None else self.gate.push(masked)
         st.telemetry_vetoes = self.gate.telemetry_vetoes
         self._events()
         out = self._spool(keyframes)
         st.busy_s += time.monotonic() - now
+        st.cpu_s += time.thread_time() - cpu0
         return out
 
     def finish(self) -> list[SpoolEntry]:
         """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
-        out = self._spool(self.gate.flush())
+        out = [] if self.selection is None else self._spool(self.selection.finish())
+        out += self._spool(self.gate.flush())
         self._events()
         if not self.spool_disabled:
             try:
@@ -131,6 +141,15 @@ class CullChain:
             except OSError as exc:
                 self.warn(f"cannot mark the spool closed: {exc}")
         return out
+
+    def _mask(self, tagged: TaggedFrame) -> MaskedFrame | None:
+        """The depth mask stage (None: the frame holds no facade, counted)."""
+        self.stats.frames_measured += 1
+        if self.masker is None:  # no depth model requested: the whole frame is ROI
+            return MaskedFrame(tagged, np.full(tagged.frame.image.shape[:2], 255, np.uint8))
+        masked = self.masker(tagged)
+        self.stats.dropped_no_roi += int(masked is None)
+        return masked
 
     def _cross_check(self, kf: Keyframe) -> None:
         pose = kf.masked.tagged.pose

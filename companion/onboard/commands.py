@@ -1,96 +1,159 @@
-"""`companion cull`: the offline twin of live culling, for recorded flights (video/images + telemetry log)."""
+"""``companion fly`` (plan, upload, verify, fly, supervise; optionally culling live frames) and ``companion cull``
+(the offline twin of live culling, for recorded flights): the onboard chain run during a flight or after it."""
 
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
 
-from companion.capture.sources import open_source
-from companion.capture.tagging import FrameTagger
-from companion.capture.telemetry import ClockMap, buffer_from_log
 from companion.errors import CompanionError
-from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
-from companion.onboard.setup import build_chain
-from companion.progress import progress_bar
-from companion.spool.clock import TelemetryWallClock
+from companion.onboard.offline import OfflineCull, cull_recorded_flight
+from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
+from companion.plugins import SitlRequest
+from companion.resources import mission_argument
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    _register_fly(sub)
+    _register_cull(sub)
+
+
+def _register_fly(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("fly", help="upload, verify and fly a facade mission through mavsdk (PX4 or ArduPilot)")
+    p.add_argument("mission", type=mission_argument, help="mission YAML (e.g. missions/demo-facade.yaml)")
+    p.add_argument("--connect", default="udp://:14540",
+                   help="MAVLink address: udp://:14540 (PX4 SITL), tcpout://127.0.0.1:5760 (ArduPilot SITL), "
+                        "serial:///dev/ttyACM0:921600")
+    p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
+                   help="autopilot behaviour to expect (auto: from its heartbeat); with --sitl also the simulator's")
+    p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
+    p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to wait for a heartbeat")
+    p.add_argument("--health-timeout", type=float, default=120.0,
+                   help="seconds to wait for GPS/home/pre-arm (ArduCopter's EKF needs 35-40 s after boot)")
+    p.add_argument("--link-loss", type=float, default=3.0, help="seconds without telemetry that count as lost")
+    p.add_argument("--link-dead", type=float, default=60.0,
+                   help="seconds without telemetry after which supervision ends as failed (the vehicle's "
+                        "failsafe flies on)")
+    p.add_argument("--stop-wait", type=float, default=180.0,
+                   help="after Ctrl-C (RTL): seconds to wait at most for landed + disarmed")
+    p.add_argument("--lost-link-action", choices=["rtl", "land"],
+                   help="set the firmware's lost-link failsafe for this flight (PX4 NAV_DLL_ACT, ArduPilot "
+                        "FS_GCS_ENABLE); restored after")
+    p.add_argument("--return-alt", metavar="M|auto",
+                   help="set the return altitude for this flight (PX4 RTL_RETURN_ALT, ArduPilot RTL_ALT); 'auto': "
+                        "the plan's transit altitude or wall top + roof margin; restored after")
+    p.add_argument("--set-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set an autopilot parameter for this flight only (restored after; repeatable)")
+    p.add_argument("--timeout", type=float, default=1800.0, help="RTL if the flight takes longer (seconds)")
+    p.add_argument("--rate", type=float, default=ScanFlight.telemetry_rate_hz, help="telemetry rate to request, Hz")
+    p.add_argument("--end-action", choices=["rtl", "land"], default="rtl",
+                   help="if the mission ends in the air: return to launch or land there")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--sitl", action="store_true",
+                   help="start the simulated vehicle (python -m sim vehicle) on a free port, fly, stop it")
+    p.add_argument("--speedup", type=float, default=SitlRequest.speedup, help="with --sitl: simulator speed-up")
+    p.add_argument("--sim-arg", action="append", default=[], metavar="OPT=VALUE",
+                   help="with --sitl: extra simulator option, e.g. --sim-arg gusts=5 (repeatable)")
+    live = p.add_argument_group("live culling (keyframes chosen during the flight)")
+    live.add_argument("--capture", metavar="SOURCE",
+                      help="camera to cull while flying: /dev/videoN, rtsp://..., a video file, an image folder, "
+                           f"sim://HOST:PORT, or '{SIM_CAPTURE}' with --sitl (starts the simulated camera too)")
+    live.add_argument("--out", type=Path, help="keyframe spool directory (required with --capture; resumable)")
+    live.add_argument("--model", type=Path, help="depth model .onnx (default: the shipped model)")
+    live.add_argument("--no-mask", action="store_true", help="no background removal (whole frame is ROI)")
+    live.add_argument("--gcs-camera", metavar="URL",
+                      help="also appear as a MAVLink camera to a ground station here, e.g. udpout:127.0.0.1:14550")
+    live.add_argument("--sim-fps", type=float, default=3.0, help="with --capture sim: camera fps (simulated time)")
+    live.add_argument("--sim-width", type=int, default=SitlRequest.camera_width_px,
+                      help="with --capture sim: camera width in px")
+    p.set_defaults(func=run_fly)
+
+
+def _register_cull(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("cull", help="cull a recorded flight into a keyframe spool (offline twin of live culling)")
     p.add_argument("video", help="video file or image folder of the flight")
     p.add_argument("--telemetry", type=Path, required=True, help="telemetry log (JSON lines from companion fly)")
     p.add_argument("--out", type=Path, required=True, help="keyframe spool directory (resumable)")
-    p.add_argument("--mission", type=Path, help="mission YAML: overlap threshold, camera and facade for the spool")
+    p.add_argument("--mission", type=mission_argument,
+                   help="mission YAML: overlap threshold, camera and facade for the spool")
     p.add_argument("--model", type=Path, help="depth model (.onnx); default: the shipped model")
     p.add_argument("--no-mask", action="store_true", help="skip background removal (whole frame is ROI)")
-    p.add_argument(
-        "--time-offset",
-        type=float,
-        default=0.0,
-        help="autopilot boot time (s) at video time 0; frame times + offset = telemetry t_boot_s",
-    )
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate of an image folder without times.csv")
+    p.add_argument("--time-offset", type=float, default=OfflineCull.time_offset_s,
+                   help="autopilot boot time (s) at video time 0; frame times + offset = telemetry t_boot_s")
+    p.add_argument("--fps", type=float, default=OfflineCull.fps, help="frame rate of an image folder without times.csv")
     p.set_defaults(func=run_cull)
 
 
-def run_cull(args: argparse.Namespace) -> int:
-    from companion.flight.telemetry_log import read_telemetry_log
+def sim_options(pairs: list[str]) -> dict[str, str]:
+    """``--sim-arg packet-loss=20`` pairs -> simulator keyword options (``{"packet_loss": "20"}``)."""
+    opts = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise CompanionError(f"--sim-arg {pair!r} is not OPT=VALUE", "write e.g. --sim-arg packet-loss=20")
+        opts[key.replace("-", "_")] = value
+    return opts
 
-    if not args.telemetry.is_file():
-        raise CompanionError(f"telemetry log {args.telemetry} does not exist", "pass the --telemetry-log of the flight")
-    rows = read_telemetry_log(args.telemetry)
-    buffer = buffer_from_log(rows)
-    if len(buffer) == 0:
-        raise CompanionError(f"telemetry log {args.telemetry} holds no usable samples", "check the file")
-    camera_to_autopilot = ClockMap(fixed_offset_s=-args.time_offset)
-    tagger = FrameTagger(buffer, camera_to_autopilot)
-    # EXIF capture times: video time -> autopilot boot time -> Unix time from the log's t_wall beside t_boot_s
-    wall_clock = TelemetryWallClock.from_log_rows(rows, camera_to_autopilot)
-    if not wall_clock.has_wall_time:
-        print(
-            f"warning: telemetry log {args.telemetry} has no t_wall times, so keyframe images carry no capture date "
-            "(logs from companion fly --telemetry-log have them)"
-        )
-    chain = build_chain(
-        args.out,
-        tagger,
-        mission_path=args.mission,
-        model=args.model,
-        mask=not args.no_mask,
-        capture_clock=wall_clock,
-    )
-    source = open_source(args.video, fps=args.fps)
-    total = getattr(source, "files", None)
-    with source, progress_bar(total=len(total) if total else None, unit="frame", desc="culling") as bar:
-        for frame in source:
-            chain.process(frame)
-            bar.update(1)
-            bar.set_postfix(keyframes=chain.stats.keyframes)
-        chain.finish()
-    chain.stats.corrupt = source.stats.corrupt
-    stats = chain.stats.as_dict()
-    (args.out / "cull_report.json").write_text(json.dumps(stats, indent=1))
+
+def flight_parameters(pairs: list[str]) -> dict[str, float]:
+    """``--set-param NAME=NUMBER`` pairs -> parameters to set for the flight."""
+    out = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            name = ""
+        if not sep or not name.strip():
+            raise CompanionError(f"--set-param {pair!r} is not NAME=NUMBER", "write e.g. --set-param MPC_XY_CRUISE=3")
+    return out
+
+
+def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
+    sitl = None
+    if args.sitl:
+        sitl = SitlRequest(
+            mission_path=args.mission, autopilot="ardupilot" if args.autopilot == "ardupilot" else "px4",
+            speedup=args.speedup, options=sim_options(args.sim_arg),
+            camera_fps=args.sim_fps if args.capture == SIM_CAPTURE else None, camera_width_px=args.sim_width,
+            log_dir=args.out / "sim" if args.capture == SIM_CAPTURE and args.out is not None else None)
+    fly_options = dict(
+        autopilot=args.autopilot, connect_timeout_s=args.connect_timeout, health_timeout_s=args.health_timeout,
+        link_loss_s=args.link_loss, flight_timeout_s=args.timeout, end_action=args.end_action,
+        progress=not args.no_progress, link_dead_s=args.link_dead, stop_wait_s=args.stop_wait,
+        lost_link_action=args.lost_link_action, return_alt=args.return_alt,
+        flight_parameters=flight_parameters(args.set_param) or None)
+    return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,
+                      telemetry_log=args.telemetry_log, telemetry_rate_hz=args.rate, capture=args.capture,
+                      spool_dir=args.out, model=args.model, mask=not args.no_mask, gcs_camera_url=args.gcs_camera,
+                      sitl=sitl)
+
+
+def run_fly(args: argparse.Namespace) -> int:
+    outcome = fly_scan(scan_flight_from_args(args))
+    if outcome.culling is not None:
+        print(culling_summary(outcome.culling.stats, args.out), file=sys.stderr)
+    result = outcome.flight
+    print(flight_summary(result), file=sys.stderr)
+    if result.problem:
+        print(f"error: {result.problem}", file=sys.stderr)
+    if result.aborted == "signal":
+        return 130
+    return 0 if result.completed else 1
+
+
+def run_cull(args: argparse.Namespace) -> int:
+    request = OfflineCull(video=args.video, telemetry_log=args.telemetry, spool_dir=args.out,
+                          mission_path=args.mission, model=args.model, mask=not args.no_mask,
+                          time_offset_s=args.time_offset, fps=args.fps)
+    result = cull_recorded_flight(request)
+    stats = result.stats.as_dict()
     print(
-        f"{stats['frames_in']} frames -> {chain.stats.keyframes} keyframes in {args.out} "
+        f"{stats['frames_in']} frames -> {result.stats.keyframes} keyframes in {args.out} "
         f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose, "
         f"{stats['before_telemetry']} not placed in the telemetry)"
     )
-    empty = explain_empty_cull(chain.stats, tagger)
-    if empty is not None:
-        raise CompanionError(f"culling {args.video} kept no keyframe: {empty.problem}", _cull_fix(empty, args))
+    if result.no_keyframes is not None:
+        raise result.no_keyframes
     return 0
-
-
-def _cull_fix(empty: EmptyCull, args: argparse.Namespace) -> str:
-    if empty.shift_s is not None:
-        return (
-            "frame times + --time-offset must fall inside the telemetry log's t_boot_s: e.g. --time-offset "
-            f"{args.time_offset + empty.shift_s:.2f} puts the first frame on the first telemetry sample; or give the "
-            "image folder a times.csv (name,seconds) on the autopilot clock, or use the log of this recording's flight"
-        )
-    if empty.cause is EmptyCause.NO_USABLE_FRAME:
-        return "check that the frames show the facade at the standoff; try --no-mask or another --model"
-    if empty.cause is EmptyCause.NO_FRAMES:
-        return f"check {args.video}: its frames are unreadable (see the warnings above)"
-    return "see the warnings above"

@@ -112,8 +112,9 @@ def run_live_scan(
     model: Path | None = None,
     mask: bool = True,
     gcs_camera_url: str | None = None,
-    queue_size: int = 3,
+    queue_size: int | None = None,
     capture_time_offset_s: float = 0.0,
+    track: bool = True,
     **fly_kwargs,
 ) -> LiveScanResult:
     """Fly ``plan`` and cull ``capture`` into the spool ``out`` at the same time.
@@ -124,52 +125,68 @@ def run_live_scan(
     + ``capture_time_offset_s`` are autopilot seconds, and each frame is released once the flight's telemetry
     reaches it (``companion.capture.pacing``); times it can never reach are refused before the flight.
 
+    ``track``: every frame is followed by the wall tracker and only the frames around each keyframe decision are
+    masked and measured (``companion.onboard.tracked``); False measures every frame the CPU can take. The capture
+    queue holds ``queue_size`` frames (default: about a second of a 30 fps camera with the tracker, which bursts
+    while it measures; 3 without, which never catches up anyway).
+
     A run that ends without a keyframe raises ``NoKeyframesError`` (after the flight, with the report written),
     saying why: a flight with a camera and no keyframe is a failed capture, never a silent success.
     """
-    from companion.flight.fly import fly_mission_sync
-
     # Tagging interpolates between telemetry samples: denser samples, smaller errors on fast legs (takeoff).
     fly_kwargs.setdefault("telemetry_rate_hz", 30.0)
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     telemetry_log = Path(telemetry_log) if telemetry_log else out / "telemetry.jsonl"
-    sim_camera = capture.startswith("sim://")
     buffer = TelemetryBuffer()
-    source = open_source(capture)
-    paced = None
-    if source.recorded:
-        try:
-            check_recorded_times(source, capture_time_offset_s)
-        except CompanionError:
-            source.close()
-            raise
-        source = paced = AutopilotPacedSource(source, buffer, offset_s=capture_time_offset_s)
-    on_autopilot_clock = sim_camera or paced is not None
+    source, paced = _open_capture(capture, buffer, capture_time_offset_s)
+    on_autopilot_clock = capture.startswith("sim://") or paced is not None
     clock = ClockMap(fixed_offset_s=0.0) if on_autopilot_clock else ClockMap()
     # Frames on the autopilot clock get their Unix time from the telemetry's t_wall beside t_boot_s; live cameras
     # stamp with the companion's Unix clock already.
     capture_clock = TelemetryWallClock(clock) if on_autopilot_clock else UnixCaptureClock()
-    tailer = TelemetryLogTailer(
-        telemetry_log,
-        buffer,
-        None if on_autopilot_clock else clock,
-        wall_clock=capture_clock if on_autopilot_clock else None,
-    )
-
+    tailer = TelemetryLogTailer(telemetry_log, buffer, None if on_autopilot_clock else clock,
+                                wall_clock=capture_clock if on_autopilot_clock else None)
     try:
         chain, camera_component = _build(out, FrameTagger(buffer, clock), plan, model=model, mask=mask,
-                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock)
+                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock, track=track)
     except BaseException:
         source.close()
         raise
-    tagger = chain.tagger
-    runner = LiveRunner(source, chain, queue_size=queue_size)
+    runner = LiveRunner(source, chain, queue_size=queue_size or (_TRACKED_QUEUE if track else 3),
+                        drop="thin" if track else "oldest")
+    flight = _fly_while_culling(plan, connect_url, telemetry_log, fly_kwargs, tailer=tailer, runner=runner,
+                                source=source, paced=paced, camera_component=camera_component)
+    return _report(flight, chain, runner, out, telemetry_log, capture, paced)
+
+
+_TRACKED_QUEUE = 30  # frames: about a second of a 30 fps camera, absorbs the tracker's measuring bursts
+
+
+def _open_capture(capture: str, buffer: TelemetryBuffer, offset_s: float):
+    """The frame source, wrapped to be paced on the autopilot clock when it is a recording (then also returned
+    as ``paced``); recorded times no flight can reach are refused here, before take-off."""
+    source = open_source(capture)
+    if not source.recorded:
+        return source, None
+    try:
+        check_recorded_times(source, offset_s)
+    except CompanionError:
+        source.close()
+        raise
+    paced = AutopilotPacedSource(source, buffer, offset_s=offset_s)
+    return paced, paced
+
+
+def _fly_while_culling(plan, connect_url: str, telemetry_log: Path, fly_kwargs: dict, *, tailer, runner, source,
+                       paced, camera_component):
+    """Flies the plan with the telemetry tailer and the chain running; stops them in order whatever happens."""
+    from companion.flight.fly import fly_mission_sync
+
     tailer.start()
     runner.start()
     try:
-        flight = fly_mission_sync(plan, connect_url, telemetry_log=telemetry_log, **fly_kwargs)
+        return fly_mission_sync(plan, connect_url, telemetry_log=telemetry_log, **fly_kwargs)
     finally:
         tailer.stop()
         tailer.join(timeout=5.0)  # reads the log to its end: the buffer holds all the flight's telemetry
@@ -183,11 +200,16 @@ def run_live_scan(
         source.close()
         if camera_component is not None:
             camera_component.close()
+
+
+def _report(flight, chain, runner: LiveRunner, out: Path, telemetry_log: Path, capture: str,
+            paced: AutopilotPacedSource | None) -> LiveScanResult:
+    """Writes cull_report.json; a run without a keyframe raises ``NoKeyframesError`` saying why."""
     stats = chain.stats
     (out / "cull_report.json").write_text(json.dumps(stats.as_dict(), indent=1))
     error = str(runner.error) if runner.error else None
     result = LiveScanResult(flight, stats, out, telemetry_log, error)
-    empty = explain_empty_cull(stats, tagger)
+    empty = explain_empty_cull(stats, chain.tagger)
     if empty is not None:
         raise NoKeyframesError(f"{_flight_summary(flight)}, but live culling of {capture} kept no keyframe: "
                                f"{_problem(empty, runner.error, paced)}", _live_fix(empty, paced is not None), result)
@@ -195,7 +217,8 @@ def run_live_scan(
 
 
 def _build(
-    out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, capture_clock: CaptureClock
+    out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, capture_clock: CaptureClock,
+    track: bool = True,
 ):
     """The chain (and the MAVLink camera component that announces its keyframes, when asked for)."""
     camera_component = None
@@ -213,7 +236,7 @@ def _build(
             camera_component.publish(kf.masked.tagged.pose, entry.image)
 
     chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, capture_clock=capture_clock,
-                        on_keyframe=on_keyframe)
+                        on_keyframe=on_keyframe, track=track)
     return chain, camera_component
 
 

@@ -1,16 +1,18 @@
-"""Runs the chain concurrently with capture: a capture thread feeds a bounded queue, a worker thread drains it.
+"""Runs the chain concurrently with capture: a capture thread feeds a bounded buffer, a worker thread drains it.
 
-When the worker cannot keep up, the OLDEST waiting frame is dropped (counted as skipped): waiting frames have
-not reached the gate yet, so a frame the gate already chose as keyframe can never be dropped, and the freshest
-frames, which the gate needs to track the motion, are kept.
+When the worker cannot keep up, a waiting frame is dropped (counted as skipped): waiting frames have not reached
+the gate yet, so a frame the gate already chose as keyframe can never be dropped. Which one: the OLDEST (a chain
+that measures every frame keeps the freshest), or, with ``drop="thin"`` (the tracker chain, which works in
+bursts while it measures), the one whose neighbours are closest in capture time, so what waits stays evenly spread
+over the time the worker was busy: a burst costs frames here and there, never a stretch of the wall.
 """
 
 from __future__ import annotations
 
 import logging
-import queue
 import threading
 import time
+from collections import deque
 
 from companion.capture.sources import FrameSource
 from companion.onboard.chain import CullChain, one_line
@@ -20,11 +22,54 @@ log = logging.getLogger(__name__)
 _END = object()
 
 
+class FrameBuffer:
+    """Bounded, blocking buffer of frames between capture and the chain; ``put`` returns the frame it dropped."""
+
+    def __init__(self, size: int, drop: str = "oldest"):
+        if size < 1 or drop not in ("oldest", "thin"):
+            raise ValueError(f"bad frame buffer: size={size}, drop={drop!r} (size >= 1, drop 'oldest' or 'thin')")
+        self.size, self.drop = size, drop
+        self._items: deque = deque()
+        self._ready = threading.Condition()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def put(self, frame: Frame) -> Frame | None:
+        with self._ready:
+            self._items.append(frame)
+            dropped = self._victim() if len(self._items) > self.size else None
+            self._ready.notify()
+            return dropped
+
+    def put_end(self) -> None:
+        """The end-of-stream marker: always fits, after every frame."""
+        with self._ready:
+            self._items.append(_END)
+            self._ready.notify()
+
+    def get(self):
+        with self._ready:
+            while not self._items:
+                self._ready.wait()
+            return self._items.popleft()
+
+    def _victim(self) -> Frame:
+        items = self._items
+        if self.drop == "oldest" or len(items) < 3 or any(i is _END for i in items):
+            return items.popleft()
+        times = [f.capture_time_s for f in items]
+        k = min(range(1, len(items) - 1), key=lambda j: times[j + 1] - times[j - 1])  # the oldest and newest stay
+        victim = items[k]
+        del items[k]
+        return victim
+
+
 class LiveRunner:
-    def __init__(self, source: FrameSource, chain: CullChain, *, queue_size: int = 3):
+    def __init__(self, source: FrameSource, chain: CullChain, *, queue_size: int = 3, drop: str = "oldest"):
         self.source = source
         self.chain = chain
-        self.queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self.queue = FrameBuffer(queue_size, drop)
         self.stop_event = threading.Event()
         self.error: BaseException | None = None
         self._capture = threading.Thread(target=self._capture_loop, name="capture", daemon=True)
@@ -44,19 +89,10 @@ class LiveRunner:
         self._worker.join(timeout)
         return not self._worker.is_alive()
 
-    def _put(self, item: object) -> None:
-        while True:
-            try:
-                self.queue.put_nowait(item)
-                return
-            except queue.Full:
-                try:
-                    dropped = self.queue.get_nowait()
-                    if dropped is not _END:
-                        self.chain.stats.skipped_backlog += 1
-                        self.chain.stats.frames_in += 1
-                except queue.Empty:
-                    pass
+    def _put(self, frame: Frame) -> None:
+        if self.queue.put(frame) is not None:
+            self.chain.stats.skipped_backlog += 1
+            self.chain.stats.frames_in += 1
 
     def _capture_loop(self) -> None:
         try:
@@ -81,7 +117,7 @@ class LiveRunner:
             self.chain.warn(f"camera {self.source.name} failed: {exc}")
         finally:
             self.chain.stats.corrupt = self.source.stats.corrupt
-            self.queue.put(_END)
+            self.queue.put_end()
 
     def _work_loop(self) -> None:
         try:

@@ -7,6 +7,7 @@ from pathlib import Path
 from companion.capture.tagging import FrameTagger
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.onboard.chain import CullChain
+from companion.onboard.tracked import MeasureSchedule
 from companion.spool import KeyframeSpool
 from companion.spool.camera import camera_tags_for_mission
 from companion.spool.clock import CaptureClock
@@ -42,7 +43,10 @@ def build_chain(
     capture_clock: CaptureClock | None = None,
     on_keyframe=None,
     on_warning=None,
+    track: bool = True,
 ) -> CullChain:
+    """``track``: follow every frame with the wall tracker and measure only around keyframe decisions (default);
+    False masks and measures every frame (the chain before issue 17, kept for side-by-side figures)."""
     if mission is None and mission_path is not None:
         from companion.mission import load_mission
 
@@ -86,4 +90,5 @@ def build_chain(
         on_keyframe=on_keyframe,
         on_warning=on_warning,
         crosscheck=crosscheck,
+        track=MeasureSchedule() if track else None,
     )

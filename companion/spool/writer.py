@@ -175,9 +175,6 @@ class KeyframeSpool:
     def __len__(self) -> int:
         return len(self.entries)
 
-    def contains(self, frame_index: int) -> bool:
-        return frame_index in self._spooled
-
     def append(self, keyframe: Keyframe) -> SpoolEntry | None:
         """Make ``keyframe`` durable; returns its entry, or None if this frame was already spooled (resume)."""
         tagged = keyframe.masked.tagged

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from companion.errors import CompanionError
+from companion.stitch import view_command
 from companion.stitch.follow import follow
 from companion.stitch.inputs import load_input
 from companion.stitch.worker import StitchConfig, StitchResult, stitch
@@ -22,6 +23,7 @@ def _cells(text: str) -> tuple[int, int]:
 
 
 def register(sub) -> None:
+    defaults = StitchConfig()
     p = sub.add_parser(
         "stitch",
         help="stitch keyframes into the rectified facade map",
@@ -34,26 +36,30 @@ def register(sub) -> None:
     p.add_argument("--poll-s", type=float, default=2.0, help="follow mode: manifest polling period")
     p.add_argument("--idle-timeout-s", type=float, default=600.0, help="follow mode: stop after this long idle")
     p.add_argument("--mm-per-px", type=float, default=None, help="map scale (default: keyframes' native)")
-    p.add_argument("--cells", type=_cells, default=(16, 9), help="APAP mesh Cx x Cy per keyframe")
+    p.add_argument("--cells", type=_cells, default=defaults.cells, help="APAP mesh Cx x Cy per keyframe")
     p.add_argument(
         "--rho-px", type=float, default=None, help="Eq. 4 scale rho in keyframe pixels (default 10%% of width)"
     )
-    p.add_argument("--gamma", type=float, default=0.01, help="APAP weight floor (far cells -> global homography)")
+    p.add_argument("--gamma", type=float, default=defaults.gamma,
+                   help="APAP weight floor (far cells -> global homography)")
     p.add_argument("--global-only", action="store_true", help="no local mesh warps (one homography per keyframe)")
     p.add_argument("--no-poses", action="store_true", help="ignore telemetry (image-only alignment)")
-    p.add_argument("--pose-gate-m", type=float, default=1.0, help="reject matches this far from telemetry")
+    p.add_argument("--pose-gate-m", type=float, default=defaults.pose_gate_m,
+                   help="reject matches this far from telemetry")
     p.add_argument("--stride", type=int, default=1, help="recording input: use every N-th frame")
-    p.add_argument("--tile-px", type=int, default=1024, help="render tile size (bounds memory)")
+    p.add_argument("--tile-px", type=int, default=defaults.tile_px, help="render tile size (bounds memory)")
     p.add_argument("--debug-dir", default=None, help="also dump what each stage decided here (docs/STITCH.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
+    view_command.register(sub)  # `companion view MAPDIR`: the map's viewer
 
 
 def _config(args) -> StitchConfig:
     if args.mm_per_px is not None and args.mm_per_px <= 0:
         raise CompanionError(f"--mm-per-px {args.mm_per_px} must be positive", "e.g. --mm-per-px 5")
     if args.tile_px < 64:
-        raise CompanionError(f"--tile-px {args.tile_px} is too small", "use at least 64 (default 1024)")
+        raise CompanionError(f"--tile-px {args.tile_px} is too small",
+                             f"use at least 64 (default {StitchConfig().tile_px})")
     return StitchConfig(
         mm_per_px=args.mm_per_px,
         cells=args.cells,
@@ -82,6 +88,7 @@ def _print(res: StitchResult) -> None:
     for a in res.uncovered[:10]:
         print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
     print(f"report: {res.files['report']}")
+    print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 
 
 def run(args) -> int:

@@ -11,7 +11,7 @@ import numpy as np
 import pymap3d
 
 from companion.polygons import polygon_area
-from companion.stitch.inputs import CameraModel, CameraPose, FacadeGeometry
+from companion.stitch.inputs import CameraPose, FacadeGeometry
 
 
 def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -20,17 +20,6 @@ def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     q = pts @ H[:, :2].T + H[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         return q[:, :2] / q[:, 2:3]
-
-
-def normalise_points(camera: CameraModel, pts_px: np.ndarray) -> np.ndarray:
-    K = camera.K
-    pts = np.asarray(pts_px, dtype=float).reshape(-1, 2)
-    return np.column_stack(((pts[:, 0] - K[0, 2]) / K[0, 0], (pts[:, 1] - K[1, 2]) / K[1, 1]))
-
-
-def pixel_from_normalised(camera: CameraModel) -> np.ndarray:
-    """3x3 matrix taking image-normalised coordinates back to pixels (K restricted to x, y)."""
-    return camera.K.copy()
 
 
 def prior_plane_from_image(pose: CameraPose, facade: FacadeGeometry) -> np.ndarray:

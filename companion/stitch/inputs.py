@@ -16,6 +16,7 @@ import pymap3d
 
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
+from companion.plugins import provided
 
 
 @dataclass(frozen=True)
@@ -283,16 +284,12 @@ def load_recording_input(
     ``frames`` picks frame indices (e.g. the gate's choice); otherwise every ``stride``-th frame. The recording's
     poses are exact; ``pose_noise_m``/``attitude_noise_deg`` (Gaussian, seeded) make them telemetry-like.
     """
-    try:
-        from sim.camera.recording import frame_from_meta, load_recording
-    except ImportError as exc:
-        raise CompanionError("the simulator recording reader is not installed", "pip install -e . in the repo") from exc
-    rec = load_recording(path)
+    rec = provided("open_recording", "stitching a simulator recording")(path)
     if len(rec) == 0:
         raise CompanionError(f"recording {path} has no frames", "record a flight first")
     meta = rec.meta
     camera = CameraModel(np.asarray(rec.K, dtype=float), int(rec.width), int(rec.height))
-    frame = frame_from_meta(meta)
+    frame = rec.frame
     facade = FacadeGeometry(frame, float(meta["facade"]["height_m"]))
     indices = frames if frames is not None else list(range(0, len(rec), max(1, int(stride))))
     rng = np.random.default_rng(seed)

@@ -35,6 +35,7 @@ from companion.stitch.pairs import RegisteredPairs, register_pairs
 from companion.stitch.priors import PlanePriors, plane_priors
 from companion.stitch.render import MapGrid
 from companion.stitch.report import StitchRun, build_report, measure_coverage, write_map_images
+from companion.viewer import write_viewer
 
 __all__ = ["StitchConfig", "StitchResult", "Stitcher", "stitch"]
 
@@ -151,7 +152,11 @@ class Stitcher:
             files,
         )
         # World file / CRS in wall metres, alpha for uncovered areas, the wall's geographic anchor (docs/OUTPUTS.md)
-        files = {**files, **write_georeferencing(result, run.input), "report": str(out / "report.json")}
+        files = {**files, **write_georeferencing(result, run.input)}
+        # the inspector's viewer (docs/OUTPUTS.md), from the report as it stands (report.json is written after it)
+        images = {kf.index: kf.image_path for kf in run.input.keyframes}
+        files["viewer"] = write_viewer(out, images, report=replace(report, files=dict(files)).as_dict())
+        files["report"] = str(out / "report.json")
         report = replace(report, files=files)
         tmp = out / "report.json.tmp"
         tmp.write_text(json.dumps(report.as_dict(), indent=1))

@@ -233,10 +233,6 @@ class FrameServer:
                         q.get_nowait()
                         self.dropped += 1
 
-    def n_clients(self) -> int:
-        with self.lock:
-            return len(self.clients)
-
     def close(self):
         self._stop.set()
         with self.lock:

@@ -121,7 +121,7 @@ class Recording:
         meta_p = self.path / "meta.json"
         if not meta_p.exists():
             raise CompanionError(f"{self.path} is not a recording (no meta.json)",
-                                 "point at a directory written by generate_recording or `companion sim record`")
+                                 "point at a directory written by generate_recording or `companion record`")
         self.meta = json.loads(meta_p.read_text(encoding="utf-8"))
         self._truth = []
         with open(self.path / "truth.jsonl", encoding="utf-8") as f:

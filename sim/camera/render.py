@@ -490,12 +490,6 @@ def _rows(comps, m) -> np.ndarray:
 _BOX_EDGES = [(i, i | b) for i in range(8) for b in (1, 2, 4) if not i & b]
 
 
-def _aabb_distance(orig, lo, hi) -> float:
-    """Distance from point orig to the nearest point of the box (0 inside)."""
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    return float(np.linalg.norm(np.maximum(np.maximum(lo - orig, 0.0), orig - hi)))
-
-
 def _box_corners(lo, hi) -> np.ndarray:
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])

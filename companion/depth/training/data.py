@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.plugins import provided
 
 SKY_DEPTH_FRACTION = 0.99  # true depth at or beyond this fraction of the clip depth is sky
 
@@ -35,12 +36,11 @@ class FrameSet:
 
 
 def load_frames(recordings: list[Path], height: int, width: int, max_depth: float, stride: int = 1) -> FrameSet:
-    """Read recordings (sim.camera.recording layout) and resize every ``stride``-th frame to the model input."""
-    from sim.camera.recording import load_recording
-
+    """Read simulator recordings and resize every ``stride``-th frame to the model input."""
+    open_recording = provided("open_recording", "training on simulator recordings")
     images, depths, masks = [], [], []
     for path in recordings:
-        rec = load_recording(path)
+        rec = open_recording(path)
         for i in range(0, len(rec), stride):
             images.append(cv2.resize(rec.image(i), (width, height), interpolation=cv2.INTER_AREA))
             d = np.asarray(rec.depth(i), dtype=np.float32)

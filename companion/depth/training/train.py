@@ -14,16 +14,18 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from companion.depth.training.config import TrainConfig
 from companion.depth.training.data import FrameSet, augment_crop, load_frames, sample_batch
 from companion.depth.training.networks import Monodepth2, disp_to_depth, encoder_state_dict
 from companion.errors import CompanionError
+from companion.plugins import provided
 
 log = logging.getLogger(__name__)
 
@@ -34,37 +36,6 @@ REAL_NC_LICENCE = (
 )
 
 
-@dataclass
-class TrainConfig:
-    out: Path
-    recordings: list[Path]
-    eval_recordings: list[Path] = field(default_factory=list)
-    view_seeds: list[int] = field(default_factory=list)  # random-viewpoint scenes (training)
-    eval_view_seeds: list[int] = field(default_factory=list)  # random-viewpoint scenes (held out)
-    views_per_seed: int = 50
-    height: int = 192
-    width: int = 640
-    crop: tuple[int, int] | None = (128, 320)
-    model_width: float = 0.25
-    batch: int = 8
-    lr: float = 1e-4
-    lr_final: float = 1e-5
-    final_fraction: float = 0.25
-    smoothness: float = 1e-3
-    si_lambda: float = 0.5
-    min_depth: float = 0.1
-    max_depth: float = 100.0
-    max_minutes: float = 45.0
-    max_steps: int = 1_000_000
-    checkpoint_minutes: float = 3.0
-    threads: int = 1
-    seed: int = 0
-    stride: int = 1
-    source: str = ""
-    init_from: Path | None = None  # fine-tune: start from this run's weights or a .onnx (fresh optimiser and clock)
-    real_photos: Path | None = None  # ../shared/data: mix in real-photo composites (train split only)
-    real_fraction: float = 0.5  # share of each batch that is real-photo composites
-    head_warmup_steps: int = 60  # from a .onnx: steps that fit only the coarse disparity heads first
 
 
 def silog_loss(disp: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
@@ -149,12 +120,11 @@ def training_frames(
     cfg: TrainConfig, recordings: list[Path], view_seeds: list[int], stride: int, n_views: int
 ) -> FrameSet:
     """Frames of recordings and random-view scenes (rendered once into ``cfg.out/data``), depth as float16."""
-    from companion.depth.training.views import cached_views
-
     parts = []
     if recordings:
         parts.append(load_frames(recordings, cfg.height, cfg.width, cfg.max_depth, stride))
     if view_seeds:
+        cached_views = provided("training_views", "training on random-view simulator scenes (--view-seeds)")
         parts.append(cached_views(cfg.out / "data", view_seeds, n_views, cfg.height, cfg.width, cfg.max_depth))
     # depth kept as float16 in memory (metres to 0.05 %): ~0.25 MB per frame instead of 0.5
     return FrameSet(

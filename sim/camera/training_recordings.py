@@ -1,4 +1,4 @@
-"""Simulator recordings for training and evaluation: generated once per seed, reused on resume."""
+"""Simulator recordings for ``companion depth train`` and evaluation: generated once per seed, reused on resume."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ import logging
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.mission import load_mission
+from sim.camera.recording import generate_recording
 
 log = logging.getLogger(__name__)
 
@@ -14,9 +16,6 @@ def ensure_recordings(
     mission_path: str | Path, seeds: list[int], data_dir: Path, *, width_px: int = 640, stride: int = 1
 ) -> list[Path]:
     """Paths of ``data_dir/seed_NNNN`` recordings of ``mission_path``, generating the missing ones."""
-    from companion.mission import load_mission
-    from sim.camera.recording import generate_recording
-
     if not Path(mission_path).is_file():
         raise CompanionError(f"mission file not found: {mission_path}", "pass --mission missions/demo-facade.yaml")
     mission = load_mission(mission_path)

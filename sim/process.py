@@ -1,7 +1,8 @@
 """Start the SITL vehicle (``python -m sim vehicle``) as a child process on free ports, and stop it again.
 
 Used by ``companion fly --sitl``, the demo and the tests: each run gets its own MAVLink port, so it never
-collides with a simulator or autopilot already using 14540.
+collides with a simulator or autopilot already using 14540. The child runs in the caller's working directory and
+finds ``sim`` where this process found it (a checkout or an installed wheel), never through the checkout's path.
 """
 
 from __future__ import annotations
@@ -11,16 +12,31 @@ import signal
 import socket
 import subprocess
 import sys
+import sysconfig
 import time
 from pathlib import Path
 
 from companion.errors import CompanionError
 
-ROOT = Path(__file__).resolve().parents[2]
+# The directory holding the ``sim`` package, so the child's ``python -m sim`` imports this same copy of it.
+PACKAGE_PARENT = Path(__file__).resolve().parents[1]
 
 
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+def child_environment() -> dict[str, str]:
+    """This process's environment, with ``sim``'s parent directory first on PYTHONPATH when sim runs from a source
+    tree (an installed sim is on the child interpreter's own path already, and its site-packages must not move
+    ahead of the standard library)."""
+    installed = {Path(sysconfig.get_paths()[key]).resolve() for key in ("purelib", "platlib")}
+    if PACKAGE_PARENT in installed:
+        return dict(os.environ)
+    path = os.environ.get("PYTHONPATH", "")
+    return dict(os.environ, PYTHONPATH=str(PACKAGE_PARENT) + (os.pathsep + path if path else ""))
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    """A localhost port free right now for ``kind`` (UDP by default, ``socket.SOCK_STREAM`` for TCP): the one
+    helper the simulator, the rig, the benches and the tests take their ports from."""
+    with socket.socket(socket.AF_INET, kind) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
@@ -46,8 +62,8 @@ class SimulatorProcess:
 
     def __init__(self, *, speedup: float = 20.0, seed: int = 0, log_path: Path | None = None,
                  mavlink_port: int | None = None, pose_port: int | None = None, **options):
-        self.port = mavlink_port or free_udp_port()
-        self.pose_port = pose_port if pose_port is not None else free_udp_port()
+        self.port = mavlink_port or free_port()
+        self.pose_port = pose_port if pose_port is not None else free_port()
         self.url = f"udpin://127.0.0.1:{self.port}"
         self.args = [sys.executable, "-m", "sim", "vehicle", "--mavlink-port", str(self.port), "--pose-port",
                      str(self.pose_port), "--speedup", str(speedup), "--seed", str(seed)]
@@ -63,8 +79,7 @@ class SimulatorProcess:
 
     def start(self) -> SimulatorProcess:
         self._log = open(self.log_path, "w") if self.log_path else subprocess.DEVNULL  # noqa: SIM115
-        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-        self.proc = subprocess.Popen(self.args, cwd=ROOT, stdout=self._log, stderr=self._log, env=env)
+        self.proc = subprocess.Popen(self.args, stdout=self._log, stderr=self._log, env=child_environment())
         time.sleep(0.3)
         if self.proc.poll() is not None:
             raise CompanionError(f"the simulator exited at start (code {self.proc.returncode})",

@@ -1,4 +1,4 @@
-"""Random-viewpoint training frames rendered by the camera simulator (sim.camera.render).
+"""Random-viewpoint training frames for ``companion depth train``, rendered by the camera simulator.
 
 The mission's own recordings only see the wall from the planned path; a depth model that must also work on
 other walls and real photos needs more: here every seed is a new scene (facade style, background, light), and
@@ -16,6 +16,10 @@ import cv2
 import numpy as np
 
 from companion.depth.training.data import FrameSet
+from companion.geo import FacadeFrame, GeoPoint
+from sim.camera.model import CameraModel, TruePose
+from sim.camera.render import Renderer
+from sim.camera.scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -25,11 +29,6 @@ def render_views(
     wall_height_m: float = 12.0,
 ) -> FrameSet:
     """``n_views`` random views of the scene of ``seed``, resized to height x width (as the runtime does)."""
-    from companion.geo import FacadeFrame, GeoPoint
-    from sim.camera.model import CameraModel, TruePose
-    from sim.camera.render import Renderer
-    from sim.camera.scene import Scene
-
     rng = np.random.default_rng([seed, 2024])
     length = float(wall_length_m * rng.uniform(0.6, 1.6))
     wall_h = float(wall_height_m * rng.uniform(0.6, 1.8))

@@ -1,0 +1,163 @@
+"""Today's chain (every frame masked and measured) and the tracker chain (every frame tracked, frames around each
+decision measured) side by side in one run: the same mission flown in SITL twice, same seed, same camera.
+
+    python bench/chain_tracker.py [--mission missions/demo-facade.yaml] [--fps 30] [--width 1280] [--speedup 1]
+                                  [--chains measure-all tracker] [--busy-core]
+
+Per chain it prints: frames the chain considered per second of flight (tracked or measured, not dropped), frames
+measured (depth mask + SIFT), CPU share of one core (the chain's thread, and the whole companion process), keyframes
+against the planner's expected count and against the minimum from truth (the paper's rule on the vehicle's true
+poses, sampled by the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair, and
+the chain's warnings and gaps. True overlap is the footprint overlap on the wall plane from the true poses
+(``companion.keyframes.motion``, the simulator's definition). ``--busy-core`` keeps one core busy with a spinning
+process for the whole run (a companion computer that also records video). Figures are from a simulator.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from companion.geo import FacadeFrame  # noqa: E402
+from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
+from companion.mission.geometry import wall_ends  # noqa: E402
+from companion.onboard.live import run_live_scan  # noqa: E402
+from companion.records import Pose  # noqa: E402
+from sim.evaluate_live import TruthTrack, read_jsonl  # noqa: E402
+from sim.rig import SitlRig  # noqa: E402
+
+_NOMINAL_W, _NOMINAL_H = 1600, 900  # the overlap share depends on the lens and the aspect, not the pixel count
+
+
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def _spin() -> None:
+    while True:
+        pass
+
+
+class TrueOverlap:
+    """Footprint overlap on the wall plane of two capture times, from the simulator's true poses."""
+
+    def __init__(self, plan, truth: TruthTrack):
+        mission = plan.mission
+        self.truth = truth
+        self.gimbal = float(mission.gimbal_pitch_deg)
+        self.predictor = WallMotionPredictor(FacadeFrame.from_wall(*wall_ends(mission)), mission.camera.hfov_deg)
+
+    def pose(self, t: float) -> Pose:
+        lat, lon, alt, roll, pitch, yaw = self.truth.at(t)
+        return Pose(t, lat, lon, alt, 0.0, roll, pitch, yaw, gimbal_pitch_deg=self.gimbal)
+
+    def percent(self, ta: float, tb: float) -> float | None:
+        motion = self.predictor.predict(self.pose(ta), self.pose(tb), _NOMINAL_W, _NOMINAL_H)
+        return None if motion is None else motion.overlap_percent
+
+    def minimum_keyframes(self, t0: float, t1: float, rth: float, step_s: float = 1 / 30) -> int:
+        """The paper's rule on the truth, every ``step_s``: the next keyframe is the last time still >= Rth; a
+        stretch with the wall out of view ends the segment and the first time it is back starts a new one."""
+        count, key, last_ok = 0, None, None
+        for t in np.arange(t0, t1 + 1e-9, step_s):
+            if key is None:
+                if self.percent(t, t) is not None:
+                    key = last_ok = t
+                    count += 1
+                continue
+            r = self.percent(key, t)
+            if r is None:
+                key = None
+            elif r >= rth:
+                last_ok = t
+            else:
+                key = last_ok if last_ok > key else t
+                last_ok = key
+                count += 1
+        return count
+
+
+def fly_one(args, chain: str, out: Path) -> dict:
+    rig = SitlRig(args.mission, log_dir=out / "logs", speedup=args.speedup, fps=args.fps, width_px=args.width,
+                  truth_log=out / "truth.jsonl", seed=args.seed)  # fmt: skip
+    cpu0, wall0 = _cpu_s(), time.monotonic()
+    with rig:
+        res = run_live_scan(rig.plan, rig.url, rig.capture, out / "spool", mask=True, progress=False,
+                            handle_signals=False, end_action="land", track=chain == "tracker")  # fmt: skip
+        camera = rig.camera_counts
+    wall, cpu = time.monotonic() - wall0, _cpu_s() - cpu0
+    return _figures(args, chain, rig, res, camera() or {}, wall, cpu, out)
+
+
+def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: Path) -> dict:
+    st = res.stats
+    flight_s = res.flight.duration_s
+    rth = 100.0 * rig.plan.mission.overlap
+    lines = read_jsonl(out / "spool" / "manifest.jsonl")
+    truth = TrueOverlap(rig.plan, TruthTrack(out / "truth.jsonl"))
+    times = [kf["capture_time_s"] for kf in lines]
+    pairs = [truth.percent(a, b) for a, b in zip(times, times[1:], strict=False)]
+    known = [p for p in pairs if p is not None]
+    considered = st.frames_in - st.skipped_backlog - st.before_telemetry
+    return {
+        "chain": chain,
+        "flight": f"{'completed' if res.flight.completed else 'NOT completed'}, {flight_s:.0f} s wall",
+        "camera_frames_sent_dropped": [camera.get("frames_sent"), camera.get("frames_dropped")],
+        "frames_received": st.frames_in,
+        "frames_skipped_for_cpu": st.skipped_backlog,
+        "frames_considered_per_s": round(considered / flight_s, 2),
+        "frames_measured": st.frames_measured,
+        "chain_thread_cpu_share_of_one_core": round(st.cpu_s / flight_s, 3),
+        "companion_process_cpu_share_of_one_core": round(cpu / wall, 3),
+        "keyframes": st.keyframes,
+        "planner_expected": rig.plan.estimates.expected_keyframes,
+        "minimum_from_truth": truth.minimum_keyframes(times[0], times[-1], rth) if times else None,
+        "lowest_true_overlap_of_a_pair_percent": round(min(known), 1) if known else None,
+        "pairs_true_below_rth": sum(p < rth for p in known),
+        "pairs_true_below_rth_minus_3": sum(p < rth - 3.0 for p in known),
+        "pairs_without_wall_in_view": len(pairs) - len(known),
+        "overlap_warnings": st.overlap_warnings,
+        "low_overlap_keyframes": st.low_overlap_keyframes,
+        "gaps": st.gaps,
+        "run_dir": str(out),
+    }
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--mission", type=Path, default=ROOT / "missions" / "demo-facade.yaml")
+    p.add_argument("--fps", type=float, default=30.0, help="camera frame rate in simulated time")
+    p.add_argument("--width", type=int, default=1280)
+    p.add_argument("--speedup", type=float, default=1.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
+    p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
+    p.add_argument("--out", type=Path, help="keep the runs here (default: a temp dir)")
+    args = p.parse_args()
+    out = args.out or Path(tempfile.mkdtemp(prefix="chain-tracker-"))
+    spinner = multiprocessing.Process(target=_spin, daemon=True) if args.busy_core else None
+    if spinner is not None:
+        spinner.start()
+    try:
+        for chain in args.chains:
+            print(json.dumps(fly_one(args, chain, out / chain), indent=1), flush=True)
+    finally:
+        if spinner is not None:
+            spinner.terminate()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,191 @@
+"""Parallax for a pass of photos without telemetry: ``companion mask IMAGES --sequence``.
+
+``companion/depth/parallax.py`` turns the flow between two frames into depth with the baseline that telemetry
+gives. Anyone's photos come without it, but one pass along a wall (photos in capture order, taken at a steady
+speed and interval) has two things that stand in for it:
+
+* the direction the image moves is the same for every pair (the pass direction), and
+* the baseline between neighbouring photos is about the same for every pair, so ``s = f x baseline`` (pixels x
+  metres at work resolution) is one number for the pass. Each pair where the network sees a near surface
+  measures it as the network's metric depth of that surface times its flow; the median over the pass is robust
+  to pairs where the network is wrong, and a photo of only far background is then judged by the pass's scale,
+  not by the network that misread it.
+
+Each photo is compared with its predecessor (the first with its successor); the result goes through
+``fuse_with_network``: trusted near pixels kept, trusted far pixels cut, a photo whose trusted pixels are all far
+dropped (all-zero mask), untrusted (plain) pixels keep the network's answer. The photos are read twice (the pass's
+scale must be known before the first photo is decided) and the network runs once per photo.
+
+Limits: one straight pass at a steady speed (a turn or a stop breaks the constant-baseline assumption), a model
+trained on metric depth (the shipped ones), and a scene that is static between neighbouring photos.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.depth.parallax import DenseFlow, ParallaxParams, dense_flow, depth_from_flow, fuse_with_network
+from companion.errors import CompanionError
+
+MIN_MOTION_PX = 0.5  # median flow (work pixels) below which a pair shows no usable motion (hover, repeated photo)
+MIN_SCALE_PIXELS = 200  # network-near, trusted pixels a pair needs to measure the pass's scale
+
+
+@dataclass(frozen=True)
+class PassMotion:
+    """What the pass's neighbouring photos say together."""
+
+    direction: np.ndarray  # unit (x, y): how the image content moves from one photo to the next (work pixels)
+    scale_px_m: float  # focal length (work pixels) x baseline between neighbouring photos (metres)
+    pairs: int  # pairs that measured the scale
+
+
+@dataclass(frozen=True)
+class NetworkMask:
+    """The network's answer for one photo, kept compact between the two readings of the pass."""
+
+    png: bytes  # the mask (uint8 0/255, photo size), PNG-encoded
+    empty: bool  # the network found no near surface
+
+    def mask(self) -> np.ndarray:
+        return cv2.imdecode(np.frombuffer(self.png, np.uint8), cv2.IMREAD_UNCHANGED)
+
+
+@dataclass(frozen=True)
+class SequenceMask:
+    """One photo's mask after parallax: what to write, and whether parallax judged it."""
+
+    mask: np.ndarray  # uint8 0/255, photo size
+    no_near_surface: bool
+    parallax: bool  # False: the network alone decided (no usable motion or no pass scale)
+
+
+def _pair_measure(flow: DenseFlow, network_near: np.ndarray, network_depth_m: np.ndarray,
+                  params: ParallaxParams) -> tuple[np.ndarray | None, float | None]:
+    """A pair's median flow vector (None without enough trusted, moving pixels) and its scale sample
+    ``depth x flow`` over the pixels the network calls near (None with too few of them)."""
+    if flow.trusted.mean() < params.min_confident_share:
+        return None, None
+    vectors = flow.flow[flow.trusted]
+    median = np.median(vectors, axis=0)
+    if float(np.hypot(*median)) < MIN_MOTION_PX:
+        return None, None
+    direction = median / float(np.hypot(*median))
+    near = flow.trusted & network_near
+    along = flow.flow[near] @ direction
+    moving = along > MIN_MOTION_PX
+    if int(moving.sum()) < MIN_SCALE_PIXELS:
+        return direction, None
+    return direction, float(np.median(network_depth_m[near][moving] * along[moving]))
+
+
+def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None]) -> PassMotion | None:
+    """The pass's direction (median of the pairs') and scale (median of the pairs that measured one); None when no
+    pair measured a scale (the network alone decides every photo)."""
+    measured = [s for s in scales if s is not None]
+    moving = [d for d in directions if d is not None]
+    if not measured or not moving:
+        return None
+    d = np.median(np.array(moving), axis=0)
+    norm = float(np.hypot(*d))
+    if norm < 1e-6:
+        return None
+    return PassMotion(d / norm, float(np.median(measured)), len(measured))
+
+
+def _work_size(image: np.ndarray, params: ParallaxParams) -> tuple[int, int]:
+    h, w = image.shape[:2]
+    return params.work_width, max(8, round(h * params.work_width / w))
+
+
+class SequenceMasker:
+    """Masks the photos of one pass in capture order with the network and parallax (see the module notes).
+
+    ``masker`` is a :class:`companion.depth.masker.Masker` whose model was trained on metric depth.
+    """
+
+    def __init__(self, masker, params: ParallaxParams | None = None):
+        info = masker.session.info
+        if not info.metric:
+            raise CompanionError(
+                f"--sequence needs a depth model trained on metric depth; {info.path.name} is scale-free",
+                "use a shipped model (--model sim or real-nc), or mask without --sequence",
+            )
+        self.masker = masker
+        self.params = params or ParallaxParams()
+
+    def _network(self, image: np.ndarray) -> tuple[NetworkMask, np.ndarray, np.ndarray]:
+        """The network's mask, and at work resolution its near pixels and metric depth."""
+        disparity = self.masker.session.disparity(image)
+        roi = self.masker.roi_from_disparity(disparity, image.shape[:2])
+        mask = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
+        ok, png = cv2.imencode(".png", mask)
+        if not ok:  # pragma: no cover - PNG encoding of a uint8 image does not fail
+            raise CompanionError("could not encode a mask", "report this as a bug")
+        size = _work_size(image, self.params)
+        near = cv2.resize(mask, size, interpolation=cv2.INTER_AREA) >= 128
+        depth = cv2.resize(self.masker.session.info.depth_from_disparity(np.squeeze(disparity)).astype(np.float32),
+                           size, interpolation=cv2.INTER_LINEAR)
+        return NetworkMask(png.tobytes(), bool(roi.empty)), near, depth
+
+    def measure(self, images: Iterator[tuple[int, np.ndarray | None]]) -> tuple[dict[int, NetworkMask],
+                                                                                  PassMotion | None]:
+        """First reading: the network's mask of every readable photo and the pass's motion."""
+        networks: dict[int, NetworkMask] = {}
+        directions: list[np.ndarray | None] = []
+        scales: list[float | None] = []
+        previous: np.ndarray | None = None
+        for i, image in images:
+            if image is None:
+                continue
+            networks[i], near, depth = self._network(image)
+            if previous is not None and previous.shape == image.shape:
+                direction, scale = _pair_measure(dense_flow(previous, image, self.params), near, depth, self.params)
+                directions.append(direction)
+                scales.append(scale)
+            previous = image
+        return networks, pass_motion(directions, scales)
+
+    def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
+               motion: PassMotion | None) -> SequenceMask:
+        """One photo's mask: the network's, corrected by its parallax against ``neighbour`` (the previous photo,
+        or the next one when ``forward`` is False) at the pass's scale."""
+        net_mask = network.mask()
+        if motion is None or neighbour is None or neighbour.shape != image.shape:
+            return SequenceMask(net_mask, network.empty, False)
+        flow = dense_flow(neighbour, image, self.params)
+        sign = 1.0 if forward else -1.0
+        fx = float(image.shape[1])  # any focal length: the scale was measured in the same units, so it cancels
+        baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)
+        translation = np.array([*(sign * baseline_m * motion.direction), 0.0])
+        mask, dropped = fuse_with_network(net_mask, depth_from_flow(flow, translation, fx, self.params))
+        return SequenceMask(mask, dropped or not mask.any(), True)
+
+
+def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarray | None],
+                  params: ParallaxParams | None = None) -> Iterator[tuple[int, SequenceMask | None]]:
+    """(index into ``paths``, its mask) in order; None for a photo ``read`` could not read."""
+    seq = SequenceMasker(masker, params)
+    networks, motion = seq.measure((i, read(p)) for i, p in enumerate(paths))
+    readable = [i for i in range(len(paths)) if i in networks]
+    previous: np.ndarray | None = None
+    for i in range(len(paths)):
+        if i not in networks:
+            yield i, None
+            continue
+        image = read(paths[i])
+        if image is None:  # changed on disk between the two readings
+            raise CompanionError(f"{paths[i]} could not be read the second time",
+                                 "leave the photos unchanged while they are being masked, then rerun")
+        if previous is not None:
+            neighbour, forward = previous, True
+        else:  # the first photo: compared with the next one, whose content moves the other way
+            later = [j for j in readable if j > i]
+            neighbour, forward = (read(paths[later[0]]) if later else None), False
+        yield i, seq.decide(image, neighbour, forward, networks[i], motion)
+        previous = image

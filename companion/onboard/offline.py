@@ -1,0 +1,97 @@
+"""The offline twin of live culling: a recorded flight (video file or image folder + telemetry log) through the
+same chain (tag -> mask -> gate -> spool), with the frames tagged by a fixed camera-to-autopilot time offset."""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.capture.sources import open_source
+from companion.capture.tagging import FrameTagger
+from companion.capture.telemetry import ClockMap, buffer_from_log
+from companion.errors import CompanionError
+from companion.flight.telemetry_log import read_telemetry_log
+from companion.onboard.chain import ChainStats
+from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
+from companion.onboard.setup import build_chain
+from companion.progress import progress_bar
+from companion.spool.clock import TelemetryWallClock
+
+log = logging.getLogger(__name__)
+
+REPORT_NAME = "cull_report.json"
+
+
+@dataclass(frozen=True)
+class OfflineCull:
+    """A recorded flight to cull; ``time_offset_s`` is the autopilot boot time (s) at video time 0."""
+
+    video: str
+    telemetry_log: Path
+    spool_dir: Path
+    mission_path: Path | None = None
+    model: Path | None = None
+    mask: bool = True
+    time_offset_s: float = 0.0
+    fps: float = 30.0  # frame rate of an image folder without times.csv
+
+
+@dataclass(frozen=True)
+class OfflineCullResult:
+    stats: ChainStats
+    # why the run kept no keyframe (e.g. the time_offset_s that would align the clocks); the caller reports the
+    # counts first, then raises it
+    no_keyframes: CompanionError | None = None
+
+
+def cull_recorded_flight(request: OfflineCull) -> OfflineCullResult:
+    """Cull every frame into the spool and write ``cull_report.json`` beside it."""
+    if not request.telemetry_log.is_file():
+        raise CompanionError(f"telemetry log {request.telemetry_log} does not exist",
+                             "pass the --telemetry-log of the flight")
+    rows = read_telemetry_log(request.telemetry_log)
+    buffer = buffer_from_log(rows)
+    if len(buffer) == 0:
+        raise CompanionError(f"telemetry log {request.telemetry_log} holds no usable samples", "check the file")
+    camera_to_autopilot = ClockMap(fixed_offset_s=-request.time_offset_s)
+    tagger = FrameTagger(buffer, camera_to_autopilot)
+    # EXIF capture times: video time -> autopilot boot time -> Unix time from the log's t_wall beside t_boot_s
+    wall_clock = TelemetryWallClock.from_log_rows(rows, camera_to_autopilot)
+    if not wall_clock.has_wall_time:
+        log.warning("telemetry log %s has no t_wall times, so keyframe images carry no capture date (logs from "
+                    "companion fly --telemetry-log have them)", request.telemetry_log)
+    chain = build_chain(request.spool_dir, tagger, mission_path=request.mission_path, model=request.model,
+                        mask=request.mask, capture_clock=wall_clock)
+    source = open_source(request.video, fps=request.fps)
+    total = getattr(source, "files", None)
+    with source, progress_bar(total=len(total) if total else None, unit="frame", desc="culling") as bar:
+        for frame in source:
+            chain.process(frame)
+            bar.update(1)
+            bar.set_postfix(keyframes=chain.stats.keyframes)
+        chain.finish()
+    chain.stats.corrupt = source.stats.corrupt
+    (request.spool_dir / REPORT_NAME).write_text(json.dumps(chain.stats.as_dict(), indent=1))
+    empty = explain_empty_cull(chain.stats, tagger)
+    if empty is None:
+        return OfflineCullResult(chain.stats)
+    problem = CompanionError(f"culling {request.video} kept no keyframe: {empty.problem}",
+                             _empty_cull_fix(empty, request))
+    return OfflineCullResult(chain.stats, problem)
+
+
+def _empty_cull_fix(empty: EmptyCull, request: OfflineCull) -> str:
+    if empty.shift_s is not None:
+        return (
+            "frame times + --time-offset must fall inside the telemetry log's t_boot_s: e.g. --time-offset "
+            f"{request.time_offset_s + empty.shift_s:.2f} puts the first frame on the first telemetry sample; or give "
+            "the image folder a times.csv (name,seconds) on the autopilot clock, or use the log of this recording's "
+            "flight"
+        )
+    if empty.cause is EmptyCause.NO_USABLE_FRAME:
+        return "check that the frames show the facade at the standoff; try --no-mask or another --model"
+    if empty.cause is EmptyCause.NO_FRAMES:
+        return f"check {request.video}: its frames are unreadable (see the warnings above)"
+    return "see the warnings above"

@@ -1,0 +1,212 @@
+"""The map as an XYZ tile pyramid, so a browser pans and zooms a map of any size by loading only what it shows.
+
+Level ``max_zoom`` is the map at full resolution (one map pixel per tile pixel); each level above halves it, up
+to level 0 where the whole map fits in one tile. Tile ``z/x/y.png`` covers level-z pixels
+``[x * size, (x + 1) * size) x [y * size, (y + 1) * size)``, the origin at the map's top-left corner, which is
+what Leaflet's tile layer asks for. Tiles are BGRA PNGs like the map: alpha = coverage, so uncovered wall stays
+transparent at every level (edge tiles are padded with transparent pixels, never stretched).
+
+The full-resolution level is cut from a :class:`MapReader` (``map.png`` in memory, or the stitcher's own tiles
+behind ``map.vrt`` one at a time); every coarser level is made from the four tiles under it already on disk,
+so memory stays bounded by a row of stitcher tiles whatever the map's size.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+
+TILE_PX = 256
+
+
+@dataclass(frozen=True)
+class PyramidInfo:
+    """What the page needs to ask for tiles: their size, the full-resolution level and the URL pattern."""
+
+    tile_px: int
+    max_zoom: int
+    width_px: int
+    height_px: int
+    url: str  # relative to the page, with {z}/{x}/{y}
+    tiles_written: int
+
+
+@dataclass(frozen=True)
+class _SourceTile:
+    path: Path
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+
+class MapReader:
+    """Reads BGRA regions of a stitched map: ``map.png`` (one image) or ``map.vrt`` (the stitcher's tiles)."""
+
+    def __init__(
+        self, width: int, height: int, image: np.ndarray | None = None, tiles: list[_SourceTile] | None = None
+    ):
+        self.width = width
+        self.height = height
+        self._image = image
+        self._tiles = tiles or []
+        self._cache: dict[_SourceTile, np.ndarray] = {}
+
+    @classmethod
+    def open(cls, map_dir: Path) -> MapReader:
+        """The map of a ``companion stitch --out`` folder; a clear error when it holds neither form."""
+        png, vrt = map_dir / "map.png", map_dir / "map.vrt"
+        if png.exists():
+            img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise CompanionError(f"cannot read {png}", "run `companion stitch` again to rewrite the map")
+            if img.ndim == 2:
+                img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGRA)
+            elif img.shape[2] == 3:  # a map from before the alpha convention: everything drawn counts as covered
+                img = np.dstack((img, np.where(img.max(axis=2) > 0, 255, 0).astype(np.uint8)))
+            return cls(img.shape[1], img.shape[0], image=img)
+        if vrt.exists():
+            return cls._from_vrt(vrt)
+        raise CompanionError(
+            f"{map_dir} holds no map (neither map.png nor map.vrt)",
+            "give the --out folder of `companion stitch`, or stitch the spool first",
+        )
+
+    @classmethod
+    def _from_vrt(cls, vrt: Path) -> MapReader:
+        try:
+            root = ET.parse(vrt).getroot()
+            width, height = int(root.attrib["rasterXSize"]), int(root.attrib["rasterYSize"])
+            band = root.find("VRTRasterBand")
+            tiles = []
+            for src in band.findall("SimpleSource") if band is not None else []:
+                dst = src.find("DstRect").attrib
+                name = src.find("SourceFilename").text or ""
+                tiles.append(
+                    _SourceTile(
+                        vrt.parent / name,
+                        int(dst["xOff"]),
+                        int(dst["yOff"]),
+                        int(dst["xSize"]),
+                        int(dst["ySize"]),
+                    )
+                )
+        except (ET.ParseError, KeyError, AttributeError, ValueError) as exc:
+            raise CompanionError(
+                f"{vrt} is not a map mosaic the stitcher wrote ({exc})", "run `companion stitch` again"
+            ) from exc
+        return cls(width, height, tiles=tiles)
+
+    def read(self, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+        """BGRA pixels of the map region; outside the map (and any hole between source tiles) is transparent."""
+        out = np.zeros((h, w, 4), np.uint8)
+        xa, ya, xb, yb = max(0, x0), max(0, y0), min(self.width, x0 + w), min(self.height, y0 + h)
+        if xb <= xa or yb <= ya:
+            return out
+        if self._image is not None:
+            out[ya - y0 : yb - y0, xa - x0 : xb - x0] = self._image[ya:yb, xa:xb]
+            return out
+        # source tiles above this band are no longer needed: the pyramid cuts the map row by row
+        for done in [t for t in self._cache if t.y0 + t.height <= y0]:
+            del self._cache[done]
+        for t in self._tiles:
+            ta, tb = max(xa, t.x0), min(xb, t.x0 + t.width)
+            tc, td = max(ya, t.y0), min(yb, t.y0 + t.height)
+            if tb <= ta or td <= tc:
+                continue
+            img = self._load(t)
+            out[tc - y0 : td - y0, ta - x0 : tb - x0] = img[tc - t.y0 : td - t.y0, ta - t.x0 : tb - t.x0]
+        return out
+
+    def _load(self, t: _SourceTile) -> np.ndarray:
+        img = self._cache.get(t)
+        if img is None:
+            img = cv2.imread(str(t.path), cv2.IMREAD_UNCHANGED)
+            if img is None or img.shape[:2] != (t.height, t.width) or img.ndim != 3 or img.shape[2] != 4:
+                raise CompanionError(
+                    f"map tile {t.path} is missing or not the {t.width}x{t.height} BGRA tile map.vrt names",
+                    "run `companion stitch` again to rewrite the tiles",
+                )
+            self._cache[t] = img
+        return img
+
+
+def max_zoom_for(width: int, height: int, tile_px: int = TILE_PX) -> int:
+    """The level at which the map is at full resolution: level 0 fits in one tile."""
+    return max(0, math.ceil(math.log2(max(width, height, 1) / tile_px)))
+
+
+def _level_size(width: int, height: int, levels_down: int) -> tuple[int, int]:
+    f = 2**levels_down
+    return -(-width // f), -(-height // f)
+
+
+def halve(block: np.ndarray) -> np.ndarray:
+    """2x2 average of a BGRA block, weighted by alpha: uncovered (transparent) pixels do not darken the edges."""
+    h, w = block.shape[0] // 2, block.shape[1] // 2
+    alpha = block[..., 3].astype(np.float32)
+    weighted = block[..., :3].astype(np.float32) * (alpha[..., None] / 255.0)
+    a = cv2.resize(alpha, (w, h), interpolation=cv2.INTER_AREA)
+    c = cv2.resize(weighted, (w, h), interpolation=cv2.INTER_AREA)
+    colour = np.where(a[..., None] > 0, c * (255.0 / np.maximum(a, 1e-6))[..., None], 0.0)
+    return np.dstack((np.clip(colour + 0.5, 0, 255), np.clip(a + 0.5, 0, 255))).astype(np.uint8)
+
+
+def _tiles_of_level(w: int, h: int, tile_px: int) -> Iterator[tuple[int, int]]:
+    for ty in range(-(-h // tile_px)):
+        for tx in range(-(-w // tile_px)):
+            yield tx, ty
+
+
+def _write_png(path: Path, img: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), img):
+        raise CompanionError(f"cannot write {path}", "check free disk space and permissions of the map folder")
+
+
+def write_pyramid(reader: MapReader, tiles_dir: Path, *, url_prefix: str, tile_px: int = TILE_PX) -> PyramidInfo:
+    """Writes ``tiles_dir/z/x/y.png`` for every level; returns what the page needs to load them."""
+    zmax = max_zoom_for(reader.width, reader.height, tile_px)
+    count = 0
+    w, h = reader.width, reader.height
+    for tx, ty in _tiles_of_level(w, h, tile_px):
+        d = tiles_dir / str(zmax) / str(tx)
+        d.mkdir(parents=True, exist_ok=True)
+        _write_png(d / f"{ty}.png", reader.read(tx * tile_px, ty * tile_px, tile_px, tile_px))
+        count += 1
+    for z in range(zmax - 1, -1, -1):
+        w, h = _level_size(reader.width, reader.height, zmax - z)
+        below = tiles_dir / str(z + 1)
+        for tx, ty in _tiles_of_level(w, h, tile_px):
+            block = np.zeros((2 * tile_px, 2 * tile_px, 4), np.uint8)
+            for dx in (0, 1):
+                for dy in (0, 1):
+                    child = below / str(2 * tx + dx) / f"{2 * ty + dy}.png"
+                    if child.exists():
+                        block[dy * tile_px : (dy + 1) * tile_px, dx * tile_px : (dx + 1) * tile_px] = cv2.imread(
+                            str(child), cv2.IMREAD_UNCHANGED
+                        )
+            d = tiles_dir / str(z) / str(tx)
+            d.mkdir(parents=True, exist_ok=True)
+            _write_png(d / f"{ty}.png", halve(block))
+            count += 1
+    return PyramidInfo(tile_px, zmax, reader.width, reader.height, url_prefix + "{z}/{x}/{y}.png", count)
+
+
+def level_image(tiles_dir: Path, info: PyramidInfo, zoom: int) -> np.ndarray:
+    """One pyramid level as a single BGRA image (for the small coverage overlay), cropped to the map."""
+    w, h = _level_size(info.width_px, info.height_px, info.max_zoom - zoom)
+    t = info.tile_px
+    out = np.zeros((-(-h // t) * t, -(-w // t) * t, 4), np.uint8)
+    for tx, ty in _tiles_of_level(w, h, t):
+        img = cv2.imread(str(tiles_dir / str(zoom) / str(tx) / f"{ty}.png"), cv2.IMREAD_UNCHANGED)
+        if img is not None:
+            out[ty * t : (ty + 1) * t, tx * t : (tx + 1) * t] = img
+    return out[:h, :w]

@@ -1,0 +1,174 @@
+"""`companion demo`: the main job on the built-in default mission and model.
+
+Plans the demo facade, starts the SITL rig (simulated vehicle + simulated camera), flies the scan through MAVSDK
+while culling the live frames into a keyframe spool (depth mask + overlap gate), stitches the facade map, and
+prints where everything is. It lives in sim/ because it starts the simulator; the steps are companion's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from companion.errors import CompanionError
+from companion.mission import load_mission, plan_scan
+from companion.mission.commands import format_estimates
+from companion.mission.exports import render_outputs, write_outputs
+from companion.resources import demo_mission, mission_argument
+
+# The simulated camera renders in real time (texture warp, docs/BENCHMARKS.md "Camera simulator"); 10 frames/s
+# because the onboard chain processes about 3 per second on a 2-core machine today (it drops the rest).
+DEFAULT_FPS = 10.0
+DEFAULT_WIDTH_PX = 640
+DEFAULT_OUT = Path("out/demo")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("demo", help="full SITL facade scan on the built-in demo mission: plan, fly, cull, stitch")
+    p.add_argument("--mission", type=mission_argument, default=None,
+                   help="mission YAML or a shipped mission's name (default: the demo facade)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default: {DEFAULT_OUT})")
+    p.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall second (default 1)")
+    p.add_argument("--fps", type=float, default=DEFAULT_FPS,
+                   help=f"simulated camera frame rate in simulated time (default {DEFAULT_FPS:g}; the mission "
+                        "camera's is 30)")
+    p.add_argument("--width", type=int, default=DEFAULT_WIDTH_PX,
+                   help=f"simulated camera working width in px (default {DEFAULT_WIDTH_PX})")
+    p.add_argument("--seed", type=int, default=0, help="scene and simulator seed")
+    p.add_argument("--model", type=Path, help="depth model .onnx (default: the shipped model)")
+    p.add_argument("--no-mask", action="store_true", help="skip background removal")
+    p.add_argument("--plan-only", action="store_true", help="only plan and write the mission exports")
+    p.set_defaults(func=run_demo)
+
+
+def plan_for_camera(mission_path: Path, fps: float):
+    """The scan planned for the frames the gate can get: the simulated camera delivers ``fps`` frames per second,
+    so the planner's ``onboard_fps`` (frames processed per second) is at most that; its scan speed then keeps
+    ``min_frames_per_keyframe`` of them between keyframes, as it would for a real camera at that rate."""
+    mission = load_mission(mission_path)
+    if fps < (mission.onboard_fps or mission.camera.fps):
+        mission = mission.model_copy(update={"onboard_fps": fps})
+    return plan_scan(mission)
+
+
+@dataclass(frozen=True)
+class DemoFlight:
+    """What the SITL flight with live culling gave: the live scan's result and the simulated camera's counts."""
+
+    scan: object  # companion.onboard.live.LiveScanResult
+    camera: dict
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    mission_path = args.mission or demo_mission()
+    _check_demo_args(out, args.fps)
+    plan = plan_for_camera(mission_path, args.fps)
+    written = write_outputs(render_outputs(plan), out / "plan")
+    print(format_estimates(plan))
+    print(f"plan: {len(written)} files in {out / 'plan'}")
+    if args.plan_only:
+        return 0
+    t0 = time.monotonic()
+    print(f"flying the scan in SITL (speed-up {args.speedup:g}, camera {args.width} px @ {args.fps:g} fps)...")
+    demo = fly_demo(plan, mission_path, args)
+    _print_flight(plan, demo, args.fps)
+    print("stitching the keyframes...")
+    result = stitch_demo(out)
+    report = demo_report(plan, demo, result, wall_time_s=time.monotonic() - t0)
+    (out / "report.json").write_text(json.dumps(report, indent=1, default=str))
+    print(f"map: {result.files.get('map') or result.files.get('tiles')}")
+    print(f"preview with scale bar and re-fly areas: {result.files.get('preview')}")
+    print(f"coverage: {100 * result.coverage_fraction:.1f} % ({len(result.uncovered)} uncovered area(s))")
+    print(f"keyframe spool: {out / 'spool'}   telemetry log: {demo.scan.telemetry_log}")
+    print(f"report: {out / 'report.json'}")
+    return 0 if demo.scan.flight.completed else 1
+
+
+def _check_demo_args(out: Path, fps: float) -> None:
+    """Refuse before anything is written: a folder holding a run, a frame rate that is not one."""
+    if (out / "spool" / "manifest.jsonl").exists():
+        raise CompanionError(
+            f"{out} already holds a demo run", f"pass a new --out directory or remove {out} to start over"
+        )
+    if not fps > 0:
+        raise CompanionError(f"--fps {fps:g} is not a frame rate", "give a positive rate, e.g. --fps 10")
+
+
+def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
+    """Start the SITL rig, fly the plan culling the simulated camera's frames into ``out/spool``, stop the rig."""
+    from companion.onboard.live import run_live_scan
+    from sim.rig import SitlRig
+
+    out: Path = args.out
+    with SitlRig(
+        mission_path, log_dir=out / "sim", seed=args.seed, width_px=args.width, fps=args.fps, speedup=args.speedup
+    ) as rig:
+        scan = run_live_scan(plan, rig.url, rig.capture, out / "spool", model=args.model, mask=not args.no_mask,
+                             end_action=plan.mission.end_action, progress=True)
+    camera = {"fps": args.fps, "width_px": args.width, "renderer": rig.renderer, **(rig.camera_counts() or {})}
+    return DemoFlight(scan, camera)
+
+
+def _print_flight(plan, demo: DemoFlight, fps: float) -> None:
+    flight, st = demo.scan.flight, demo.scan.stats
+    print(
+        f"flight: {'complete' if flight.completed else 'NOT complete'}, {flight.items_reached}/{flight.items_total} "
+        f"items, {'landed' if flight.landed else 'NOT landed'}, {flight.duration_s:.0f} s"
+    )
+    print(
+        f"culling: {st.frames_in} frames -> {st.keyframes} keyframes ({st.skipped_backlog} skipped for CPU, "
+        f"{st.dropped_no_roi} without facade, {st.overlap_warnings} overlap warnings, {st.gaps} gaps)"
+    )
+    expected = plan.estimates.expected_keyframes
+    print(f"keyframes: {st.keyframes} against the planner's expected {expected} "
+          f"({st.keyframes / expected:.2f}x)" if expected else f"keyframes: {st.keyframes} (planner expects none)")
+    camera = demo.camera
+    if "frames_dropped" in camera:
+        print(f"camera: {camera['frames_sent']} frames sent at {fps:g} fps, {camera['frames_dropped']} dropped "
+              f"(rendering behind simulated time)")
+    if demo.scan.capture_error:
+        print(f"capture error: {demo.scan.capture_error}")
+
+
+def stitch_demo(out: Path):
+    from companion.stitch.inputs import load_spool
+    from companion.stitch.worker import stitch
+
+    return stitch(load_spool(out / "spool"), out / "map", progress=True)
+
+
+def demo_report(plan, demo: DemoFlight, result, *, wall_time_s: float) -> dict:
+    """``report.json``: the plan's estimates beside what the flight, the culling and the map achieved."""
+    flight, st = demo.scan.flight, demo.scan.stats
+    expected = plan.estimates.expected_keyframes
+    return {
+        "mission": plan.mission.name,
+        "plan_estimates": plan.estimates.as_dict(),
+        "flight": {
+            "completed": flight.completed,
+            "items_reached": flight.items_reached,
+            "items_total": flight.items_total,
+            "landed": flight.landed,
+            "disarmed": flight.disarmed,
+            "duration_s": round(flight.duration_s, 1),
+            "link_losses": len(flight.link_losses),
+        },
+        "camera": demo.camera,
+        "culling": st.as_dict(),
+        "keyframes": {
+            "kept": st.keyframes,
+            "planner_expected": expected,
+            "ratio_to_expected": round(st.keyframes / expected, 3) if expected else None,
+        },
+        "map": {
+            "files": result.files,
+            "mm_per_px": result.mm_per_px,
+            "coverage_fraction": round(result.coverage_fraction, 4),
+            "uncovered_areas": len(result.uncovered),
+        },
+        "wall_time_s": round(wall_time_s, 1),
+    }

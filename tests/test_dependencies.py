@@ -1,0 +1,123 @@
+"""Dependencies go one way: ``sim`` uses ``companion``, never the reverse, and companion's own parts (subpackages and
+top-level modules) import each other without a cycle. Read from the source (every import statement, including
+those inside functions), so a hidden import cannot slip through."""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "companion"
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path, module: str | None = None) -> list[tuple[str, int]]:
+    """(absolute module name, line) of every import in ``path``, relative ones resolved, plus literal names given to
+    ``importlib.import_module`` / ``__import__``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    package = (module or module_name(path)).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [(alias.name, node.lineno) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - node.level + 1]
+                found.append((".".join(base + ([node.module] if node.module else [])), node.lineno))
+            else:
+                found.append((node.module, node.lineno))
+                found += [(f"{node.module}.{alias.name}", node.lineno) for alias in node.names]
+        elif isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant):
+            name = getattr(node.func, "attr", getattr(node.func, "id", ""))
+            if name in ("import_module", "__import__") and isinstance(node.args[0].value, str):
+                found.append((node.args[0].value, node.lineno))
+    return found
+
+
+def part_of(module: str) -> str | None:
+    """The top-level part of companion a module belongs to (``companion.flight.fly`` -> ``flight``)."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "companion" and len(parts) > 1 else None
+
+
+def part_graph() -> dict[str, dict[str, str]]:
+    """part -> {imported part: where (file:line)}; a part's imports of itself are left out."""
+    graph: dict[str, dict[str, str]] = defaultdict(dict)
+    for path in sorted(PACKAGE.rglob("*.py")):
+        source = part_of(module_name(path))
+        for target, line in imports(path):
+            target_part = part_of(target)
+            is_part = target_part and ((PACKAGE / target_part).is_dir() or (PACKAGE / f"{target_part}.py").is_file())
+            if source and is_part and target_part != source:
+                graph[source].setdefault(target_part, f"{path.relative_to(ROOT)}:{line}")
+    return graph
+
+
+def find_cycle(graph: dict[str, dict[str, str]]) -> list[str] | None:
+    state: dict[str, str] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = "open"
+        stack.append(node)
+        for nxt in sorted(graph.get(node, {})):
+            if state.get(nxt) == "open":
+                return stack[stack.index(nxt):] + [nxt]
+            if nxt not in state and (cycle := visit(nxt)):
+                return cycle
+        stack.pop()
+        state[node] = "done"
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def test_companion_never_imports_sim():
+    offending = [
+        f"{path.relative_to(ROOT)}:{line} imports {target}"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for target, line in imports(path)
+        if target == "sim" or target.startswith("sim.")
+    ]
+    assert not offending, "companion must not import sim (sim registers what it provides):\n" + "\n".join(offending)
+
+
+def test_companion_reaches_sim_only_through_the_named_plugin_hook():
+    """The one place companion names sim is ``companion.plugins.PLUGIN_MODULES`` (an optional plugin, imported by
+    name when installed); any other string naming a sim module would be an import in disguise."""
+    named = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value.startswith("sim."):
+                named.append((str(path.relative_to(ROOT)), node.value))
+    assert named == [("companion/plugins.py", "sim.commands")], named
+
+
+def test_no_import_cycle_between_the_parts_of_companion():
+    graph = part_graph()
+    assert graph["onboard"].keys() >= {"flight", "capture", "depth", "keyframes", "spool"}  # the walk sees imports
+    cycle = find_cycle(graph)
+    if cycle:
+        hops = [f"{a} -> {b} ({graph[a][b]})" for a, b in zip(cycle, cycle[1:], strict=False)]
+        raise AssertionError("import cycle between parts of companion:\n" + "\n".join(hops))
+
+
+def test_the_cycle_finder_finds_a_cycle_and_the_walk_sees_imports_inside_functions(tmp_path):
+    assert find_cycle({"a": {"b": ""}, "b": {"c": ""}, "c": {"a": ""}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b": ""}, "b": {"c": ""}}) is None
+    probe = tmp_path / "probe.py"
+    probe.write_text("def f():\n    from sim.rig import SitlRig\n    import importlib\n"
+                     "    importlib.import_module('sim.demo')\n")
+    names = [name for name, _ in imports(probe, module="companion.probe")]
+    assert "sim.rig" in names and "sim.demo" in names

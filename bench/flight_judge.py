@@ -8,6 +8,9 @@ per scan leg:
   except its first and last 2 % (where the vehicle turns onto the leg);
 * speed: the median velocity along the leg over its middle 60 % (the vehicle accelerates and brakes at the
   ends), against the planned speed of that leg;
+* track speed (printed, not judged): the rate of the position along the leg over the same middle (least-squares
+  slope against the autopilot's time since boot). On real PX4 SIH the reported vertical velocity carried a slowly
+  varying bias of up to 0.25 m/s against the vehicle's own altitude track, so the two can disagree there;
 * standoff: the largest |horizontal distance to the wall plane - planned standoff| over the same samples as the
   heading.
 
@@ -58,6 +61,7 @@ class LegFigures:
     max_standoff_error_m: float
     samples: int  # samples on the leg (heading, standoff)
     core_samples: int  # of which in its middle (speed)
+    track_speed_m_s: float = math.nan  # rate of the position along the leg over its middle (not judged)
 
     @property
     def speed_error(self) -> float:
@@ -127,8 +131,9 @@ def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: flo
         vn, ve, vd = (np.array([r[k] for r in flying]) for k in ("vn_m_s", "ve_m_s", "vd_m_s"))
         vel = np.column_stack([ve * de + vn * dn, -vd])  # along, up
         yaw = np.array([r["yaw_deg"] for r in flying])
+        t_boot = np.array([r["t_boot_s"] if r.get("t_boot_s") is not None else math.nan for r in flying])
     else:
-        pos, out, vel, yaw = np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)), np.zeros(0)
+        pos, out, vel, yaw, t_boot = np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)), np.zeros(0), np.zeros(0)
     legs = []
     for k, (i, j) in enumerate(plan.scan_legs):
         a = np.array([plan.waypoints[i].along_m, plan.waypoints[i].up_m])
@@ -141,12 +146,15 @@ def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: flo
                               & (s >= trim * length) & (s <= (1.0 - trim) * length)), s, length)
         middle = on_leg & (np.abs(s - length / 2.0) <= core * length / 2.0)
         speeds = vel[middle] @ u
+        timed = middle & np.isfinite(t_boot)
+        track = (float(np.polyfit(t_boot[timed], s[timed], 1)[0])
+                 if timed.sum() >= 3 and np.ptp(t_boot[timed]) > 0 else math.nan)
         legs.append(LegFigures(
             leg=k, vertical=abs(u[1]) > 0.9, length_m=length, planned_speed_m_s=plan.waypoints[j].speed_m_s,
             median_speed_m_s=float(np.median(speeds)) if speeds.size else math.nan,
             max_yaw_error_deg=float(np.abs(_wrap_deg(yaw[on_leg] - wall_yaw)).max()) if on_leg.any() else math.nan,
             max_standoff_error_m=float(np.abs(out[on_leg] - standoff).max()) if on_leg.any() else math.nan,
-            samples=int(on_leg.sum()), core_samples=int(middle.sum())))
+            samples=int(on_leg.sum()), core_samples=int(middle.sum()), track_speed_m_s=track))
     return legs
 
 
@@ -169,10 +177,11 @@ def flight_figures(plan, rows: list[dict], **kw) -> FlightFigures:
 
 def report(fig: FlightFigures) -> str:
     lines = [f"{'leg':>3} {'dir':4} {'len m':>6} {'plan m/s':>8} {'flown m/s':>9} {'speed err':>9} "
-             f"{'yaw err deg':>11} {'standoff err m':>14} {'samples':>7}"]
+             f"{'track m/s':>9} {'yaw err deg':>11} {'standoff err m':>14} {'samples':>7}"]
     for g in fig.legs:
         lines.append(f"{g.leg:3d} {'vert' if g.vertical else 'horz':4} {g.length_m:6.2f} {g.planned_speed_m_s:8.3f} "
-                     f"{g.median_speed_m_s:9.3f} {g.speed_error * 100:8.1f}% {g.max_yaw_error_deg:11.2f} "
+                     f"{g.median_speed_m_s:9.3f} {g.speed_error * 100:8.1f}% {g.track_speed_m_s:9.3f} "
+                     f"{g.max_yaw_error_deg:11.2f} "
                      f"{g.max_standoff_error_m:14.3f} {g.samples:7d}{'' if g.passed else '  FAIL'}")
     legs = fig.legs
     if legs:

@@ -20,6 +20,7 @@ import json
 import platform
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -94,7 +95,7 @@ def score_registered(pano, truth, region, m_per_px):
     return acc
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--recording", help="existing recording directory")
     ap.add_argument("--mission", default="missions/demo-facade.yaml", help="generate a recording from this mission")
@@ -111,16 +112,101 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--no-image-only", action="store_true", help="skip our run without telemetry")
     ap.add_argument("--out", default="/tmp/stitch_eval")
-    args = ap.parse_args(argv)
-    from sim.camera.recording import generate_recording, load_recording
+    return ap.parse_args(argv)
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+
+def recording_dir(args, out: Path) -> Path:
+    """The recording given, or one generated from the mission (once; later runs reuse it)."""
+    from sim.camera.recording import generate_recording
+
     rec_dir = Path(args.recording) if args.recording else out / f"recording_s{args.stride}_w{args.width_px}"
     if not (rec_dir / "meta.json").exists():
         t0 = time.perf_counter()
         generate_recording(args.mission, rec_dir, stride=args.stride, width_px=args.width_px)
         print(f"recording generated in {time.perf_counter() - t0:.0f} s: {rec_dir}")
+    return rec_dir
+
+
+@dataclass
+class Truth:
+    """The true facade texture on the map grid and the wall section the keyframes' footprints cover."""
+
+    image: np.ndarray
+    grid: MapGrid
+    region: np.ndarray
+
+
+def run_ours(args, rec, rec_dir: Path, frames: list[int], out: Path) -> tuple[dict, Truth]:
+    """Our stitcher with noisy telemetry, exact poses and (unless --no-image-only) images only; the truth grid
+    is set by the first run's scale and reused so every map is scored on the same grid."""
+    runs = [("ours", True, args.pose_noise_m, args.attitude_noise_deg), ("ours-exact-poses", True, 0.0, 0.0)]
+    if not args.no_image_only:
+        runs.append(("ours-image-only", False, 0.0, 0.0))
+    methods, truth = {}, None
+    for name, poses, noise_m, noise_deg in runs:
+        inp = load_recording_input(
+            rec_dir, frames=frames, use_poses=poses, pose_noise_m=noise_m, attitude_noise_deg=noise_deg
+        )
+        t0 = time.perf_counter()
+        cfg = StitchConfig() if truth is None else StitchConfig(mm_per_px=truth.grid.m_per_px * 1000)  # same grid
+        res = stitch(inp, out / name, cfg, progress=False)
+        entry = {
+            "time_s": time.perf_counter() - t0,
+            "report_alignment": res.report["alignment"],
+            "pairs": res.report["pairs_accepted"],
+            "pairs_tried": res.report["pairs_tried"],
+            "map": res.files.get("map"),
+        }
+        if truth is None:
+            image, grid = truth_grid(rec, res.grid.m_per_px * 1000 if poses else 8.5)
+            truth = Truth(image, grid, section_mask(rec, frames, grid))
+            cv2.imwrite(str(out / "truth.png"), truth.image)
+        entry.update(score_ours(res, poses, truth))
+        methods[name] = entry
+        print(name, json.dumps({k: v for k, v in entry.items() if k != "report_alignment"}, default=float))
+    return methods, truth
+
+
+def score_ours(res, rectified: bool, truth: Truth) -> dict:
+    """A map rectified to the facade is scored where it lies (absolute); otherwise after registration."""
+    if rectified and res.map_image is not None and res.map_image.shape[:2] == truth.image.shape[:2]:
+        cov = cv2.bitwise_and(res.coverage, truth.region)
+        acc = map_accuracy(res.map_image, cov, truth.image, truth.grid.m_per_px)
+        acc["coverage"] = float(np.count_nonzero(cov) / max(1, np.count_nonzero(truth.region)))
+        return acc
+    return score_registered(res.map_image, truth.image, truth.region, truth.grid.m_per_px)
+
+
+def run_peers(peers: list[str], rec, frames: list[int], truth: Truth, out: Path) -> dict:
+    images = [rec.image(i) for i in frames]
+    masks = [rec.roi_mask(i) for i in frames]
+    methods = {}
+    for peer in peers:
+        t0 = time.perf_counter()
+        if peer == "scans":
+            pano, status = peer_cv2(images, masks, cv2.Stitcher_SCANS)
+        elif peer == "panorama":
+            pano, status = peer_cv2(images, masks, cv2.Stitcher_PANORAMA)
+        elif peer in ("stitching", "stitching-affine"):
+            pano, status = peer_stitching(images, masks, affine=peer.endswith("affine"))
+        else:
+            raise SystemExit(f"unknown peer {peer!r}")
+        entry = {"time_s": time.perf_counter() - t0, "status": status}
+        if pano is not None:
+            cv2.imwrite(str(out / f"peer_{peer}.jpg"), pano)
+            entry.update(score_registered(pano, truth.image, truth.region, truth.grid.m_per_px))
+        methods[peer] = entry
+        print(peer, json.dumps(entry, default=float))
+    return methods
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    from sim.camera.recording import load_recording
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rec_dir = recording_dir(args, out)
     rec = load_recording(rec_dir)
     frames = select_keyframes(rec, args.overlap, args.max_keyframes)
     print(f"{len(rec)} frames -> {len(frames)} keyframes (true overlap >= {args.overlap})")
@@ -135,61 +221,10 @@ def main(argv=None) -> int:
         "attitude_noise_deg": args.attitude_noise_deg,
         "methods": {},
     }
-
-    ours_runs = [("ours", True, args.pose_noise_m, args.attitude_noise_deg)]
-    ours_runs.append(("ours-exact-poses", True, 0.0, 0.0))
-    if not args.no_image_only:
-        ours_runs.append(("ours-image-only", False, 0.0, 0.0))
-    truth = grid = region = None
-    for name, poses, noise_m, noise_deg in ours_runs:
-        inp = load_recording_input(
-            rec_dir, frames=frames, use_poses=poses, pose_noise_m=noise_m, attitude_noise_deg=noise_deg
-        )
-        t0 = time.perf_counter()
-        cfg = StitchConfig() if grid is None else StitchConfig(mm_per_px=grid.m_per_px * 1000)  # same grid
-        res = stitch(inp, out / name, cfg, progress=False)
-        dt = time.perf_counter() - t0
-        entry = {
-            "time_s": dt,
-            "report_alignment": res.report["alignment"],
-            "pairs": res.report["pairs_accepted"],
-            "pairs_tried": res.report["pairs_tried"],
-            "map": res.files.get("map"),
-        }
-        if truth is None:
-            truth, grid = truth_grid(rec, res.grid.m_per_px * 1000 if poses else 8.5)
-            region = section_mask(rec, frames, grid)
-            cv2.imwrite(str(out / "truth.png"), truth)
-        if poses and res.map_image is not None and res.map_image.shape[:2] == truth.shape[:2]:
-            cov = cv2.bitwise_and(res.coverage, region)
-            acc = map_accuracy(res.map_image, cov, truth, grid.m_per_px)
-            acc["coverage"] = float(np.count_nonzero(cov) / max(1, np.count_nonzero(region)))
-        else:
-            acc = score_registered(res.map_image, truth, region, grid.m_per_px)
-        entry.update(acc)
-        results["methods"][name] = entry
-        print(name, json.dumps({k: v for k, v in entry.items() if k != "report_alignment"}, default=float))
-
-    images = [rec.image(i) for i in frames]
-    masks = [rec.roi_mask(i) for i in frames]
+    ours, truth = run_ours(args, rec, rec_dir, frames, out)
+    results["methods"].update(ours)
     peers = [] if args.peers == "none" else args.peers.split(",")
-    for peer in peers:
-        t0 = time.perf_counter()
-        if peer == "scans":
-            pano, status = peer_cv2(images, masks, cv2.Stitcher_SCANS)
-        elif peer == "panorama":
-            pano, status = peer_cv2(images, masks, cv2.Stitcher_PANORAMA)
-        elif peer in ("stitching", "stitching-affine"):
-            pano, status = peer_stitching(images, masks, affine=peer.endswith("affine"))
-        else:
-            raise SystemExit(f"unknown peer {peer!r}")
-        dt = time.perf_counter() - t0
-        entry = {"time_s": dt, "status": status}
-        if pano is not None:
-            cv2.imwrite(str(out / f"peer_{peer}.jpg"), pano)
-            entry.update(score_registered(pano, truth, region, grid.m_per_px))
-        results["methods"][peer] = entry
-        print(peer, json.dumps(entry, default=float))
+    results["methods"].update(run_peers(peers, rec, frames, truth, out))
     ours_t = results["methods"]["ours"]["time_s"]
     for e in results["methods"].values():
         e["time_ratio_vs_ours"] = e["time_s"] / ours_t

@@ -116,3 +116,18 @@ def test_takeoff_climb_far_from_the_wall_is_not_a_scan_leg(plan):
     fig = judge.flight_figures(plan, climb + synthetic_rows(plan))
     assert fig.passed
     assert max(g.max_standoff_error_m for g in fig.legs) < 0.01
+
+
+def test_track_speed_comes_from_positions_not_the_reported_velocity(plan):
+    """Real PX4 SIH reported a vertical velocity biased by up to 0.25 m/s against its own altitude track: the track
+    speed (printed beside the judged figure) is the slope of the position along the leg over autopilot time."""
+    judge = _judge()
+    rows = synthetic_rows(plan)
+    for k, r in enumerate(rows):
+        r["t_boot_s"] = 0.1 * k  # synthetic_rows steps 0.1 s
+        r["vd_m_s"] = r["vd_m_s"] - 0.2  # a reported-velocity bias the positions do not have
+    fig = judge.flight_figures(plan, rows)
+    for g in fig.legs:
+        assert math.isclose(g.track_speed_m_s, g.planned_speed_m_s, rel_tol=0.01)
+        assert not math.isclose(g.median_speed_m_s, g.planned_speed_m_s, rel_tol=0.1)
+    assert "track m/s" in judge.report(fig)

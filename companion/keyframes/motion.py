@@ -21,8 +21,9 @@ import numpy as np
 from companion.attitude import camera_rotation_enu
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame
-from companion.keyframes.overlap import convex_intersection_area
+from companion.polygons import convex_intersection_area, polygon_area
 from companion.records import Pose
+from companion.wall_footprint import corner_footprint
 
 
 @dataclass(frozen=True)
@@ -104,16 +105,10 @@ class WallMotionPredictor:
             return None
         f = (width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
         K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
-        corners = np.array([[0, 0, 1], [width, 0, 1], [width, height, 1], [0, height, 1]], dtype=np.float64)
-        footprints = []
-        for centre, rot in ((ca, ra), (cb, rb)):
-            rays = (rot @ np.linalg.inv(K) @ corners.T).T  # facade-frame ray directions of the corners
-            if np.any(rays[:, 1] >= -1e-6):  # a corner ray does not reach the wall plane in front of the camera
-                return None
-            t = -centre[1] / rays[:, 1]
-            hits = centre + t[:, None] * rays
-            footprints.append(hits[:, [0, 2]])
-        area_a = abs(_signed_area(footprints[0]))
+        footprints = [corner_footprint(K, width, height, c, r) for c, r in ((ca, ra), (cb, rb))]
+        if footprints[0] is None or footprints[1] is None:  # a corner ray does not reach the wall ahead
+            return None
+        area_a = polygon_area(footprints[0])
         if area_a <= 0.0:
             return None
         overlap = 100.0 * convex_intersection_area(footprints[1], footprints[0]) / area_a
@@ -124,8 +119,3 @@ class WallMotionPredictor:
         centre_b = motion.map_points(np.array([[width / 2.0, height / 2.0]]))[0]
         return WallMotion(H, motion.overlap_percent, float(centre_b[0] - width / 2.0),
                           float(centre_b[1] - height / 2.0), motion.baseline_m)
-
-
-def _signed_area(poly: np.ndarray) -> float:
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

@@ -23,6 +23,8 @@ import numpy as np
 
 from companion.errors import CompanionError
 from companion.keyframes.features import FeatureSet
+from companion.matching import make_matcher, ransac_affine, ransac_homography, ratio_test_matches
+from companion.polygons import convex_intersection_area
 
 if TYPE_CHECKING:
     from companion.keyframes.motion import WallMotion
@@ -118,43 +120,6 @@ def eq2_overlap(dx: float, dy: float, width: int, height: int) -> float:
     return 100.0 * max(0.0, height - abs(dy)) * max(0.0, width - abs(dx)) / (height * width)
 
 
-def _area(poly: np.ndarray) -> float:
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-
-
-def convex_intersection_area(subject: np.ndarray, clip: np.ndarray) -> float:
-    """Area of subject polygon clipped by a convex polygon (Sutherland-Hodgman, float64).
-
-    Written out because cv2.intersectConvexConvex misreports coincident edges (identical frames gave 53 %).
-    """
-    clip = np.asarray(clip, dtype=np.float64)
-    if _area(clip) < 0:
-        clip = clip[::-1]
-    out = [tuple(p) for p in np.asarray(subject, dtype=np.float64)]
-    for k in range(len(clip)):
-        a, b = clip[k], clip[(k + 1) % len(clip)]
-        ex, ey = b - a
-
-        def inside(p, a=a, ex=ex, ey=ey):
-            return ex * (p[1] - a[1]) - ey * (p[0] - a[0]) >= -1e-9
-
-        src, out = out, []
-        for i, cur in enumerate(src):
-            prev = src[i - 1]
-            cin, pin = inside(cur), inside(prev)
-            if cin != pin:
-                dx, dy = cur[0] - prev[0], cur[1] - prev[1]
-                den = ex * dy - ey * dx
-                t = (ey * (prev[0] - a[0]) - ex * (prev[1] - a[1])) / den
-                out.append((prev[0] + t * dx, prev[1] + t * dy))
-            if cin:
-                out.append(cur)
-        if len(out) < 3:
-            return 0.0
-    return abs(_area(np.array(out)))
-
-
 def polygon_overlap(H: np.ndarray, width: int, height: int) -> float | None:
     """Percent of Ip's rectangle covered by Iq's rectangle, with H mapping Ip px -> Iq px. None if degenerate."""
     try:
@@ -198,10 +163,7 @@ class OverlapEstimator:
 
     def __init__(self, config: OverlapConfig | None = None):
         self.config = config or OverlapConfig()
-        if self.config.matcher == "flann":
-            self._matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
-        else:
-            self._matcher = cv2.BFMatcher(cv2.NORM_L2)
+        self._matcher = make_matcher(self.config.matcher)
 
     def estimate(self, p: FeatureSet, q: FeatureSet, prior: WallMotion | None = None) -> OverlapEstimate:
         """R(Ip, Iq). With ``prior`` (the wall's motion predicted from telemetry) R is measured on the RANSAC
@@ -219,12 +181,12 @@ class OverlapEstimator:
         unknown = dict(R=None, method=cfg.method)
         if len(p) < cfg.min_matches or len(q) < cfg.min_matches or p.descriptors is None or q.descriptors is None:
             return OverlapEstimate(OverlapStatus.TOO_FEW_FEATURES, **unknown)
-        pairs = self._matcher.knnMatch(p.descriptors, q.descriptors, k=2)
-        good = [m[0] for m in pairs if len(m) == 2 and m[0].distance < cfg.ratio_test * m[1].distance]
+        query, train = ratio_test_matches(self._matcher, p.descriptors, q.descriptors, cfg.ratio_test)
+        good = query  # one entry per distinctive match
         if len(good) < cfg.min_matches:
             return OverlapEstimate(OverlapStatus.TOO_FEW_MATCHES, matches=len(good), **unknown)
-        src = p.points[[m.queryIdx for m in good]]
-        dst = q.points[[m.trainIdx for m in good]]
+        src = p.points[query]
+        dst = q.points[train]
         if prior is None:
             fit = self._fit(src, dst, p)
             if fit.status != OverlapStatus.OK:
@@ -239,12 +201,11 @@ class OverlapEstimator:
         none = np.zeros(len(src), dtype=bool)
         if len(src) < 4:
             return _Fit(None, none, "", OverlapStatus.TOO_FEW_INLIERS)
-        H_work, inlier_mask = cv2.findHomography(
-            src, dst, cv2.RANSAC, cfg.ransac_reproj_px, maxIters=2000, confidence=0.995
+        H_work, inl = ransac_homography(
+            src, dst, method=cv2.RANSAC, threshold_px=cfg.ransac_reproj_px, max_iters=2000, confidence=0.995
         )
-        if H_work is None or inlier_mask is None:
+        if H_work is None:
             return _Fit(None, none, "", OverlapStatus.TOO_FEW_INLIERS)
-        inl = inlier_mask.ravel().astype(bool)
         n_in = int(inl.sum())
         if n_in < cfg.min_inliers or n_in < share * len(src):
             return _Fit(None, inl, "", OverlapStatus.TOO_FEW_INLIERS)
@@ -255,13 +216,9 @@ class OverlapEstimator:
         # Inliers bunched in a small ROI (a wall edge just entering view) leave the projective part of H
         # unconstrained; a similarity (shift, rotation, scale) is well-posed there and is what a
         # constant-standoff pass does between neighbouring frames.
-        A, sim_mask = cv2.estimateAffinePartial2D(
-            src, dst, method=cv2.RANSAC, ransacReprojThreshold=cfg.ransac_reproj_px, maxIters=2000
-        )
-        if A is None or sim_mask is None:
+        H_sim, sim_inl = ransac_affine(src, dst, threshold_px=cfg.ransac_reproj_px, partial=True, max_iters=2000)
+        if H_sim is None:
             return _Fit(None, inl, "", OverlapStatus.DEGENERATE)
-        H_sim = np.vstack([A, [0.0, 0.0, 1.0]])
-        sim_inl = sim_mask.ravel().astype(bool)
         if int(sim_inl.sum()) < cfg.min_inliers or not _plausible(H_sim, cfg.max_scale_change, w * s, h * s):
             return _Fit(None, inl, "", OverlapStatus.DEGENERATE)
         return _Fit(H_sim, sim_inl, "similarity", OverlapStatus.OK)

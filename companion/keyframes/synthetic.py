@@ -18,6 +18,7 @@ from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
 from companion.keyframes.overlap import convex_intersection_area
 from companion.records import Frame, MaskedFrame, Pose, TaggedFrame
+from companion.wall_footprint import corner_footprint
 
 
 def textured_wall(width: int, height: int, seed: int = 0) -> np.ndarray:
@@ -218,11 +219,10 @@ class WallScene:
 
     def footprint(self, cam: WallCamera) -> np.ndarray:
         """The image rectangle on the wall PLANE (along_m, up_m), 4 x 2: what true overlap is measured on."""
-        w, h = self.width_px, self.height_px
-        corners = np.array([[0, 0, 1], [w, 0, 1], [w, h, 1], [0, h, 1]], dtype=np.float64)
-        rays = (cam.rotation() @ np.linalg.inv(self.K) @ corners.T).T
-        t = -cam.out_m / rays[:, 1]
-        return (cam.centre + t[:, None] * rays)[:, [0, 2]]
+        fp = corner_footprint(self.K, self.width_px, self.height_px, cam.centre, cam.rotation())
+        if fp is None:
+            raise ValueError(f"{cam} does not see the whole image on the wall plane")
+        return fp
 
     def true_overlap(self, a: WallCamera, b: WallCamera) -> float:
         """Share (0..1) of a's footprint on the wall plane that b's covers (the simulator's definition)."""

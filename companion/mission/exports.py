@@ -20,6 +20,7 @@ from companion.errors import CompanionError
 from companion.mission import items as mi
 from companion.mission.firmware import AUTOPILOTS, flight_parameters
 from companion.mission.planner import ScanPlan
+from companion.polygons import signed_area
 
 QGC_FIRMWARE = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT numbers QGroundControl stores
 QGC_VEHICLE_MULTIROTOR = 2
@@ -172,7 +173,7 @@ def _mission_amsl_m(plan: ScanPlan, rel_alt_m: float) -> float:
 
 def signed_area_deg2(ring: list[list[float]]) -> float:
     """Shoelace area of a closed [lon, lat] ring: > 0 counter-clockwise (RFC 7946's right-hand rule for exteriors)."""
-    return 0.5 * sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(ring, ring[1:], strict=False))
+    return signed_area(ring)  # the closing edge (last point = first) adds nothing
 
 
 def _ccw(ring: list[list[float]]) -> list[list[float]]:

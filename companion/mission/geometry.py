@@ -10,6 +10,7 @@ import pymap3d
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
 from companion.mission.spec import Mission
+from companion.polygons import signed_area
 
 
 def wall_frame(mission: Mission) -> FacadeFrame:
@@ -44,7 +45,7 @@ def wall_ends(mission: Mission) -> tuple[GeoPoint, GeoPoint]:
     a = ring[face]
     b = ring[(face + 1) % len(ring)]
     # Outward side of a counter-clockwise ring is the right-hand side of each edge: exactly our drone side.
-    if _signed_area(ring) > 0:
+    if signed_area(ring) > 0:  # lon/lat are locally proportional to east/north: the sign is preserved
         s, e = a, b
     else:
         s, e = b, a
@@ -69,13 +70,6 @@ def _open_ring(coords: list[tuple[float, float]]) -> list[tuple[float, float]]:
     if len(ring) > 1 and ring[0] == ring[-1]:
         ring = ring[:-1]
     return ring
-
-
-def _signed_area(ring: list[tuple[float, float]]) -> float:
-    # lon/lat are locally proportional to east/north (lon scaled by cos(lat)), so the sign is preserved.
-    x = np.array([p[0] for p in ring])
-    y = np.array([p[1] for p in ring])
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
 def point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:

@@ -1,13 +1,14 @@
 """Stitching worker: turns masked keyframes into a facade map rectified to the wall plane (paper step 3).
 
-Pipeline (one module per job): ``inputs`` (spool manifest or simulator recording) -> ``features`` (SIFT inside
-the ROI) -> ``pairs`` (DLT/RANSAC homographies, telemetry gate, affine fallback) -> ``align`` (global
-least-squares alignment onto the facade plane, telemetry as prior) -> ``mesh`` (APAP local homographies,
-paper Eq. 4) -> ``render`` (tiled warp, seams, feathering, coverage) -> ``output`` (map, scale bar, report).
+``worker.Stitcher`` runs the stages, one module each: ``features`` (SIFT inside the ROI) -> ``priors``
+(telemetry on the wall plane) -> ``pairs`` (DLT/RANSAC homographies, telemetry gate, affine fallback) ->
+``align`` (global least-squares alignment onto the facade plane, telemetry as prior) -> ``layout`` (map grid,
+APAP local homographies of ``mesh``, paper Eq. 4) -> ``canvas`` (tiled warp of ``render``: seams, feathering)
+-> ``report`` (coverage, map files with ``output``, report.json); ``debug`` dumps each stage on request.
 """
 
 from companion.stitch.inputs import CameraModel, FacadeGeometry, KeyframeInput, StitchInput, load_input
-from companion.stitch.worker import StitchConfig, StitchResult, stitch
+from companion.stitch.worker import StitchConfig, Stitcher, StitchResult, stitch
 
 __all__ = [
     "CameraModel",
@@ -16,6 +17,7 @@ __all__ = [
     "StitchConfig",
     "StitchInput",
     "StitchResult",
+    "Stitcher",
     "load_input",
     "stitch",
 ]

@@ -12,15 +12,18 @@ drift between chained pairs is spread out.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from companion.stitch.config import StitchConfig
 from companion.stitch.geometry import apply_h
-from companion.stitch.pairs import PairResult
+from companion.stitch.inputs import CameraModel
+from companion.stitch.pairs import PairResult, RegisteredPairs
+from companion.stitch.priors import PlanePriors
 
 
-@dataclass
+@dataclass(frozen=True)
 class Alignment:
     G: list[np.ndarray | None]  # image-normalised -> plane, None for keyframes that could not be placed
     dropped: dict[int, str]  # keyframe position -> reason
@@ -72,6 +75,34 @@ def _spanning_init(n: int, edges: list[tuple[int, int, np.ndarray, int]], seeds:
     return G
 
 
+_ANCHOR_PTS = np.array([[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3], [0.0, 0.0]])
+# prior residuals: the image centre (where the camera was: GNSS, metres off) and the corners relative to the
+# centre (how the camera was turned: attitude, far better known). Keeping them apart stops position noise from
+# tilting or keystoning the whole map.
+_CENTRE_RELATIVE = np.eye(5)
+_CENTRE_RELATIVE[:4, 4] = -1.0
+_HUBER = 3.0
+
+
+@dataclass(frozen=True)
+class _Observation:
+    """Inlier matches of an accepted pair, image-normalised, in keyframe positions a and b."""
+
+    a: int
+    b: int
+    xa: np.ndarray
+    xb: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Anchor:
+    """Where a keyframe's prior (or the gauge seed) puts the anchor points on the plane, and how firmly."""
+
+    k: int
+    target: np.ndarray  # (5, 2) plane points of _ANCHOR_PTS
+    sigma: np.ndarray  # (5,)
+
+
 def global_alignment(
     n: int,
     pairs: list[PairResult],
@@ -86,6 +117,29 @@ def global_alignment(
 ) -> Alignment:
     """``to_norm`` maps pixels to image-normalised coordinates; ``reference`` places keyframe 0 when no
     keyframe has a telemetry prior (it fixes the gauge)."""
+    edges, obs = _pair_observations(pairs, to_norm)
+    seeds = _seeds(n, priors, edges, reference)
+    G = _spanning_init(n, edges, seeds)
+    dropped = {k: "not connected to the map (no accepted pair) and no telemetry pose" for k in range(n) if G[k] is None}
+    placed = [k for k in range(n) if G[k] is not None]
+    problem = _Problem(
+        col={k: c for c, k in enumerate(placed)},
+        obs=[o for o in obs if G[o.a] is not None and G[o.b] is not None],
+        anchors=_anchors(placed, priors, seeds, sigma_prior_m, sigma_shape_m),
+        sigma_match=sigma_match,
+    )
+    params = np.concatenate([_to_params(G[k]) for k in placed]) if placed else np.zeros(0)
+    params, it, rms0 = _levenberg_marquardt(problem, params, iterations)
+    _, _, _, rms1 = problem.evaluate(params, False)
+    out: list[np.ndarray | None] = [None] * n
+    for k in placed:
+        c = problem.col[k]
+        out[k] = _to_h(params[8 * c : 8 * c + 8])
+    return Alignment(out, dropped, rms0, rms1, it)
+
+
+def _pair_observations(pairs: list[PairResult], to_norm: np.ndarray):
+    """Accepted pairs as graph edges (normalised homography, inlier count) and as matched point sets."""
     from_norm = np.linalg.inv(to_norm)
     edges, obs = [], []
     for r in pairs:
@@ -93,98 +147,114 @@ def global_alignment(
             continue
         Hn = to_norm @ r.H @ from_norm
         edges.append((r.i, r.j, Hn / Hn[2, 2], r.inliers))
-        obs.append((r.i, r.j, apply_h(to_norm, r.pts_i), apply_h(to_norm, r.pts_j)))
-    has_prior = [P is not None for P in priors]
-    dropped: dict[int, str] = {}
-    if any(has_prior):
-        seeds = {k: priors[k] for k in range(n) if has_prior[k]}
-    else:
-        # largest connected component, seeded at its first keyframe
-        comp = _components(n, [(e[0], e[1]) for e in edges])
-        best = max(comp, key=len)
-        seeds = {min(best): reference}
-    G = _spanning_init(n, edges, seeds)
-    for k in range(n):
-        if G[k] is None:
-            dropped[k] = "not connected to the map (no accepted pair) and no telemetry pose"
-    placed = [k for k in range(n) if G[k] is not None]
-    col = {k: c for c, k in enumerate(placed)}
-    obs = [o for o in obs if o[0] in col and o[1] in col]
-    anchor_pts = np.array([[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3], [0.0, 0.0]])
-    # prior residuals: the image centre (where the camera was: GNSS, metres off) and the corners relative to
-    # the centre (how the camera was turned: attitude, far better known). Keeping them apart stops position
-    # noise from tilting or keystoning the whole map.
-    D = np.eye(5)
-    D[:4, 4] = -1.0
+        obs.append(_Observation(r.i, r.j, apply_h(to_norm, r.pts_i), apply_h(to_norm, r.pts_j)))
+    return edges, obs
+
+
+def _seeds(n: int, priors, edges, reference: np.ndarray) -> dict[int, np.ndarray]:
+    """Telemetry places every keyframe with a prior; without any, the largest connected component is seeded at
+    its first keyframe by ``reference``."""
+    if any(P is not None for P in priors):
+        return {k: priors[k] for k in range(n) if priors[k] is not None}
+    best = max(_components(n, [(e[0], e[1]) for e in edges]), key=len)
+    return {min(best): reference}
+
+
+def _anchors(placed: list[int], priors, seeds, sigma_prior_m: float, sigma_shape_m: float) -> list[_Anchor]:
     anchors = []
     for k in placed:
-        if has_prior[k]:
+        if priors[k] is not None:
             sig = np.array([sigma_shape_m] * 4 + [sigma_prior_m])
-            anchors.append((k, apply_h(priors[k], anchor_pts), sig))
+            anchors.append(_Anchor(k, apply_h(priors[k], _ANCHOR_PTS), sig))
         elif k in seeds:
-            anchors.append((k, apply_h(seeds[k], anchor_pts), np.full(5, 1e-6)))  # gauge: pin the seed
-    params = np.concatenate([_to_params(G[k]) for k in placed]) if placed else np.zeros(0)
-    m = len(placed)
+            anchors.append(_Anchor(k, apply_h(seeds[k], _ANCHOR_PTS), np.full(5, 1e-6)))  # gauge: pin the seed
+    return anchors
 
-    def pair_res(pa, pb, xa, xb):
+
+@dataclass(frozen=True)
+class _Problem:
+    """The least-squares problem over the placed keyframes' parameters (8 per keyframe, column ``col[k]``)."""
+
+    col: dict[int, int]
+    obs: list[_Observation]
+    anchors: list[_Anchor]
+    sigma_match: float
+
+    def pair_residual(self, pa: np.ndarray, pb: np.ndarray, xa: np.ndarray, xb: np.ndarray) -> np.ndarray:
         """Transfer error in image b (normalised units): invariant to any common change of all G (no collapse
         towards a smaller map, which a residual measured on the plane would reward)."""
         M = np.linalg.inv(_to_h(pb)) @ _to_h(pa)
-        return (apply_h(M, xa) - xb) / sigma_match
+        return (apply_h(M, xa) - xb) / self.sigma_match
 
-    def evaluate(p, want_jac, huber):
-        cost = 0.0
+    def evaluate(self, p: np.ndarray, want_jac: bool):
+        """Huber cost, normal equations (J^T J, J^T r) when wanted, and the matches' rms transfer error."""
+        m = len(self.col)
         JTJ = np.zeros((8 * m, 8 * m)) if want_jac else None
         JTr = np.zeros(8 * m) if want_jac else None
-        sq_match = []
-        for a, b, xa, xb in obs:
-            for s_, t_, xs, xt in ((a, b, xa, xb), (b, a, xb, xa)):  # both directions: symmetric
-                cs, ct = col[s_], col[t_]
-                ps_, pt_ = p[8 * cs : 8 * cs + 8], p[8 * ct : 8 * ct + 8]
-                r = pair_res(ps_, pt_, xs, xt)
-                nr = np.linalg.norm(r, axis=1)
-                wgt = np.where(nr <= huber, 1.0, huber / np.maximum(nr, 1e-12))
-                cost += float(np.sum(np.where(nr <= huber, nr**2, 2 * huber * nr - huber**2)))
-                sq_match.append((nr * sigma_match) ** 2)
-                if not want_jac:
-                    continue
-                J = np.zeros((len(xs), 2, 16))
-                for q in range(8):  # numerical Jacobian: 16 cheap evaluations per pair direction
-                    e = 1e-6 * max(abs(ps_[q]), 1e-3)
-                    d = ps_.copy()
-                    d[q] += e
-                    J[:, :, q] = (pair_res(d, pt_, xs, xt) - r) / e
-                    e = 1e-6 * max(abs(pt_[q]), 1e-3)
-                    d = pt_.copy()
-                    d[q] += e
-                    J[:, :, 8 + q] = (pair_res(ps_, d, xs, xt) - r) / e
-                JJ = np.einsum("n,npi,npj->ij", wgt, J, J)
-                Jr = np.einsum("n,npi,np->i", wgt, J, r)
-                ss, st = slice(8 * cs, 8 * cs + 8), slice(8 * ct, 8 * ct + 8)
-                JTJ[ss, ss] += JJ[:8, :8]
-                JTJ[st, st] += JJ[8:, 8:]
-                JTJ[ss, st] += JJ[:8, 8:]
-                JTJ[st, ss] += JJ[8:, :8]
-                JTr[ss] += Jr[:8]
-                JTr[st] += Jr[8:]
-        for k, target, sigma in anchors:
-            ck = col[k]
-            u, J = _jac(p[8 * ck : 8 * ck + 8], anchor_pts)
-            r = (D @ (u - target)) / sigma[:, None]
-            cost += float(np.sum(r**2))
-            if want_jac:
-                J = np.einsum("ab,bpi->api", D, J) / sigma[:, None, None]
-                s = slice(8 * ck, 8 * ck + 8)
-                JTJ[s, s] += np.einsum("npi,npj->ij", J, J)
-                JTr[s] += np.einsum("npi,np->i", J, r)
+        cost, sq_match = 0.0, []
+        for o in self.obs:
+            for s_, t_, xs, xt in ((o.a, o.b, o.xa, o.xb), (o.b, o.a, o.xb, o.xa)):  # both directions: symmetric
+                cost += self._add_pair(p, s_, t_, xs, xt, JTJ, JTr, sq_match)
+        for anchor in self.anchors:
+            cost += self._add_anchor(p, anchor, JTJ, JTr)
         rms = float(np.sqrt(np.mean(np.concatenate(sq_match)))) if sq_match else 0.0
         return cost, JTJ, JTr, rms
 
-    huber = 3.0
-    cost, JTJ, JTr, rms0 = evaluate(params, True, huber)
+    def _add_pair(self, p, s_, t_, xs, xt, JTJ, JTr, sq_match) -> float:
+        cs, ct = self.col[s_], self.col[t_]
+        ps_, pt_ = p[8 * cs : 8 * cs + 8], p[8 * ct : 8 * ct + 8]
+        r = self.pair_residual(ps_, pt_, xs, xt)
+        nr = np.linalg.norm(r, axis=1)
+        wgt = np.where(nr <= _HUBER, 1.0, _HUBER / np.maximum(nr, 1e-12))
+        cost = float(np.sum(np.where(nr <= _HUBER, nr**2, 2 * _HUBER * nr - _HUBER**2)))
+        sq_match.append((nr * self.sigma_match) ** 2)
+        if JTJ is None:
+            return cost
+        J = self._pair_jacobian(ps_, pt_, xs, xt, r)
+        JJ = np.einsum("n,npi,npj->ij", wgt, J, J)
+        Jr = np.einsum("n,npi,np->i", wgt, J, r)
+        ss, st = slice(8 * cs, 8 * cs + 8), slice(8 * ct, 8 * ct + 8)
+        JTJ[ss, ss] += JJ[:8, :8]
+        JTJ[st, st] += JJ[8:, 8:]
+        JTJ[ss, st] += JJ[:8, 8:]
+        JTJ[st, ss] += JJ[8:, :8]
+        JTr[ss] += Jr[:8]
+        JTr[st] += Jr[8:]
+        return cost
+
+    def _pair_jacobian(self, ps_, pt_, xs, xt, r) -> np.ndarray:
+        """Numerical Jacobian of the transfer residual: 16 cheap evaluations per pair direction."""
+        J = np.zeros((len(xs), 2, 16))
+        for q in range(8):
+            e = 1e-6 * max(abs(ps_[q]), 1e-3)
+            d = ps_.copy()
+            d[q] += e
+            J[:, :, q] = (self.pair_residual(d, pt_, xs, xt) - r) / e
+            e = 1e-6 * max(abs(pt_[q]), 1e-3)
+            d = pt_.copy()
+            d[q] += e
+            J[:, :, 8 + q] = (self.pair_residual(ps_, d, xs, xt) - r) / e
+        return J
+
+    def _add_anchor(self, p, anchor: _Anchor, JTJ, JTr) -> float:
+        ck = self.col[anchor.k]
+        u, J = _jac(p[8 * ck : 8 * ck + 8], _ANCHOR_PTS)
+        r = (_CENTRE_RELATIVE @ (u - anchor.target)) / anchor.sigma[:, None]
+        if JTJ is not None:
+            J = np.einsum("ab,bpi->api", _CENTRE_RELATIVE, J) / anchor.sigma[:, None, None]
+            s = slice(8 * ck, 8 * ck + 8)
+            JTJ[s, s] += np.einsum("npi,npj->ij", J, J)
+            JTr[s] += np.einsum("npi,np->i", J, r)
+        return float(np.sum(r**2))
+
+
+def _levenberg_marquardt(problem: _Problem, params: np.ndarray, iterations: int) -> tuple[np.ndarray, int, float]:
+    """Damped Gauss-Newton on the problem's normal equations; returns the parameters, the iterations run and
+    the rms transfer error before the first step."""
+    cost, JTJ, JTr, rms0 = problem.evaluate(params, True)
     lam, it = 1e-3, 0
     for it in range(1, iterations + 1):  # noqa: B007
-        if m == 0:
+        if len(problem.col) == 0:
             break
         A = JTJ + lam * np.diag(np.maximum(np.diag(JTJ), 1e-9))
         try:
@@ -193,7 +263,7 @@ def global_alignment(
             lam *= 10
             continue
         new = params + step
-        new_cost, nJTJ, nJTr, _ = evaluate(new, True, huber)
+        new_cost, nJTJ, nJTr, _ = problem.evaluate(new, True)
         if new_cost < cost:
             converged = (cost - new_cost) < 1e-7 * cost
             params, cost, JTJ, JTr = new, new_cost, nJTJ, nJTr
@@ -204,11 +274,7 @@ def global_alignment(
             lam *= 5.0
             if lam > 1e8:
                 break
-    _, _, _, rms1 = evaluate(params, False, huber)
-    out: list[np.ndarray | None] = [None] * n
-    for k in placed:
-        out[k] = _to_h(params[8 * col[k] : 8 * col[k] + 8])
-    return Alignment(out, dropped, rms0, rms1, it)
+    return params, it, rms0
 
 
 def _components(n: int, edges: list[tuple[int, int]]) -> list[set[int]]:
@@ -226,3 +292,83 @@ def _components(n: int, edges: list[tuple[int, int]]) -> list[set[int]]:
     for k in range(n):
         comps.setdefault(find(k), set()).add(k)
     return list(comps.values())
+
+
+@dataclass(frozen=True)
+class AlignmentRound:
+    """One pass of the global alignment: each aligned pair's median residual and the pairs it rejected."""
+
+    transfer_rms_px: float
+    iterations: int
+    pair_residual_px: dict[tuple[int, int], float]  # (position i, position j) -> median transfer error
+    limit_px: float | None
+    rejected: tuple[tuple[int, int], ...]
+
+
+@dataclass(frozen=True)
+class AlignedKeyframes:
+    """The alignment stage's output: each keyframe's homography onto the plane (``alignment.G``) and the pairs
+    after outlier rejection (pairs inconsistent with all the others are marked not accepted, with the reason)."""
+
+    alignment: Alignment
+    pairs: tuple[PairResult, ...]
+    rounds: tuple[AlignmentRound, ...]
+
+    @property
+    def placed(self) -> list[int]:
+        return [k for k, G in enumerate(self.alignment.G) if G is not None]
+
+    @property
+    def accepted(self) -> list[PairResult]:
+        return [r for r in self.pairs if r.accepted]
+
+
+def align_keyframes(
+    pairs: RegisteredPairs, priors: PlanePriors, camera: CameraModel, cfg: StitchConfig, *, max_rounds: int = 4
+) -> AlignedKeyframes:
+    """Global alignment onto the plane; pairs that disagree with all the others after it are dropped and it is
+    re-run (at most ``max_rounds`` alignments; the last round's rejections are reported, not re-aligned)."""
+    to_norm = np.linalg.inv(camera.K)
+    n = len(priors.priors)
+    results = list(pairs.results)
+    rounds = []
+    for _round in range(max_rounds):
+        al = global_alignment(
+            n,
+            results,
+            to_norm,
+            list(priors.priors),
+            priors.reference,
+            sigma_match=pairs.settings.ransac_px / camera.focal_px,
+            sigma_prior_m=cfg.sigma_prior_m,
+            sigma_shape_m=cfg.sigma_shape_m,
+        )
+        errs = _pair_residuals_px(al, results, to_norm, camera.focal_px)
+        limit = max(cfg.max_pair_residual_px, 6.0 * float(np.median(list(errs.values())))) if errs else None
+        bad = [k for k, e in errs.items() if e > limit] if errs else []
+        rounds.append(
+            AlignmentRound(
+                al.final_rms * camera.focal_px,
+                al.iterations,
+                {(results[k].i, results[k].j): e for k, e in errs.items()},
+                limit,
+                tuple((results[k].i, results[k].j) for k in bad),
+            )
+        )
+        if not bad:
+            break
+        for k in bad:
+            why = f"inconsistent with the other pairs after global alignment ({errs[k]:.1f} px)"
+            results[k] = replace(results[k], accepted=False, reason=why)
+    return AlignedKeyframes(al, tuple(results), tuple(rounds))
+
+
+def _pair_residuals_px(al: Alignment, results: list[PairResult], to_norm: np.ndarray, focal_px: float):
+    """Median transfer error (px) of every accepted pair whose keyframes were both placed, by list position."""
+    errs = {}
+    for k, r in enumerate(results):
+        if r.accepted and al.G[r.i] is not None and al.G[r.j] is not None:
+            M = np.linalg.inv(al.G[r.j]) @ al.G[r.i]
+            e = apply_h(M, apply_h(to_norm, r.pts_i)) - apply_h(to_norm, r.pts_j)
+            errs[k] = float(np.median(np.linalg.norm(e, axis=1))) * focal_px
+    return errs

@@ -48,6 +48,7 @@ def register(sub) -> None:
                    help="reject matches this far from telemetry")
     p.add_argument("--stride", type=int, default=1, help="recording input: use every N-th frame")
     p.add_argument("--tile-px", type=int, default=defaults.tile_px, help="render tile size (bounds memory)")
+    p.add_argument("--debug-dir", default=None, help="also dump what each stage decided here (docs/STITCH.md)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
     view_command.register(sub)  # `companion view MAPDIR`: the map's viewer
@@ -94,13 +95,19 @@ def run(args) -> int:
     cfg = _config(args)
     if args.follow:
         res = follow(
-            args.spool, args.out, cfg, poll_s=args.poll_s, idle_timeout_s=args.idle_timeout_s, progress=not args.quiet
+            args.spool,
+            args.out,
+            cfg,
+            poll_s=args.poll_s,
+            idle_timeout_s=args.idle_timeout_s,
+            progress=not args.quiet,
+            debug_dir=args.debug_dir,
         )
         if res is None:
             raise CompanionError("no map was made: fewer than 2 keyframes arrived", "check that the gate is running")
     else:
         inp = load_input(args.spool, **({"stride": args.stride} if args.stride != 1 else {}))
-        res = stitch(inp, args.out, cfg, progress=not args.quiet)
+        res = stitch(inp, args.out, cfg, progress=not args.quiet, debug_dir=args.debug_dir)
     _print(res)
     if args.quiet:
         print(json.dumps({"coverage": res.coverage_fraction, "mm_per_px": res.mm_per_px}))

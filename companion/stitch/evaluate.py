@@ -9,6 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from companion.matching import make_matcher, ransac_homography, ratio_test_matches
 from companion.stitch.render import MapGrid
 
 
@@ -145,13 +146,12 @@ def register_to_truth(image: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray,
     k2, d2 = sift.detectAndCompute(g2, None)
     if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
         return None
-    knn = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64}).knnMatch(d1, d2, k=2)
-    good = [m[0] for m in knn if len(m) == 2 and m[0].distance < 0.75 * m[1].distance]
-    if len(good) < 8:
+    q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
+    if len(q1) < 8:
         return None
-    p1 = np.float32([k1[m.queryIdx].pt for m in good])
-    p2 = np.float32([k2[m.trainIdx].pt for m in good])
-    H, inl = cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 3.0)
+    p1 = np.float32([k1[i].pt for i in q1])
+    p2 = np.float32([k2[i].pt for i in t2])
+    H, inl = ransac_homography(p1, p2, method=cv2.USAC_MAGSAC, threshold_px=3.0, max_iters=2000, confidence=0.995)
     if H is None or inl.sum() < 8:
         return None
     size = (truth.shape[1], truth.shape[0])

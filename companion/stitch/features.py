@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -17,10 +18,14 @@ import numpy as np
 from companion.errors import CompanionError
 from companion.files import atomic_path
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
-from companion.stitch.inputs import KeyframeInput
+from companion.progress import progress_bar
+from companion.stitch.config import StitchConfig
+from companion.stitch.inputs import KeyframeInput, SkippedKeyframe, StitchInput
+
+log = logging.getLogger(__name__)
 
 
-@dataclass
+@dataclass(frozen=True)
 class Features:
     keypoints: np.ndarray  # (N, 2) float32 full-resolution pixel coordinates
     descriptors: np.ndarray  # (N, 128) float32
@@ -152,3 +157,62 @@ def cached_features(
     with atomic_path(path) as tmp:
         np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size), lum=feats.luminance)
     return feats
+
+
+@dataclass(frozen=True)
+class KeyframeFeatures:
+    """The features stage's output: the usable keyframes (``input.keyframes``; damaged ones moved to
+    ``input.skipped``), their features and cache keys, position for position."""
+
+    input: StitchInput
+    features: tuple[Features, ...]
+    keys: tuple[str, ...]
+
+
+def find_features(inp: StitchInput, cfg: StitchConfig, cache_dir: Path, *, progress: bool) -> KeyframeFeatures:
+    """Features inside the ROI of every keyframe; a keyframe whose files are damaged, or whose size is not the
+    camera's, is left out and named (not fatal). No usable keyframe at all is an error naming the first reasons."""
+    settings = detect_settings(cfg.work_width, cfg.max_features, cfg.contrast_threshold, cfg.equalize)
+    feats, keys, usable, skipped = [], [], [], list(inp.skipped)
+    for kf in progress_bar(inp.keyframes, desc="features", disable=not progress, leave=False, unit="it"):
+        try:
+            f = cached_features(
+                kf,
+                cache_dir,
+                work_width=cfg.work_width,
+                max_features=cfg.max_features,
+                contrast_threshold=cfg.contrast_threshold,
+                equalize=cfg.equalize,
+            )
+        except CompanionError as exc:
+            skipped.append(SkippedKeyframe(kf.index, exc.problem))
+            continue
+        except OSError as exc:
+            skipped.append(SkippedKeyframe(kf.index, f"cannot read its files ({exc})"))
+            continue
+        size_problem = _size_problem(f, inp)
+        if size_problem:
+            skipped.append(SkippedKeyframe(kf.index, size_problem))
+            continue
+        feats.append(f)
+        keys.append(feature_key(kf, settings))
+        usable.append(kf)
+    for sk in skipped:
+        log.warning("%s", sk.warning())
+    if not usable:
+        reasons = "; ".join(sk.warning() for sk in skipped[:3]) + ("; ..." if len(skipped) > 3 else "")
+        raise CompanionError(
+            f"no usable keyframe is left: {reasons}",
+            "check the spool's frames/ directory (complete JPEG/PNG files, masks of the image size)",
+        )
+    return KeyframeFeatures(replace(inp, keyframes=usable, skipped=tuple(skipped)), tuple(feats), tuple(keys))
+
+
+def _size_problem(f: Features, inp: StitchInput) -> str:
+    W, H = inp.camera.width, inp.camera.height
+    if f.image_size == (W, H):
+        return ""
+    return (
+        f"image is {f.image_size[0]}x{f.image_size[1]}, the camera's are {W}x{H} "
+        "(all keyframes of one stitch come from one camera mode)"
+    )

@@ -32,6 +32,7 @@ def follow(
     progress: bool = False,
     on_update: Callable[[StitchResult], None] | None = None,
     sleep: Callable[[float], None] = time.sleep,
+    debug_dir: str | Path | None = None,
 ) -> StitchResult | None:
     """Stitches every time ``min_new`` keyframes have arrived; returns the last result (None if never >= 2)."""
     spool = Path(spool)
@@ -49,7 +50,7 @@ def follow(
         if n > done_n:
             last_change = time.monotonic()
         if n >= 2 and (n - done_n >= min_new or (closed and n > done_n)):
-            last = stitch(inp, out_dir, config, progress=progress)
+            last = stitch(inp, out_dir, config, progress=progress, debug_dir=debug_dir)
             done_n = n
             log.info("map updated: %d keyframes, coverage %.1f %%", n, 100 * last.coverage_fraction)
             if on_update:

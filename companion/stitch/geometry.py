@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pymap3d
 
+from companion.polygons import polygon_area
 from companion.stitch.inputs import CameraPose, FacadeGeometry
 
 
@@ -64,9 +65,5 @@ def is_sane_homography(H: np.ndarray, corners: np.ndarray, *, max_area_ratio: fl
     if not (np.all(s_out == s_out[0]) and s_out[0] == s_in[0]):
         return False
 
-    def area(poly):
-        x, y = poly[:, 0], poly[:, 1]
-        return 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-
-    ratio = area(p) / max(area(corners), 1e-12)
+    ratio = polygon_area(p) / max(polygon_area(corners), 1e-12)
     return bool(1.0 / max_area_ratio < ratio < max_area_ratio)

@@ -14,6 +14,7 @@ import numpy as np
 from companion.errors import CompanionError
 from companion.files import atomic_path, write_atomic
 from companion.stitch.render import MapGrid
+from companion.wall_footprint import corner_footprint, facade_from_enu
 
 
 @dataclass(frozen=True)
@@ -276,23 +277,19 @@ def keyframe_footprints(inp) -> list[KeyframeFootprint]:
     if inp.camera is None or inp.facade is None:
         return []
     frame = inp.facade.frame
-    K_inv = np.linalg.inv(inp.camera.K)
-    w, h = inp.camera.width, inp.camera.height
-    corners = np.array([[0.0, 0.0, 1.0], [w, 0.0, 1.0], [w, h, 1.0], [0.0, h, 1.0]])
-    de, dn = frame.along_enu
-    oe, on = frame.out_enu
-    enu_to_facade = np.array([[de, dn, 0.0], [oe, on, 0.0], [0.0, 0.0, 1.0]])
+    rotate = facade_from_enu(frame)
     out = []
     for kf in inp.keyframes:
         if kf.pose is None:
             continue
-        a0, o0, u0 = (float(v) for v in frame.geodetic_to_facade(kf.pose.lat, kf.pose.lon, kf.pose.alt_amsl_m))
-        rays = (enu_to_facade @ kf.pose.R_enu_from_cam @ (K_inv @ corners.T)).T  # (along, out, up) directions
-        if np.any(rays[:, 1] >= -1e-9) or o0 <= 0:  # a corner ray that never reaches the wall
+        centre = np.array([float(v) for v in frame.geodetic_to_facade(kf.pose.lat, kf.pose.lon, kf.pose.alt_amsl_m)])
+        corners = corner_footprint(
+            inp.camera.K, inp.camera.width, inp.camera.height, centre, rotate @ kf.pose.R_enu_from_cam
+        )
+        if corners is None:  # a corner ray that never reaches the wall
             continue
-        t = -o0 / rays[:, 1]
-        pts = [(a0 + ti * r[0], u0 + ti * r[2]) for ti, r in zip(t, rays, strict=True)]
-        out.append(KeyframeFootprint(kf.index, kf.image_path.name, tuple(pts)))
+        pts = tuple((float(a), float(u)) for a, u in corners)
+        out.append(KeyframeFootprint(kf.index, kf.image_path.name, pts))
     return out
 
 

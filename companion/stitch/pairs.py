@@ -7,19 +7,25 @@ dropped before RANSAC, and a model that moves the image more than that from wher
 
 from __future__ import annotations
 
+import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from companion.errors import CompanionError
 from companion.files import atomic_path
-from companion.stitch.features import Features
+from companion.matching import make_matcher, ransac_affine, ransac_homography, ratio_test_matches
+from companion.progress import progress_bar
+from companion.stitch.config import StitchConfig
+from companion.stitch.features import Features, KeyframeFeatures
 from companion.stitch.geometry import apply_h, is_sane_homography
+from companion.stitch.priors import PlanePriors
 
 
-@dataclass
+@dataclass(frozen=True)
 class PairResult:
     i: int  # position in the keyframe list (not the spool index)
     j: int
@@ -90,6 +96,32 @@ def candidate_pairs(
     return sorted(pairs)
 
 
+@dataclass(frozen=True)
+class _Matches:
+    """Ratio-test matches of a pair: full-resolution points in both keyframes and the grey level at each."""
+
+    pts_i: np.ndarray
+    pts_j: np.ndarray
+    lum_i: np.ndarray
+    lum_j: np.ndarray
+    distinctive: int  # matches that passed the ratio test (before the telemetry gate)
+
+    def subset(self, keep: np.ndarray) -> _Matches:
+        return _Matches(self.pts_i[keep], self.pts_j[keep], self.lum_i[keep], self.lum_j[keep], self.distinctive)
+
+
+@dataclass(frozen=True)
+class _PairPrior:
+    """The telemetry of both keyframes: keyframe pixels -> plane metres for each."""
+
+    plane_from_px_i: np.ndarray
+    plane_from_px_j: np.ndarray
+
+    def gap_m(self, pts_i: np.ndarray, pts_j: np.ndarray) -> np.ndarray:
+        """How far apart on the wall telemetry puts each pair of points."""
+        return np.linalg.norm(apply_h(self.plane_from_px_i, pts_i) - apply_h(self.plane_from_px_j, pts_j), axis=1)
+
+
 def match_pair(
     i: int,
     j: int,
@@ -104,76 +136,90 @@ def match_pair(
     """Registers keyframe i onto keyframe j. Priors are image-normalised -> plane homographies."""
     if len(fi.keypoints) < settings.min_inliers_affine or len(fj.keypoints) < settings.min_inliers_affine:
         return PairResult(i, j, False, "none", "too few features inside the ROI masks")
-    matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": 64})
-    knn = matcher.knnMatch(fi.descriptors, fj.descriptors, k=2)
-    good = [m[0] for m in knn if len(m) == 2 and m[0].distance < settings.ratio * m[1].distance]
-    if len(good) < settings.min_inliers_affine:
-        return PairResult(i, j, False, "none", f"only {len(good)} distinctive matches", matches=len(good))
-    qi, tj = np.array([m.queryIdx for m in good]), np.array([m.trainIdx for m in good])
-    pi = fi.keypoints[qi].astype(np.float64)
-    pj = fj.keypoints[tj].astype(np.float64)
-    li = fi.luminance[qi].astype(np.float64)
-    lj = fj.luminance[tj].astype(np.float64)
-    gated = prior_i is not None and prior_j is not None and pixel_to_norm is not None
-    if gated:
-        wi = apply_h(prior_i @ pixel_to_norm, pi)
-        wj = apply_h(prior_j @ pixel_to_norm, pj)
-        keep = np.linalg.norm(wi - wj, axis=1) < settings.pose_gate_m
-        pi, pj, li, lj = pi[keep], pj[keep], li[keep], lj[keep]
-        if len(pi) < settings.min_inliers_affine:
-            return PairResult(
-                i,
-                j,
-                False,
-                "none",
-                "matches contradict telemetry (repetitive pattern or no overlap)",
-                matches=len(good),
-            )
+    # FLANN's randomised kd-trees and RANSAC both draw from OpenCV's RNG: seeded per pair, so the same keyframes
+    # always give the same map, whatever ran before (earlier pairs, pairs taken from the cache in follow mode)
+    cv2.setRNGSeed(1000003 * i + j)
+    found = _distinctive_matches(fi, fj, settings.ratio)
+    n_good = found.distinctive
+    if n_good < settings.min_inliers_affine:
+        return PairResult(i, j, False, "none", f"only {n_good} distinctive matches", matches=n_good)
+    prior = None
+    if prior_i is not None and prior_j is not None and pixel_to_norm is not None:
+        prior = _PairPrior(prior_i @ pixel_to_norm, prior_j @ pixel_to_norm)
+        found = found.subset(prior.gap_m(found.pts_i, found.pts_j) < settings.pose_gate_m)
+        if len(found.pts_i) < settings.min_inliers_affine:
+            why = "matches contradict telemetry (repetitive pattern or no overlap)"
+            return PairResult(i, j, False, "none", why, matches=n_good)
     w, h = fi.image_size
     corners = np.array([[0, 0], [w, 0], [w, h], [0, h]], dtype=float)
-    model, H, inl = "none", None, None
-    cv2.setRNGSeed(1000003 * i + j)  # RANSAC draws: the same keyframes always give the same map
-    if len(pi) >= settings.min_inliers:
-        Hh, m = cv2.findHomography(pi, pj, cv2.USAC_MAGSAC, settings.ransac_px, maxIters=5000, confidence=0.999)
-        if (
-            Hh is not None
-            and m is not None
-            and int(m.sum()) >= settings.min_inliers
-            and is_sane_homography(Hh, corners)
-            and _spread(pi[m.ravel().astype(bool)], w, h) >= settings.min_inlier_area
-        ):
-            model, H, inl = "homography", Hh, m.ravel().astype(bool)
+    cv2.setRNGSeed(1000003 * i + j)  # RANSAC's draws as well
+    model, H, inl = _fit_model(found.pts_i, found.pts_j, corners, settings, (w, h))
     if H is None:
-        # degenerate for a homography (few/collinear inliers, implausible warp): a 6-dof affine is still safe
-        A, m = cv2.estimateAffine2D(pi, pj, method=cv2.RANSAC, ransacReprojThreshold=settings.ransac_px)
-        if A is not None and m is not None and int(m.sum()) >= settings.min_inliers_affine:
-            Ha = np.vstack((A, [0.0, 0.0, 1.0]))
-            if (
-                is_sane_homography(Ha, corners)
-                and _spread(pi[m.ravel().astype(bool)], w, h) >= settings.min_inlier_area
-            ):
-                model, H, inl = "affine", Ha, m.ravel().astype(bool)
-    if H is None:
-        return PairResult(i, j, False, "none", "no consistent homography or affine model", matches=len(good))
-    pi, pj = pi[inl], pj[inl]
-    ok = (li[inl] > 5) & (lj[inl] > 5)  # log of near-black is noise
-    lum_ratio = float(np.median(np.log(li[inl][ok] / lj[inl][ok]))) if ok.sum() >= 5 else None
-    err = np.linalg.norm(apply_h(H, pi) - pj, axis=1)
-    rms = float(np.sqrt(np.mean(err**2)))
-    if gated:
-        moved = np.linalg.norm(
-            apply_h(prior_j @ pixel_to_norm, apply_h(H, pi)) - apply_h(prior_i @ pixel_to_norm, pi), axis=1
-        )
-        # and where it puts the image corners (an extrapolating model, e.g. from a repeated ledge, fails here)
-        moved_c = np.linalg.norm(
-            apply_h(prior_j @ pixel_to_norm, apply_h(H, corners)) - apply_h(prior_i @ pixel_to_norm, corners), axis=1
-        )
-        if float(np.median(moved)) > settings.pose_gate_m or float(moved_c.max()) > 2 * settings.pose_gate_m:
-            return PairResult(i, j, False, model, "model contradicts telemetry", len(good), len(pi), rms)
+        return PairResult(i, j, False, "none", "no consistent homography or affine model", matches=n_good)
+    inliers = found.subset(inl)
+    pi, pj = inliers.pts_i, inliers.pts_j
+    rms = float(np.sqrt(np.mean(np.linalg.norm(apply_h(H, pi) - pj, axis=1) ** 2)))
+    if prior is not None and _model_contradicts(prior, H, pi, corners, settings.pose_gate_m):
+        return PairResult(i, j, False, model, "model contradicts telemetry", n_good, len(pi), rms)
     if len(pi) > settings.max_points:
         sel = np.random.default_rng(i * 100003 + j).choice(len(pi), settings.max_points, replace=False)
         pi, pj = pi[sel], pj[sel]
-    return PairResult(i, j, True, model, "", len(good), int(inl.sum()), rms, H, pi, pj, lum_ratio)
+    return PairResult(i, j, True, model, "", n_good, int(inl.sum()), rms, H, pi, pj, _exposure_ratio(inliers))
+
+
+def _distinctive_matches(fi: Features, fj: Features, ratio: float) -> _Matches:
+    qi, tj = ratio_test_matches(make_matcher("flann"), fi.descriptors, fj.descriptors, ratio)
+    return _Matches(
+        fi.keypoints[qi].astype(np.float64),
+        fj.keypoints[tj].astype(np.float64),
+        fi.luminance[qi].astype(np.float64),
+        fj.luminance[tj].astype(np.float64),
+        len(qi),
+    )
+
+
+def _fit_model(
+    pi: np.ndarray, pj: np.ndarray, corners: np.ndarray, settings: PairSettings, size: tuple[int, int]
+) -> tuple[str, np.ndarray | None, np.ndarray | None]:
+    """A homography (MAGSAC) where it is well supported; else a 6-dof affine, still safe where the inliers are
+    few or collinear or the homography's warp is implausible. Each must keep the image sane and its inliers
+    spread over it (clustered inliers make the model an extrapolation)."""
+    w, h = size
+
+    def plausible(H: np.ndarray | None, inl: np.ndarray, min_count: int) -> bool:
+        return (
+            H is not None
+            and int(inl.sum()) >= min_count
+            and is_sane_homography(H, corners)
+            and _spread(pi[inl], w, h) >= settings.min_inlier_area
+        )
+
+    if len(pi) >= settings.min_inliers:
+        H, inl = ransac_homography(
+            pi, pj, method=cv2.USAC_MAGSAC, threshold_px=settings.ransac_px, max_iters=5000, confidence=0.999
+        )
+        if plausible(H, inl, settings.min_inliers):
+            return "homography", H, inl
+    A, inl = ransac_affine(pi, pj, threshold_px=settings.ransac_px, partial=False)
+    if plausible(A, inl, settings.min_inliers_affine):
+        return "affine", A, inl
+    return "none", None, None
+
+
+def _model_contradicts(prior: _PairPrior, H: np.ndarray, pts_i: np.ndarray, corners: np.ndarray, gate_m: float) -> bool:
+    """The model moves the inliers (median), or the image corners (an extrapolating model, e.g. from a repeated
+    ledge, fails here), further on the wall than telemetry allows."""
+    moved = prior.gap_m(pts_i, apply_h(H, pts_i))
+    moved_corners = prior.gap_m(corners, apply_h(H, corners))
+    return float(np.median(moved)) > gate_m or float(moved_corners.max()) > 2 * gate_m
+
+
+def _exposure_ratio(inliers: _Matches) -> float | None:
+    """Median log grey-level ratio at the inliers (relative exposure); near-black levels are noise."""
+    ok = (inliers.lum_i > 5) & (inliers.lum_j > 5)
+    if ok.sum() < 5:
+        return None
+    return float(np.median(np.log(inliers.lum_i[ok] / inliers.lum_j[ok])))
 
 
 def _spread(pts: np.ndarray, w: int, h: int) -> float:
@@ -199,9 +245,58 @@ def load_pair(path: Path) -> PairResult | None:
         z = np.load(path)
         d = json.loads(str(z["summary"]))
         r = PairResult(**d)
-        if r.accepted:
-            r.H, r.pts_i, r.pts_j = z["H"], z["pts_i"], z["pts_j"]
-        return r
+        return replace(r, H=z["H"], pts_i=z["pts_i"], pts_j=z["pts_j"]) if r.accepted else r
     except (OSError, ValueError, KeyError, TypeError):
         path.unlink(missing_ok=True)
         return None
+
+
+@dataclass(frozen=True)
+class RegisteredPairs:
+    """The pairs stage's output: every candidate pair tried, accepted or with the reason it was not."""
+
+    results: tuple[PairResult, ...]
+    settings: PairSettings
+
+    @property
+    def accepted(self) -> list[PairResult]:
+        return [r for r in self.results if r.accepted]
+
+
+def register_pairs(
+    found: KeyframeFeatures, priors: PlanePriors, cfg: StitchConfig, cache_dir: Path, *, progress: bool
+) -> RegisteredPairs:
+    """Registers the candidate pairs (sequence neighbours and telemetry-overlapping keyframes), each cached on
+    disk under a key of both keyframes' features and the settings, so a resumed or follow-mode run re-matches
+    only new pairs. Without telemetry, no registered pair at all is an error (nothing could place the images)."""
+    cam = found.input.camera
+    W, H = cam.width, cam.height
+    to_norm = np.linalg.inv(cam.K)
+    settings = PairSettings(
+        ratio=cfg.ratio,
+        ransac_px=cfg.ransac_threshold_px(W),
+        min_inliers=cfg.min_inliers,
+        pose_gate_m=cfg.pose_gate_m,
+    )
+    corners = np.array([[-W / 2, -H / 2], [W / 2, -H / 2], [W / 2, H / 2], [-W / 2, H / 2]]) / cam.focal_px
+    n = len(found.features)
+    candidates = candidate_pairs(n, list(priors.priors), corners, neighbours=cfg.neighbours)
+    gate_tag = f"{priors.use_poses}-{settings}"
+    kfs, feats, keys, P = found.input.keyframes, found.features, found.keys, priors.priors
+    results = []
+    for i, j in progress_bar(candidates, desc="matching", disable=not progress, leave=False, unit="it"):
+        tag = hashlib.sha1(f"{keys[i]}|{keys[j]}|{gate_tag}".encode()).hexdigest()[:16]
+        path = cache_dir / f"{kfs[i].index:06d}-{kfs[j].index:06d}-{tag}.npz"
+        r = load_pair(path)
+        if r is None:
+            r = match_pair(
+                i, j, feats[i], feats[j], settings=settings, prior_i=P[i], prior_j=P[j], pixel_to_norm=to_norm
+            )
+            save_pair(path, r)
+        results.append(replace(r, i=i, j=j))  # the cache names spool indices; positions may have moved
+    if n >= 2 and not any(r.accepted for r in results) and not priors.use_poses:
+        raise CompanionError(
+            "no two keyframes could be registered (no shared features inside the ROI masks)",
+            "check that keyframes overlap (gate threshold) and that the masks keep the facade",
+        )
+    return RegisteredPairs(tuple(results), settings)

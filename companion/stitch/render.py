@@ -313,9 +313,6 @@ def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
     return cv2.convertScaleAbs(out), covered
 
 
-RENDERERS = ("warp", "pullback")
-
-
 def render_tile(
     x0: int,
     y0: int,

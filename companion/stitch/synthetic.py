@@ -148,31 +148,14 @@ def make_spool(
     (out / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     camera = CameraModel.from_hfov(width, height, hfov_deg)
-    start = GeoPoint(37.56650, 126.97800, 30.0)
-    _, end_lon, _ = pymap3d.enu2geodetic(wall.length_m, 0.0, 0.0, start.lat, start.lon, start.alt_amsl_m)
-    end_lon = float(end_lon)
-    frame = FacadeFrame.from_wall(start, GeoPoint(start.lat, end_lon, 30.0))
-    if texture is None:
-        texture = make_texture(wall)
-    else:
-        want = (
-            round(wall.height_m * 1000 / wall.texture_mm_per_px),
-            round(wall.length_m * 1000 / wall.texture_mm_per_px),
-        )
-        if abs(texture.shape[0] - want[0]) > 1 or abs(texture.shape[1] - want[1]) > 1:
-            raise ValueError(f"texture is {texture.shape[1]}x{texture.shape[0]} px, the wall needs {want[1]}x{want[0]}")
+    frame = _wall_frame(wall)
+    texture = make_texture(wall) if texture is None else _checked_texture(texture, wall)
     bg = _background(seed) if background else None
     fw = standoff_m * width / camera.focal_px
     fh = standoff_m * height / camera.focal_px
-    step_a, step_u = fw * (1 - overlap), fh * (1 - overlap)
-    alongs = np.arange(fw / 2 - margin_m, wall.length_m - fw / 2 + margin_m + 1e-6, step_a)
-    if alongs[-1] < wall.length_m - fw / 2 + margin_m - 1e-6:
-        alongs = np.append(alongs, wall.length_m - fw / 2 + margin_m)
-    ups = np.arange(fh / 2 - margin_m, wall.height_m - fh / 2 + margin_m + 1e-6, step_u)
-    if ups[-1] < wall.height_m - fh / 2 + margin_m - 1e-6:
-        ups = np.append(ups, wall.height_m - fh / 2 + margin_m)
-    views = []
-    lines = []
+    alongs = _centres(wall.length_m, fw, overlap, margin_m)
+    ups = _centres(wall.height_m, fh, overlap, margin_m)
+    views, lines = [], []
     for c, al in enumerate(alongs):  # vertical strips, up then down (the planner's 'vertical' pattern)
         for up in ups if c % 2 == 0 else ups[::-1]:
             k = len(views)
@@ -196,43 +179,82 @@ def make_spool(
             cv2.imwrite(str(out / f"frames/{k:06d}_mask.png"), mask)
             pose = None
             if with_poses:
-                na, nu, no = rng.normal(0, pose_noise_m, 3) if pose_noise_m else (0.0, 0.0, 0.0)
-                lat, lon, alt = frame.facade_to_geodetic(al + na, standoff_m + no, up + nu)
-                pose = {
-                    "lat": float(lat),
-                    "lon": float(lon),
-                    "alt_amsl_m": float(alt),
-                    "roll_deg": 0.0,
-                    "pitch_deg": pitch + (float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0),
-                    "yaw_deg": (
-                        frame.yaw_facing_wall_deg
-                        + yaw_off
-                        + (float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0)
-                    )
-                    % 360.0,
-                }
-            lines.append(
-                json.dumps(
-                    {
-                        "index": k,
-                        "image": name,
-                        "mask": f"frames/{k:06d}_mask.png",
-                        "pose": pose,
-                        "overlap_to_previous": None if k == 0 else round(overlap * 100, 1),
-                    }
-                )
-            )
+                true_pose = (float(al), standoff_m, float(up), pitch, yaw_off)
+                pose = _telemetry_pose(rng, frame, true_pose, pose_noise_m, yaw_noise_deg)
+            entry = {
+                "index": k,
+                "image": name,
+                "mask": f"frames/{k:06d}_mask.png",
+                "pose": pose,
+                "overlap_to_previous": None if k == 0 else round(overlap * 100, 1),
+            }
+            lines.append(json.dumps(entry))
             views.append({"along_m": float(al), "up_m": float(up)})
-    spool_meta = {
+    (out / META).write_text(json.dumps(_spool_meta(frame, wall, width, height, hfov_deg, standoff_m), indent=1))
+    (out / MANIFEST).write_text("\n".join(lines) + "\n")
+    return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}
+
+
+_WALL_START = GeoPoint(37.56650, 126.97800, 30.0)
+
+
+def _wall_end(wall: SyntheticWall) -> GeoPoint:
+    """The end of a west->east wall of the wall's length from a fixed start (flown from the south)."""
+    start = _WALL_START
+    _, end_lon, _ = pymap3d.enu2geodetic(wall.length_m, 0.0, 0.0, start.lat, start.lon, start.alt_amsl_m)
+    return GeoPoint(start.lat, float(end_lon), 30.0)
+
+
+def _wall_frame(wall: SyntheticWall) -> FacadeFrame:
+    return FacadeFrame.from_wall(_WALL_START, _wall_end(wall))
+
+
+def _checked_texture(texture: np.ndarray, wall: SyntheticWall) -> np.ndarray:
+    want = (
+        round(wall.height_m * 1000 / wall.texture_mm_per_px),
+        round(wall.length_m * 1000 / wall.texture_mm_per_px),
+    )
+    if abs(texture.shape[0] - want[0]) > 1 or abs(texture.shape[1] - want[1]) > 1:
+        raise ValueError(f"texture is {texture.shape[1]}x{texture.shape[0]} px, the wall needs {want[1]}x{want[0]}")
+    return texture
+
+
+def _centres(extent_m: float, footprint_m: float, overlap: float, margin_m: float) -> np.ndarray:
+    """Frame centres along one axis: ``overlap`` between neighbours, the last frame ``margin_m`` past the end."""
+    first, last = footprint_m / 2 - margin_m, extent_m - footprint_m / 2 + margin_m
+    centres = np.arange(first, last + 1e-6, footprint_m * (1 - overlap))
+    if centres[-1] < last - 1e-6:
+        centres = np.append(centres, last)
+    return centres
+
+
+def _telemetry_pose(rng, frame: FacadeFrame, true_pose, pose_noise_m: float, yaw_noise_deg: float) -> dict:
+    """The spool's pose record of a camera at facade (along, out, up) with (pitch, yaw offset), as a GNSS/IMU
+    would report it: position and attitude with Gaussian noise."""
+    along, out, up, pitch, yaw_off = true_pose
+    na, nu, no = rng.normal(0, pose_noise_m, 3) if pose_noise_m else (0.0, 0.0, 0.0)
+    lat, lon, alt = frame.facade_to_geodetic(along + na, out + no, up + nu)
+    pitch_noise = float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0
+    yaw_noise = float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0
+    return {
+        "lat": float(lat),
+        "lon": float(lon),
+        "alt_amsl_m": float(alt),
+        "roll_deg": 0.0,
+        "pitch_deg": pitch + pitch_noise,
+        "yaw_deg": (frame.yaw_facing_wall_deg + yaw_off + yaw_noise) % 360.0,
+    }
+
+
+def _spool_meta(frame: FacadeFrame, wall: SyntheticWall, width, height, hfov_deg, standoff_m) -> dict:
+    start, end = frame.origin, _wall_end(wall)
+    return {
         "camera": {"width_px": width, "height_px": height, "hfov_deg": hfov_deg},
         "facade": {
             "start": {"lat": start.lat, "lon": start.lon},
-            "end": {"lat": start.lat, "lon": end_lon},
+            "end": {"lat": start.lat, "lon": end.lon},
             "ground_alt_amsl_m": 30.0,
             "height_m": wall.height_m,
         },
         "standoff_m": standoff_m,
     }
-    (out / META).write_text(json.dumps(spool_meta, indent=1))
-    (out / MANIFEST).write_text("\n".join(lines) + "\n")
-    return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}

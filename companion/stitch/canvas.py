@@ -1,0 +1,155 @@
+"""The render stage: every placed keyframe drawn onto the map, tile by tile, in memory or as tile files.
+
+Tiles are drawn in the order the render plan (``render_plan.py``) finds cheapest for the keyframe cache, each
+with only the keyframes that reach it; a map larger than ``max_in_memory_px`` is written only as tile PNGs (BGR
++ coverage as alpha), and a preview at most ``preview_width`` wide is kept either way.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.progress import progress_bar
+from companion.stitch.align import AlignedKeyframes
+from companion.stitch.config import StitchConfig
+from companion.stitch.exposure import apply_gain, apply_gain_numpy, solve_gains
+from companion.stitch.features import load_image_and_mask, load_mask
+from companion.stitch.inputs import StitchInput
+from companion.stitch.layout import MapLayout
+from companion.stitch.render import PlacedKeyframe, SourceCache, drawable, render_tile
+from companion.stitch.render_plan import plan_render
+
+Tile = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class RenderedMap:
+    """The render stage's output. ``canvas``/``coverage`` only when the map fits in memory (else ``tiles_dir``)."""
+
+    canvas: np.ndarray | None  # BGR
+    coverage: np.ndarray | None  # 0/255
+    preview: np.ndarray  # BGR, ``preview_scale`` x the map
+    coverage_preview: np.ndarray  # 0/255
+    preview_scale: float
+    covered_px: int  # map pixels drawn
+    tiles_dir: Path | None
+    gains: np.ndarray  # per keyframe position: exposure gain applied
+    info: dict  # renderer, tiles, keyframe decodes (and the plan's figures)
+
+
+@dataclass(frozen=True)
+class _TileSchedule:
+    tiles: list[Tile]  # in drawing order
+    drawn: dict[Tile, list[PlacedKeyframe]]  # the keyframes each tile draws
+    cache_schedule: list[int] | None  # every keyframe request in order (the cache evicts by next use)
+    planned: dict
+
+
+def render_map(
+    inp: StitchInput, aligned: AlignedKeyframes, layout: MapLayout, cfg: StitchConfig, out: Path, *, progress: bool
+) -> RenderedMap:
+    kfs = inp.keyframes
+    W, H = inp.camera.width, inp.camera.height
+    gains = solve_gains(len(kfs), aligned.accepted) if cfg.gain_compensation else np.ones(len(kfs))
+    legacy = cfg.renderer == "pullback"  # the render stage as it was before the OpenCV renderer (reference)
+
+    def load(k):
+        img, mask = load_image_and_mask(kfs[k])
+        return (apply_gain_numpy if legacy else apply_gain)(img, float(gains[k])), mask
+
+    def weight_of(k):
+        return drawable(load_mask(kfs[k], (W, H)))[1]
+
+    # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB
+    cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
+    schedule = _schedule(layout, cfg, weight_of, cache_size, legacy)
+    sources = SourceCache(load, size=cache_size, schedule=schedule.cache_schedule)
+    sink = _MapSink(layout, cfg, out / "tiles")
+    for x0, y0 in progress_bar(schedule.tiles, desc="render", disable=not progress, leave=False, unit="it"):
+        w, h = min(cfg.tile_px, layout.grid.width - x0), min(cfg.tile_px, layout.grid.height - y0)
+        near = schedule.drawn[(x0, y0)]
+        img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
+        sink.put(x0, y0, img, cov)
+    info = {
+        "renderer": cfg.renderer,
+        "tiles": len(schedule.tiles),
+        "keyframe_decodes": sources.decoded,
+        **schedule.planned,
+    }
+    return sink.finish(gains, info)
+
+
+def _schedule(layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, legacy: bool) -> _TileSchedule:
+    """Which tiles, in which order, each drawing which keyframes. The reference renderer draws row by row with
+    every keyframe whose box reaches the tile; the plan skips keyframes whose seam weight loses everywhere."""
+    gw, gh = layout.grid.width, layout.grid.height
+    order = sorted(layout.placed.values(), key=lambda p: p.bbox[0])
+    needs, planned = None, {}
+    if legacy:
+        tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
+    else:
+        plan = plan_render(order, weight_of, gw, gh, cfg.tile_px, cfg.feather_px, cache_size)
+        tiles, needs = plan.order, plan.needs
+        per_tile = [len(v) for v in needs.values() if v]
+        planned = {
+            "planned_decodes": plan.decodes,
+            "keyframes_per_tile": {"max": max(per_tile, default=0), "mean": round(float(np.mean(per_tile or [0])), 2)},
+        }
+    drawn: dict[Tile, list[PlacedKeyframe]] = {}
+    for x0, y0 in tiles:
+        w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
+        near = [p for p in order if p.bbox[0] < x0 + w and p.bbox[2] > x0 and p.bbox[1] < y0 + h and p.bbox[3] > y0]
+        drawn[(x0, y0)] = near if needs is None else [p for p in near if p.position in needs[(x0, y0)]]
+    # with the plan, the cache knows every request ahead and keeps what is needed soonest
+    cache_schedule = None if legacy else [p.position for tile in tiles for p in drawn[tile]]
+    return _TileSchedule(tiles, drawn, cache_schedule, planned)
+
+
+class _MapSink:
+    """Where rendered tiles go: the in-memory map or tile files, and always the preview and the coverage count."""
+
+    def __init__(self, layout: MapLayout, cfg: StitchConfig, tiles_dir: Path):
+        gw, gh = layout.grid.width, layout.grid.height
+        self.in_memory = gw * gh <= cfg.max_in_memory_px
+        self.canvas = np.zeros((gh, gw, 3), np.uint8) if self.in_memory else None
+        self.coverage = np.zeros((gh, gw), np.uint8) if self.in_memory else None
+        self.scale = min(1.0, cfg.preview_width / gw)
+        self.pw, self.ph = max(1, round(gw * self.scale)), max(1, round(gh * self.scale))
+        self.preview = np.zeros((self.ph, self.pw, 3), np.uint8)
+        self.coverage_preview = np.zeros((self.ph, self.pw), np.uint8)
+        self.tiles_dir = tiles_dir
+        self.covered_px = 0
+
+    def put(self, x0: int, y0: int, img: np.ndarray, cov: np.ndarray) -> None:
+        h, w = cov.shape
+        self.covered_px += int(np.count_nonzero(cov))  # the grid is the region measured (facade or content)
+        if self.in_memory:
+            self.canvas[y0 : y0 + h, x0 : x0 + w] = img
+            self.coverage[y0 : y0 + h, x0 : x0 + w] = cov
+        else:
+            self.tiles_dir.mkdir(exist_ok=True)
+            cv2.imwrite(str(self.tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"), cv2.merge((img, cov)))
+        ps = self.scale
+        px0, py0 = round(x0 * ps), round(y0 * ps)
+        px1, py1 = min(self.pw, round((x0 + w) * ps)), min(self.ph, round((y0 + h) * ps))
+        if px1 > px0 and py1 > py0:
+            size = (px1 - px0, py1 - py0)
+            self.preview[py0:py1, px0:px1] = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+            self.coverage_preview[py0:py1, px0:px1] = cv2.resize(cov, size, interpolation=cv2.INTER_AREA)
+
+    def finish(self, gains: np.ndarray, info: dict) -> RenderedMap:
+        return RenderedMap(
+            self.canvas,
+            self.coverage,
+            self.preview,
+            self.coverage_preview,
+            self.scale,
+            self.covered_px,
+            None if self.in_memory else self.tiles_dir,
+            gains,
+            info,
+        )

@@ -1,0 +1,42 @@
+"""What the stitcher can be told: one frozen settings record read by every stage (and the CLI's defaults)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+RENDERERS = ("warp", "pullback")  # "warp": per-cell cv2.warpPerspective; "pullback": the per-pixel numpy reference
+
+
+@dataclass(frozen=True)
+class StitchConfig:
+    work_width: int = 1600  # SIFT runs on a copy this wide (4K keyframes are downscaled for features only)
+    max_features: int = 4000
+    contrast_threshold: float = 0.01  # SIFT; OpenCV's 0.04 finds too little on plain walls (the gate's setting)
+    equalize: bool = True  # CLAHE before SIFT, as the gate: plain cladding gives many more matchable features
+    neighbours: int = 2  # sequence neighbours matched besides telemetry-overlapping keyframes
+    ratio: float = 0.75
+    ransac_px: float | None = None  # default: 0.4 % of the image width, at least 2 px
+    min_inliers: int = 15
+    max_pair_residual_px: float = 8.0  # a pair still this far off after global alignment is an outlier
+    pose_gate_m: float = 1.0  # matches/models landing further apart than this on the wall contradict telemetry
+    use_poses: bool = True
+    sigma_prior_m: float = 0.5  # how far GNSS may put an image centre off on the wall
+    sigma_shape_m: float = 0.05  # how far attitude/range errors may bend an image's corners (relative to centre)
+    local: bool = True  # APAP mesh; False draws each keyframe with its global homography only
+    cells: tuple[int, int] = (16, 9)  # Cx x Cy
+    rho_px: float | None = None  # Eq. 4 scale; default 10 % of the image width
+    gamma: float = 0.01  # weight floor: far cells fall back to the global homography
+    mm_per_px: float | None = None  # map scale; default the keyframes' median native resolution
+    max_map_px: float = 4e8  # refuse absurd map sizes (bad scale) before allocating anything
+    tile_px: int = 1024
+    max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
+    feather_px: float = 4.0
+    renderer: str = "warp"  # one of RENDERERS
+    gain_compensation: bool = True
+    preview_width: int = 3000
+    min_uncovered_m2: float = 0.02
+    uncovered_cell_m: float = 0.1  # holes are reported on this grid (re-fly planning, not pixel accuracy)
+
+    def ransac_threshold_px(self, image_width: int) -> float:
+        """The pairwise RANSAC threshold in full-resolution pixels (also the alignment's match sigma)."""
+        return self.ransac_px or max(2.0, 0.004 * image_width)

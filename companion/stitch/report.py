@@ -1,0 +1,244 @@
+"""The report stage: what the map covers, where it is still open, and one ``StitchReport`` of every stage.
+
+``report.json`` is ``StitchReport.as_dict()``: the keyframes used, skipped and dropped (with reasons), every pair
+tried, the alignment's residuals before and after the mesh (px, and mm where the scale is known), the map's
+grid, coverage and uncovered areas (the re-fly input), exposure gains, per-stage timings and the files written.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.errors import CompanionError
+from companion.files import atomic_path
+from companion.stitch.align import AlignedKeyframes
+from companion.stitch.canvas import RenderedMap
+from companion.stitch.config import StitchConfig
+from companion.stitch.geometry import apply_h
+from companion.stitch.inputs import StitchInput
+from companion.stitch.layout import MapLayout
+from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
+from companion.stitch.pairs import PairResult
+from companion.stitch.render import PlacedKeyframe
+
+
+@dataclass(frozen=True)
+class MapCoverage:
+    fraction: float  # share of the map's grid (the facade, or the content without telemetry) drawn
+    uncovered: list[UncoveredArea]
+
+
+def measure_coverage(rendered: RenderedMap, layout: MapLayout, cfg: StitchConfig) -> MapCoverage:
+    """Coverage of the grid, and its holes on a coarse grid (from the preview when the map is only tiles)."""
+    grid = layout.grid
+    if rendered.coverage is not None:
+        cov = rendered.coverage
+    else:
+        cov = np.where(rendered.coverage_preview > 127, 255, 0).astype(np.uint8)
+    sc = cov.shape[1] / grid.width
+    holes = uncovered_areas(
+        cov,
+        grid,
+        (0, 0, int(round(grid.width * sc)), int(round(grid.height * sc))),
+        cell_m=cfg.uncovered_cell_m if layout.scale_known else 16 * grid.m_per_px,
+        min_area_m2=cfg.min_uncovered_m2 if layout.scale_known else 0.0,
+    )
+    return MapCoverage(rendered.covered_px / max(1, grid.width * grid.height), holes)
+
+
+def write_map_images(out: Path, rendered: RenderedMap, layout: MapLayout, coverage: MapCoverage) -> dict[str, str]:
+    """map.png + coverage.png (or the tiles and a coverage preview) and the preview with a scale bar and the
+    uncovered areas in red; each written under a temporary name and renamed, so a file is whole or absent."""
+    files = {}
+    if rendered.canvas is not None:
+        files["map"] = _write_image(out / "map.png", rendered.canvas)
+        files["coverage"] = _write_image(out / "coverage.png", rendered.coverage)
+    else:
+        files["tiles"] = str(rendered.tiles_dir)
+        files["coverage_preview"] = _write_image(out / "coverage_preview.png", rendered.coverage_preview)
+    m_per_preview_px = layout.grid.m_per_px / rendered.preview_scale if layout.scale_known else None
+    files["preview"] = _write_image(
+        out / "map_preview.jpg",
+        draw_scale_bar(annotate_uncovered(rendered.preview, layout.grid, coverage.uncovered), m_per_preview_px),
+    )
+    return files
+
+
+def _write_image(path: Path, img: np.ndarray) -> str:
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), img):
+            raise CompanionError(f"cannot write {path}", "check free disk space and permissions of --out")
+    return str(path)
+
+
+@dataclass(frozen=True)
+class StitchRun:
+    """Every stage's output of one stitch, as the report reads them."""
+
+    input: StitchInput  # the usable keyframes (damaged ones in ``skipped``)
+    config: StitchConfig
+    use_poses: bool
+    aligned: AlignedKeyframes
+    layout: MapLayout
+    rendered: RenderedMap
+    timing_s: dict[str, float]
+
+
+@dataclass(frozen=True)
+class StitchReport:
+    """``report.json``; field order is the file's key order."""
+
+    source: str
+    keyframes_in: int
+    keyframes_used: list[int]
+    keyframes_skipped: list[dict]
+    keyframes_dropped: list[dict]
+    warnings: list[str]
+    telemetry_prior: bool
+    pairs_tried: int
+    pairs_accepted: int
+    pairs_affine_fallback: int
+    pairs_rejected: list[dict]
+    pairs: list[dict]
+    alignment: dict
+    map: dict
+    coverage_fraction: float
+    gains: dict[int, float]
+    uncovered_areas_m: list[dict]
+    timing_s: dict[str, float]
+    files: dict[str, str]
+    config: dict
+    render: dict
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+def build_report(run: StitchRun, coverage: MapCoverage, files: dict[str, str]) -> StitchReport:
+    inp, al, layout = run.input, run.aligned.alignment, run.layout
+    kfs = inp.keyframes
+    pairs, glob, loc = _pair_entries(run)
+    mm = layout.mm_per_px
+    dropped = [{"index": kfs[k].index, "reason": why} for k, why in sorted(al.dropped.items())]
+    dropped += [
+        {"index": kfs[k].index, "reason": "outside the map"}
+        for k in range(len(kfs))
+        if k not in layout.placed and k not in al.dropped
+    ]
+    results = run.aligned.pairs
+    return StitchReport(
+        source=inp.source,
+        keyframes_in=len(kfs) + len(inp.skipped),
+        keyframes_used=[kfs[k].index for k in sorted(layout.placed)],
+        keyframes_skipped=[sk.as_dict() for sk in inp.skipped],
+        keyframes_dropped=dropped,
+        warnings=[sk.warning() for sk in inp.skipped],
+        telemetry_prior=run.use_poses,
+        pairs_tried=len(results),
+        pairs_accepted=sum(r.accepted for r in results),
+        pairs_affine_fallback=sum(r.accepted and r.model == "affine" for r in results),
+        pairs_rejected=[p for p in pairs if not p["accepted"]],
+        pairs=[p for p in pairs if p["accepted"]],
+        alignment={
+            "iterations": al.iterations,
+            "transfer_rms_before_px": round(al.initial_rms * inp.camera.focal_px, 3),
+            "transfer_rms_after_px": round(al.final_rms * inp.camera.focal_px, 3),
+            "global_residual_px": _stats(glob),
+            "global_residual_mm": _in_mm(_stats(glob), mm),
+            "local_residual_px": _stats(loc),
+            "local_residual_mm": _in_mm(_stats(loc), mm),
+        },
+        map=_map_section(layout, run.rendered, run.use_poses),
+        coverage_fraction=round(coverage.fraction, 4),
+        gains={kfs[k].index: round(float(run.rendered.gains[k]), 4) for k in layout.placed},
+        uncovered_areas_m=[a.as_dict() for a in coverage.uncovered],
+        timing_s=run.timing_s,
+        files=files,
+        config=asdict(run.config),
+        render=run.rendered.info,
+    )
+
+
+def _pair_entries(run: StitchRun) -> tuple[list[dict], list[float], list[float]]:
+    """One entry per pair tried; for aligned pairs the median residual of its matches on the map after the
+    global homographies and after the mesh, whose values also go into the overall statistics."""
+    kfs, cam = run.input.keyframes, run.input.camera
+    placed, G = run.layout.placed, run.aligned.alignment.G
+    to_norm = np.linalg.inv(cam.K)
+    px_per_unit = 1.0 / run.layout.grid.m_per_px
+    glob, loc, entries = [], [], []
+    for r in run.aligned.pairs:
+        entry = pair_summary(r, kfs)
+        if not r.accepted:
+            entry["reason"] = r.reason
+        elif r.i in placed and r.j in placed:
+            g = np.linalg.norm(apply_h(G[r.i] @ to_norm, r.pts_i) - apply_h(G[r.j] @ to_norm, r.pts_j), axis=1)
+            g = g * px_per_unit
+            lo = np.linalg.norm(
+                forward_points(placed[r.i], r.pts_i, cam.width, cam.height)
+                - forward_points(placed[r.j], r.pts_j, cam.width, cam.height),
+                axis=1,
+            )
+            glob.extend(g.tolist())
+            loc.extend(lo.tolist())
+            entry["global_residual_px"] = round(float(np.median(g)), 3)
+            entry["local_residual_px"] = round(float(np.median(lo)), 3)
+        entries.append(entry)
+    return entries, glob, loc
+
+
+def pair_summary(r: PairResult, kfs) -> dict:
+    """A pair as the report lists it: spool indices, outcome, model, matches, inliers, RANSAC rms."""
+    return {
+        "a": kfs[r.i].index,
+        "b": kfs[r.j].index,
+        "accepted": r.accepted,
+        "model": r.model,
+        "matches": r.matches,
+        "inliers": r.inliers,
+        "ransac_rms_px": None if r.rms_px is None else round(r.rms_px, 3),
+    }
+
+
+def _map_section(layout: MapLayout, rendered: RenderedMap, use_poses: bool) -> dict:
+    grid, mm = layout.grid, layout.mm_per_px
+    return {
+        "width_px": grid.width,
+        "height_px": grid.height,
+        "mm_per_px": None if mm is None else round(mm, 4),
+        "along_m": [round(grid.along0_m, 3), round(grid.along0_m + grid.width * grid.m_per_px, 3)],
+        "up_m": [round(grid.up_top_m - grid.height * grid.m_per_px, 3), round(grid.up_top_m, 3)],
+        "in_memory": rendered.canvas is not None,
+        "rectified_to_facade": use_poses,
+    }
+
+
+def forward_points(pk: PlacedKeyframe, pts: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Keyframe pixels -> map pixels through the mesh cell that contains each point."""
+    cy, cx = pk.src_px.shape[0] - 1, pk.src_px.shape[1] - 1
+    c = np.clip((pts[:, 0] / (width / cx)).astype(int), 0, cx - 1)
+    r = np.clip((pts[:, 1] / (height / cy)).astype(int), 0, cy - 1)
+    Hf = np.linalg.inv(pk.cell_inv[r * cx + c])
+    q = np.einsum("nij,nj->ni", Hf, np.column_stack((pts, np.ones(len(pts)))))
+    return q[:, :2] / q[:, 2:3]
+
+
+def _stats(v: list[float] | np.ndarray) -> dict:
+    a = np.asarray(v, dtype=float)
+    if a.size == 0:
+        return {"median": None, "p95": None, "max": None}
+    return {
+        "median": round(float(np.median(a)), 3),
+        "p95": round(float(np.percentile(a, 95)), 3),
+        "max": round(float(a.max()), 3),
+    }
+
+
+def _in_mm(stats_px: dict, mm_per_px: float | None) -> dict | None:
+    if not mm_per_px:
+        return None
+    return {k: (None if v is None else round(v * mm_per_px, 3)) for k, v in stats_px.items()}

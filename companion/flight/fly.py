@@ -354,6 +354,97 @@ def plan_flight_parameters(plan, autopilot: str) -> dict[str, float]:
     return {}
 
 
+def _check_flight_options(end_action: str, link_loss_s: float, link_dead_s: float, stop_wait_s: float) -> None:
+    """Refuse option values no flight can be supervised with, before anything connects."""
+    if end_action not in ("rtl", "land"):
+        raise CompanionError(f"end_action {end_action!r} is not 'rtl' or 'land'", "use end_action='rtl'")
+    for name, value in (("link_loss_s", link_loss_s), ("link_dead_s", link_dead_s), ("stop_wait_s", stop_wait_s)):
+        if not value > 0:
+            raise CompanionError(f"{name} must be positive, got {value}", f"give {name} in seconds, e.g. 60")
+    if link_dead_s <= link_loss_s:
+        raise CompanionError(f"the dead-link limit ({link_dead_s:g} s) must be longer than the link-loss threshold "
+                             f"({link_loss_s:g} s)", "raise --link-dead or lower --link-loss")
+
+
+async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: float,
+                           flight_parameters: Mapping[str, float] | None, lost_link_action: str | None,
+                           return_alt: str | float | None) -> tuple[dict[str, float], list[str], int]:
+    """Everything before arming: upload + verify, arming mode, health, home, failsafe, parameters, first item.
+
+    Returns the parameters to set for the flight, the failsafe warnings and the item the mission starts from.
+    """
+    # upload before the health wait, once the vehicle is up: a mission it refuses is an error at once, not
+    # after its EKF converged (real ArduCopter SITL: about 40 s after boot)
+    if not await wait_initialised(vehicle, health_timeout_s):
+        log.warning("no SYS_STATUS within %g s: uploading anyway", health_timeout_s)
+    await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
+    await select_arming_mode(vehicle)
+    await wait_healthy(vehicle, health_timeout_s, when_only_armable_missing=lambda: select_arming_mode(vehicle))
+    if getattr(plan, "home", None) is not None:
+        await check_home(vehicle, plan.home)
+    overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
+                                                return_alt=return_alt)
+    wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
+    wanted.update(flight_parameters or {})
+    wanted.update(overrides)
+    first_seq = await start_from_first_item(vehicle)
+    return wanted, warnings, first_seq
+
+
+async def _arm_and_start(vehicle: Vehicle, rec: TelemetryRecorder, first_seq: int) -> None:
+    """Arm from a mode that allows it (quoting the firmware's refusal) and start the mission; disarm if refused."""
+    if not await select_arming_mode(vehicle):
+        log.warning("the vehicle did not confirm the switch to %s before arming",
+                    "GUIDED" if vehicle.autopilot == "ardupilot" else "Hold")
+    await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
+    log.info("armed; starting the mission at item %d", first_seq)
+    try:
+        await _retry("mission start", vehicle.mission.start_mission)
+    except CompanionError:
+        with contextlib.suppress(Exception):
+            await vehicle.action.disarm()
+        raise
+
+
+async def _handle_ending(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, params: FlightParameters,
+                         reason: str | None, stop_wait_s: float) -> None:
+    """Act on why supervision ended: a dead link, a refused start (an error), or a stop request (RTL + wait)."""
+    if reason == "link":
+        params.unreachable = "the link is dead"
+    if reason == "refused":
+        if rec.state["armed"]:
+            try:
+                await vehicle.action.disarm()
+            except Exception as exc:
+                log.error("could not disarm the refused vehicle: %s", exc)
+        raise CompanionError(sup.problem or "the vehicle refused the mission start",
+                             "fix what the vehicle reports (e.g. move the mission inside its geofence, or "
+                             "check the mission's feasibility on the ground station), then retry")
+    if reason == "signal":
+        await sup._rtl_and_wait(timeout_s=stop_wait_s)
+
+
+def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, params: FlightParameters, items,
+                   reason: str | None, duration_s: float, telemetry_log: Path | str | None,
+                   warnings: list[str]) -> FlightResult:
+    """The flight's outcome, read after the recorder has closed (its exit flushes the last rows)."""
+    st = rec.state
+    landed, disarmed = st["in_air"] is False, st["armed"] is False
+    total = len(items)
+    problem = sup.problem
+    if params.restore_failures:
+        text = "parameters not restored: " + ", ".join(params.restore_failures)
+        problem = f"{problem}; {text}" if problem else text
+    return FlightResult(
+        completed=reason is None and problem is None and landed and disarmed and sup.max_reached >= total,
+        landed=landed, disarmed=disarmed, aborted=reason, items_total=total,
+        items_reached=sup.max_reached, autopilot=vehicle.autopilot,
+        duration_s=duration_s, telemetry_samples=rec.samples,
+        link_losses=sup.link_losses, telemetry_log=Path(telemetry_log) if telemetry_log else None,
+        status_texts=list(rec.status_texts), problem=problem, waypoints_total=sup.progress.total,
+        waypoints_reached=sup.progress.done, parameter_changes=list(params.applied), warnings=warnings)
+
+
 async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log: Path | str | None = None,
                       autopilot: str = "auto", connect_timeout_s: float = 10.0,
                       health_timeout_s: float = DEFAULT_HEALTH_TIMEOUT_S, link_loss_s: float = 3.0,
@@ -374,14 +465,7 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
     link: ``aborted`` and ``problem`` say which). Raises CompanionError for anything that prevents the flight from
     starting, including a start the vehicle refuses.
     """
-    if end_action not in ("rtl", "land"):
-        raise CompanionError(f"end_action {end_action!r} is not 'rtl' or 'land'", "use end_action='rtl'")
-    for name, value in (("link_loss_s", link_loss_s), ("link_dead_s", link_dead_s), ("stop_wait_s", stop_wait_s)):
-        if not value > 0:
-            raise CompanionError(f"{name} must be positive, got {value}", f"give {name} in seconds, e.g. 60")
-    if link_dead_s <= link_loss_s:
-        raise CompanionError(f"the dead-link limit ({link_dead_s:g} s) must be longer than the link-loss threshold "
-                             f"({link_loss_s:g} s)", "raise --link-dead or lower --link-loss")
+    _check_flight_options(end_action, link_loss_s, link_dead_s, stop_wait_s)
     vehicle = await connect(connect_url, timeout_s=connect_timeout_s, autopilot=autopilot)
     loop = asyncio.get_running_loop()
     installed: list[int] = []
@@ -389,21 +473,9 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
     try:
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
-        # upload before the health wait, once the vehicle is up: a mission it refuses is an error at once, not
-        # after its EKF converged (real ArduCopter SITL: about 40 s after boot)
-        if not await wait_initialised(vehicle, health_timeout_s):
-            log.warning("no SYS_STATUS within %g s: uploading anyway", health_timeout_s)
-        await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
-        await select_arming_mode(vehicle)
-        await wait_healthy(vehicle, health_timeout_s, when_only_armable_missing=lambda: select_arming_mode(vehicle))
-        if getattr(plan, "home", None) is not None:
-            await check_home(vehicle, plan.home)
-        overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
-                                                    return_alt=return_alt)
-        wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
-        wanted.update(flight_parameters or {})
-        wanted.update(overrides)
-        first_seq = await start_from_first_item(vehicle)
+        wanted, warnings, first_seq = await _prepare_vehicle(
+            vehicle, plan, items, health_timeout_s=health_timeout_s, flight_parameters=flight_parameters,
+            lost_link_action=lost_link_action, return_alt=return_alt)
         async with FlightParameters(vehicle.param, wanted) as params, \
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None,
                                   planned_gimbal=PlannedGimbal.from_items(items)) as rec:
@@ -415,49 +487,12 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
                         loop.add_signal_handler(sig, sup.on_signal)
                         installed.append(sig)
-            if not await select_arming_mode(vehicle):
-                log.warning("the vehicle did not confirm the switch to %s before arming",
-                            "GUIDED" if vehicle.autopilot == "ardupilot" else "Hold")
-            await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
-            log.info("armed; starting the mission at item %d", first_seq)
-            try:
-                await _retry("mission start", vehicle.mission.start_mission)
-            except CompanionError:
-                with contextlib.suppress(Exception):
-                    await vehicle.action.disarm()
-                raise
+            await _arm_and_start(vehicle, rec, first_seq)
             sup.t0 = time.monotonic()
             reason = await sup.run()
-            if reason == "link":
-                params.unreachable = "the link is dead"
-            if reason == "refused":
-                if rec.state["armed"]:
-                    try:
-                        await vehicle.action.disarm()
-                    except Exception as exc:
-                        log.error("could not disarm the refused vehicle: %s", exc)
-                raise CompanionError(sup.problem or "the vehicle refused the mission start",
-                                     "fix what the vehicle reports (e.g. move the mission inside its geofence, or "
-                                     "check the mission's feasibility on the ground station), then retry")
-            if reason == "signal":
-                await sup._rtl_and_wait(timeout_s=stop_wait_s)
+            await _handle_ending(vehicle, sup, rec, params, reason, stop_wait_s)
             duration_s = time.monotonic() - sup.t0
-        # read after the recorder has closed: its exit flushes the last rows, and the count must match the file
-        st = rec.state
-        landed, disarmed = st["in_air"] is False, st["armed"] is False
-        total = len(items)
-        problem = sup.problem
-        if params.restore_failures:
-            text = "parameters not restored: " + ", ".join(params.restore_failures)
-            problem = f"{problem}; {text}" if problem else text
-        return FlightResult(
-            completed=reason is None and problem is None and landed and disarmed and sup.max_reached >= total,
-            landed=landed, disarmed=disarmed, aborted=reason, items_total=total,
-            items_reached=sup.max_reached, autopilot=vehicle.autopilot,
-            duration_s=duration_s, telemetry_samples=rec.samples,
-            link_losses=sup.link_losses, telemetry_log=Path(telemetry_log) if telemetry_log else None,
-            status_texts=list(rec.status_texts), problem=problem, waypoints_total=sup.progress.total,
-            waypoints_reached=sup.progress.done, parameter_changes=list(params.applied), warnings=warnings)
+        return _flight_result(vehicle, sup, rec, params, items, reason, duration_s, telemetry_log, warnings)
     finally:
         for sig in installed:
             loop.remove_signal_handler(sig)

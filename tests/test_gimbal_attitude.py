@@ -122,3 +122,34 @@ def test_pose_json_round_trip_keeps_unknown_gimbal_unknown():
                   gimbal_source=GimbalSource.TELEMETRY)
     assert Pose.from_json(json.loads(json.dumps(tilted.to_json()))) == tilted
     assert tilted.camera_angles() == (93.0, -20.0, 0.0)
+
+
+def test_a_tilted_camera_mission_stitches_where_the_camera_looked(tmp_path):
+    """The whole stitcher, not just its prior: after image matching and global alignment each keyframe's image
+    centre lands on the wall where the tilted camera really looked (standoff * tan 20 deg below the camera). With
+    the old level-camera assumption the map put every keyframe about 1.5 m too high."""
+    from companion.stitch.worker import Stitcher
+    from sim.camera.recording import load_recording
+
+    mission = _tilted_mission(tmp_path)
+    rec_dir, spool_dir, out = tmp_path / "rec", tmp_path / "spool", tmp_path / "map"
+    assert main(["record", str(mission), "--out", str(rec_dir), "--fast", "--width", "320",
+                 "--max-frames", "60", "--stride", "5"]) == 0
+    assert main(["cull", str(rec_dir / "frames"), "--telemetry", str(rec_dir / "telemetry.jsonl"),
+                 "--out", str(spool_dir), "--mission", str(mission), "--no-mask"]) == 0
+    recording, inp = load_recording(rec_dir), load_spool(spool_dir)
+    stitcher = Stitcher(progress=False)
+    out.mkdir()
+    found = stitcher.features(inp, out)
+    priors = stitcher.priors(found)
+    aligned = stitcher.alignment(found, priors, stitcher.pairs(found, priors, out))
+    assert len(aligned.placed) == len(inp.keyframes) >= 5 and len(aligned.accepted) >= len(inp.keyframes) - 1
+    for k in aligned.placed:
+        kf = inp.keyframes[k]
+        centre = aligned.alignment.G[k] @ np.array([0.0, 0.0, 1.0])  # image-normalised centre -> wall metres
+        along, up = centre[:2] / centre[2]
+        truth = recording.camera_pose(kf.index)
+        cam_along, cam_out, cam_up = (float(v) for v in inp.facade.frame.geodetic_to_facade(
+            truth.lat, truth.lon, truth.alt_amsl_m))
+        assert cam_up - up == pytest.approx(cam_out * np.tan(np.radians(-TILT_DEG)), abs=0.1), (kf.index, up)
+        assert abs(along - cam_along) < 0.1, (kf.index, along, cam_along)

@@ -104,3 +104,20 @@ def test_fly_refuses_a_capture_it_cannot_run_before_anything_starts(tmp_path, ca
     assert cli.main(["fly", "demo-facade", "--capture", "sim", "--out", str(tmp_path / "spool")]) == 2
     assert "--capture sim needs --sitl" in capsys.readouterr().err
     assert not (tmp_path / "spool").exists()
+
+
+def test_fly_option_defaults_are_the_flight_librarys_defaults():
+    """`companion fly`'s defaults come from companion.flight.limits, the same object fly_mission's keywords read."""
+    import inspect
+
+    from companion.flight.fly import fly_mission
+    from companion.flight.limits import FLIGHT_DEFAULTS
+
+    fly = subcommands(cli.build_parser())["fly"]
+    options = {a.dest: a.default for a in fly._actions}  # noqa: SLF001 (test only)
+    pairs = {"connect": "connect_url", "connect_timeout": "connect_timeout_s", "health_timeout": "health_timeout_s",
+             "link_loss": "link_loss_s", "link_dead": "link_dead_s", "timeout": "flight_timeout_s",
+             "rate": "telemetry_rate_hz", "end_action": "end_action", "stop_wait": "stop_wait_s"}
+    keywords = inspect.signature(fly_mission).parameters
+    for option, field in pairs.items():
+        assert options[option] == getattr(FLIGHT_DEFAULTS, field) == keywords[field].default, option

@@ -26,7 +26,6 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from companion.flight.connection import (
-    DEFAULT_HEALTH_TIMEOUT_S,
     Vehicle,
     check_home,
     connect,
@@ -35,6 +34,7 @@ from companion.flight.connection import (
     wait_initialised,
 )
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
+from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
 from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item
@@ -445,12 +445,17 @@ def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, p
         waypoints_reached=sup.progress.done, parameter_changes=list(params.applied), warnings=warnings)
 
 
-async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log: Path | str | None = None,
-                      autopilot: str = "auto", connect_timeout_s: float = 10.0,
-                      health_timeout_s: float = DEFAULT_HEALTH_TIMEOUT_S, link_loss_s: float = 3.0,
-                      link_dead_s: float = 60.0, flight_timeout_s: float = 1800.0, telemetry_rate_hz: float = 10.0,
-                      end_action: str = "rtl", progress: bool = True, handle_signals: bool = True,
-                      stop_wait_s: float = 180.0, flight_parameters: Mapping[str, float] | None = None,
+async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
+                      telemetry_log: Path | str | None = None, autopilot: str = "auto",
+                      connect_timeout_s: float = FLIGHT_DEFAULTS.connect_timeout_s,
+                      health_timeout_s: float = FLIGHT_DEFAULTS.health_timeout_s,
+                      link_loss_s: float = FLIGHT_DEFAULTS.link_loss_s,
+                      link_dead_s: float = FLIGHT_DEFAULTS.link_dead_s,
+                      flight_timeout_s: float = FLIGHT_DEFAULTS.flight_timeout_s,
+                      telemetry_rate_hz: float = FLIGHT_DEFAULTS.telemetry_rate_hz,
+                      end_action: str = FLIGHT_DEFAULTS.end_action, progress: bool = True, handle_signals: bool = True,
+                      stop_wait_s: float = FLIGHT_DEFAULTS.stop_wait_s,
+                      flight_parameters: Mapping[str, float] | None = None,
                       lost_link_action: str | None = None, return_alt: str | float | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
@@ -501,6 +506,6 @@ async def fly_mission(plan, connect_url: str = "udp://:14540", *, telemetry_log:
         vehicle.close()
 
 
-def fly_mission_sync(plan, connect_url: str = "udp://:14540", **kwargs) -> FlightResult:
+def fly_mission_sync(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, **kwargs) -> FlightResult:
     """Blocking wrapper of :func:`fly_mission` for callers without an event loop."""
     return asyncio.run(fly_mission(plan, connect_url, **kwargs))

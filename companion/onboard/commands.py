@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.flight.limits import FlightLimits
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
 from companion.plugins import SitlRequest
@@ -22,20 +23,22 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _register_fly(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fly", help="upload, verify and fly a facade mission through mavsdk (PX4 or ArduPilot)")
     p.add_argument("mission", type=mission_argument, help="mission YAML (e.g. missions/demo-facade.yaml)")
-    p.add_argument("--connect", default="udp://:14540",
+    p.add_argument("--connect", default=FlightLimits.connect_url,
                    help="MAVLink address: udp://:14540 (PX4 SITL), tcpout://127.0.0.1:5760 (ArduPilot SITL), "
                         "serial:///dev/ttyACM0:921600")
     p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
                    help="autopilot behaviour to expect (auto: from its heartbeat); with --sitl also the simulator's")
     p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
-    p.add_argument("--connect-timeout", type=float, default=10.0, help="seconds to wait for a heartbeat")
-    p.add_argument("--health-timeout", type=float, default=120.0,
+    p.add_argument("--connect-timeout", type=float, default=FlightLimits.connect_timeout_s,
+                   help="seconds to wait for a heartbeat")
+    p.add_argument("--health-timeout", type=float, default=FlightLimits.health_timeout_s,
                    help="seconds to wait for GPS/home/pre-arm (ArduCopter's EKF needs 35-40 s after boot)")
-    p.add_argument("--link-loss", type=float, default=3.0, help="seconds without telemetry that count as lost")
-    p.add_argument("--link-dead", type=float, default=60.0,
+    p.add_argument("--link-loss", type=float, default=FlightLimits.link_loss_s,
+                   help="seconds without telemetry that count as lost")
+    p.add_argument("--link-dead", type=float, default=FlightLimits.link_dead_s,
                    help="seconds without telemetry after which supervision ends as failed (the vehicle's "
                         "failsafe flies on)")
-    p.add_argument("--stop-wait", type=float, default=180.0,
+    p.add_argument("--stop-wait", type=float, default=FlightLimits.stop_wait_s,
                    help="after Ctrl-C (RTL): seconds to wait at most for landed + disarmed")
     p.add_argument("--lost-link-action", choices=["rtl", "land"],
                    help="set the firmware's lost-link failsafe for this flight (PX4 NAV_DLL_ACT, ArduPilot "
@@ -45,9 +48,10 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
                         "the plan's transit altitude or wall top + roof margin; restored after")
     p.add_argument("--set-param", action="append", default=[], metavar="NAME=VALUE",
                    help="set an autopilot parameter for this flight only (restored after; repeatable)")
-    p.add_argument("--timeout", type=float, default=1800.0, help="RTL if the flight takes longer (seconds)")
-    p.add_argument("--rate", type=float, default=ScanFlight.telemetry_rate_hz, help="telemetry rate to request, Hz")
-    p.add_argument("--end-action", choices=["rtl", "land"], default="rtl",
+    p.add_argument("--timeout", type=float, default=FlightLimits.flight_timeout_s,
+                   help="RTL if the flight takes longer (seconds)")
+    p.add_argument("--rate", type=float, default=FlightLimits.telemetry_rate_hz, help="telemetry rate to request, Hz")
+    p.add_argument("--end-action", choices=["rtl", "land"], default=FlightLimits.end_action,
                    help="if the mission ends in the air: return to launch or land there")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--sitl", action="store_true",

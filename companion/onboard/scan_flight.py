@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from companion.errors import CompanionError
+from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.plugins import SitlRequest, provided
 
 log = logging.getLogger(__name__)
@@ -25,7 +26,7 @@ class ScanFlight:
     connect_url: str
     fly_options: dict[str, Any] = field(default_factory=dict)
     telemetry_log: Path | None = None
-    telemetry_rate_hz: float = 10.0
+    telemetry_rate_hz: float = FLIGHT_DEFAULTS.telemetry_rate_hz
     capture: str | None = None  # a frame source spec (companion.capture.sources.open_source) or SIM_CAPTURE
     spool_dir: Path | None = None  # keyframe spool, required with ``capture``
     model: Path | None = None

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import resource
 import sys
 import tempfile
@@ -28,6 +27,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from busy_core import busy_core  # noqa: E402
 
 from companion.geo import FacadeFrame  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
@@ -43,11 +44,6 @@ _NOMINAL_W, _NOMINAL_H = 1600, 900  # the overlap share depends on the lens and 
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
-
-
-def _spin() -> None:
-    while True:
-        pass
 
 
 class TrueOverlap:
@@ -147,15 +143,9 @@ def main() -> int:
     p.add_argument("--out", type=Path, help="keep the runs here (default: a temp dir)")
     args = p.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="chain-tracker-"))
-    spinner = multiprocessing.Process(target=_spin, daemon=True) if args.busy_core else None
-    if spinner is not None:
-        spinner.start()
-    try:
+    with busy_core(args.busy_core):
         for chain in args.chains:
             print(json.dumps(fly_one(args, chain, out / chain), indent=1), flush=True)
-    finally:
-        if spinner is not None:
-            spinner.terminate()
     return 0
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import sys
 import tempfile
 import time
@@ -27,6 +26,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from busy_core import busy_core  # noqa: E402
 
 from companion.capture.sources import FrameSource  # noqa: E402
 from companion.capture.tagging import FrameTagger  # noqa: E402
@@ -117,11 +118,6 @@ def minimum_keyframes(scene: WallScene, cams, rth: float) -> int:
     return count + (key != len(cams) - 1)
 
 
-def _spin() -> None:
-    while True:
-        pass
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--fps", type=float, default=30.0)
@@ -139,15 +135,9 @@ def main() -> int:
     jpegs = [cv2.imencode(".jpg", scene.render(c)[0], [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes() for c in cams]
     print(f"{len(cams)} frames {args.width} px rendered; leg {args.length:g} m at {args.speed:g} m/s, "
           f"{args.fps:g} fps", flush=True)
-    spinner = multiprocessing.Process(target=_spin, daemon=True) if args.busy_core else None
-    if spinner is not None:
-        spinner.start()
-    try:
+    with busy_core(args.busy_core):
         for name in args.chains:
             print(json.dumps(run_chain(name, scene, cams, jpegs, args, out), indent=1), flush=True)
-    finally:
-        if spinner is not None:
-            spinner.terminate()
     return 0
 
 

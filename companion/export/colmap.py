@@ -139,19 +139,20 @@ MISPLACED_M = 0.25  # a registered keyframe whose centre is further than this fr
 
 def centre_errors(centres: np.ndarray, positions_enu: np.ndarray) -> np.ndarray | None:
     """Distance (m) of each COLMAP camera centre from its telemetry position after the best similarity transform
-    (Umeyama, OpenCV), fitted twice: on all, then on those within max(3 x median, 0.1 m), so that a few keyframes
-    placed wrong (e.g. seeing only the far background past the roof) do not skew the others. None with fewer
-    than 3 positions or without telemetry."""
+    (Umeyama, OpenCV), refitted on those within max(3 x their median, 5 cm) until that set stops changing, so
+    that a few keyframes placed wrong (e.g. seeing only the far background past the roof) do not skew the others.
+    None with fewer than 3 positions or without telemetry."""
     if len(centres) < 3 or not np.isfinite(positions_enu).all():
         return None
     src, dst = centres.astype(np.float64), positions_enu.astype(np.float64)
     keep = np.ones(len(src), bool)
-    for _ in range(2):
+    for _ in range(10):
         transform, scale = cv2.estimateAffine3D(src[keep], dst[keep], force_rotation=True)
         err = np.linalg.norm(scale * src @ transform[:, :3].T + transform[:, 3] - dst, axis=1)
-        keep = err <= max(3.0 * float(np.median(err)), 0.1)
-        if keep.sum() < 3:
+        new_keep = err <= max(3.0 * float(np.median(err[keep])), 0.05)
+        if new_keep.sum() < 3 or (new_keep == keep).all():
             break
+        keep = new_keep
     return err
 
 

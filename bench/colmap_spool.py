@@ -13,6 +13,7 @@ import argparse
 import time
 from pathlib import Path
 
+from companion.errors import CompanionError
 from companion.export.colmap import MISPLACED_M, export_colmap
 
 
@@ -20,12 +21,19 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("spool", type=Path)
     p.add_argument("--masks", action="store_true", help="give COLMAP the ROI masks too")
+    p.add_argument("--max-minutes", type=float, default=10.0,
+                   help="bound each mapping (COLMAP's default can loop through initial pairs for long)")
     p.add_argument("--work", type=Path, default=Path("/tmp/colmap_bench"), help="workspaces go here")
     a = p.parse_args()
     rows = []
     for label, hold in (("EXIF camera held", True), ("COLMAP default (focal refined)", False)):
         cpu = time.process_time()
-        _, r = export_colmap(a.spool, a.work / ("held" if hold else "refined"), masks=a.masks, hold_intrinsics=hold)
+        try:
+            _, r = export_colmap(a.spool, a.work / ("held" if hold else "refined"), masks=a.masks,
+                                 hold_intrinsics=hold, max_runtime_s=60 * a.max_minutes)
+        except CompanionError as exc:  # COLMAP built no model at all
+            rows.append((label, f"none: {exc.problem}", "0", "-", "-", f"{time.process_time() - cpu:.0f} s", "-", "-"))
+            continue
         cpu = time.process_time() - cpu
         focal = f"{r.focal_px:.1f} px" + ("" if r.focal_error is None else f" ({100 * r.focal_error:+.1f} %)")
         centres = "-" if r.centre_median_m is None else (

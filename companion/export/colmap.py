@@ -124,9 +124,12 @@ def _pycolmap():
     return pycolmap
 
 
-def mapping_options(pycolmap, *, hold_intrinsics: bool):
-    """COLMAP's incremental mapping options; ``hold_intrinsics`` keeps the EXIF camera (see the module docstring)."""
+def mapping_options(pycolmap, *, hold_intrinsics: bool, max_runtime_s: float | None = None):
+    """COLMAP's incremental mapping options; ``hold_intrinsics`` keeps the EXIF camera (see the module docstring);
+    ``max_runtime_s`` bounds the mapping (COLMAP's default on a wall can loop through initial pairs for long)."""
     options = pycolmap.IncrementalPipelineOptions()
+    if max_runtime_s is not None:
+        options.max_runtime_seconds = int(max_runtime_s)
     if hold_intrinsics:
         options.ba_refine_focal_length = False
         options.ba_refine_extra_params = False
@@ -156,7 +159,8 @@ def centre_errors(centres: np.ndarray, positions_enu: np.ndarray) -> np.ndarray 
     return err
 
 
-def reconstruct(workspace: ColmapWorkspace, *, hold_intrinsics: bool = True) -> ColmapResult:
+def reconstruct(workspace: ColmapWorkspace, *, hold_intrinsics: bool = True,
+                max_runtime_s: float | None = None) -> ColmapResult:
     """COLMAP as a user runs it (EXIF camera, exhaustive matching, incremental mapping) on ``workspace``."""
     pycolmap = _pycolmap()
     root = workspace.root
@@ -172,7 +176,8 @@ def reconstruct(workspace: ColmapWorkspace, *, hold_intrinsics: bool = True) -> 
                               reader_options=reader, device=pycolmap.Device.cpu)
     pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
     models = pycolmap.incremental_mapping(database, workspace.images, sparse,
-                                          options=mapping_options(pycolmap, hold_intrinsics=hold_intrinsics))
+                                          options=mapping_options(pycolmap, hold_intrinsics=hold_intrinsics,
+                                                                          max_runtime_s=max_runtime_s))
     if not models:
         raise CompanionError(f"COLMAP built no model from the {len(workspace.names)} keyframes",
                              "check that the keyframes overlap (the spool's cull_report.json names gaps)")
@@ -206,12 +211,12 @@ def reconstruct(workspace: ColmapWorkspace, *, hold_intrinsics: bool = True) -> 
     )
 
 
-def export_colmap(spool: Path, out: Path, *, masks: bool = False, run: bool = True,
-                  hold_intrinsics: bool = True) -> tuple[ColmapWorkspace, ColmapResult | None]:
+def export_colmap(spool: Path, out: Path, *, masks: bool = False, run: bool = True, hold_intrinsics: bool = True,
+                  max_runtime_s: float | None = None) -> tuple[ColmapWorkspace, ColmapResult | None]:
     """``companion export colmap``: write the workspace and (``run``) reconstruct it, with ``colmap_report.json``."""
     workspace = write_workspace(spool, out, masks=masks)
     if not run:
         return workspace, None
-    result = reconstruct(workspace, hold_intrinsics=hold_intrinsics)
+    result = reconstruct(workspace, hold_intrinsics=hold_intrinsics, max_runtime_s=max_runtime_s)
     write_atomic(workspace.root / REPORT, json.dumps(asdict(result), indent=1))
     return workspace, result

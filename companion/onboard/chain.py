@@ -44,6 +44,7 @@ class ChainStats:
     stale_pose: int = 0
     before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
     dropped_no_roi: int = 0
+    parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
     frames_tracked: int = 0  # followed by the wall tracker only (cheap); 0 without a tracker
     frames_measured: int = 0  # depth mask + SIFT measurement (every processed frame without a tracker)
     keyframes: int = 0
@@ -176,6 +177,7 @@ class CullChain:
             return MaskedFrame(tagged, np.full(tagged.image.shape[:2], 255, np.uint8))
         masked = self.masker(tagged)
         self.stats.dropped_no_roi += int(masked is None)
+        self.stats.parallax_frames = self.masker.stats.parallax_frames
         return masked
 
     def _cross_check(self, kf: Keyframe) -> Keyframe:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from companion.errors import CompanionError
 from companion.files import atomic_path
 from companion.matching import make_matcher, ransac_affine, ransac_homography, ratio_test_matches
 from companion.progress import progress_bar
-from companion.stitch.config import StitchConfig
+from companion.stitch.config import StitchConfig, worker_count
 from companion.stitch.features import Features, KeyframeFeatures
 from companion.stitch.geometry import apply_h, is_sane_homography
 from companion.stitch.priors import PlanePriors
@@ -283,8 +284,9 @@ def register_pairs(
     candidates = candidate_pairs(n, list(priors.priors), corners, neighbours=cfg.neighbours)
     gate_tag = f"{priors.use_poses}-{settings}"
     kfs, feats, keys, P = found.input.keyframes, found.features, found.keys, priors.priors
-    results = []
-    for i, j in progress_bar(candidates, desc="matching", disable=not progress, leave=False, unit="it"):
+
+    def register(pair: tuple[int, int]) -> PairResult:
+        i, j = pair
         tag = hashlib.sha1(f"{keys[i]}|{keys[j]}|{gate_tag}".encode()).hexdigest()[:16]
         path = cache_dir / f"{kfs[i].index:06d}-{kfs[j].index:06d}-{tag}.npz"
         r = load_pair(path)
@@ -293,7 +295,14 @@ def register_pairs(
                 i, j, feats[i], feats[j], settings=settings, prior_i=P[i], prior_j=P[j], pixel_to_norm=to_norm
             )
             save_pair(path, r)
-        results.append(replace(r, i=i, j=j))  # the cache names spool indices; positions may have moved
+        return replace(r, i=i, j=j)  # the cache names spool indices; positions may have moved
+
+    # pairs side by side in threads: matching and RANSAC run in OpenCV without the GIL, and each pair seeds its
+    # own thread's RNG (match_pair), so the results do not depend on the thread or the order
+    with ThreadPoolExecutor(worker_count(cfg)) as pool:
+        done = pool.map(register, candidates)
+        bar = progress_bar(done, total=len(candidates), desc="matching", disable=not progress, leave=False, unit="it")
+        results = list(bar)
     if n >= 2 and not any(r.accepted for r in results) and not priors.use_poses:
         raise CompanionError(
             "no two keyframes could be registered (no shared features inside the ROI masks)",

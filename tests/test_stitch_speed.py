@@ -45,6 +45,14 @@ def test_features_of_the_reduced_decode_land_where_the_full_decode_puts_them(tmp
     assert len(m) > 0.5 * len(reduced.keypoints)
     assert np.median(d) < 0.6  # full-resolution pixels (one working pixel is 2.4)
 
+    # a PNG keyframe of odd size (no reduced decode in the codec): the full decode, still the right size
+    cv2.imwrite(str(tmp_path / "odd.png"), image[:1079, :1919])
+    cv2.imwrite(str(tmp_path / "odd_mask.png"), mask[:1079, :1919])
+    grey, small_mask, size = load_working_copy(
+        KeyframeInput(1, tmp_path / "odd.png", tmp_path / "odd_mask.png", None), 800
+    )
+    assert size == (1919, 1079) and small_mask.shape == grey.shape and grey.shape[0] in (539, 1079)
+
 
 def test_threads_find_the_features_and_pairs_of_one_thread(spool, tmp_path):
     inp = load_input(spool)

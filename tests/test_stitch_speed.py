@@ -98,3 +98,23 @@ def test_the_cache_decodes_ahead_the_same_keyframes_in_the_same_order():
     assert [k for k, _ in plain] == [k for k, _ in fetched] and n_plain == n_fetched == len(plain) > 9
     assert all(on_main for _, on_main in plain)
     assert sum(not on_main for _, on_main in fetched) >= len(fetched) - 1  # all but the first, decoded ahead
+
+
+def test_candidate_pairs_follow_the_path_and_its_revisits_not_every_keyframe_in_view():
+    from companion.stitch.pairs import candidate_pairs
+
+    # two vertical scan legs 2.1 m apart (62 % side overlap), down then up, a keyframe every 0.5 m (85 %)
+    ups = [10.0 - 0.5 * k for k in range(21)]
+    centres = [(0.0, u) for u in ups] + [(2.1, u) for u in reversed(ups)]
+    priors = [np.array([[5.5, 0.0, x], [0.0, 5.5, y], [0.0, 0.0, 1.0]]) for x, y in centres]
+    corners = np.array([[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3]])  # 5.5 x 3.3 m footprints
+    pairs = candidate_pairs(len(priors), priors, corners, neighbours=2)
+    assert {(i, i + 1) for i in range(41)} | {(i, i + 2) for i in range(40)} <= set(pairs)
+    along = [(i, j) for i, j in pairs if j - i > 2 and (j < 21) == (i < 21)]
+    assert along == []  # along a leg, only the sequence neighbours (was up to 6 more per keyframe)
+    across = [(i, j) for i, j in pairs if i < 21 <= j]
+    for i, j in across:  # the leg back passes the same place: matched where the footprints overlap
+        assert abs(centres[i][1] - centres[j][1]) < 3.3
+    assert {i for i, _ in across} == set(range(21)) and len(pairs) < 41 * 8
+    # without telemetry: the path alone
+    assert candidate_pairs(4, [None] * 4, corners) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]

@@ -2,15 +2,17 @@
 decision measured) side by side in one run: the same mission flown in SITL twice, same seed, same camera.
 
     python bench/chain_tracker.py [--mission missions/demo-facade.yaml] [--fps 30] [--width 1280] [--speedup 1]
-                                  [--chains measure-all tracker] [--busy-core]
+                                  [--chains measure-all tracker] [--busy-core] [--companion-cpus 0]
 
 Per chain it prints: frames the chain considered per second of flight (tracked or measured, not dropped), frames
 measured (depth mask + SIFT), CPU share of one core (the chain's thread, and the whole companion process), keyframes
 against the planner's expected count and against the minimum from truth (the paper's rule on the vehicle's true
-poses, sampled by the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair, and
-the chain's warnings and gaps. True overlap is the footprint overlap on the wall plane from the true poses
-(``companion.keyframes.motion``, the simulator's definition). ``--busy-core`` keeps one core busy with a spinning
-process for the whole run (a companion computer that also records video). Figures are from a simulator.
+poses, sampled by the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair (the
+footprint overlap on the wall plane from the true poses, ``companion.keyframes.motion``, the simulator's
+definition), the share of the wall inside the keyframes' true footprints, and the chain's warnings and gaps.
+``--busy-core`` keeps one core busy with a spinning process for the whole run (a companion computer that also
+records video); ``--companion-cpus 0`` gives the companion one core (its threads pinned, as ``taskset -c 0``; the
+simulated vehicle and camera keep the machine). Figures are from a simulator.
 """
 
 from __future__ import annotations

@@ -98,3 +98,46 @@ def test_masker_with_telemetry_parallax_drops_the_real_background_the_network_ke
     wall = f.roi_mask > 0
     # the network alone keeps 50 % of this wall and 15 % of the last frame: parallax corrects both
     assert (masked.mask[wall] > 0).mean() > 0.75 and (masked.mask[~wall] > 0).mean() < 0.2
+
+
+def _geo_pose(i, f):
+    import pymap3d
+
+    from companion.records import Pose
+
+    lat, lon, alt = pymap3d.enu2geodetic(f.along_m, -4.0, f.up_m, 47.0, 8.0, 400.0)
+    return Pose(time_s=i * 0.1, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=f.up_m, roll_deg=0.0,
+                pitch_deg=0.0, yaw_deg=0.0)
+
+
+def test_sparse_masking_gets_its_reference_from_the_frames_only_tracked():
+    """The onboard chain masks only the frames around a keyframe decision, about a metre apart: without the tracked
+    frames in between there is never a reference within 60 cm and parallax never judges; remembering them
+    (a resize each) gives every masked frame one, and the background-only frame is dropped."""
+    from companion.depth.masker import Masker
+    from companion.depth.parallax import SequenceParallax
+    from companion.records import Frame, TaggedFrame
+    from sim.camera.photo_passes import RECIPES, build_pass
+
+    r = PhotoPassRenderer(build_pass(RECIPES["ornate-entry"], frames=60, background_frames=6))
+    masked_frames = (36, 46, 59)
+    assert r.render(46).along_m - r.render(36).along_m > 0.6  # the masked frames are too far apart on their own
+
+    def run(remember: bool) -> tuple[Masker, dict]:
+        masker = Masker(parallax=SequenceParallax(hfov_deg=69.0))
+        out = {}
+        for i in range(33, 60):
+            f = r.render(i)
+            tagged = TaggedFrame(Frame(i, i * 0.1, f.image), _geo_pose(i, f))
+            if i in masked_frames:
+                out[i] = masker.mask(tagged)
+            elif remember:
+                masker.remember(tagged)
+        return masker, out
+
+    sparse, _ = run(remember=False)
+    assert sparse.stats.parallax_frames == 0
+    masker, out = run(remember=True)
+    assert masker.stats.parallax_frames == len(masked_frames)
+    assert r.render(59).wall_fraction == 0.0 and out[59][0] is None
+    assert r.render(46).wall_fraction > 0.2 and out[46][0] is not None

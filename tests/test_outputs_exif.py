@@ -187,7 +187,8 @@ def test_calibration_of_another_aspect_is_refused(tmp_path):
 def test_opendronemap_reads_a_horizontal_camera_with_the_true_focal(tmp_path):
     odm = odm_read(_spool_one(tmp_path, _sim_tags(), yaw=200.0))
     assert odm["focal_px"] == pytest.approx(TRUE_FOCAL_PX, rel=0.01)  # not the 0.85 fallback
-    assert odm["pitch"] == pytest.approx(90.0) and odm["roll"] == 0.0 and odm["yaw"] == pytest.approx(200.0)
+    assert odm["pitch"] == pytest.approx(90.0) and odm["roll"] == 0.0
+    assert odm["yaw"] == pytest.approx(-160.0)  # heading 200 deg in DJI's -180..180 (what real DJI photos carry)
     assert odm["utc"] == pytest.approx(FLIGHT_UNIX, abs=1e-3)
 
 
@@ -380,3 +381,12 @@ def test_wall_clock_follows_a_simulator_running_faster_than_real_time():
     for (t, _), unix in zip(keyframes, dated, strict=True):
         assert unix == pytest.approx(FLIGHT_UNIX + t / 1.5 + 0.002, abs=0.01)
     assert all(a < b for a, b in zip(dated, dated[1:], strict=False))
+
+
+@pytest.mark.parametrize(("yaw", "dji_yaw"), [(359.9997, 0.0), (190.0, -170.0), (20.0, 20.0)])
+def test_dji_yaws_are_in_djis_range(tmp_path, yaw, dji_yaw):
+    """drone-dji yaws in DJI's -180..180 (a SITL heading of 359.9997 deg was written as +360.00); Pix4D's 0..360."""
+    t = exiftool(str(_spool_one(tmp_path, _sim_tags(make="DJI"), yaw=yaw)))
+    assert float(t["XMP-drone-dji:FlightYawDegree"]) == dji_yaw
+    assert float(t["XMP-drone-dji:GimbalYawDegree"]) == dji_yaw
+    assert float(t["XMP-Camera:Yaw"]) == dji_yaw % 360.0

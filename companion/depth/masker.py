@@ -52,7 +52,10 @@ class Masker:
         params = params or RoiParams()
         info = self.session.info
         if info.metric and max_roi_depth_m is not None and params.min_roi_disparity is None:
-            params = RoiParams(**{**params.__dict__, "min_roi_disparity": info.disparity_for_depth(max_roi_depth_m)})
+            params = replace(params, min_roi_disparity=info.disparity_for_depth(max_roi_depth_m))
+        if info.metric and max_roi_depth_m is not None and params.pixel_depth_cut \
+                and params.min_pixel_disparity is None:
+            params = replace(params, min_pixel_disparity=info.disparity_for_depth(max_roi_depth_m))
         self.params = params
         self.stats = MaskerStats()
 
@@ -81,6 +84,12 @@ class Masker:
             st.dropped_empty += 1
             return None, roi, disp
         return MaskedFrame(tagged=tagged, mask=roi.mask), roi, disp
+
+    def remember(self, tagged: TaggedFrame) -> None:
+        """Show the masker a frame it will not mask (the chain tracks it only): with parallax on, it becomes a
+        possible reference for the next masked frame. Costs a resize; nothing without parallax."""
+        if self.parallax is not None and not tagged.pose_stale:
+            self.parallax.remember(tagged.frame.image, tagged.pose)
 
     def _with_parallax(self, image, tagged: TaggedFrame, roi: RoiResult) -> RoiResult:
         from companion.depth.parallax import fuse_with_network

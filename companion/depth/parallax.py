@@ -90,7 +90,13 @@ def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxPar
     if ref_image.shape != cur_image.shape:
         raise CompanionError(f"frames differ in size: {ref_image.shape} vs {cur_image.shape}",
                              "compare frames of the same camera")
-    cur, ref = _grey(cur_image, p.work_width), _grey(ref_image, p.work_width)
+    return dense_flow_grey(_grey(ref_image, p.work_width), _grey(cur_image, p.work_width), cur_image.shape[1], p)
+
+
+def dense_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int,
+                    params: ParallaxParams | None = None) -> DenseFlow:
+    """:func:`dense_flow` of two grey working copies (``work_width`` wide) of frames ``frame_width`` wide."""
+    p = params or ParallaxParams()
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
     fwd = dis.calc(cur, ref, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
     bwd = dis.calc(ref, cur, None)
@@ -104,7 +110,7 @@ def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxPar
     tx, ty = xx + fwd[..., 0], yy + fwd[..., 1]
     inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # tracked to a point inside the reference
     trusted = (texture >= p.min_texture) & (fb_err <= p.max_fb_error_px) & inside
-    return DenseFlow(fwd, trusted, p.work_width, cur_image.shape[1])
+    return DenseFlow(fwd, trusted, p.work_width, frame_width)
 
 
 def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float,
@@ -175,8 +181,11 @@ def pick_reference(positions: list[np.ndarray], current: np.ndarray,
 class SequenceParallax:
     """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
 
-    Keeps the last few frames; each new frame is compared with the latest one at least ``min_baseline_m`` away.
-    Returns None (the network alone decides) without a pose, while hovering, or at the start of a pass.
+    Keeps grey working copies of the last few frames; each frame to be masked is compared with the latest one at
+    least ``min_baseline_m`` away. Returns None (the network alone decides) without a pose, while hovering, or at
+    the start of a pass. The onboard chain masks only the frames around a keyframe decision (about two per
+    keyframe, a metre apart), so it also shows the masker every frame it tracks (:meth:`remember`, a resize and
+    no flow): that is what gives the masked frame a reference a few centimetres back.
     """
 
     def __init__(self, hfov_deg: float, params: ParallaxParams | None = None, keep: int = 12):
@@ -186,7 +195,7 @@ class SequenceParallax:
         self.params = params or ParallaxParams()
         self.keep = keep
         self._origin: tuple[float, float, float] | None = None
-        self._history: list[tuple[np.ndarray, np.ndarray]] = []
+        self._history: list[tuple[np.ndarray, np.ndarray, tuple[int, ...]]] = []  # (grey copy, ENU, frame shape)
 
     def _enu(self, pose) -> np.ndarray:
         import pymap3d
@@ -195,18 +204,34 @@ class SequenceParallax:
             self._origin = (pose.lat, pose.lon, pose.alt_amsl_m)
         return np.array(pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, *self._origin), float)
 
+    def remember(self, image: np.ndarray, pose) -> None:
+        """Keep a frame as a possible reference without judging it (frames closer than a quarter of the minimum
+        baseline to the last one kept add nothing and are skipped)."""
+        if pose is None:
+            return
+        pos = self._enu(pose)
+        if self._history and np.linalg.norm(pos - self._history[-1][1]) < self.params.min_baseline_m / 4:
+            return
+        self._push(_grey(image, self.params.work_width), pos, image.shape)
+
+    def _push(self, grey: np.ndarray, pos: np.ndarray, shape: tuple[int, ...]) -> None:
+        self._history = (self._history + [(grey, pos, shape)])[-self.keep:]
+
     def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
+        """Judge a frame against the latest reference far enough back, then keep it as a reference too."""
         if pose is None:
             return None
         pos = self._enu(pose)
+        grey = _grey(image, self.params.work_width)
         k = pick_reference([h[1] for h in self._history], pos, self.params)
         result = None
-        if k is not None and self._history[k][0].shape == image.shape:
+        if k is not None and self._history[k][2] == image.shape:
             yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level
             R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
             t = camera_translation(R, self._history[k][1], R, pos)
             if np.hypot(t[0], t[1]) > 1e-6:
                 fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
-                result = parallax_depth(self._history[k][0], image, t, fx, self.params)
-        self._history = (self._history + [(image, pos)])[-self.keep:]
+                flow = dense_flow_grey(self._history[k][0], grey, image.shape[1], self.params)
+                result = depth_from_flow(flow, t, fx, self.params)
+        self._push(grey, pos, image.shape)
         return result

@@ -39,6 +39,14 @@ class RoiParams:
     far_cut_ratio: float = 0.4
     # Mean disparity of the finally kept ROI below this: whole frame background (frame dropped). None: never.
     min_roi_disparity: float | None = None
+    # Metric models only: also cut every pixel the network puts farther than the masker's ROI depth limit
+    # (``Masker(max_roi_depth_m=15)``), whatever region it lies in, and drop the frame when less than
+    # ``min_roi_fraction`` of it is left. A network that reads real background at 30-100 m but a sliver of it at
+    # 8-11 m then keeps only that sliver, and a frame with a thin strip of wall at its edge keeps the strip
+    # instead of being dropped for the mean depth of everything its regions joined to it.
+    pixel_depth_cut: bool = False
+    min_pixel_disparity: float | None = None  # set by the masker from its depth limit when pixel_depth_cut
+    min_roi_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.near_ratio < 1.0:
@@ -219,6 +227,8 @@ def _nearer_pixels(d: np.ndarray, regions: _Regions, params: RoiParams) -> tuple
         side = d[::2, ::2][~in_dropped[::2, ::2]]
         near_ref = float(np.percentile(side if side.size else d[~in_dropped], 95))
         cut = max(cut, params.far_cut_ratio * near_ref)
+    if params.min_pixel_disparity is not None:
+        cut = max(cut, params.min_pixel_disparity)
     keep = (~in_dropped) & (d >= cut)
     if not keep.all():
         min_island = max(4, int(params.min_component_frac * d.size))
@@ -254,7 +264,9 @@ def extract_roi(
     edges, thr = boundary_map(d, params)
     regions = _regions_between_boundaries(d, edges, params)
     keep, kept = _nearer_pixels(d, regions, params)
-    if params.min_roi_disparity is not None and (not keep.any() or float(d[keep].mean()) < params.min_roi_disparity):
+    too_far = params.min_roi_disparity is not None and (not keep.any()
+                                                        or float(d[keep].mean()) < params.min_roi_disparity)
+    if too_far or float(keep.mean()) < params.min_roi_fraction:
         # Judged on what is finally kept, not on the nearest region's mean: a wall joined to the sky through a
         # gap in the boundary (a wall end fading into the ground) makes one region whose mean is the sky's.
         return RoiResult(
@@ -306,4 +318,8 @@ ROI_RULES: dict[str, RoiParams] = {
     "default": RoiParams(),  # near 0.4, far cut 0.4: keep what is within 2.5x the facade's distance
     "sim-0.6-0.5": RoiParams(near_ratio=0.6, far_cut_ratio=0.5),  # the rules chosen on the simulator alone
     "paper": RoiParams(far_cut_ratio=0.0),  # the paper's regions only, no far cut
+    # the default plus a per-pixel metric cut at the masker's depth limit (metric models), frame dropped under 1 %
+    "metric": RoiParams(pixel_depth_cut=True, min_roi_fraction=0.01),
+    # depth alone (metric models): every region kept, only the per-pixel cut at the depth limit
+    "metric-only": RoiParams(near_ratio=0.01, far_cut_ratio=0.0, pixel_depth_cut=True, min_roi_fraction=0.01),
 }

@@ -123,7 +123,9 @@ class CullChain:
             gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
         self._seen_pose = False
-        self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track)
+        observe = masker.remember if masker is not None and masker.parallax is not None else None
+        self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track,
+                                                                     observe=observe)
 
     def warn(self, message: str) -> None:
         message = one_line(message)

@@ -66,6 +66,8 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
     live.add_argument("--out", type=Path, help="keyframe spool directory (required with --capture; resumable)")
     live.add_argument("--model", type=Path, help="depth model .onnx (default: the shipped model)")
     live.add_argument("--no-mask", action="store_true", help="no background removal (whole frame is ROI)")
+    live.add_argument("--no-parallax", action="store_true",
+                      help="depth network alone: do not confirm its mask by motion parallax along the flight")
     live.add_argument("--gcs-camera", metavar="URL",
                       help="also appear as a MAVLink camera to a ground station here, e.g. udpout:127.0.0.1:14550")
     live.add_argument("--sim-fps", type=float, default=3.0, help="with --capture sim: camera fps (simulated time)")
@@ -83,6 +85,8 @@ def _register_cull(sub: argparse._SubParsersAction) -> None:
                    help="mission YAML: overlap threshold, camera and facade for the spool")
     p.add_argument("--model", type=Path, help="depth model (.onnx); default: the shipped model")
     p.add_argument("--no-mask", action="store_true", help="skip background removal (whole frame is ROI)")
+    p.add_argument("--no-parallax", action="store_true",
+                   help="depth network alone: do not confirm its mask by motion parallax along the flight")
     p.add_argument("--time-offset", type=float, default=OfflineCull.time_offset_s,
                    help="autopilot boot time (s) at video time 0; frame times + offset = telemetry t_boot_s")
     p.add_argument("--fps", type=float, default=OfflineCull.fps, help="frame rate of an image folder without times.csv")
@@ -130,7 +134,8 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
         flight_parameters=flight_parameters(args.set_param) or None)
     return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,
                       telemetry_log=args.telemetry_log, telemetry_rate_hz=args.rate, capture=args.capture,
-                      spool_dir=args.out, model=args.model, mask=not args.no_mask, gcs_camera_url=args.gcs_camera,
+                      spool_dir=args.out, model=args.model, mask=not args.no_mask, parallax=not args.no_parallax,
+                      gcs_camera_url=args.gcs_camera,
                       sitl=sitl)
 
 
@@ -150,7 +155,7 @@ def run_fly(args: argparse.Namespace) -> int:
 def run_cull(args: argparse.Namespace) -> int:
     request = OfflineCull(video=args.video, telemetry_log=args.telemetry, spool_dir=args.out,
                           mission_path=args.mission, model=args.model, mask=not args.no_mask,
-                          time_offset_s=args.time_offset, fps=args.fps)
+                          parallax=not args.no_parallax, time_offset_s=args.time_offset, fps=args.fps)
     result = cull_recorded_flight(request)
     stats = result.stats.as_dict()
     print(

@@ -113,6 +113,7 @@ def run_live_scan(
     telemetry_log: Path | None = None,
     model: Path | None = None,
     mask: bool = True,
+    parallax: bool = True,
     gcs_camera_url: str | None = None,
     queue_size: int | None = None,
     capture_time_offset_s: float = 0.0,
@@ -151,7 +152,8 @@ def run_live_scan(
                                 wall_clock=capture_clock if on_autopilot_clock else None)
     try:
         chain, camera_component = _build(out, FrameTagger(buffer, clock), plan, model=model, mask=mask,
-                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock, track=track)
+                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock, track=track,
+                                         parallax=parallax)
     except BaseException:
         source.close()
         raise
@@ -220,7 +222,7 @@ def _report(flight, chain, runner: LiveRunner, out: Path, telemetry_log: Path, c
 
 def _build(
     out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, capture_clock: CaptureClock,
-    track: bool = True,
+    track: bool = True, parallax: bool = True,
 ):
     """The chain (and the MAVLink camera component that announces its keyframes, when asked for)."""
     camera_component = None
@@ -238,7 +240,7 @@ def _build(
             camera_component.publish(kf.pose, entry.image)
 
     chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, capture_clock=capture_clock,
-                        on_keyframe=on_keyframe, track=track)
+                        on_keyframe=on_keyframe, track=track, parallax=parallax)
     return chain, camera_component
 
 

@@ -33,6 +33,7 @@ class OfflineCull:
     mission_path: Path | None = None
     model: Path | None = None
     mask: bool = True
+    parallax: bool = True  # confirm the network's mask by motion parallax (docs/DEPTH.md)
     time_offset_s: float = 0.0
     fps: float = 30.0  # frame rate of an image folder without times.csv
 
@@ -62,7 +63,7 @@ def cull_recorded_flight(request: OfflineCull) -> OfflineCullResult:
         log.warning("telemetry log %s has no t_wall times, so keyframe images carry no capture date (logs from "
                     "companion fly --telemetry-log have them)", request.telemetry_log)
     chain = build_chain(request.spool_dir, tagger, mission_path=request.mission_path, model=request.model,
-                        mask=request.mask, capture_clock=wall_clock)
+                        mask=request.mask, capture_clock=wall_clock, parallax=request.parallax)
     source = open_source(request.video, fps=request.fps)
     total = getattr(source, "files", None)
     with source, progress_bar(total=len(total) if total else None, unit="frame", desc="culling") as bar:

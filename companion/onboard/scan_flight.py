@@ -31,6 +31,7 @@ class ScanFlight:
     spool_dir: Path | None = None  # keyframe spool, required with ``capture``
     model: Path | None = None
     mask: bool = True
+    parallax: bool = True  # confirm the network's mask by motion parallax (docs/DEPTH.md)
     gcs_camera_url: str | None = None
     sitl: SitlRequest | None = None  # start this simulator and fly it instead of ``connect_url``
 
@@ -80,7 +81,8 @@ def _fly(plan, url: str, capture: str | None, request: ScanFlight) -> ScanFlight
 
         # the tagger interpolates between samples: ask for at least 30 Hz while culling
         scan = run_live_scan(plan, url, capture, request.spool_dir, telemetry_log=request.telemetry_log,
-                             model=request.model, mask=request.mask, gcs_camera_url=request.gcs_camera_url,
+                             model=request.model, mask=request.mask, parallax=request.parallax,
+                             gcs_camera_url=request.gcs_camera_url,
                              telemetry_rate_hz=max(request.telemetry_rate_hz, 30.0), **request.fly_options)
         return ScanFlightOutcome(scan.flight, scan)
     from companion.flight.fly import fly_mission_sync

@@ -44,9 +44,13 @@ def build_chain(
     on_keyframe=None,
     on_warning=None,
     track: bool = True,
+    parallax: bool = True,
 ) -> CullChain:
     """``track``: follow every frame with the wall tracker and measure only around keyframe decisions (default);
-    False masks and measures every frame (the chain before issue 17, kept for side-by-side figures)."""
+    False masks and measures every frame (the chain before issue 17, kept for side-by-side figures).
+    ``parallax``: with a mission (its camera's field of view), the depth mask is confirmed or corrected by the
+    motion parallax against a frame a few centimetres back along the telemetry's baseline, and frames whose
+    trusted pixels are all far are dropped (``companion.depth.parallax``, docs/DEPTH.md); False: network alone."""
     if mission is None and mission_path is not None:
         from companion.mission import load_mission
 
@@ -59,9 +63,15 @@ def build_chain(
     if mask:
         from companion.depth.masker import Masker
 
-        masker = Masker(model)
+        seq = None
+        if parallax and mission is not None:
+            from companion.depth.parallax import SequenceParallax
+
+            seq = SequenceParallax(mission.camera.hfov_deg)
+        masker = Masker(model, parallax=seq)
         model_name = str(model) if model is not None else "shipped default"
-    settings = {"rth": gate_cfg.rth, "depth_model": model_name, "mask": mask}
+    settings = {"rth": gate_cfg.rth, "depth_model": model_name, "mask": mask,
+                "parallax": bool(masker is not None and masker.parallax is not None)}
     spool = KeyframeSpool(
         out,
         meta=spool_meta(mission) if mission is not None else None,

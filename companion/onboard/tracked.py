@@ -65,11 +65,14 @@ class TrackedSelection:
     ``finish()`` at the end of the stream (before the gate's ``flush``); both return the keyframes decided.
 
     ``mask``: the depth mask stage (TaggedFrame -> MaskedFrame, None when the frame holds no facade).
+    ``observe``: called with every tracked frame that is not masked now (the masker's parallax keeps it as a
+    reference for the next masked frame: ``Masker.remember``).
     """
 
     def __init__(self, gate: KeyframeGate, mask: Callable[[TaggedFrame], MaskedFrame | None],
-                 predictor: WallMotionPredictor | None = None, schedule: MeasureSchedule | None = None):
-        self.gate, self.mask, self.predictor = gate, mask, predictor
+                 predictor: WallMotionPredictor | None = None, schedule: MeasureSchedule | None = None,
+                 observe: Callable[[TaggedFrame], None] | None = None):
+        self.gate, self.mask, self.predictor, self.observe = gate, mask, predictor, observe
         self.schedule = schedule or MeasureSchedule()
         self.tracker = WallTracker(self.schedule.tracker)
         self._held: list[TaggedFrame] = []  # frames waiting for a decision, capture order; the last is the newest
@@ -89,6 +92,8 @@ class TrackedSelection:
                                    self._motion(self._anchor_tagged, tagged))
         self._prev = tagged
         self._tracked += 1
+        if self.observe is not None:
+            self.observe(tagged)
         self._hold(tagged)
         if not track.known:  # the wall is lost: decide now on what is held, the newest frame measured too
             self._lost += 1

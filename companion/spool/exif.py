@@ -93,6 +93,12 @@ def exif_bytes(
     return piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps, "1st": {}, "thumbnail": None})
 
 
+def _dji_degrees(angle: float) -> float:
+    """An angle in DJI's XMP range (-180, 180], rounded to the 0.01 deg written (359.9997 -> 0.00, never 360.00)."""
+    wrapped = -((-round(angle, 2) + 180.0) % 360.0 - 180.0)
+    return wrapped + 0.0  # no -0.00
+
+
 def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
     if pose is None:
         return b""
@@ -105,14 +111,14 @@ def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
         "drone-dji:AbsoluteAltitude": f"{pose.alt_amsl_m:+.3f}",
         "drone-dji:RelativeAltitude": f"{pose.relative_alt_m:+.3f}",
         "drone-dji:FlightRollDegree": f"{pose.roll_deg:+.2f}",
-        "drone-dji:FlightYawDegree": f"{pose.yaw_deg:+.2f}",
+        "drone-dji:FlightYawDegree": f"{_dji_degrees(pose.yaw_deg):+.2f}",
         "drone-dji:FlightPitchDegree": f"{pose.pitch_deg:+.2f}",
     }
     if camera.dji_gimbal_convention:
         # DJI's convention (0 = horizontal, -90 = nadir); readers turn it into their own only for these makes.
         fields.update({
             "drone-dji:GimbalRollDegree": "+0.00",
-            "drone-dji:GimbalYawDegree": f"{cam_yaw:+.2f}",
+            "drone-dji:GimbalYawDegree": f"{_dji_degrees(cam_yaw):+.2f}",
             "drone-dji:GimbalPitchDegree": f"{cam_pitch:+.2f}",
         })
     fields.update({

@@ -1,0 +1,1 @@
+"""Keyframes in other tools' own forms (``companion export``): a COLMAP workspace."""

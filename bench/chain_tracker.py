@@ -2,27 +2,33 @@
 decision measured) side by side in one run: the same mission flown in SITL twice, same seed, same camera.
 
     python bench/chain_tracker.py [--mission missions/demo-facade.yaml] [--fps 30] [--width 1280] [--speedup 1]
-                                  [--chains measure-all tracker] [--busy-core]
+                                  [--chains measure-all tracker] [--busy-core] [--companion-cpus 0]
 
 Per chain it prints: frames the chain considered per second of flight (tracked or measured, not dropped), frames
 measured (depth mask + SIFT), CPU share of one core (the chain's thread, and the whole companion process), keyframes
 against the planner's expected count and against the minimum from truth (the paper's rule on the vehicle's true
-poses, sampled by the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair, and
-the chain's warnings and gaps. True overlap is the footprint overlap on the wall plane from the true poses
-(``companion.keyframes.motion``, the simulator's definition). ``--busy-core`` keeps one core busy with a spinning
-process for the whole run (a companion computer that also records video). Figures are from a simulator.
+poses, sampled by the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair (the
+footprint overlap on the wall plane from the true poses, ``companion.keyframes.motion``, the simulator's
+definition), the share of the wall inside the keyframes' true footprints, and the chain's warnings and gaps.
+``--busy-core`` keeps one core busy with a spinning process for the whole run (a companion computer that also
+records video); ``--companion-cpus 0`` gives the companion one core (its threads pinned, as ``taskset -c 0``; the
+simulated vehicle and camera keep the machine). Figures are from a simulator.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import math
+import os
 import resource
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -30,11 +36,13 @@ sys.path.insert(0, str(ROOT))
 
 from busy_core import busy_core  # noqa: E402
 
+from companion.attitude import camera_rotation_enu  # noqa: E402
 from companion.geo import FacadeFrame  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.mission.geometry import wall_ends  # noqa: E402
 from companion.onboard.live import run_live_scan  # noqa: E402
 from companion.records import Pose  # noqa: E402
+from companion.wall_footprint import facade_from_enu, visible_footprint  # noqa: E402
 from sim.evaluate_live import TruthTrack, read_jsonl  # noqa: E402
 from sim.rig import SitlRig  # noqa: E402
 
@@ -63,6 +71,27 @@ class TrueOverlap:
         motion = self.predictor.predict(self.pose(ta), self.pose(tb), _NOMINAL_W, _NOMINAL_H)
         return None if motion is None else motion.overlap_percent
 
+    def coverage(self, times: list[float], length_m: float, height_m: float, cell_m: float = 0.05) -> float:
+        """Share of the wall (length x height) inside at least one keyframe's true footprint, on a ``cell_m``
+        grid: the coverage a map of these keyframes can reach (the stitcher's coverage is measured on the map)."""
+        nx, ny = math.ceil(length_m / cell_m), math.ceil(height_m / cell_m)
+        grid = np.zeros((ny, nx), np.uint8)
+        to_cell = np.array([[1.0 / cell_m, 0.0], [0.0, -1.0 / cell_m]])
+        for t in times:
+            lat, lon, alt, roll, pitch, yaw = self.truth.at(t)
+            centre = np.array(self.predictor.frame.geodetic_to_facade(lat, lon, alt), dtype=float)
+            cam_yaw, cam_pitch, cam_roll = self.pose(t).camera_angles()
+            rot = facade_from_enu(self.predictor.frame) @ camera_rotation_enu(
+                yaw_deg=cam_yaw, pitch_deg=cam_pitch, roll_deg=cam_roll
+            )
+            f = (_NOMINAL_W / 2.0) / math.tan(math.radians(self.predictor.hfov_deg) / 2.0)
+            K = np.array([[f, 0.0, _NOMINAL_W / 2.0], [0.0, f, _NOMINAL_H / 2.0], [0.0, 0.0, 1.0]])
+            poly = visible_footprint(K, _NOMINAL_W, _NOMINAL_H, centre, rot)
+            if len(poly) >= 3:
+                cells = (poly @ to_cell.T + [0.0, height_m / cell_m]) * 16
+                cv2.fillPoly(grid, [np.round(cells).astype(np.int32)], 1, cv2.LINE_8, shift=4)
+        return float(grid.mean())
+
     def minimum_keyframes(self, t0: float, t1: float, rth: float, step_s: float = 1 / 30) -> int:
         """The paper's rule on the truth, every ``step_s``: the next keyframe is the last time still >= Rth; a
         stretch with the wall out of view ends the segment and the first time it is back starts a new one."""
@@ -85,14 +114,27 @@ class TrueOverlap:
         return count
 
 
+def pin_this_process(cpus: set[int]) -> None:
+    """Every thread of this process (the companion) onto ``cpus``; threads started later inherit it. The
+    simulator's vehicle and camera processes, started before, keep every core: on a companion board they are
+    the autopilot and the camera, not the board."""
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(ProcessLookupError):
+            os.sched_setaffinity(int(tid), cpus)
+
+
 def fly_one(args, chain: str, out: Path) -> dict:
     rig = SitlRig(args.mission, log_dir=out / "logs", speedup=args.speedup, fps=args.fps, width_px=args.width,
                   truth_log=out / "truth.jsonl", seed=args.seed)  # fmt: skip
+    all_cpus = os.sched_getaffinity(0)
     cpu0, wall0 = _cpu_s(), time.monotonic()
     with rig:
+        if args.companion_cpus is not None:
+            pin_this_process(args.companion_cpus)
         res = run_live_scan(rig.plan, rig.url, rig.capture, out / "spool", mask=True, progress=False,
                             handle_signals=False, end_action="land", track=chain == "tracker")  # fmt: skip
         camera = rig.camera_counts
+    pin_this_process(all_cpus)
     wall, cpu = time.monotonic() - wall0, _cpu_s() - cpu0
     return _figures(args, chain, rig, res, camera() or {}, wall, cpu, out)
 
@@ -103,12 +145,15 @@ def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: 
     rth = 100.0 * rig.plan.mission.overlap
     lines = read_jsonl(out / "spool" / "manifest.jsonl")
     truth = TrueOverlap(rig.plan, TruthTrack(out / "truth.jsonl"))
+    length_m, height_m = truth.predictor.frame.length_m, float(rig.plan.mission.facade.height_m)
     times = [kf["capture_time_s"] for kf in lines]
     pairs = [truth.percent(a, b) for a, b in zip(times, times[1:], strict=False)]
     known = [p for p in pairs if p is not None]
     considered = st.frames_in - st.skipped_backlog - st.before_telemetry
     return {
         "chain": chain,
+        "companion_cpus": sorted(args.companion_cpus) if args.companion_cpus else "all",
+        "busy_core": args.busy_core,
         "flight": f"{'completed' if res.flight.completed else 'NOT completed'}, {flight_s:.0f} s wall",
         "camera_frames_sent_dropped": [camera.get("frames_sent"), camera.get("frames_dropped")],
         "frames_received": st.frames_in,
@@ -124,6 +169,7 @@ def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: 
         "pairs_true_below_rth": sum(p < rth for p in known),
         "pairs_true_below_rth_minus_3": sum(p < rth - 3.0 for p in known),
         "pairs_without_wall_in_view": len(pairs) - len(known),
+        "wall_covered_by_true_footprints": round(truth.coverage(times, length_m, height_m), 4) if times else 0.0,
         "overlap_warnings": st.overlap_warnings,
         "low_overlap_keyframes": st.low_overlap_keyframes,
         "gaps": st.gaps,
@@ -140,6 +186,8 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
+    p.add_argument("--companion-cpus", type=lambda v: {int(c) for c in v.split(",")}, default=None,
+                   help="pin the companion process to these CPUs, e.g. 0 (a one-core budget, as taskset -c 0)")
     p.add_argument("--out", type=Path, help="keep the runs here (default: a temp dir)")
     args = p.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="chain-tracker-"))

@@ -1,22 +1,28 @@
 """Stitching speed at full camera resolution: N keyframes at 3840x2160 (the paper stitched 35 such images in
-about 38 min on a Xeon E5-2630 v4), the OpenCV renderer side by side with the per-pixel numpy renderer it
-replaced, in one run on the same keyframes.
+about 38 min on a Xeon E5-2630 v4), per stage in wall and CPU seconds, side by side with another checkout of the
+code (``--compare-with``, e.g. main) and with the per-pixel numpy renderer (``--renderers warp,pullback``).
 
 Every frame of the recording is a keyframe; the true overlap of consecutive frames is printed so the input can
-be compared with the paper's (Rth = 80 %). Each renderer runs in its own process (its own peak memory). The
-first run computes features and pairs; the reference run starts from a copy of that cache, so both align the
-same pairs and their maps can be compared pixel by pixel (printed: the largest and mean difference where both
-drew). The machine is shared: compare the ratio of the two render times, not absolute times across runs.
+be compared with the paper's (Rth = 80 %). Each run is its own process (its own peak memory and CPU count; the
+stitcher's stages are timed from outside, by wrapping ``Stitcher``'s stage methods, so any checkout with the
+staged stitcher can be timed). ``--compare-with DIR`` runs the stitcher of DIR (a checkout, e.g. ``git archive
+main``) and this one alternately, each from a fresh cache, ``--rounds`` times: on a shared machine compare the
+CPU seconds (user + sys, all threads) of the two, and the wall seconds only within one round. The pairs each
+accepted, the local residuals and the coverage are printed with the largest and mean map difference where both
+drew. The pullback reference starts from a copy of the first run's cache, so both align the same pairs.
 
     python -c "from sim.camera.recording import generate_recording; generate_recording(
         'missions/demo-facade.yaml', '/tmp/rec4k', stride=20, width_px=3840, max_frames=35)"
     python bench/stitch_speed.py --recording /tmp/rec4k --out /tmp/stitch_speed
+    mkdir /tmp/main && git archive main | tar -x -C /tmp/main
+    python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --rounds 2
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import resource
 import shutil
@@ -28,11 +34,19 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.stitch import StitchConfig, stitch
-from companion.stitch.inputs import load_recording_input
+STAGES = ("features", "priors", "pairs", "alignment", "mesh", "render", "report")
+
+
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def run_one(args) -> dict:
+    """One stitch in this process, with the stitcher found on sys.path (this checkout or ``--compare-with``)."""
+    from companion.stitch import StitchConfig
+    from companion.stitch.inputs import load_recording_input
+    from companion.stitch.worker import Stitcher
     from sim.camera.recording import load_recording
 
     rec = load_recording(args.recording)
@@ -41,22 +55,45 @@ def run_one(args) -> dict:
     inp = load_recording_input(
         Path(args.recording), frames=frames, pose_noise_m=args.pose_noise_m, attitude_noise_deg=args.attitude_noise_deg
     )
-    t0 = time.perf_counter()
-    res = stitch(inp, args.out, StitchConfig(mm_per_px=args.mm_per_px, renderer=args.renderer), progress=False)
-    dt = time.perf_counter() - t0
+    stitcher = Stitcher(StitchConfig(mm_per_px=args.mm_per_px, renderer=args.renderer), progress=False)
+    wall_s: dict[str, float] = {}
+    cpu_s: dict[str, float] = {}
+    for name in STAGES:
+        stage = getattr(stitcher, name)
+
+        def timed(*a, _stage=stage, _name=name, **k):
+            w, c = time.perf_counter(), _cpu_s()
+            try:
+                return _stage(*a, **k)
+            finally:
+                wall_s[_name] = round(wall_s.get(_name, 0.0) + time.perf_counter() - w, 2)
+                cpu_s[_name] = round(cpu_s.get(_name, 0.0) + _cpu_s() - c, 2)
+
+        setattr(stitcher, name, timed)
+    cpu0, t0 = _cpu_s(), time.perf_counter()
+    res = stitcher.stitch(inp, args.out)
+    dt, cpu = time.perf_counter() - t0, _cpu_s() - cpu0
+    report = res.report
     return {
+        "code": str(Path(sys.modules["companion"].__file__).resolve().parents[1]),
         "renderer": args.renderer,
-        "machine": f"{platform.machine()} {platform.system()}, python {sys.version.split()[0]}, cv2 {cv2.__version__}",
+        "machine": f"{platform.machine()} {platform.system()}, {os.cpu_count()} CPUs, python "
+        f"{sys.version.split()[0]}, cv2 {cv2.__version__} ({cv2.getNumThreads()} threads)",
+        "load_average_start": round(args.load0, 1),
+        "load_average_end": round(os.getloadavg()[0], 1),
         "keyframes": len(frames),
         "image_size": [rec.width, rec.height],
         "true_overlap_consecutive": {"median": float(np.median(ov)), "min": float(np.min(ov))},
-        "total_s": round(dt, 1),
-        "timing_s": res.report["timing_s"],
-        "render": res.report["render"],
+        "total_wall_s": round(dt, 1),
+        "total_cpu_s": round(cpu, 1),
+        "wall_s": wall_s,
+        "cpu_s": cpu_s,
+        "render": report["render"],
         "map_px": [res.grid.width, res.grid.height],
         "mm_per_px": res.mm_per_px,
-        "pairs": f"{res.report['pairs_accepted']}/{res.report['pairs_tried']}",
-        "local_residual_px": res.report["alignment"]["local_residual_px"],
+        "pairs": f"{report['pairs_accepted']}/{report['pairs_tried']}",
+        "accepted_pairs": sorted([p["a"], p["b"]] for p in report["pairs"]),
+        "local_residual_px": report["alignment"]["local_residual_px"],
         "coverage_fraction": res.coverage_fraction,
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
     }
@@ -71,8 +108,11 @@ def _map_tiles(out: Path) -> dict[str, np.ndarray]:
 
 
 def compare_maps(a: Path, b: Path) -> dict:
-    """Largest and mean grey-level difference where both maps drew, and pixels covered by only one."""
+    """Largest and mean grey-level difference where both maps drew, and pixels covered by only one (maps of the
+    same size only; a map of another size is reported as such)."""
     ta, tb = _map_tiles(a), _map_tiles(b)
+    if set(ta) != set(tb) or any(ta[k].shape != tb[k].shape for k in ta):
+        return {"comparable": False}
     worst, total, n, cov_diff = 0, 0.0, 0, 0
     for name, x in ta.items():
         y = tb[name]
@@ -84,6 +124,36 @@ def compare_maps(a: Path, b: Path) -> dict:
     return {"max_diff": worst, "mean_diff": round(total / max(n, 1), 5), "coverage_px_differing": cov_diff}
 
 
+def _pair_difference(a: dict, b: dict) -> dict:
+    pa, pb = {tuple(p) for p in a["accepted_pairs"]}, {tuple(p) for p in b["accepted_pairs"]}
+    return {"pairs_accepted_by_both": len(pa & pb), "only_other": sorted(pa - pb), "only_this": sorted(pb - pa)}
+
+
+def _launch(args, run_out: Path, renderer: str, code: Path | None) -> dict:
+    cmd = [sys.executable, __file__, "--recording", args.recording, "--out", str(run_out), "--renderer", renderer]
+    cmd += ["--pose-noise-m", str(args.pose_noise_m), "--attitude-noise-deg", str(args.attitude_noise_deg)]
+    if args.mm_per_px:
+        cmd += ["--mm-per-px", str(args.mm_per_px)]
+    env = dict(os.environ)
+    root = code or Path(__file__).resolve().parents[1]
+    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
+    cmd += ["--load0", str(os.getloadavg()[0])]
+    done = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env, cwd=root)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _summary(label: str, r: dict) -> str:
+    stages = ", ".join(f"{k} {r['wall_s'][k]:.1f}/{r['cpu_s'][k]:.1f}" for k in r["wall_s"] if r["wall_s"][k] >= 0.5)
+    res = r["local_residual_px"]
+    res_txt = f"{res.get('median')} (p95 {res.get('p95')})" if isinstance(res, dict) else str(res)
+    return (
+        f"{label}: wall {r['total_wall_s']:.1f} s, CPU {r['total_cpu_s']:.1f} s (load {r['load_average_start']}-"
+        f"{r['load_average_end']}); wall/CPU per stage: {stages}; pairs {r['pairs']}, residual median {res_txt} px, "
+        f"coverage {r['coverage_fraction']:.4f}, decodes {r['render'].get('keyframe_decodes')}, "
+        f"peak RSS {r['peak_rss_mb']} MB"
+    )
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--recording", required=True)
@@ -92,35 +162,44 @@ def main(argv=None) -> int:
     ap.add_argument("--pose-noise-m", type=float, default=0.3)
     ap.add_argument("--attitude-noise-deg", type=float, default=0.5)
     ap.add_argument("--renderers", default="warp,pullback", help="run these, in this order (first: fresh cache)")
+    ap.add_argument("--compare-with", type=Path, default=None, help="another checkout, run alternately with this")
+    ap.add_argument("--rounds", type=int, default=1, help="with --compare-with: how many alternations")
     ap.add_argument("--renderer", default=None, help=argparse.SUPPRESS)  # one run in this process
+    ap.add_argument("--load0", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.renderer:
         print(json.dumps(run_one(args), default=float))
         return 0
     out = Path(args.out)
     shutil.rmtree(out, ignore_errors=True)
+    if args.compare_with:
+        for k in range(args.rounds):
+            runs = {}
+            for label, code in (("other", args.compare_with.resolve()), ("this", None)):
+                runs[label] = _launch(args, out / f"round{k}" / label, "warp", code)
+                print(json.dumps(runs[label], indent=1, default=float), flush=True)
+            diff = compare_maps(out / f"round{k}" / "other", out / f"round{k}" / "this")
+            diff |= _pair_difference(runs["other"], runs["this"])
+            print(f"round {k}: " + _summary(f"other ({args.compare_with})", runs["other"]))
+            print(f"round {k}: " + _summary("this", runs["this"]))
+            print(f"round {k}: maps {diff}", flush=True)
+        return 0
     runs = []
-    for k, renderer in enumerate(args.renderers.split(",")):
+    names = args.renderers.split(",")
+    for k, renderer in enumerate(names):
         run_out = out / renderer
         if k > 0:  # the same features and pairs as the first run: the maps differ only by the renderer
-            shutil.copytree(out / args.renderers.split(",")[0] / "cache", run_out / "cache")
-        cmd = [sys.executable, __file__, "--recording", args.recording, "--out", str(run_out), "--renderer", renderer]
-        cmd += ["--pose-noise-m", str(args.pose_noise_m), "--attitude-noise-deg", str(args.attitude_noise_deg)]
-        if args.mm_per_px:
-            cmd += ["--mm-per-px", str(args.mm_per_px)]
-        r = json.loads(subprocess.run(cmd, check=True, capture_output=True, text=True).stdout.strip().splitlines()[-1])
-        runs.append(r)
-        print(json.dumps(r, indent=1, default=float))
+            shutil.copytree(out / names[0] / "cache", run_out / "cache")
+        runs.append(_launch(args, run_out, renderer, None))
+        print(json.dumps(runs[-1], indent=1, default=float), flush=True)
+        print(_summary(renderer, runs[-1]), flush=True)
     if len(runs) >= 2:
-        names = args.renderers.split(",")
         diff = compare_maps(out / names[0], out / names[1])
-        ratio = runs[1]["timing_s"]["render"] / max(runs[0]["timing_s"]["render"], 1e-9)
+        ratio = runs[1]["wall_s"]["render"] / max(runs[0]["wall_s"]["render"], 1e-9)
         print(
-            f"render: {names[0]} {runs[0]['timing_s']['render']:.1f} s, {names[1]} {runs[1]['timing_s']['render']:.1f}"
+            f"render: {names[0]} {runs[0]['wall_s']['render']:.1f} s, {names[1]} {runs[1]['wall_s']['render']:.1f}"
             f" s ({ratio:.1f}x); keyframe decodes {runs[0]['render']['keyframe_decodes']} vs "
-            f"{runs[1]['render']['keyframe_decodes']}; total {runs[0]['total_s']:.1f} s ({names[0]}, fresh cache); "
-            f"maps: largest difference {diff['max_diff']} grey levels, mean {diff['mean_diff']}, "
-            f"{diff['coverage_px_differing']} px covered by only one"
+            f"{runs[1]['render']['keyframe_decodes']}; maps: {diff}"
         )
     return 0
 

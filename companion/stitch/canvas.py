@@ -7,6 +7,9 @@ with only the keyframes that reach it; a map larger than ``max_in_memory_px`` is
 
 from __future__ import annotations
 
+from collections import deque
+from collections.abc import Iterator
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +18,7 @@ import numpy as np
 
 from companion.progress import progress_bar
 from companion.stitch.align import AlignedKeyframes
-from companion.stitch.config import StitchConfig
+from companion.stitch.config import StitchConfig, worker_count
 from companion.stitch.exposure import apply_gain, apply_gain_numpy, solve_gains
 from companion.stitch.features import load_image_and_mask, load_mask
 from companion.stitch.inputs import StitchInput
@@ -64,16 +67,19 @@ def render_map(
     def weight_of(k):
         return drawable(load_mask(kfs[k], (W, H)))[1]
 
-    # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB
+    # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB (and,
+    # with the OpenCV renderer, the next one decoded ahead on a second thread while tiles are drawn)
     cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
-    schedule = _schedule(layout, cfg, weight_of, cache_size, legacy)
-    sources = SourceCache(load, size=cache_size, schedule=schedule.cache_schedule)
-    sink = _MapSink(layout, cfg, out / "tiles")
-    for x0, y0 in progress_bar(schedule.tiles, desc="render", disable=not progress, leave=False, unit="it"):
-        w, h = min(cfg.tile_px, layout.grid.width - x0), min(cfg.tile_px, layout.grid.height - y0)
-        near = schedule.drawn[(x0, y0)]
-        img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
-        sink.put(x0, y0, img, cov)
+    with ThreadPoolExecutor(worker_count(cfg)) as pool:
+        schedule = _schedule(layout, cfg, weight_of, cache_size, legacy, pool)
+        ahead = None if legacy else pool
+        sources = SourceCache(load, size=cache_size, schedule=schedule.cache_schedule, prefetch=ahead)
+        sink = _MapSink(layout, cfg, out / "tiles")
+        for x0, y0 in progress_bar(schedule.tiles, desc="render", disable=not progress, leave=False, unit="it"):
+            w, h = min(cfg.tile_px, layout.grid.width - x0), min(cfg.tile_px, layout.grid.height - y0)
+            near = schedule.drawn[(x0, y0)]
+            img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
+            sink.put(x0, y0, img, cov)
     info = {
         "renderer": cfg.renderer,
         "tiles": len(schedule.tiles),
@@ -83,7 +89,9 @@ def render_map(
     return sink.finish(gains, info)
 
 
-def _schedule(layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, legacy: bool) -> _TileSchedule:
+def _schedule(
+    layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, legacy: bool, pool: Executor
+) -> _TileSchedule:
     """Which tiles, in which order, each drawing which keyframes. The reference renderer draws row by row with
     every keyframe whose box reaches the tile; the plan skips keyframes whose seam weight loses everywhere."""
     gw, gh = layout.grid.width, layout.grid.height
@@ -92,7 +100,9 @@ def _schedule(layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, 
     if legacy:
         tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
     else:
-        plan = plan_render(order, weight_of, gw, gh, cfg.tile_px, cfg.feather_px, cache_size)
+        # the seam weights, in the plan's order, decoded side by side on the pool's threads
+        weights = _ordered_map(pool, weight_of, [p.position for p in order], ahead=worker_count(cfg))
+        plan = plan_render(order, weights, gw, gh, cfg.tile_px, cfg.feather_px, cache_size)
         tiles, needs = plan.order, plan.needs
         per_tile = [len(v) for v in needs.values() if v]
         planned = {
@@ -107,6 +117,18 @@ def _schedule(layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, 
     # with the plan, the cache knows every request ahead and keeps what is needed soonest
     cache_schedule = None if legacy else [p.position for tile in tiles for p in drawn[tile]]
     return _TileSchedule(tiles, drawn, cache_schedule, planned)
+
+
+def _ordered_map(pool: Executor, fn, items: list, *, ahead: int) -> Iterator:
+    """``fn`` of each item, in order, computed on ``pool`` with at most ``ahead`` results waiting (each holds a
+    4K seam weight: ``Executor.map`` would start them all and keep every result until it is read)."""
+    waiting: deque[Future] = deque()
+    for item in items:
+        waiting.append(pool.submit(fn, item))
+        if len(waiting) > ahead:
+            yield waiting.popleft().result()
+    while waiting:
+        yield waiting.popleft().result()
 
 
 class _MapSink:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 RENDERERS = ("warp", "pullback")  # "warp": per-cell cv2.warpPerspective; "pullback": the per-pixel numpy reference
@@ -32,6 +33,7 @@ class StitchConfig:
     max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
     feather_px: float = 4.0
     renderer: str = "warp"  # one of RENDERERS
+    workers: int = 0  # threads for features, pair matching and keyframe decoding; 0: one per CPU core
     gain_compensation: bool = True
     preview_width: int = 3000
     min_uncovered_m2: float = 0.02
@@ -40,3 +42,8 @@ class StitchConfig:
     def ransac_threshold_px(self, image_width: int) -> float:
         """The pairwise RANSAC threshold in full-resolution pixels (also the alignment's match sigma)."""
         return self.ransac_px or max(2.0, 0.004 * image_width)
+
+
+def worker_count(cfg: StitchConfig) -> int:
+    """Threads the stitcher's parallel stages use (at least 1)."""
+    return max(1, cfg.workers or len(os.sched_getaffinity(0)))

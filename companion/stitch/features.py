@@ -9,17 +9,19 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+from PIL import Image
 
 from companion.errors import CompanionError
 from companion.files import atomic_path
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
 from companion.progress import progress_bar
-from companion.stitch.config import StitchConfig
+from companion.stitch.config import StitchConfig, worker_count
 from companion.stitch.inputs import KeyframeInput, SkippedKeyframe, StitchInput
 
 log = logging.getLogger(__name__)
@@ -53,6 +55,41 @@ def read_image(path: Path, flags: int, what: str) -> np.ndarray:
     return img
 
 
+_REDUCED_GREY = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4}
+
+
+def load_working_copy(kf: KeyframeInput, work_width: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """(grey image, 0/255 ROI mask of its size, the keyframe's full (width, height)) for feature extraction.
+
+    A JPEG is decoded straight at 1/2 or 1/4 of its size where that is still at least ``work_width`` wide
+    (libjpeg scales in the DCT: at 4K half the decode time of a full colour decode and no full-size copy);
+    the features are then found on the same working copy as before and scaled back to full resolution."""
+    width, height = image_size(kf.image_path)
+    factor = max((f for f in _REDUCED_GREY if work_width <= 0 or width / f >= work_width), default=1)
+    grey = read_image(kf.image_path, _REDUCED_GREY[factor], "keyframe image")
+    if factor > 1 and grey.shape != (-(-height // factor), -(-width // factor)):  # not a JPEG: resized otherwise
+        factor, grey = 1, read_image(kf.image_path, cv2.IMREAD_GRAYSCALE, "keyframe image")
+    mask = load_mask(kf, (width, height))
+    if factor > 1:
+        mask = cv2.resize(mask, (grey.shape[1], grey.shape[0]), interpolation=cv2.INTER_NEAREST)
+    return grey, mask, (width, height)
+
+
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the file's header, without decoding it."""
+    try:
+        with Image.open(path) as im:
+            return im.size
+    except FileNotFoundError as exc:
+        raise CompanionError(
+            f"cannot read keyframe image {path} ({exc.strerror})", "check that the file is there"
+        ) from exc
+    except (OSError, ValueError) as exc:
+        raise CompanionError(
+            f"cannot decode keyframe image {path}", "the spool must write complete JPEG or PNG files"
+        ) from exc
+
+
 def load_image_and_mask(kf: KeyframeInput) -> tuple[np.ndarray, np.ndarray]:
     """BGR image and a 0/255 ROI mask of the same size (all 255 when the keyframe has no mask)."""
     img = read_image(kf.image_path, cv2.IMREAD_COLOR, "keyframe image")
@@ -81,8 +118,10 @@ def detect(
     max_features: int = 4000,
     contrast_threshold: float = 0.01,
     equalize: bool = True,
+    full_size: tuple[int, int] | None = None,
 ) -> Features:
-    """SIFT on a working-resolution copy; keypoints are returned in full-resolution pixels.
+    """SIFT on a working-resolution copy; keypoints are returned in full-resolution pixels. ``full_size``:
+    ``image`` is itself a reduced copy (``load_working_copy``) of a keyframe of this (width, height).
 
     Extraction is the keyframe gate's (:class:`companion.keyframes.FeatureExtractor`): CLAHE before SIFT and a
     contrast threshold below OpenCV's 0.04, the settings that find matchable features on plain walls (plain
@@ -97,7 +136,8 @@ def detect(
         )
     )
     fs = extractor.extract(image, mask)
-    w, h = fs.full_size
+    w, h = full_size or fs.full_size
+    to_work = fs.scale * fs.full_size[0] / w  # working px per full-resolution px
     if fs.descriptors is None or len(fs) == 0:
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, 128), np.float32), (w, h), np.zeros(0, np.float32))
     pts = fs.points
@@ -106,10 +146,10 @@ def detect(
     xi = np.clip(np.round(pts[:, 0]).astype(int), 0, smooth.shape[1] - 1)
     yi = np.clip(np.round(pts[:, 1]).astype(int), 0, smooth.shape[0] - 1)
     lum = smooth[yi, xi].astype(np.float32)
-    return Features(pts / fs.scale, fs.descriptors.astype(np.float32), (w, h), lum)
+    return Features(pts / to_work, fs.descriptors.astype(np.float32), (w, h), lum)
 
 
-FEATURE_SETTINGS = {"v": 3}  # bump "v" when detect() changes, so cached features are recomputed
+FEATURE_SETTINGS = {"v": 4}  # bump "v" when detect() changes, so cached features are recomputed
 
 
 def feature_key(kf: KeyframeInput, settings: dict) -> str:
@@ -144,14 +184,15 @@ def cached_features(
             return Features(z["kp"], z["desc"], (int(z["size"][0]), int(z["size"][1])), z["lum"])
         except (OSError, ValueError, KeyError):
             path.unlink(missing_ok=True)  # torn write from an interrupted run: recompute
-    img, mask = load_image_and_mask(kf)
+    grey, mask, full_size = load_working_copy(kf, work_width)
     feats = detect(
-        img,
+        grey,
         mask,
         work_width=work_width,
         max_features=max_features,
         contrast_threshold=contrast_threshold,
         equalize=equalize,
+        full_size=full_size,
     )
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
@@ -174,9 +215,10 @@ def find_features(inp: StitchInput, cfg: StitchConfig, cache_dir: Path, *, progr
     camera's, is left out and named (not fatal). No usable keyframe at all is an error naming the first reasons."""
     settings = detect_settings(cfg.work_width, cfg.max_features, cfg.contrast_threshold, cfg.equalize)
     feats, keys, usable, skipped = [], [], [], list(inp.skipped)
-    for kf in progress_bar(inp.keyframes, desc="features", disable=not progress, leave=False, unit="it"):
+
+    def extract(kf: KeyframeInput) -> Features | str:
         try:
-            f = cached_features(
+            return cached_features(
                 kf,
                 cache_dir,
                 work_width=cfg.work_width,
@@ -185,18 +227,31 @@ def find_features(inp: StitchInput, cfg: StitchConfig, cache_dir: Path, *, progr
                 equalize=cfg.equalize,
             )
         except CompanionError as exc:
-            skipped.append(SkippedKeyframe(kf.index, exc.problem))
-            continue
+            return exc.problem
         except OSError as exc:
-            skipped.append(SkippedKeyframe(kf.index, f"cannot read its files ({exc})"))
-            continue
-        size_problem = _size_problem(f, inp)
-        if size_problem:
-            skipped.append(SkippedKeyframe(kf.index, size_problem))
-            continue
-        feats.append(f)
-        keys.append(feature_key(kf, settings))
-        usable.append(kf)
+            return f"cannot read its files ({exc})"
+
+    # one keyframe per thread: decoding and SIFT run in OpenCV without the GIL, so the cores work side by side
+    with ThreadPoolExecutor(worker_count(cfg)) as pool:
+        found = pool.map(extract, inp.keyframes)
+        for kf, f in progress_bar(
+            zip(inp.keyframes, found, strict=True),
+            total=len(inp.keyframes),
+            desc="features",
+            disable=not progress,
+            leave=False,
+            unit="it",
+        ):
+            if isinstance(f, str):
+                skipped.append(SkippedKeyframe(kf.index, f))
+                continue
+            size_problem = _size_problem(f, inp)
+            if size_problem:
+                skipped.append(SkippedKeyframe(kf.index, size_problem))
+                continue
+            feats.append(f)
+            keys.append(feature_key(kf, settings))
+            usable.append(kf)
     for sk in skipped:
         log.warning("%s", sk.warning())
     if not usable:

@@ -12,7 +12,7 @@ the best lower bound minus the feather cut-off, so the map is exactly the one dr
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import cv2
@@ -87,7 +87,7 @@ def _warp_bounds(pk: PlacedKeyframe, hi: np.ndarray, lo: np.ndarray, k_block: in
 
 def plan_render(
     placed: list[PlacedKeyframe],
-    weight_of: Callable[[int], np.ndarray],
+    weights: Iterable[np.ndarray],
     width: int,
     height: int,
     tile_px: int,
@@ -96,15 +96,16 @@ def plan_render(
     *,
     block_px: int = 8,
 ) -> RenderPlan:
-    """``weight_of(position)``: the keyframe's full-resolution seam weight (render.drawable), read once here."""
+    """``weights``: the full-resolution seam weight (render.drawable) of each of ``placed``, in that order (an
+    iterator is read one at a time: each weight is reduced to block bounds and dropped)."""
     shape = (-(-height // block_px), -(-width // block_px))
     best_low = np.zeros(shape, np.float32)
     bounds = []
-    for pk in placed:
+    for pk, weight in zip(placed, weights, strict=True):
         src_cell = np.linalg.norm(pk.src_px[0, 1] - pk.src_px[0, 0])
         dst_cell = np.median(np.linalg.norm(np.diff(pk.mesh_px, axis=1), axis=2))
         k_block = max(1, round(block_px * src_cell / max(dst_cell, 1e-9)))  # the same area in keyframe pixels
-        hi, lo = _block_bounds(weight_of(pk.position), k_block)
+        hi, lo = _block_bounds(weight, k_block)
         x0, y0, up, low = _warp_bounds(pk, hi, lo, k_block, block_px, shape)
         box = best_low[y0 : y0 + low.shape[0], x0 : x0 + low.shape[1]]
         cv2.max(box, low, dst=box)

@@ -14,8 +14,10 @@ so memory stays bounded by a row of stitcher tiles whatever the map's size.
 from __future__ import annotations
 
 import math
+import os
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -176,28 +178,45 @@ def write_pyramid(reader: MapReader, tiles_dir: Path, *, url_prefix: str, tile_p
     zmax = max_zoom_for(reader.width, reader.height, tile_px)
     count = 0
     w, h = reader.width, reader.height
-    for tx, ty in _tiles_of_level(w, h, tile_px):
-        d = tiles_dir / str(zmax) / str(tx)
-        d.mkdir(parents=True, exist_ok=True)
-        _write_png(d / f"{ty}.png", reader.read(tx * tile_px, ty * tile_px, tile_px, tile_px))
-        count += 1
-    for z in range(zmax - 1, -1, -1):
-        w, h = _level_size(reader.width, reader.height, zmax - z)
-        below = tiles_dir / str(z + 1)
+    # PNG encoding (and a coarser tile's four reads) run in OpenCV without the GIL: one tile per thread, a level
+    # finished before the next reads it
+    with ThreadPoolExecutor(max(1, len(os.sched_getaffinity(0)))) as pool:
+        written = []
         for tx, ty in _tiles_of_level(w, h, tile_px):
-            block = np.zeros((2 * tile_px, 2 * tile_px, 4), np.uint8)
-            for dx in (0, 1):
-                for dy in (0, 1):
-                    child = below / str(2 * tx + dx) / f"{2 * ty + dy}.png"
-                    if child.exists():
-                        block[dy * tile_px : (dy + 1) * tile_px, dx * tile_px : (dx + 1) * tile_px] = cv2.imread(
-                            str(child), cv2.IMREAD_UNCHANGED
-                        )
-            d = tiles_dir / str(z) / str(tx)
+            d = tiles_dir / str(zmax) / str(tx)
             d.mkdir(parents=True, exist_ok=True)
-            _write_png(d / f"{ty}.png", halve(block))
+            block = reader.read(tx * tile_px, ty * tile_px, tile_px, tile_px)
+            written.append(pool.submit(_write_png, d / f"{ty}.png", block))
+            if len(written) > 64:  # bounded memory: wait for the oldest
+                written.pop(0).result()
             count += 1
+        for f in written:
+            f.result()
+        for z in range(zmax - 1, -1, -1):
+            w, h = _level_size(reader.width, reader.height, zmax - z)
+            jobs = [
+                pool.submit(_coarser_tile, tiles_dir, z, tx, ty, tile_px) for tx, ty in _tiles_of_level(w, h, tile_px)
+            ]
+            for f in jobs:
+                f.result()
+            count += len(jobs)
     return PyramidInfo(tile_px, zmax, reader.width, reader.height, url_prefix + "{z}/{x}/{y}.png", count)
+
+
+def _coarser_tile(tiles_dir: Path, z: int, tx: int, ty: int, tile_px: int) -> None:
+    """Tile (tx, ty) of level z from the four level z + 1 tiles under it, already on disk."""
+    below = tiles_dir / str(z + 1)
+    block = np.zeros((2 * tile_px, 2 * tile_px, 4), np.uint8)
+    for dx in (0, 1):
+        for dy in (0, 1):
+            child = below / str(2 * tx + dx) / f"{2 * ty + dy}.png"
+            if child.exists():
+                block[dy * tile_px : (dy + 1) * tile_px, dx * tile_px : (dx + 1) * tile_px] = cv2.imread(
+                    str(child), cv2.IMREAD_UNCHANGED
+                )
+    d = tiles_dir / str(z) / str(tx)
+    d.mkdir(parents=True, exist_ok=True)
+    _write_png(d / f"{ty}.png", halve(block))
 
 
 def level_image(tiles_dir: Path, info: PyramidInfo, zoom: int) -> np.ndarray:

@@ -1,0 +1,120 @@
+"""The stitcher's speed work keeps its results: features found on a JPEG decoded at a reduced size land where the
+full decode puts them, and features and pairs computed in threads are those of one thread."""
+
+from __future__ import annotations
+
+import threading
+
+import cv2
+import numpy as np
+import pytest
+
+from companion.stitch import StitchConfig, Stitcher, load_input
+from companion.stitch.features import detect, load_image_and_mask, load_working_copy
+from companion.stitch.inputs import KeyframeInput
+from companion.stitch.synthetic import SyntheticWall, make_spool
+
+
+@pytest.fixture(scope="module")
+def spool(tmp_path_factory):
+    d = tmp_path_factory.mktemp("spool")
+    make_spool(d, SyntheticWall(length_m=6.0, height_m=3.0, seed=4), pose_noise_m=0.1, seed=4)
+    return d
+
+
+def test_features_of_the_reduced_decode_land_where_the_full_decode_puts_them(tmp_path):
+    rng = np.random.default_rng(3)
+    texture = cv2.resize(rng.integers(0, 255, (135, 240), np.uint8), (1920, 1080), interpolation=cv2.INTER_CUBIC)
+    image = cv2.merge((texture, cv2.GaussianBlur(texture, (0, 0), 2), texture))
+    mask = np.full((1080, 1920), 255, np.uint8)
+    mask[:, 1500:] = 0  # background on the right: no feature may come from there
+    cv2.imwrite(str(tmp_path / "k.jpg"), image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    cv2.imwrite(str(tmp_path / "k.png"), mask)
+    kf = KeyframeInput(0, tmp_path / "k.jpg", tmp_path / "k.png", None)
+
+    grey, small_mask, size = load_working_copy(kf, 800)
+    assert size == (1920, 1080) and grey.shape == (540, 960) and small_mask.shape == grey.shape  # decoded at 1/2
+    reduced = detect(grey, small_mask, work_width=800, max_features=1500, full_size=size)
+    full = detect(*load_image_and_mask(kf), work_width=800, max_features=1500)
+    assert reduced.image_size == full.image_size == (1920, 1080)
+    assert len(reduced.keypoints) > 500 and reduced.keypoints[:, 0].max() < 1500
+    # the same wall points: mutual nearest descriptors, compared in full-resolution pixels
+    bf = cv2.BFMatcher(cv2.NORM_L2, crossCheck=True)
+    m = bf.match(reduced.descriptors, full.descriptors)
+    d = np.array([np.linalg.norm(reduced.keypoints[x.queryIdx] - full.keypoints[x.trainIdx]) for x in m])
+    assert len(m) > 0.5 * len(reduced.keypoints)
+    assert np.median(d) < 0.6  # full-resolution pixels (one working pixel is 2.4)
+
+    # a PNG keyframe of odd size (no reduced decode in the codec): the full decode, still the right size
+    cv2.imwrite(str(tmp_path / "odd.png"), image[:1079, :1919])
+    cv2.imwrite(str(tmp_path / "odd_mask.png"), mask[:1079, :1919])
+    grey, small_mask, size = load_working_copy(
+        KeyframeInput(1, tmp_path / "odd.png", tmp_path / "odd_mask.png", None), 800
+    )
+    assert size == (1919, 1079) and small_mask.shape == grey.shape and grey.shape[0] in (539, 1079)
+
+
+def test_threads_find_the_features_and_pairs_of_one_thread(spool, tmp_path):
+    inp = load_input(spool)
+    runs = []
+    for workers in (1, 3):
+        st = Stitcher(StitchConfig(cells=(8, 4), workers=workers), progress=False)
+        found = st.features(inp, tmp_path / f"w{workers}")
+        priors = st.priors(found)
+        runs.append((found, st.pairs(found, priors, tmp_path / f"w{workers}")))
+    (f1, p1), (f3, p3) = runs
+    for a, b in zip(f1.features, f3.features, strict=True):
+        assert np.array_equal(a.keypoints, b.keypoints) and np.array_equal(a.descriptors, b.descriptors)
+    assert len(p1.results) == len(p3.results) > len(inp.keyframes)
+    assert sum(r.accepted for r in p1.results) > len(inp.keyframes)
+    for a, b in zip(p1.results, p3.results, strict=True):
+        assert (a.i, a.j, a.accepted, a.inliers) == (b.i, b.j, b.accepted, b.inliers)
+        if a.accepted:
+            assert np.array_equal(a.H, b.H) and np.array_equal(a.pts_i, b.pts_i)
+
+
+def test_the_cache_decodes_ahead_the_same_keyframes_in_the_same_order():
+    from concurrent.futures import ThreadPoolExecutor
+
+    from companion.stitch.render import SourceCache
+    from companion.stitch.render_plan import requests
+
+    needs = {(x, 0): {x // 100, x // 100 + 1, (x // 100 + 5) % 9} for x in range(0, 900, 100)}
+    schedule = requests(sorted(needs), needs)
+    runs = []
+    for ahead in (None, ThreadPoolExecutor(1)):
+        loads = []
+
+        def load(k, loads=loads):
+            loads.append((k, threading.current_thread() is threading.main_thread()))
+            mask = np.full((4, 4), 255, np.uint8)
+            return np.full((4, 4, 3), k, np.uint8), mask
+
+        cache = SourceCache(load, size=3, schedule=schedule, prefetch=ahead)
+        got = [int(cache.get(k)[0][0, 0, 0]) for k in schedule]
+        runs.append((loads, got, cache.decoded))
+    (plain, got_plain, n_plain), (fetched, got_fetched, n_fetched) = runs
+    assert got_plain == got_fetched == schedule
+    assert [k for k, _ in plain] == [k for k, _ in fetched] and n_plain == n_fetched == len(plain) > 9
+    assert all(on_main for _, on_main in plain)
+    assert sum(not on_main for _, on_main in fetched) >= len(fetched) - 1  # all but the first, decoded ahead
+
+
+def test_candidate_pairs_follow_the_path_and_its_revisits_not_every_keyframe_in_view():
+    from companion.stitch.pairs import candidate_pairs
+
+    # two vertical scan legs 2.1 m apart (62 % side overlap), down then up, a keyframe every 0.5 m (85 %)
+    ups = [10.0 - 0.5 * k for k in range(21)]
+    centres = [(0.0, u) for u in ups] + [(2.1, u) for u in reversed(ups)]
+    priors = [np.array([[5.5, 0.0, x], [0.0, 5.5, y], [0.0, 0.0, 1.0]]) for x, y in centres]
+    corners = np.array([[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3]])  # 5.5 x 3.3 m footprints
+    pairs = candidate_pairs(len(priors), priors, corners, neighbours=2)
+    assert {(i, i + 1) for i in range(41)} | {(i, i + 2) for i in range(40)} <= set(pairs)
+    along = [(i, j) for i, j in pairs if j - i > 2 and (j < 21) == (i < 21)]
+    assert along == []  # along a leg, only the sequence neighbours (was up to 6 more per keyframe)
+    across = [(i, j) for i, j in pairs if i < 21 <= j]
+    for i, j in across:  # the leg back passes the same place: matched where the footprints overlap
+        assert abs(centres[i][1] - centres[j][1]) < 3.3
+    assert {i for i, _ in across} == set(range(21)) and len(pairs) < 41 * 8
+    # without telemetry: the path alone
+    assert candidate_pairs(4, [None] * 4, corners) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]

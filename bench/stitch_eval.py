@@ -11,6 +11,16 @@ camera poses plus Gaussian noise (--pose-noise-m, --attitude-noise-deg), as a GN
 
     python bench/stitch_eval.py --mission missions/demo-facade.yaml --stride 10 --max-keyframes 40 \
         --peers scans,panorama,stitching --out /tmp/stitch_eval
+
+Real-texture passes (issue 15 item 6, ``--passes``): held-out real facade photos on the wall at 4 m, real
+backgrounds 120 m behind (``sim/camera/photo_passes.py``), keyframes from our gate, telemetry exact, with
+0.5 m / 2 deg noise on every keyframe, and with that noise plus a 1.5 m jump in the middle of a strip; raw
+frames (every rendered frame, no mask) with the noise. Each spool is stitched by this checkout, by another
+checkout's code (``--baseline-ref``, e.g. main: `git archive` of that ref, run as ``companion stitch`` in its own
+process) and, on the keyframes, by cv2.Stitcher SCANS. Scores against the wall photo: bench/stitch_photo_passes.py.
+
+    python bench/stitch_eval.py --passes ornate-entry,dji-plain-wall --variants exact,noise,jump,raw \
+        --baseline-ref main --peers scans --out /tmp/stitch_eval_photo
 """
 
 from __future__ import annotations
@@ -112,6 +122,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     ap.add_argument("--no-image-only", action="store_true", help="skip our run without telemetry")
     ap.add_argument("--out", default="/tmp/stitch_eval")
+    ap.add_argument("--passes", default=None, help="real-texture passes (comma list) instead of a recording")
+    ap.add_argument("--frames", type=int, default=80, help="--passes: rendered frames per pass")
+    ap.add_argument("--variants", default="exact,noise,jump,raw", help="--passes: telemetry/input variants")
+    ap.add_argument("--jump-m", type=float, default=1.5, help="--passes: the GNSS jump (along the wall)")
+    ap.add_argument("--baseline-ref", default=None, help="--passes: also stitch with this git ref's code")
     return ap.parse_args(argv)
 
 
@@ -200,8 +215,130 @@ def run_peers(peers: list[str], rec, frames: list[int], truth: Truth, out: Path)
     return methods
 
 
+def baseline_tree(ref: str, out: Path) -> Path:
+    """This repository's ``companion`` package at ``ref`` (git archive), to run today's code side by side."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    sha = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", ref], check=True, capture_output=True,
+                         text=True).stdout.strip()
+    tree = out / f"baseline-{sha}"
+    if not (tree / "companion").is_dir():
+        tree.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(root), "archive", sha, "companion", "sim"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
+    return tree
+
+
+def stitch_with(tree: Path, spool: Path, out: Path) -> tuple[float, dict | None]:
+    """``companion stitch`` from another checkout's code, in its own process: (seconds, report or None)."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "companion.cli", "stitch", str(spool.resolve()), "--out", str(out.resolve())]
+    done = subprocess.run([*cmd, "--quiet"], env=env, cwd=str(tree), capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    if done.returncode != 0 or not (out / "report.json").exists():
+        print(f"  baseline failed ({done.returncode}): {done.stderr.strip()[-300:]}")
+        return seconds, None
+    return seconds, json.loads((out / "report.json").read_text())
+
+
+def run_photo_passes(args) -> int:
+    """Every pass x variant: our stitcher, the baseline ref's, cv2.Stitcher on the keyframes; one JSON line each
+    and a markdown table at the end."""
+    from stitch_photo_passes import grid_of_report, jump_errors, render_pass, score_map, wall_truth, write_spool
+
+    from companion.stitch.inputs import load_input
+    from companion.stitch.synthetic import TelemetryErrors
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    tree = baseline_tree(args.baseline_ref, out) if args.baseline_ref else None
+    peers = [] if args.peers == "none" else [p for p in args.peers.split(",") if p == "scans"]
+    rows = []
+    for name in args.passes.split(","):
+        t0 = time.process_time()
+        rp = render_pass(name, args.frames, args.width_px)
+        print(f"pass {name}: {len(rp.renderer)} frames {args.width_px} px -> {len(rp.keyframes)} keyframes "
+              f"(minimum {len(rp.minimum)}); keyframe pairs' true overlap min {min(rp.pair_overlap):.1f} %, "
+              f"all {[round(v, 1) for v in rp.pair_overlap]} ({time.process_time() - t0:.0f} s CPU)", flush=True)
+        for variant in args.variants.split(","):
+            raw = variant == "raw"
+            frames = list(range(len(rp.renderer))) if raw else rp.keyframes
+            errors = {"exact": TelemetryErrors()}.get(variant) or (
+                jump_errors(rp, frames, 0.5, 2.0, (args.jump_m, 0.0)) if variant == "jump"
+                else TelemetryErrors(0.5, 2.0))
+            mask = "none" if raw else "truth"
+            spool = write_spool(rp, frames, out / name / f"spool-{variant}", mask=mask, errors=errors)
+            methods = {"ours": None} | ({"baseline": tree} if tree else {})
+            for method, code in methods.items():
+                dest = out / name / f"{method}-{variant}"
+                t1 = time.perf_counter()
+                if code is None:
+                    res = stitch(load_input(spool), dest, StitchConfig(), progress=False)
+                    seconds, report, image, cov = time.perf_counter() - t1, res.report, res.map_image, res.coverage
+                else:
+                    seconds, report = stitch_with(code, spool, dest)
+                    image = cv2.imread(str(dest / "map.png")) if report else None
+                    cov = cv2.imread(str(dest / "coverage.png"), cv2.IMREAD_GRAYSCALE) if report else None
+                grid = grid_of_report(report) if report else None
+                score = score_map(image, cov, wall_truth(rp, frames, grid), rectified=True) if grid else {"map": False}
+                row = {"pass": name, "variant": variant, "method": method, "frames": len(frames), "mask": mask,
+                       "time_s": round(seconds, 1), **score,
+                       "anchor": (report or {}).get("anchor"), "pairs": (report or {}).get("pairs_accepted")}
+                rows.append(row)
+                print(json.dumps(row, default=float), flush=True)
+            if "scans" in peers and variant == "exact":
+                images = [rp.renderer.render(i).image for i in frames]
+                masks = [rp.renderer.render(i).roi_mask for i in frames]
+                t1 = time.perf_counter()
+                pano, status = peer_cv2(images, masks, cv2.Stitcher_SCANS)
+                seconds = time.perf_counter() - t1
+                grid = truth_grid_for_pass(rp)
+                score = score_map(pano, None, wall_truth(rp, frames, grid), rectified=False) if pano is not None \
+                    else {"map": False, "status": status}
+                row = {"pass": name, "variant": "keyframes", "method": "cv2.Stitcher SCANS", "frames": len(frames),
+                       "mask": mask, "time_s": round(seconds, 1), **score}
+                rows.append(row)
+                print(json.dumps(row, default=float), flush=True)
+    (out / "photo_results.json").write_text(json.dumps(rows, indent=1, default=float))
+    print(photo_table(rows))
+    return 0
+
+
+def truth_grid_for_pass(rp):
+    from stitch_photo_passes import truth_grid_for
+
+    cam = rp.spec.camera
+    return truth_grid_for(rp, rp.spec.standoff_m / cam.K[0, 0])
+
+
+def photo_table(rows: list[dict]) -> str:
+    def f(v, fmt):
+        return "-" if v is None else format(v, fmt)
+
+    lines = ["| pass | input | method | SSIM | seams p95 px | seen wall covered | shift median mm | "
+             "background inliers | anchor: outvoted / placement sigma | time s |", "|" + "---|" * 10]
+    for r in rows:
+        a = r.get("anchor") or {}
+        anchor = f"{len(a.get('outvoted', []))} / {a.get('placement_sigma_m')} m" if a else "-"
+        cov = r.get("coverage")
+        lines.append(f"| {r['pass']} | {r['variant']} ({r['frames']}, mask {r['mask']}) | {r['method']} | "
+                     f"{f(r.get('ssim'), '.3f')} | {f(r.get('seam_p95_px'), '.2f')} | "
+                     f"{'-' if cov is None else f'{100 * cov:.1f} %'} | {f(r.get('shift_median_mm'), '.0f')} | "
+                     f"{r.get('background_inliers', '-')} | {anchor} | {r['time_s']} |")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
+    if args.passes:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        return run_photo_passes(args)
     from sim.camera.recording import load_recording
 
     out = Path(args.out)

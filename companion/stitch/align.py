@@ -3,7 +3,11 @@
 Unknowns: one homography G_k (image-normalised -> plane metres, 8 dof) per keyframe. Residuals: matched
 inliers of every accepted pair, carried from one image through G_a then G_b^-1, must land on their match
 (symmetric transfer error, measured in the images so that shrinking the whole map earns nothing), and
-(where telemetry exists) each image must stay near where its pose puts it (a soft prior, ``sigma_prior_m``).
+(where telemetry exists) each image should stay near where its pose puts it: a weak, robust prior (Cauchy on the
+image centre, ``sigma_prior_m``), so GNSS noise only decides where the map as a whole sits and a GNSS jump on a
+few keyframes is outvoted by the images. Images first: the keyframes are placed by chaining the pairwise
+homographies, and each connected part is then moved onto the telemetry as one piece (the median offset); the
+residual between the two after the adjustment is how well the map is anchored (``Anchoring``).
 Solved by Levenberg-Marquardt with Huber weights on dense normal equations (8 N unknowns: 200 keyframes is a
 1600x1600 system), so adding keyframes never makes the adjustment fail the way a chained panorama does;
 drift between chained pairs is spread out.
@@ -82,6 +86,7 @@ _ANCHOR_PTS = np.array([[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3], [0.0
 _CENTRE_RELATIVE = np.eye(5)
 _CENTRE_RELATIVE[:4, 4] = -1.0
 _HUBER = 3.0
+_CAUCHY = 1.0  # the centre prior's scale in units of sigma_prior_m: weight 1/2 at one sigma, 1/10 at three
 
 
 @dataclass(frozen=True)
@@ -101,6 +106,33 @@ class _Anchor:
     k: int
     target: np.ndarray  # (5, 2) plane points of _ANCHOR_PTS
     sigma: np.ndarray  # (5,)
+    robust: bool = True  # the centre term is Cauchy (telemetry), not Gaussian (the gauge seed)
+
+
+def _image_first_init(n: int, edges, priors: list[np.ndarray | None]) -> list[np.ndarray | None]:
+    """Each connected part of the pair graph placed by its images (chained from the keyframe with the most
+    inliers, oriented by its telemetry), then moved as one piece by the median offset between its image
+    centres and where telemetry puts them: one bad pose cannot bend the map, a jump cannot move it far.
+    Keyframes in no accepted pair stand where telemetry puts them; parts without any telemetry are not placed."""
+    G: list[np.ndarray | None] = [None] * n
+    strength = np.zeros(n)
+    for i, j, _, inl in edges:
+        strength[i] += inl
+        strength[j] += inl
+    centre = np.zeros((1, 2))
+    for comp in _components(n, [(e[0], e[1]) for e in edges]):
+        told = [k for k in comp if priors[k] is not None]
+        if not told:
+            continue
+        root = max(told, key=lambda k: (strength[k], -k))
+        chained = _spanning_init(n, edges, {root: priors[root]})
+        offsets = np.array([apply_h(priors[k], centre)[0] - apply_h(chained[k], centre)[0] for k in told])
+        shift = np.median(offsets, axis=0)
+        T = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
+        for k in comp:
+            Gk = T @ chained[k]
+            G[k] = Gk / Gk[2, 2]
+    return G
 
 
 def global_alignment(
@@ -119,7 +151,7 @@ def global_alignment(
     keyframe has a telemetry prior (it fixes the gauge)."""
     edges, obs = _pair_observations(pairs, to_norm)
     seeds = _seeds(n, priors, edges, reference)
-    G = _spanning_init(n, edges, seeds)
+    G = _image_first_init(n, edges, priors) if any(P is not None for P in priors) else _spanning_init(n, edges, seeds)
     dropped = {k: "not connected to the map (no accepted pair) and no telemetry pose" for k in range(n) if G[k] is None}
     placed = [k for k in range(n) if G[k] is not None]
     problem = _Problem(
@@ -167,7 +199,7 @@ def _anchors(placed: list[int], priors, seeds, sigma_prior_m: float, sigma_shape
             sig = np.array([sigma_shape_m] * 4 + [sigma_prior_m])
             anchors.append(_Anchor(k, apply_h(priors[k], _ANCHOR_PTS), sig))
         elif k in seeds:
-            anchors.append(_Anchor(k, apply_h(seeds[k], _ANCHOR_PTS), np.full(5, 1e-6)))  # gauge: pin the seed
+            anchors.append(_Anchor(k, apply_h(seeds[k], _ANCHOR_PTS), np.full(5, 1e-6), robust=False))  # gauge
     return anchors
 
 
@@ -237,15 +269,23 @@ class _Problem:
         return J
 
     def _add_anchor(self, p, anchor: _Anchor, JTJ, JTr) -> float:
+        """The telemetry prior: shape (corners relative to the centre) Gaussian, the centre Cauchy-robust (a
+        pinned gauge seed stays Gaussian)."""
         ck = self.col[anchor.k]
         u, J = _jac(p[8 * ck : 8 * ck + 8], _ANCHOR_PTS)
         r = (_CENTRE_RELATIVE @ (u - anchor.target)) / anchor.sigma[:, None]
+        wgt = np.ones(len(r))
+        cost = np.sum(r**2, axis=1)
+        if anchor.robust:
+            s_ = cost[4]
+            wgt[4] = 1.0 / (1.0 + s_ / _CAUCHY**2)
+            cost[4] = _CAUCHY**2 * np.log1p(s_ / _CAUCHY**2)
         if JTJ is not None:
             J = np.einsum("ab,bpi->api", _CENTRE_RELATIVE, J) / anchor.sigma[:, None, None]
             s = slice(8 * ck, 8 * ck + 8)
-            JTJ[s, s] += np.einsum("npi,npj->ij", J, J)
-            JTr[s] += np.einsum("npi,np->i", J, r)
-        return float(np.sum(r**2))
+            JTJ[s, s] += np.einsum("n,npi,npj->ij", wgt, J, J)
+            JTr[s] += np.einsum("n,npi,np->i", wgt, J, r)
+        return float(np.sum(cost))
 
 
 def _levenberg_marquardt(problem: _Problem, params: np.ndarray, iterations: int) -> tuple[np.ndarray, int, float]:
@@ -306,6 +346,58 @@ class AlignmentRound:
 
 
 @dataclass(frozen=True)
+class Anchoring:
+    """How well the map is anchored on the wall: after the adjustment, the offset (plane metres) between where
+    the images put each keyframe's centre and where its telemetry does. Keyframes whose telemetry is more than
+    ``outvoted_sigmas`` prior sigmas off (a GNSS jump) were outvoted by the images; the rest decide where the
+    map sits, to about ``placement_sigma_m`` (their robust spread over the square root of their number)."""
+
+    keyframes: int  # keyframes with telemetry that were placed
+    offsets_m: tuple[float, ...]  # per such keyframe (in ``positions`` order): |telemetry centre - image centre|
+    positions: tuple[int, ...]
+    outvoted: tuple[int, ...]  # keyframe positions
+    placement_sigma_m: float
+    mean_offset_m: tuple[float, float]  # (along, up) mean over the keyframes not outvoted
+
+    def summary(self) -> dict:
+        d = np.asarray(self.offsets_m)
+        return {
+            "keyframes": self.keyframes,
+            "offset_m": {
+                "median": round(float(np.median(d)), 3),
+                "p95": round(float(np.percentile(d, 95)), 3),
+                "max": round(float(d.max()), 3),
+            },
+            "mean_offset_m": [round(v, 3) for v in self.mean_offset_m],
+            "placement_sigma_m": round(self.placement_sigma_m, 3),
+        }
+
+
+def anchoring_of(G: list[np.ndarray | None], priors, sigma_prior_m: float, outvoted_sigmas: float = 3.0):
+    """The :class:`Anchoring` of aligned homographies ``G`` against the telemetry ``priors`` (None when no
+    placed keyframe has telemetry)."""
+    told = [k for k in range(len(G)) if G[k] is not None and priors[k] is not None]
+    if not told:
+        return None
+    centre = np.zeros((1, 2))
+    d = np.array([apply_h(priors[k], centre)[0] - apply_h(G[k], centre)[0] for k in told])
+    norm = np.linalg.norm(d, axis=1)
+    bad = norm > outvoted_sigmas * sigma_prior_m
+    good = d[~bad] if (~bad).any() else d
+    spread = 1.4826 * np.median(np.abs(good - np.median(good, axis=0)), axis=0)
+    spread = np.maximum(spread, np.std(good, axis=0) if len(good) > 1 else spread)
+    sigma = float(np.linalg.norm(spread) / np.sqrt(len(good)))
+    return Anchoring(
+        len(told),
+        tuple(float(v) for v in norm),
+        tuple(told),
+        tuple(k for k, b in zip(told, bad, strict=True) if b),
+        sigma,
+        (float(good[:, 0].mean()), float(good[:, 1].mean())),
+    )
+
+
+@dataclass(frozen=True)
 class AlignedKeyframes:
     """The alignment stage's output: each keyframe's homography onto the plane (``alignment.G``) and the pairs
     after outlier rejection (pairs inconsistent with all the others are marked not accepted, with the reason)."""
@@ -313,6 +405,7 @@ class AlignedKeyframes:
     alignment: Alignment
     pairs: tuple[PairResult, ...]
     rounds: tuple[AlignmentRound, ...]
+    anchoring: Anchoring | None = None  # None without telemetry
 
     @property
     def placed(self) -> list[int]:
@@ -360,7 +453,8 @@ def align_keyframes(
         for k in bad:
             why = f"inconsistent with the other pairs after global alignment ({errs[k]:.1f} px)"
             results[k] = replace(results[k], accepted=False, reason=why)
-    return AlignedKeyframes(al, tuple(results), tuple(rounds))
+    anchoring = anchoring_of(al.G, priors.priors, cfg.sigma_prior_m) if priors.use_poses else None
+    return AlignedKeyframes(al, tuple(results), tuple(rounds), anchoring)
 
 
 def _pair_residuals_px(al: Alignment, results: list[PairResult], to_norm: np.ndarray, focal_px: float):

@@ -19,10 +19,15 @@ class StitchConfig:
     ransac_px: float | None = None  # default: 0.4 % of the image width, at least 2 px
     min_inliers: int = 15
     max_pair_residual_px: float = 8.0  # a pair still this far off after global alignment is an outlier
-    pose_gate_m: float = 1.0  # matches/models landing further apart than this on the wall contradict telemetry
+    # matches/models landing further apart than this on the wall contradict telemetry: loose, because GNSS next
+    # to a wall is off by metres (0.5 m noise on each of two keyframes and a 1.5 m jump: ~3 m between them)
+    pose_gate_m: float = 4.0
+    far_motion_ratio: float = 0.25  # a plane moving less than this fraction of another in a pair is background
     use_poses: bool = True
+    # the telemetry prior in the global alignment is robust (Cauchy): within about sigma it pulls like a Gaussian,
+    # far beyond (a GNSS jump) it hardly pulls at all, so the images outvote it
     sigma_prior_m: float = 0.5  # how far GNSS may put an image centre off on the wall
-    sigma_shape_m: float = 0.05  # how far attitude/range errors may bend an image's corners (relative to centre)
+    sigma_shape_m: float = 0.15  # how far attitude errors may bend an image's corners (relative to centre): 2 deg
     local: bool = True  # APAP mesh; False draws each keyframe with its global homography only
     cells: tuple[int, int] = (16, 9)  # Cx x Cy
     rho_px: float | None = None  # Eq. 4 scale; default 10 % of the image width

@@ -136,9 +136,12 @@ def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_p
     return res
 
 
-def register_to_truth(image: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def register_to_truth(
+    image: np.ndarray, truth: np.ndarray, *, erode_px: int = 5
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Best homography placement of a map with no known geometry (a peer stitcher's panorama) onto the truth
-    grid, by SIFT + RANSAC. Returns (warped image, warped coverage) or None when it cannot be registered."""
+    grid, by SIFT + RANSAC. Returns (warped image, warped coverage eroded by ``erode_px``, so interpolated
+    borders do not count) or None when it cannot be registered."""
     sift = cv2.SIFT_create(nfeatures=8000)
     g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     g2 = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY)
@@ -157,4 +160,4 @@ def register_to_truth(image: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray,
     size = (truth.shape[1], truth.shape[0])
     warped = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR)
     cov = cv2.warpPerspective((image.max(axis=2) > 0).astype(np.uint8) * 255, H, size, flags=cv2.INTER_NEAREST)
-    return warped, cv2.erode(cov, np.ones((5, 5), np.uint8))
+    return warped, cv2.erode(cov, np.ones((erode_px, erode_px), np.uint8)) if erode_px > 1 else cov

@@ -1,8 +1,12 @@
 """The map's grid and every keyframe's mesh on it (paper Eq. 4): the mesh stage between alignment and rendering.
 
 The grid spans the facade (telemetry: the wall's length and height) or the aligned images' content (no
-telemetry), at the keyframes' median native resolution unless a scale is asked for. Each keyframe's APAP mesh
-pulls its matched features towards the midpoints of their matches on the plane, so neighbours meet.
+telemetry), at the keyframes' median native resolution unless a scale is asked for. With telemetry the facade
+rectangle is grown, where the images reach, by how uncertain telemetry's placement of the map is (three times
+the anchoring's ``placement_sigma_m``, at most ``MAX_ANCHOR_MARGIN_M``): a map the images hold together but GNSS
+puts 20 cm off is not cut at the wall's ends. Coverage is still measured on the facade rectangle.
+Each keyframe's APAP mesh pulls its matched features towards the midpoints of their matches on the plane, so
+neighbours meet.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ class MapLayout:
     """The mesh stage's output: the map grid, each placed keyframe's mesh on the plane and in map pixels."""
 
     grid: MapGrid
+    facade_px: tuple[int, int, int, int]  # (x0, y0, x1, y1): the facade rectangle (the whole grid without poses)
     meshes: dict[int, WarpedMesh]  # keyframe position -> mesh on the plane (every aligned keyframe)
     placed: dict[int, PlacedKeyframe]  # keyframe position -> mesh in map pixels (only those inside the map)
     scale_known: bool
@@ -40,7 +45,7 @@ class MapLayout:
 def lay_out(
     inp: StitchInput, priors: PlanePriors, aligned: AlignedKeyframes, cfg: StitchConfig, *, progress: bool
 ) -> MapLayout:
-    grid = map_grid(inp, priors, aligned, cfg)
+    grid, facade_px = map_grid(inp, priors, aligned, cfg)
     targets = _mesh_targets(aligned, inp.camera)
     ransac_px = cfg.ransac_threshold_px(inp.camera.width)
     max_shift_m = max(cfg.pose_gate_m, 50 * ransac_px * priors.plane_unit_m)
@@ -62,22 +67,38 @@ def lay_out(
         pk = place(k, meshes[k], grid)
         if pk is not None:
             placed[k] = pk
-    return MapLayout(grid, meshes, placed, priors.scale_known)
+    return MapLayout(grid, facade_px, meshes, placed, priors.scale_known)
 
 
-def map_grid(inp: StitchInput, priors: PlanePriors, aligned: AlignedKeyframes, cfg: StitchConfig) -> MapGrid:
-    """The map's pixel grid on the plane; an absurd size (a bad scale or geometry) is refused before anything
-    is allocated."""
+MAX_ANCHOR_MARGIN_M = 1.0
+MIN_ANCHOR_MARGIN_M = 0.05
+
+
+def map_grid(
+    inp: StitchInput, priors: PlanePriors, aligned: AlignedKeyframes, cfg: StitchConfig
+) -> tuple[MapGrid, tuple[int, int, int, int]]:
+    """The map's pixel grid on the plane and the facade rectangle in it; an absurd size (a bad scale or
+    geometry) is refused before anything is allocated."""
     native = _native_m_per_px(aligned, inp.camera)
     m_per_px = (cfg.mm_per_px / 1000.0) if (cfg.mm_per_px and priors.scale_known) else native
+    W, H = inp.camera.width, inp.camera.height
+    to_norm = np.linalg.inv(inp.camera.K)
+    image = np.array([[0, 0], [W, 0], [W, H], [0, H]])
+    pts = np.vstack([apply_h(aligned.alignment.G[k] @ to_norm, image) for k in aligned.placed])
+    content = (pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max())
     if priors.use_poses:
-        extent = (0.0, inp.facade.frame.length_m, 0.0, inp.facade.height_m)
+        facade = (0.0, inp.facade.frame.length_m, 0.0, inp.facade.height_m)
+        anchoring = aligned.anchoring
+        margin = min(MAX_ANCHOR_MARGIN_M, 3.0 * anchoring.placement_sigma_m) if anchoring else 0.0
+        margin = margin if margin >= MIN_ANCHOR_MARGIN_M else 0.0  # well-anchored maps keep the facade's grid
+        extent = (
+            min(facade[0], max(content[0], facade[0] - margin)),
+            max(facade[1], min(content[1], facade[1] + margin)),
+            min(facade[2], max(content[2], facade[2] - margin)),
+            max(facade[3], min(content[3], facade[3] + margin)),
+        )
     else:
-        W, H = inp.camera.width, inp.camera.height
-        to_norm = np.linalg.inv(inp.camera.K)
-        image = np.array([[0, 0], [W, 0], [W, H], [0, H]])
-        pts = np.vstack([apply_h(aligned.alignment.G[k] @ to_norm, image) for k in aligned.placed])
-        extent = (pts[:, 0].min(), pts[:, 0].max(), pts[:, 1].min(), pts[:, 1].max())
+        facade = extent = content
     gw = int(math.ceil((extent[1] - extent[0]) / m_per_px))
     gh = int(math.ceil((extent[3] - extent[2]) / m_per_px))
     if gw * gh > cfg.max_map_px or gw <= 0 or gh <= 0:
@@ -85,7 +106,10 @@ def map_grid(inp: StitchInput, priors: PlanePriors, aligned: AlignedKeyframes, c
             f"the map would be {gw}x{gh} px at {m_per_px * 1000:.2f} mm/px",
             "pass a coarser --mm-per-px, or check the telemetry/facade geometry",
         )
-    return MapGrid(extent[0], extent[3], m_per_px, gw, gh)
+    grid = MapGrid(extent[0], extent[3], m_per_px, gw, gh)
+    x0, y0 = np.round(grid.to_px(np.array([facade[0], facade[3]]))).astype(int)
+    x1, y1 = np.round(grid.to_px(np.array([facade[1], facade[2]]))).astype(int)
+    return grid, (max(0, int(x0)), max(0, int(y0)), min(gw, int(x1)), min(gh, int(y1)))
 
 
 def _native_m_per_px(aligned: AlignedKeyframes, camera: CameraModel) -> float:

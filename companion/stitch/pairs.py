@@ -1,8 +1,15 @@
-"""Pairwise registration: SIFT matches -> DLT/RANSAC homography (paper Eq. 3), telemetry gate, affine fallback.
+"""Pairwise registration: SIFT matches -> DLT/RANSAC homography (paper Eq. 3), affine fallback, far-plane check.
 
-Repetitive facades (rows of identical windows) make wrong-but-consistent matches one window apart. Where both
-keyframes have a telemetry prior, a match whose two ends land more than ``pose_gate_m`` apart on the wall is
-dropped before RANSAC, and a model that moves the image more than that from where telemetry puts it is rejected.
+Images first, telemetry as a loose prior: real GNSS next to a building is off by metres and jumps, so a pair is
+accepted by geometric verification (a sane homography well supported by matches spread over the image), not
+by how close the poses put the two images. Telemetry only removes the absurd: a match whose two ends land more
+than ``pose_gate_m`` (a few metres) apart on the wall, or a model that moves the image that far from where the
+poses put it.
+
+Far, static scenery (a background the mask kept, or raw frames with no mask) is rejected by what it is, not by
+pose distance: between two frames a baseline apart, a point 120 m behind a wall at 4 m moves ~30x less than the
+wall. After the first model, a second is fitted to the remaining matches; where one of the two moves far less
+than the other (``far_motion_ratio``), it is the background and the nearer plane (the wall) is the pair's model.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ class PairResult:
     pts_i: np.ndarray | None = None  # (N, 2) inlier points
     pts_j: np.ndarray | None = None
     lum_ratio: float | None = None  # median log(grey_i / grey_j) at the inliers: relative exposure
+    background_matches: int = 0  # matches of a far plane (background) found beside the wall's model and dropped
 
     def summary(self) -> dict:
         d = asdict(self)
@@ -55,7 +63,8 @@ class PairSettings:
     ransac_px: float = 3.0
     min_inliers: int = 15
     min_inliers_affine: int = 8
-    pose_gate_m: float = 1.0
+    pose_gate_m: float = 4.0
+    far_motion_ratio: float = 0.25  # a plane moving less than this fraction of another is far (background)
     max_points: int = 400  # inliers kept per pair for the global adjustment and the mesh
     min_inlier_area: float = 0.01  # inliers' convex hull / image area: below this the model is extrapolation
 
@@ -169,6 +178,7 @@ def match_pair(
     model, H, inl = _fit_model(found.pts_i, found.pts_j, corners, settings, (w, h))
     if H is None:
         return PairResult(i, j, False, "none", "no consistent homography or affine model", matches=n_good)
+    model, H, inl, n_far = _nearer_plane(found, (model, H, inl), corners, settings, (w, h))
     inliers = found.subset(inl)
     pi, pj = inliers.pts_i, inliers.pts_j
     rms = float(np.sqrt(np.mean(np.linalg.norm(apply_h(H, pi) - pj, axis=1) ** 2)))
@@ -177,7 +187,42 @@ def match_pair(
     if len(pi) > settings.max_points:
         sel = np.random.default_rng(i * 100003 + j).choice(len(pi), settings.max_points, replace=False)
         pi, pj = pi[sel], pj[sel]
-    return PairResult(i, j, True, model, "", n_good, int(inl.sum()), rms, H, pi, pj, _exposure_ratio(inliers))
+    return PairResult(
+        i, j, True, model, "", n_good, int(inl.sum()), rms, H, pi, pj, _exposure_ratio(inliers), n_far
+    )
+
+
+def _nearer_plane(
+    found: _Matches, first: tuple, corners: np.ndarray, settings: PairSettings, size: tuple[int, int]
+) -> tuple[str, np.ndarray, np.ndarray, int]:
+    """The model of the nearer of two planes seen in the pair, and how many matches the far one had.
+
+    A second model is fitted to the matches the first left out. Where one of the two moves the image far less
+    than the other (a far point moves ``baseline / distance``: 30x less at 120 m than at 4 m), it is the
+    background and the other is the wall; otherwise (one plane, a repeated pattern, two walls at similar
+    distances) the first model stands. Motion is the median displacement of a model's own inliers."""
+    model, H, inl = first
+    rest = ~inl
+    if int(rest.sum()) < settings.min_inliers:
+        return model, H, inl, 0
+    model2, H2, inl2_rest = _fit_model(found.pts_i[rest], found.pts_j[rest], corners, settings, size)
+    if H2 is None:
+        return model, H, inl, 0
+    inl2 = np.zeros_like(inl)
+    inl2[np.flatnonzero(rest)[inl2_rest]] = True
+    m1 = _motion_px(H, found.pts_i[inl])
+    m2 = _motion_px(H2, found.pts_i[inl2])
+    wall_motion_floor = 3.0 * settings.ransac_px  # below this neither plane shows measurable parallax
+    if m1 < settings.far_motion_ratio * m2 and m2 > wall_motion_floor:
+        return model2, H2, inl2, int(inl.sum())  # the first (largest) set was the background
+    if m2 < settings.far_motion_ratio * m1 and m1 > wall_motion_floor:
+        return model, H, inl, int(inl2.sum())
+    return model, H, inl, 0
+
+
+def _motion_px(H: np.ndarray, pts: np.ndarray) -> float:
+    """Median displacement of ``pts`` under ``H`` (px)."""
+    return float(np.median(np.linalg.norm(apply_h(H, pts) - pts, axis=1)))
 
 
 def _distinctive_matches(fi: Features, fj: Features, ratio: float) -> _Matches:
@@ -290,6 +335,7 @@ def register_pairs(
         ransac_px=cfg.ransac_threshold_px(W),
         min_inliers=cfg.min_inliers,
         pose_gate_m=cfg.pose_gate_m,
+        far_motion_ratio=cfg.far_motion_ratio,
     )
     corners = np.array([[-W / 2, -H / 2], [W / 2, -H / 2], [W / 2, H / 2], [-W / 2, H / 2]]) / cam.focal_px
     n = len(found.features)

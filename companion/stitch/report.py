@@ -40,14 +40,21 @@ def measure_coverage(rendered: RenderedMap, layout: MapLayout, cfg: StitchConfig
     else:
         cov = np.where(rendered.coverage_preview > 127, 255, 0).astype(np.uint8)
     sc = cov.shape[1] / grid.width
+    box = tuple(int(round(v * sc)) for v in layout.facade_px)  # the facade, not the anchoring margin around it
     holes = uncovered_areas(
         cov,
         grid,
-        (0, 0, int(round(grid.width * sc)), int(round(grid.height * sc))),
+        box,
         cell_m=cfg.uncovered_cell_m if layout.scale_known else 16 * grid.m_per_px,
         min_area_m2=cfg.min_uncovered_m2 if layout.scale_known else 0.0,
     )
-    return MapCoverage(rendered.covered_px / max(1, grid.width * grid.height), holes)
+    x0, y0, x1, y1 = layout.facade_px
+    if (x0, y0, x1, y1) == (0, 0, grid.width, grid.height):
+        fraction = rendered.covered_px / max(1, grid.width * grid.height)
+    else:
+        inside = cov[box[1] : box[3], box[0] : box[2]]
+        fraction = np.count_nonzero(inside) / max(1, inside.size)
+    return MapCoverage(float(fraction), holes)
 
 
 def write_map_images(out: Path, rendered: RenderedMap, layout: MapLayout, coverage: MapCoverage) -> dict[str, str]:
@@ -105,6 +112,7 @@ class StitchReport:
     pairs_rejected: list[dict]
     pairs: list[dict]
     alignment: dict
+    anchor: dict | None  # how well the map is anchored on the wall by telemetry (None without telemetry)
     map: dict
     coverage_fraction: float
     gains: dict[int, float]
@@ -152,6 +160,7 @@ def build_report(run: StitchRun, coverage: MapCoverage, files: dict[str, str]) -
             "local_residual_px": _stats(loc),
             "local_residual_mm": _in_mm(_stats(loc), mm),
         },
+        anchor=_anchor_section(run),
         map=_map_section(layout, run.rendered, run.use_poses),
         coverage_fraction=round(coverage.fraction, 4),
         gains={kfs[k].index: round(float(run.rendered.gains[k]), 4) for k in layout.placed},
@@ -201,6 +210,22 @@ def pair_summary(r: PairResult, kfs) -> dict:
         "matches": r.matches,
         "inliers": r.inliers,
         "ransac_rms_px": None if r.rms_px is None else round(r.rms_px, 3),
+    }
+
+
+def _anchor_section(run: StitchRun) -> dict | None:
+    """The residual between image alignment and telemetry, by keyframe spool index where it was outvoted."""
+    anchoring = run.aligned.anchoring
+    if anchoring is None:
+        return None
+    kfs = run.input.keyframes
+    off = dict(zip(anchoring.positions, anchoring.offsets_m, strict=True))
+    return {
+        **anchoring.summary(),
+        "outvoted": [{"index": kfs[k].index, "offset_m": round(off[k], 3)} for k in anchoring.outvoted],
+        "meaning": "offset between where the images put each keyframe and where its telemetry does; outvoted "
+        "keyframes' telemetry was overruled by the images; the map's position on the wall is good to about "
+        "placement_sigma_m",
     }
 
 

@@ -31,6 +31,22 @@ class SyntheticWall:
     seed: int = 0
 
 
+@dataclass(frozen=True)
+class TelemetryErrors:
+    """How a GNSS/IMU misreports each keyframe's pose: Gaussian noise on every keyframe (position per axis, and
+    yaw, pitch and roll), plus a jump that moves the reported position of a run of keyframes by ``jump_m``
+    (along, up): GNSS multipath next to a building gives metre-level steps that last several seconds."""
+
+    noise_m: float = 0.0
+    noise_deg: float = 0.0
+    jump_m: tuple[float, float] = (0.0, 0.0)
+    jump_keyframes: tuple[int, int] = (0, 0)  # [first, stop): keyframe positions the jump applies to
+
+    def jump_at(self, k: int) -> tuple[float, float]:
+        first, stop = self.jump_keyframes
+        return self.jump_m if first <= k < stop else (0.0, 0.0)
+
+
 def wall_for_texture(texture: np.ndarray, mm_per_px: float, seed: int = 0) -> SyntheticWall:
     """The wall a texture image covers at ``mm_per_px`` (for :func:`make_spool` with a real photograph)."""
     h, w = texture.shape[:2]
@@ -139,11 +155,13 @@ def make_spool(
     jitter_deg: float = 0.0,
     hole_m: tuple[float, float, float, float] | None = None,
     texture: np.ndarray | None = None,
+    errors: TelemetryErrors | None = None,
 ) -> dict:
     """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views).
 
     ``texture`` (BGR, row 0 = top of the wall) replaces the generated one, e.g. a real photograph of a wall; it
-    must cover ``wall`` at ``wall.texture_mm_per_px`` (see :func:`wall_for_texture`)."""
+    must cover ``wall`` at ``wall.texture_mm_per_px`` (see :func:`wall_for_texture`). ``errors`` replaces
+    ``pose_noise_m``/``yaw_noise_deg`` with a full GNSS/IMU error model (roll too, and jumps)."""
     out = Path(out_dir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -180,7 +198,10 @@ def make_spool(
             pose = None
             if with_poses:
                 true_pose = (float(al), standoff_m, float(up), pitch, yaw_off)
-                pose = _telemetry_pose(rng, frame, true_pose, pose_noise_m, yaw_noise_deg)
+                if errors is None:
+                    pose = _telemetry_pose(rng, frame, true_pose, pose_noise_m, yaw_noise_deg)
+                else:
+                    pose = reported_pose(rng, frame, true_pose, errors, k)
             entry = {
                 "index": k,
                 "image": name,
@@ -222,6 +243,8 @@ def _checked_texture(texture: np.ndarray, wall: SyntheticWall) -> np.ndarray:
 def _centres(extent_m: float, footprint_m: float, overlap: float, margin_m: float) -> np.ndarray:
     """Frame centres along one axis: ``overlap`` between neighbours, the last frame ``margin_m`` past the end."""
     first, last = footprint_m / 2 - margin_m, extent_m - footprint_m / 2 + margin_m
+    if first >= last:  # the footprint spans the wall (and its margins): one row or column, centred
+        return np.array([extent_m / 2])
     centres = np.arange(first, last + 1e-6, footprint_m * (1 - overlap))
     if centres[-1] < last - 1e-6:
         centres = np.append(centres, last)
@@ -244,6 +267,34 @@ def _telemetry_pose(rng, frame: FacadeFrame, true_pose, pose_noise_m: float, yaw
         "pitch_deg": pitch + pitch_noise,
         "yaw_deg": (frame.yaw_facing_wall_deg + yaw_off + yaw_noise) % 360.0,
     }
+
+
+def reported_pose(rng, frame: FacadeFrame, true_pose, errors: TelemetryErrors, k: int) -> dict:
+    """The spool's pose record of keyframe ``k`` at facade (along, out, up) with (pitch, yaw offset), as a
+    GNSS/IMU with ``errors`` reports it."""
+    along, out, up, pitch, yaw_off = true_pose
+    na, no, nu = rng.normal(0, errors.noise_m, 3) if errors.noise_m else (0.0, 0.0, 0.0)
+    dy, dp, dr = rng.normal(0, errors.noise_deg, 3) if errors.noise_deg else (0.0, 0.0, 0.0)
+    ja, ju = errors.jump_at(k)
+    lat, lon, alt = frame.facade_to_geodetic(along + na + ja, out + no, up + nu + ju)
+    return {
+        "lat": float(lat),
+        "lon": float(lon),
+        "alt_amsl_m": float(alt),
+        "roll_deg": float(dr),
+        "pitch_deg": pitch + float(dp),
+        "yaw_deg": (frame.yaw_facing_wall_deg + yaw_off + float(dy)) % 360.0,
+    }
+
+
+def spool_meta(frame: FacadeFrame, wall: SyntheticWall, width, height, hfov_deg, standoff_m) -> dict:
+    """spool.json of a pass over ``wall`` (west->east from the fixed start) with this camera."""
+    return _spool_meta(frame, wall, width, height, hfov_deg, standoff_m)
+
+
+def wall_frame(wall: SyntheticWall) -> FacadeFrame:
+    """The facade frame of ``wall`` (its start at a fixed site, west->east, flown from the south)."""
+    return _wall_frame(wall)
 
 
 def _spool_meta(frame: FacadeFrame, wall: SyntheticWall, width, height, hfov_deg, standoff_m) -> dict:

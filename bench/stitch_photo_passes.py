@@ -1,0 +1,203 @@
+"""Real-texture passes as stitcher input, for bench/stitch_eval.py --passes (issue 15 item 6).
+
+A pass (``sim/camera/photo_passes.py``: a held-out real facade photo on the wall plane at 4 m, a held-out real
+outdoor photo 120 m behind, the camera flying along the wall and off its end) is rendered at the bench's width,
+its keyframes chosen by our gate (truth mask, exact relative telemetry, so the gate is not what is measured here),
+and written as keyframe spools whose telemetry a GNSS/IMU error model spoils (``TelemetryErrors``: noise on every
+keyframe, a jump in the middle of a strip). Every map is scored against the wall photo itself: SSIM after the best
+homography onto it, where on the wall it lies (shift), how much of the wall the keyframes saw it covers, and
+whether the background photo can be matched in it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.matching import make_matcher, ransac_homography, ratio_test_matches
+from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
+from companion.stitch.render import MapGrid
+from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
+
+
+@dataclass(frozen=True)
+class RenderedPass:
+    """A rendered pass: its spec and renderer, the gate's keyframes and the truth the scores need."""
+
+    name: str
+    spec: object  # sim.camera.photo_scene.PhotoPass
+    renderer: object  # PhotoPassRenderer
+    keyframes: list[int]
+    minimum: list[int]
+    pair_overlap: list[float]  # true plane overlap of consecutive keyframes, %
+    strip_of: list[int]  # strip number of every frame
+
+
+def render_pass(name: str, frames: int, width: int) -> RenderedPass:
+    """Renders the pass and runs our gate on it (truth masks, exact telemetry) for the keyframes."""
+    from gate_photo_passes import PhotoPassRecording  # beside this script
+
+    from companion.keyframes.evaluate import evaluate_gate, telemetry_poses
+    from companion.keyframes.features import FeatureConfig
+    from companion.keyframes.gate import GateConfig
+    from companion.keyframes.synthetic import SITE
+    from sim.camera.model import CameraModel
+    from sim.camera.photo_passes import RECIPES, build_pass
+    from sim.camera.photo_scene import PhotoPassRenderer
+
+    spec = build_pass(RECIPES[name], frames=frames, background_frames=max(2, round(frames * 22 / 250)))
+    cam = spec.camera
+    spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
+    renderer = PhotoPassRenderer(spec)
+    rec = PhotoPassRecording(renderer)
+    cfg = GateConfig(rth=0.80, features=FeatureConfig(long_side_px=max(640, width)))
+    ev = evaluate_gate(rec, cfg, use_masks=True, predictor=rec.predictor, pose=telemetry_poses(rec, SITE),
+                       curve_floor=101.0)
+    ups = [p[1] for p in renderer.positions]
+    strips = sorted(set(ups))
+    return RenderedPass(name, spec, renderer, list(ev.keyframes), list(ev.minimum_keyframes),
+                        [float(v) for v in ev.keyframe_pair_truth], [strips.index(u) for u in ups])
+
+
+def jump_errors(rp: RenderedPass, frames: list[int], noise_m: float, noise_deg: float,
+                jump_m: tuple[float, float]) -> TelemetryErrors:
+    """Noise on every keyframe, and the jump on the keyframes from the middle of the first strip to the middle
+    of its second half (a quarter of that strip's keyframes: a minority the images must outvote)."""
+    strip0 = [k for k, f in enumerate(frames) if rp.strip_of[f] == rp.strip_of[frames[0]]]
+    n = len(strip0)
+    first = strip0[n // 2]
+    stop = strip0[min(n - 1, n // 2 + max(1, n // 4))]
+    return TelemetryErrors(noise_m, noise_deg, jump_m, (first, stop))
+
+
+def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, errors: TelemetryErrors,
+                seed: int = 0) -> Path:
+    """A keyframe spool of ``frames`` of the pass: images, masks (``truth``, ``none`` or ``model``: the shipped
+    depth model through the onboard Masker) and telemetry as reported with ``errors``."""
+    spec = rp.spec
+    cam = spec.camera
+    wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
+    frame = wall_frame(wall)
+    rng = np.random.default_rng(seed)
+    masker = _masker() if mask == "model" else None
+    (out / "frames").mkdir(parents=True, exist_ok=True)
+    lines = []
+    for k, i in enumerate(frames):
+        f = rp.renderer.render(i)
+        name = f"frames/{k:06d}.jpg"
+        cv2.imwrite(str(out / name), f.image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        entry = {"index": k, "image": name, "source_frame": i}
+        roi = f.roi_mask if mask == "truth" else (_model_mask(masker, f, i) if mask == "model" else None)
+        if roi is not None:
+            cv2.imwrite(str(out / f"frames/{k:06d}_mask.png"), roi)
+            entry["mask"] = f"frames/{k:06d}_mask.png"
+        entry["pose"] = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), errors, k)
+        lines.append(json.dumps(entry))
+    meta = spool_meta(frame, wall, cam.width, cam.height, cam.hfov_deg, spec.standoff_m)
+    (out / "spool.json").write_text(json.dumps(meta, indent=1))
+    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+    return out
+
+
+def _masker():
+    from companion.depth.masker import Masker
+
+    return Masker(None)
+
+
+def _model_mask(masker, f, i: int) -> np.ndarray:
+    """The shipped model's mask of a frame; a frame it drops as all background gets an empty mask."""
+    from companion.records import Frame, TaggedFrame
+
+    masked = masker(TaggedFrame(Frame(i, i / 10.0, f.image), None))
+    return np.zeros(f.roi_mask.shape, np.uint8) if masked is None else masked.mask
+
+
+@dataclass(frozen=True)
+class WallTruth:
+    """The wall photo (and its labels: not-facade pixels are holes) and the part of it the frames saw, on a
+    grid; ``background`` is the background photo at the frames' scale, to look for in the maps."""
+
+    image: np.ndarray
+    grid: MapGrid
+    seen: np.ndarray  # 0/255: wall (labels) inside the frames' true footprints
+    background: np.ndarray
+
+
+def wall_truth(rp: RenderedPass, frames: list[int], grid: MapGrid) -> WallTruth:
+    spec, r = rp.spec, rp.renderer
+    wall = spec.wall
+    tex_m = wall.width_m / wall.image.shape[1]
+    image = truth_on_grid(wall.image, tex_m, wall.height_m, grid, pixel_centre=0.5)
+    alpha = np.full(wall.image.shape[:2], 255, np.uint8) if wall.alpha is None else wall.alpha
+    labels = truth_on_grid(alpha, tex_m, wall.height_m, grid, pixel_centre=0.5)
+    seen = np.zeros((grid.height, grid.width), np.uint8)
+    half_w = r.half_view_m
+    half_h = half_w * spec.camera.height / spec.camera.width
+    for i in frames:
+        a, u = r.positions[i]
+        poly = grid.to_px(np.array([[a - half_w, u + half_h], [a + half_w, u + half_h], [a + half_w, u - half_h],
+                                    [a - half_w, u - half_h]]))
+        cv2.fillPoly(seen, [np.round(poly).astype(np.int32)], 255)
+    seen[labels < 128] = 0
+    return WallTruth(image, grid, seen, r._bg_img)
+
+
+def truth_grid_for(rp: RenderedPass, m_per_px: float) -> MapGrid:
+    """The whole wall at ``m_per_px`` (for maps with no wall coordinates, registered onto it)."""
+    w = rp.spec.wall
+    return MapGrid(0.0, w.height_m, m_per_px, int(np.ceil(w.width_m / m_per_px)), int(np.ceil(w.height_m / m_per_px)))
+
+
+def grid_of_report(report: dict) -> MapGrid:
+    m = report["map"]
+    return MapGrid(m["along_m"][0], m["up_m"][1], m["mm_per_px"] / 1000.0, m["width_px"], m["height_px"])
+
+
+def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: WallTruth, *,
+              rectified: bool) -> dict:
+    """After the best homography onto the wall photo (SIFT): SSIM, seams (patch shifts left after it) and the
+    share of the seen wall covered; for a map in wall coordinates also where it lies (the shift, absolute);
+    and the background photo's matches in the map."""
+    if image is None:
+        return {"map": False}
+    out: dict = {"map": True, "background_inliers": background_inliers(image, truth.background)}
+    if rectified and image.shape[:2] == truth.image.shape[:2]:
+        cov = cv2.bitwise_and(coverage, truth.seen)
+        acc = map_accuracy(image, cov, truth.image, truth.grid.m_per_px)
+        out.update(shift_median_mm=acc.get("median_mm"), shift_p95_mm=acc.get("p95_mm"))
+    reg = register_to_truth(image, truth.image)
+    if reg is None:
+        out["registered"] = False
+        return out
+    warped, cov = reg
+    acc = map_accuracy(warped, cv2.bitwise_and(cov, truth.seen), truth.image, truth.grid.m_per_px)
+    _, drawn = register_to_truth(image, truth.image, erode_px=1)
+    out.update(registered=True, ssim=acc.get("ssim"), seam_p95_px=acc.get("rel_p95_px"),
+               coverage=float(np.count_nonzero(cv2.bitwise_and(drawn, truth.seen)))
+               / max(1, np.count_nonzero(truth.seen)))
+    return out
+
+
+def background_inliers(image: np.ndarray, background: np.ndarray) -> int:
+    """Inliers of the best homography between SIFT matches of the map and the background photo (at the
+    frames' scale): a map that draws the background has a consistent set; a wall alone gives a handful."""
+    sift = cv2.SIFT_create(nfeatures=20000)
+    g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    g2 = cv2.cvtColor(background, cv2.COLOR_BGR2GRAY)
+    k1, d1 = sift.detectAndCompute(g1, (g1 > 0).astype(np.uint8) * 255)
+    k2, d2 = sift.detectAndCompute(g2, None)
+    if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
+        return 0
+    q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
+    if len(q1) < 8:
+        return 0
+    p1 = np.float32([k1[i].pt for i in q1])
+    p2 = np.float32([k2[i].pt for i in t2])
+    cv2.setRNGSeed(7)
+    H, inl = ransac_homography(p1, p2, method=cv2.USAC_MAGSAC, threshold_px=3.0, max_iters=5000, confidence=0.999)
+    return 0 if H is None else int(inl.sum())

@@ -110,6 +110,9 @@ def test_rejected_upload_errors_before_the_health_wait(plan, tmp_path):
     with sim as v, pytest.raises(CompanionError) as err:
         _fly(plan, v.url, health_timeout_s=30.0, connect_timeout_s=60.0)
     assert "rejected the mission upload" in err.value.problem and "TOO_MANY_MISSION_ITEMS" in err.value.problem
+    # the vehicle's own words (real ArduCopter: NO_SPACE, then "Only 650 items are supported") and the fix from them
+    assert "it said: WARNING: Only 10 items are supported" in err.value.problem
+    assert f"at most 10 items and this mission has {len(plan.mavlink_items('ardupilot'))}" in err.value.fix
 
 
 def test_unsupported_item_is_rejected(tmp_path):
@@ -120,6 +123,8 @@ def test_unsupported_item_is_rejected(tmp_path):
     with SitlVehicle(speedup=20, log_path=tmp_path / "sim.log") as v, pytest.raises(CompanionError) as err:
         _fly(items, v.url)
     assert "UNSUPPORTED" in err.value.problem
+    # PX4 says why before it acks (MavlinkMissionManager::handle_mission_item), its trailing tab not quoted
+    assert err.value.problem.endswith("it said: CRITICAL: IGN MISSION_ITEM: Invalid item")
 
 
 def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):

@@ -80,6 +80,7 @@ class VehicleConfig:
     geofence_max_dist_m: float | None = None
     gps_ready_after_s: float | None = None
     storage: Path | None = None
+    init_s: float | None = None  # wall seconds of start-up after each boot (None: the flavour's, firmware.py)
     limits: Limits = field(default_factory=Limits)
 
 
@@ -125,7 +126,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.flavour.max_mission_items if cfg.max_mission_items is None else cfg.max_mission_items,
             transform_upload=lambda items: self.flavour.transform_upload(items, self.home_item),
             transform_download=lambda items: self.flavour.transform_download(items, self.home_item),
-            on_too_many=self._too_many_items)
+            on_too_many=self._too_many_items, on_invalid_item=self._invalid_item)
         self.pose_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if cfg.pose_port else None
         self.truth_file = open(cfg.truth_log, "w") if cfg.truth_log else None  # noqa: SIM115 (closed in close())
 
@@ -212,6 +213,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         if self.flavour.too_many_items_text:
             self.statustext(mavlink.MAV_SEVERITY_WARNING, self.flavour.too_many_items_text.format(n=limit))
 
+    def _invalid_item(self, result: int) -> None:
+        if self.flavour.invalid_item_text:
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.flavour.invalid_item_text)
+
     def statustext(self, severity: int, text: str) -> None:
         log.info("statustext: %s", text)
         self._send(self.mav.statustext_encode(severity, text.encode()[:50]))
@@ -240,7 +245,9 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             if self.on_ground and self.armed:
                 refusal = self.flavour.ground_start_refusal(self.mission)
                 if refusal:
-                    return refusal
+                    for severity, text in refusal[:-1]:
+                        self.statustext(severity, text)
+                    return refusal[-1][1]  # said (WARNING) with the refusing ACK
                 if self.refuse_infeasible_start():
                     self.mode = mode
                     self.task = Hold(self.model.state.pos)
@@ -563,6 +570,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
     def run(self) -> None:
         speed = self.cfg.speedup
         t0 = time.monotonic()
+        self.begin_boot()
         try:
             while not self._stop:
                 now = time.monotonic()
@@ -573,6 +581,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                     steps += 1
                 if steps == 50:  # cannot keep up: slow the simulated clock down instead of jumping
                     t0 = now - self.t / speed
+                self.update_init()
                 self._update_outage()
                 self.update_outage_after_takeoff()
                 if self.update_reboot():

@@ -86,12 +86,16 @@ def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
                    help="simulated seconds after boot until the estimator uses GPS (default: ArduCopter 38, PX4 0)")
     p.add_argument("--storage", type=Path,
                    help="PX4 flavour: keep the mission and its current item in this file across restarts")
+    p.add_argument("--init-s", type=float, metavar="S",
+                   help="wall seconds after (re)boot until the autopilot has initialised: only HEARTBEAT is sent and "
+                        "a mission upload is refused (ArduCopter: NO_SPACE, 'Only 0 items are supported'); default "
+                        "ArduCopter 1, PX4 0")
 
 
 def firmware_config(args: argparse.Namespace) -> dict:
     return dict(reboot_after_takeoff_s=args.reboot_after_takeoff, reboot_s=args.reboot_s,
                 geofence_max_dist_m=args.geofence_max_dist, gps_ready_after_s=args.gps_ready_after,
-                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff)
+                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff, init_s=args.init_s)
 
 
 def config_from_args(args: argparse.Namespace) -> VehicleConfig:

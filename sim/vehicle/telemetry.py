@@ -159,6 +159,8 @@ class TelemetryStreams:
                 continue
             if name == "HOME_POSITION" and not self.position_ready:
                 continue  # no home until the estimator uses GPS
+            if self.initialising and name != "HEARTBEAT":
+                continue  # ArduPilot sends only HEARTBEAT while it starts up (should_send_message_in_delay_callback)
             due = self._next_due.get(name, 0.0)
             if self.t + 1e-9 < due:
                 continue

@@ -110,6 +110,33 @@ def test_autopilot_restart_mid_flight_exits_non_zero(tmp_path):
     assert "the autopilot restarted" in out and "cannot be trusted" in out
 
 
+def test_streams_lagging_each_other_are_not_a_restart(small_plan, tmp_path, monkeypatch):
+    """The simulator's streams stall behind each other by up to 2.5 s of autopilot time (real SITL at speed-up: up
+    to 2-5 s on the link, and 1.2 s more in mavsdk's queues on ArduCopter): the companion saw stamps more than the
+    1 s a cross-stream check allows out of order, and the flight completed, because each stream is compared only
+    with itself."""
+    from companion.flight.telemetry_log import TelemetryRecorder
+
+    seen: list[tuple[str, float]] = []
+    original = TelemetryRecorder._on_boot_time
+
+    def spy(self, t_boot_s, stream=""):
+        seen.append((stream, t_boot_s))
+        original(self, t_boot_s, stream)
+
+    monkeypatch.setattr(TelemetryRecorder, "_on_boot_time", spy)
+    with SitlVehicle(speedup=20, stream_stall=2.5, stream_stall_every=5, home=_home(small_plan),
+                     log_path=tmp_path / "sim.log") as v:
+        result = _fly(small_plan, v.url)
+    assert result.completed and result.aborted is None, result.problem
+    latest: dict[str, float] = {}
+    behind = 0.0
+    for stream, t in seen:
+        latest[stream] = max(latest.get(stream, t), t)
+        behind = max([behind] + [top - t for name, top in latest.items() if name != stream])
+    assert behind > 1.0  # a cross-stream restart check would have ended this good flight
+
+
 def test_ardupilot_restart_is_seen_although_it_streams_nothing_until_asked_again(small_plan, tmp_path):
     """After a restart ArduCopter streams only HEARTBEAT: the companion asks for telemetry again while the link is
     silent, and the restart shows in the time since boot (not as a dead link at the limit)."""

@@ -61,6 +61,8 @@ class VehicleConfig:
     gps_noise_m: float = 0.0
     packet_loss: float = 0.0
     latency_ms: float = 0.0
+    stream_stall_s: float = 0.0  # ATTITUDE / GLOBAL_POSITION_INT each lag behind now and then, up to this (simulated)
+    stream_stall_every_s: float = 30.0  # simulated seconds between one stream's stalls, on average
     outage_at_s: float | None = None
     outage_s: float = 0.0
     gps_glitch_at_s: float | None = None
@@ -119,6 +121,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.params.update({name: type(self.params.get(name, 0.0))(value) for name, value in cfg.params.items()})
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due: dict[str, float] = {}
+        self.stream_rng = np.random.default_rng(cfg.seed + 4)  # its own draws: other faults keep their sequences
+        self._held: dict[str, list] = {}  # stream -> messages held back while it stalls (--stream-stall)
+        self._stall_until: dict[str, float] = {}
+        self._next_stall: dict[str, float] = {}
         self.home_item = mi.MissionItem(0, mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
                                         round(cfg.home.lat * 1e7), round(cfg.home.lon * 1e7), cfg.home.alt_amsl_m)
         self.missions = MissionServer(

@@ -271,6 +271,7 @@ class FirmwareRules:
         self.battery = Battery()
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due = {}
+        self._held, self._stall_until, self._next_stall = {}, {}, {}  # a new boot: no stream is held back
         if self.flavour.name != "px4":
             self.mission_seq = self.flavour.first_seq
         self.begin_boot()

@@ -60,7 +60,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stream-stall", type=float, default=0.0, metavar="S",
                    help="ATTITUDE and GLOBAL_POSITION_INT each stall now and then (held back, then sent in order) "
                         "for up to S simulated seconds, so their time stamps disagree on the link by that much as "
-                        "real PX4 and ArduCopter SITL's did at speed-up (up to 2-5 s); 0 (default): off")
+                        "real PX4 SITL's did at speed-up 4 (up to 7 s, mostly under 1 s); 0 (default): off")
     p.add_argument("--stream-stall-every", type=float, default=30.0, metavar="S",
                    help="mean simulated seconds between one stream's stalls (default 30)")
     p.add_argument("--outage-at", type=float, metavar="S", help="link outage begins at this simulated time, s")

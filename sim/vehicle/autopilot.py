@@ -361,9 +361,11 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 if yaw is None and math.hypot(*(target[:2] - nav[:2])) > 2.0 and self.param("MIS_YAWMODE", 0) == 0:
                     yaw = math.degrees(math.atan2(target[1] - nav[1], target[0] - nav[0])) % 360.0
             radius = self.flavour.waypoint_reached_m
-            if radius is None:
+            alt_radius = None
+            if radius is None:  # PX4: param2 (else NAV_ACC_RAD) horizontally, NAV_MC_ALT_RAD vertically
                 radius = item.param2 if item.param2 > 0 else self.param("NAV_ACC_RAD", 2.0)
-            self.mission_task = Line(prev, target, radius, max(item.param1, 0.0), yaw)
+                alt_radius = self.param("NAV_MC_ALT_RAD", 0.8)
+            self.mission_task = Line(prev, target, radius, max(item.param1, 0.0), yaw, alt_radius_m=alt_radius)
             return False
         if cmd == mi.MAV_CMD_NAV_LAND:
             if copter:

@@ -89,7 +89,7 @@ class Px4:
         "MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5, "MPC_LAND_SPEED": 0.7,
         "MPC_ACC_HOR": 4.0, "MPC_YAWRAUTO_MAX": 60.0, "NAV_ACC_RAD": 2.0, "COM_DL_LOSS_T": 10, "NAV_DLL_ACT": 2,
         "COM_DISARM_LAND": 2.0, "BAT_LOW_THR": 0.15, "MIS_YAWMODE": 0, "MPC_Z_V_AUTO_UP": 3.0,
-        "MPC_Z_V_AUTO_DN": 1.5,
+        "MPC_Z_V_AUTO_DN": 1.5, "NAV_MC_ALT_RAD": 0.8,
     }
     waypoint_reached_m: float | None = None  # None: the item's acceptance radius (param2), else NAV_ACC_RAD
 

@@ -96,21 +96,41 @@ def _usable(row: dict) -> bool:
     return all(row.get(k) is not None for k in keys) and bool(row.get("in_air"))
 
 
-def _first_pass(mask: np.ndarray, s: np.ndarray, length: float) -> np.ndarray:
-    """Only the first run of consecutive samples that covers at least half the leg: the scan pass. A later pass
-    over the same stretch is something else (real ArduCopter climbed back up the last strip to the transit
-    altitude after scanning it)."""
+def _forward_passes(run: np.ndarray, s: np.ndarray, turn_m: float) -> list[np.ndarray]:
+    """Split a run of consecutive samples where the vehicle turns back along the leg, and keep the pieces flown in
+    the leg's direction. A turn is a move of more than ``turn_m`` against the current direction from the last
+    extreme (a zigzag filter), so position noise and a settle hold at the end do not split the pass."""
+    values = s[run]
+    turns = [0]
+    direction = 0  # +1 forward along the leg, -1 back, 0 not yet known (within turn_m of the start)
+    extreme = 0  # index (into run) of the furthest point in the current direction
+    for k in range(1, values.size):
+        if direction == 0:
+            if abs(values[k] - values[0]) > turn_m:  # the furthest point so far: all before were within turn_m
+                direction, extreme = (1 if values[k] > values[0] else -1), k
+        elif direction * (values[k] - values[extreme]) >= 0:
+            extreme = k
+        elif abs(values[k] - values[extreme]) > turn_m:  # moved back from the extreme: a turn
+            turns.append(extreme)
+            direction, extreme = -direction, k
+    turns.append(values.size - 1)
+    return [run[a:b + 1] for a, b in zip(turns[:-1], turns[1:], strict=True) if values[b] > values[a]]
+
+
+def _first_pass(mask: np.ndarray, s: np.ndarray, length: float, turn_m: float = 0.5) -> np.ndarray:
+    """Only the first pass in the leg's direction that covers at least half the leg: the scan. A later pass over the
+    same stretch is something else: real ArduCopter climbed back up the last strip to the transit altitude after
+    scanning it, leaving the leg in between (a gap in the samples); real PX4 turned back about 1 m before the
+    strip's end (its altitude acceptance) and climbed back up the same strip with no gap, so a run of consecutive
+    samples is also split where the vehicle turns back along the leg."""
     idx = np.flatnonzero(mask)
     if idx.size == 0:
         return mask
     runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-    for run in runs:
-        if np.ptp(s[run]) >= 0.5 * length:
-            break
-    else:
-        run = runs[0]
+    passes = [p for run in runs for p in _forward_passes(run, s, turn_m)]
+    chosen = next((p for p in passes if np.ptp(s[p]) >= 0.5 * length), passes[0] if passes else runs[0])
     out = np.zeros_like(mask)
-    out[run] = True
+    out[chosen] = True
     return out
 
 

@@ -102,6 +102,36 @@ def test_a_second_pass_over_a_leg_is_not_the_scan(plan):
     assert fig.passed and fig.legs[-1].speed_error < 0.01
 
 
+def test_a_climb_back_up_the_strip_without_a_gap_is_not_the_scan(plan):
+    """Real PX4 SIH accepted the last strip's bottom waypoint about 1 m above it (NAV_MC_ALT_RAD 0.8 m) and climbed
+    straight back up the same strip to the transit altitude: the climb follows the scan with no sample off the leg
+    in between. Judged as one pass, leg 12 read 175-186 % (median velocity -0.6 m/s); the scan alone is as flown."""
+    judge = _judge()
+    rows = synthetic_rows(plan)[:-2]
+    i, j = plan.scan_legs[-1]
+    a, b = plan.waypoints[i], plan.waypoints[j]
+    length = abs(b.up_m - a.up_m)
+    v = b.speed_m_s
+    last = rows[-int(round(length / (v * 0.1))):]  # the last strip, top to bottom, every 0.1 s
+    # turned back 1.1 m above the bottom
+    scan = last[:int(0.9 * len(last))]
+    wobble = np.random.default_rng(12).uniform(-0.2, 0.2, len(scan))  # altitude noise must not split the scan
+    kept = [{**r, "alt_amsl_m": r["alt_amsl_m"] + dz} for r, dz in zip(scan, wobble, strict=True)]
+    o = plan.frame.origin
+    turn_alt = kept[-1]["alt_amsl_m"]
+    climb = []
+    for k in range(1, int((18.0 + o.alt_amsl_m - turn_alt) / (v * 0.1))):
+        climb.append({**kept[-1], "alt_amsl_m": turn_alt + v * 0.1 * k, "vd_m_s": -v})  # back up at the scan speed
+    rows = rows[:len(rows) - len(last)] + kept + climb
+    rows.append({**rows[-1], "mission_item": 35})
+    rows.append({**rows[-1], "in_air": False, "armed": False})
+    fig = judge.flight_figures(plan, rows)
+    leg = fig.legs[-1]
+    assert leg.median_speed_m_s > 0 and leg.speed_error < 0.01
+    assert 0.9 * len(kept) < leg.samples <= len(kept)
+    assert fig.passed
+
+
 def test_takeoff_climb_far_from_the_wall_is_not_a_scan_leg(plan):
     """Real ArduCopter: the take-off climb (13 m out from the wall) passes the along / up position of the middle
     strip; it must not be judged as that strip flown 9 m off the standoff at 2.5 m/s."""

@@ -36,7 +36,8 @@ def small_plan():
 def _fly(plan, url, **kw):
     kw.setdefault("progress", False)
     kw.setdefault("handle_signals", False)
-    kw.setdefault("flight_timeout_s", 90.0)
+    kw.setdefault("flight_timeout_s", 600.0)  # wall seconds: a loaded 2-core machine ran the simulator at ~3x, not 20x
+    kw.setdefault("connect_timeout_s", 60.0)  # a loaded machine can take 15 s to start the simulator process
     return fly_mission_sync(plan, url, **kw)
 
 
@@ -71,13 +72,17 @@ def test_twenty_percent_packet_loss_still_completes(small_plan, tmp_path):
 
 def test_five_second_link_outage_is_survived(plan, tmp_path):
     log = tmp_path / "telemetry.jsonl"
-    # outage 60 s into the flight (simulated time) lasting 5 s of wall time; the vehicle's own link-loss
-    # failsafe waits 10 s, so it flies on and the companion must just ride the gap out
-    with SitlVehicle(speedup=20, outage_at=60, outage_s=5, log_path=tmp_path / "sim.log") as v:
-        result = _fly(plan, v.url, telemetry_log=log, link_loss_s=1.0)
+    # outage 40 s after take-off (simulated time: timed from the take-off, a slow start-up on a loaded machine cannot
+    # move it before the flight) lasting 5 s of wall time; the vehicle's own link-loss failsafe waits 10 s, so it
+    # flies on and the companion must just ride the gap out
+    with SitlVehicle(speedup=20, outage_after_takeoff=40, outage_s=5, log_path=tmp_path / "sim.log") as v:
+        result = _fly(plan, v.url, telemetry_log=log, link_loss_s=2.0)
     assert result.completed, result
-    assert len(result.link_losses) == 1
-    assert 4.0 <= result.link_losses[0].duration_s <= 8.0
+    # the outage, counted once with its length; on a loaded machine (load average 12-18 on 2 cores) telemetry also
+    # paused for 1.1-1.3 s now and then, which a 1 s threshold counted as six more losses
+    outages = [loss for loss in result.link_losses if loss.duration_s >= 4.0]
+    assert len(outages) == 1 and all(loss.closed for loss in result.link_losses), result.link_losses
+    assert 4.0 <= outages[0].duration_s <= 9.0
     rows = read_telemetry_log(log)
     gaps = [b["t_wall"] - a["t_wall"] for a, b in zip(rows, rows[1:], strict=False)]
     assert max(gaps) > 4.0  # the gap is in the log, and recording went on after it
@@ -110,6 +115,9 @@ def test_rejected_upload_errors_before_the_health_wait(plan, tmp_path):
     with sim as v, pytest.raises(CompanionError) as err:
         _fly(plan, v.url, health_timeout_s=30.0, connect_timeout_s=60.0)
     assert "rejected the mission upload" in err.value.problem and "TOO_MANY_MISSION_ITEMS" in err.value.problem
+    # the vehicle's own words (real ArduCopter: NO_SPACE, then "Only 650 items are supported") and the fix from them
+    assert "it said: WARNING: Only 10 items are supported" in err.value.problem
+    assert f"at most 10 items and this mission has {len(plan.mavlink_items('ardupilot'))}" in err.value.fix
 
 
 def test_unsupported_item_is_rejected(tmp_path):
@@ -120,6 +128,8 @@ def test_unsupported_item_is_rejected(tmp_path):
     with SitlVehicle(speedup=20, log_path=tmp_path / "sim.log") as v, pytest.raises(CompanionError) as err:
         _fly(items, v.url)
     assert "UNSUPPORTED" in err.value.problem
+    # PX4 says why before it acks (MavlinkMissionManager::handle_mission_item), its trailing tab not quoted
+    assert err.value.problem.endswith("it said: CRITICAL: IGN MISSION_ITEM: Invalid item")
 
 
 def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):
@@ -132,11 +142,12 @@ def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):
 
     log = tmp_path / "telemetry.jsonl"
     cmd = [sys.executable, "-m", "companion.cli", "fly", str(ROOT / "missions/demo-facade.yaml"), "--sitl",
-           "--speedup", "20", "--telemetry-log", str(log), "--no-progress"]
+           "--speedup", "20", "--telemetry-log", str(log), "--no-progress",
+           "--connect-timeout", "60"]  # a loaded machine can take 15 s to start the simulator process
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
-        deadline = time.monotonic() + 40
+        deadline = time.monotonic() + 180  # a loaded machine starts and runs the simulator slowly
         while time.monotonic() < deadline:  # wait until it is scanning (past the first scan leg)
             if log.exists():
                 rows = [json.loads(x) for x in log.read_text().splitlines() if x.strip()]
@@ -146,7 +157,7 @@ def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):
         else:
             pytest.fail("the flight never reached the scan")
         proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=60)
+        out, _ = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             proc.kill()

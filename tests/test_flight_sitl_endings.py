@@ -110,6 +110,33 @@ def test_autopilot_restart_mid_flight_exits_non_zero(tmp_path):
     assert "the autopilot restarted" in out and "cannot be trusted" in out
 
 
+def test_streams_lagging_each_other_are_not_a_restart(small_plan, tmp_path, monkeypatch):
+    """The simulator's streams stall behind each other by up to 2.5 s of autopilot time (real SITL at speed-up: up
+    to 7 s on the link, and 1.2 s in mavsdk's queues on ArduCopter): the companion saw stamps more than the
+    1 s a cross-stream check allows out of order, and the flight completed, because each stream is compared only
+    with itself."""
+    from companion.flight.telemetry_log import TelemetryRecorder
+
+    seen: list[tuple[str, float]] = []
+    original = TelemetryRecorder._on_boot_time
+
+    def spy(self, t_boot_s, stream=""):
+        seen.append((stream, t_boot_s))
+        original(self, t_boot_s, stream)
+
+    monkeypatch.setattr(TelemetryRecorder, "_on_boot_time", spy)
+    with SitlVehicle(speedup=20, stream_stall=2.5, stream_stall_every=5, home=_home(small_plan),
+                     log_path=tmp_path / "sim.log") as v:
+        result = _fly(small_plan, v.url)
+    assert result.completed and result.aborted is None, result.problem
+    latest: dict[str, float] = {}
+    behind = 0.0
+    for stream, t in seen:
+        latest[stream] = max(latest.get(stream, t), t)
+        behind = max([behind] + [top - t for name, top in latest.items() if name != stream])
+    assert behind > 1.0  # a cross-stream restart check would have ended this good flight
+
+
 def test_ardupilot_restart_is_seen_although_it_streams_nothing_until_asked_again(small_plan, tmp_path):
     """After a restart ArduCopter streams only HEARTBEAT: the companion asks for telemetry again while the link is
     silent, and the restart shows in the time since boot (not as a dead link at the limit)."""
@@ -131,6 +158,31 @@ def test_mission_the_vehicle_refuses_at_start_errors_within_seconds(small_plan, 
     assert started and ended - started[0] < 10.0
     assert "refused the mission start" in err.value.problem
     assert "Geofence violation for waypoint" in err.value.problem and "geofence" in err.value.fix
+    # real PX4's second text, and no PX4 tab inside the quote
+    assert "CRITICAL: Switching to Mission is currently not available" in err.value.problem
+    assert "\t" not in err.value.problem
+
+
+def test_a_start_the_vehicle_refuses_quotes_its_result_and_words(tmp_path):
+    """ArduCopter refuses AUTO on the ground unless the mission starts with a takeoff: CRITICAL "Auto: Missing
+    Takeoff Cmd", WARNING "Mode change to AUTO failed: init failed", the mode command answered FAILED (ArduCopter 4.7
+    ModeAuto::init, Copter::set_mode, GCS_MAVLINK::_set_mode_common). The error quotes both, once, with the result:
+    it used to be "mission start failed: ..." after three tries of a refusal that repeating cannot change."""
+    from companion.mission import items as mi
+
+    lat, lon = 375663800, 1269781500
+    items = [mi.MissionItem(0, 0, mi.MAV_CMD_NAV_WAYPOINT, 1, 1, 0.0, 0.0, 0.0, 0.0, lat, lon, 30.0),
+             mi.MissionItem(1, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0, lat + 900, lon, 8.0),
+             mi.MissionItem(2, 2, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 1, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0)]
+    with SitlVehicle(speedup=20, autopilot="ardupilot", gps_ready_after=0, log_path=tmp_path / "sim.log") as v:
+        with pytest.raises(CompanionError) as err:
+            _fly(items, v.url)
+        log = (tmp_path / "sim.log").read_text()
+    problem = err.value.problem
+    assert problem.startswith("the vehicle refused the mission start (DO_SET_MODE FAILED; mavsdk: ")
+    assert "WARNING: Mode change to AUTO failed: init failed" in problem
+    assert "CRITICAL: Auto: Missing Takeoff Cmd" in problem and "takeoff" in err.value.fix
+    assert log.count("statustext: Auto: Missing Takeoff Cmd") == 1  # asked once: a refusal is not retried
 
 
 def test_dead_link_ends_supervision_at_the_configured_limit(tmp_path):

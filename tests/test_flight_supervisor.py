@@ -117,10 +117,10 @@ def test_critical_text_on_the_ground_ends_the_start_while_still_armed():
     rec.say("CRITICAL", "Geofence violation: an old text from before this flight is not its reason")
     time.sleep(0.01)
     sup = _supervisor(rec, flight_timeout_s=600.0)
-    rec.say("CRITICAL", "No valid mission available, refusing takeoff")
+    rec.say("CRITICAL", "Switching to Mission is currently not available")  # real PX4's words
     reason, took = _run(sup, rec)
     assert reason == "refused" and took < 3.0
-    assert "did not take off" in sup.problem and "refusing takeoff" in sup.problem
+    assert "did not take off" in sup.problem and "Switching to Mission is currently not available" in sup.problem
     assert "old text" not in sup.problem
 
 

@@ -109,3 +109,40 @@ def test_upload_starts_again_after_the_link_lost_the_transfer(result):
     plugin = _LossyMissionPlugin(failures=4, result=result)
     with pytest.raises(CompanionError, match="the link lost too much"):
         asyncio.run(upload_and_verify(plugin, _items(), "px4", attempts=4))
+
+
+def test_a_refused_upload_quotes_the_text_that_follows_the_ack_and_takes_its_fix_from_it():
+    """Real ArduCopter acks NO_SPACE first and says "Only 650 items are supported" after; right after boot it says
+    "Only 0 items are supported", which no shorter mission fixes."""
+    import asyncio
+
+    from companion.flight.status_texts import StatusTexts
+    from companion.flight.upload import upload_and_verify
+
+    class Refusing(_LossyMissionPlugin):
+        def __init__(self, text):
+            super().__init__(failures=99, result="TOO_MANY_MISSION_ITEMS")
+            self.text = text
+            self.texts: StatusTexts | None = None
+
+        async def upload_mission(self, raw):
+            asyncio.get_running_loop().call_later(0.2, self.texts.add, "WARNING", self.text)  # after the ACK
+            return await super().upload_mission(raw)
+
+    for text, problem, fix in (("Only 650 items are supported", "it said: WARNING: Only 650 items are supported",
+                                "takes at most 650 items and this mission has 3"),
+                               ("Only 0 items are supported\t", "it said: WARNING: Only 0 items are supported",
+                                "still starting up")):
+        plugin = Refusing(text)
+        plugin.texts = StatusTexts(telemetry=None)
+        with pytest.raises(CompanionError) as err:
+            asyncio.run(upload_and_verify(plugin, _items(), "ardupilot", texts=plugin.texts))
+        assert err.value.problem == ("the vehicle rejected the mission upload (TOO_MANY_MISSION_ITEMS, 3 items); "
+                                     + problem)
+        assert fix in err.value.fix
+    plugin = Refusing("")
+    plugin.texts = StatusTexts(telemetry=None)
+    plugin.upload_mission = lambda raw: _LossyMissionPlugin.upload_mission(plugin, raw)  # a vehicle that says nothing
+    with pytest.raises(CompanionError) as err:
+        asyncio.run(upload_and_verify(plugin, _items(), "px4", texts=plugin.texts))
+    assert err.value.problem.endswith("it gave no reason (no STATUSTEXT)") and "shorten" in err.value.fix

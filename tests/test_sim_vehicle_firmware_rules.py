@@ -94,7 +94,8 @@ def test_mission_outside_px4_geofence_is_accepted_then_refused_at_takeoff_and_di
         assert v.on_ground and not v.took_off  # ... but it never left the ground and disarmed there
         assert 9.9 <= v.t <= 10.5  # after COM_DISARM_PRFLT
         said = [t for _, t in texts]
-        assert said[:2] == ["Geofence violation for waypoint 3", "No valid mission available, refusing takeoff"]
+        # what real PX4 main said (GF_MAX_HOR_DIST 5, docs/FLIGHT.md), tab-terminated as PX4's texts are
+        assert said[:2] == ["Geofence violation for waypoint 3\t", "Switching to Mission is currently not available\t"]
     finally:
         v.close()
 
@@ -156,3 +157,29 @@ def test_failsafe_parameters_have_the_firmware_defaults():
     finally:
         px4.close()
         copter.close()
+
+
+def test_px4_accepts_a_waypoint_within_nav_mc_alt_rad_of_its_altitude():
+    """PX4 accepts a multicopter waypoint within its acceptance radius horizontally and NAV_MC_ALT_RAD (0.8 m)
+    vertically (MissionBlock::is_mission_item_reached): real PX4 SIH turned 0.6-1.0 m above the bottom of the demo's
+    last strip and climbed back up it (three logs, docs/FLIGHT.md). The simulator took the 0.3 m acceptance radius
+    in 3D and went down to 0.1 m above it."""
+    nan = float("nan")
+    items = [mi.MissionItem(0, 6, mi.MAV_CMD_NAV_TAKEOFF, 1, 1, 0.0, 0.0, 0.0, nan, HOME_X, HOME_Y, 12.0),
+             mi.MissionItem(1, 2, mi.MAV_CMD_DO_CHANGE_SPEED, 0, 1, 1.0, 0.716, -1.0, 0.0, 0, 0, 0.0),
+             mi.MissionItem(2, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.5, 0.3, 0.0, 0.0, HOME_X, HOME_Y, 2.0),
+             mi.MissionItem(3, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.5, 0.3, 0.0, 0.0, HOME_X, HOME_Y, 12.0),
+             mi.MissionItem(4, 6, mi.MAV_CMD_NAV_LAND, 0, 1, 0.0, 0.0, 0.0, nan, 0, 0, 0.0)]
+    v = _vehicle(params={"MPC_Z_V_AUTO_UP": 0.716, "MPC_Z_V_AUTO_DN": 0.716})
+    try:
+        v._on_new_mission(v.flavour.transform_upload(items, v.home_item))
+        assert v.arm() is None and v.set_mode(fl.MISSION) is None
+        lowest = np.inf
+        while v.mission_seq < 4 and v.t < 200.0:
+            v.step()
+            if v.mission_seq in (2, 3):
+                lowest = min(lowest, -float(v.model.state.pos[2]))
+        assert v.mission_seq == 4
+        assert 2.0 + 0.3 < lowest < 2.0 + 0.8  # turned back above the strip's end, inside NAV_MC_ALT_RAD
+    finally:
+        v.close()

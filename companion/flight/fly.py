@@ -37,7 +37,8 @@ from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, rea
 from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
-from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item
+from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item, start_with_reason
+from companion.flight.status_texts import StatusTexts
 from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
@@ -46,8 +47,8 @@ from companion.mission.firmware import flight_parameters as firmware_flight_para
 log = logging.getLogger(__name__)
 
 _ENDS_ON_GROUND = {mi.MAV_CMD_NAV_LAND, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH}
-# STATUSTEXT severities that, before take-off, mean the vehicle refuses to fly the mission (PX4: "Geofence violation
-# for waypoint N", "No valid mission available, refusing takeoff" are CRITICAL)
+# STATUSTEXT severities that, before take-off, mean the vehicle refuses to fly the mission (real PX4: "Geofence
+# violation for waypoint N", "Switching to Mission is currently not available" are CRITICAL)
 _REFUSAL_SEVERITIES = {"EMERGENCY", "ALERT", "CRITICAL", "ERROR"}
 REFUSAL_GRACE_S = 1.0  # after the first refusal text, collect the ones that follow before ending
 
@@ -377,7 +378,8 @@ async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: f
     # after its EKF converged (real ArduCopter SITL: about 40 s after boot)
     if not await wait_initialised(vehicle, health_timeout_s):
         log.warning("no SYS_STATUS within %g s: uploading anyway", health_timeout_s)
-    await upload_and_verify(vehicle.mission, items, vehicle.autopilot)
+    async with StatusTexts(vehicle.telemetry) as texts:  # a refusal quotes what the vehicle said about it
+        await upload_and_verify(vehicle.mission, items, vehicle.autopilot, texts=texts)
     await select_arming_mode(vehicle)
     await wait_healthy(vehicle, health_timeout_s, when_only_armable_missing=lambda: select_arming_mode(vehicle))
     if getattr(plan, "home", None) is not None:
@@ -399,7 +401,7 @@ async def _arm_and_start(vehicle: Vehicle, rec: TelemetryRecorder, first_seq: in
     await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
     log.info("armed; starting the mission at item %d", first_seq)
     try:
-        await _retry("mission start", vehicle.mission.start_mission)
+        await start_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
     except CompanionError:
         with contextlib.suppress(Exception):
             await vehicle.action.disarm()

@@ -123,3 +123,71 @@ async def arm_with_reason(vehicle, texts_since: Callable[[int], list[str]], text
             reason = "; ".join(said) if said else "the vehicle gave no reason (no STATUSTEXT)"
             raise CompanionError(f"the vehicle refused to arm ({result}): {reason}",
                                  "fix what the vehicle reports (its pre-arm checks), then retry") from exc
+
+
+_LINK_RESULTS = ("TIMEOUT", "CONNECTION_ERROR")
+MAV_CMD_MISSION_START = 300
+MAV_RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED", 4: "FAILED",
+                    5: "IN_PROGRESS", 6: "CANCELLED"}
+
+
+class _CommandAcks:
+    """The COMMAND_ACKs of mode switches and mission starts, read beside mavsdk's own handling: mavsdk reports a
+    refused start as DENIED or UNKNOWN (ArduCopter's MAV_RESULT_FAILED), the vehicle's own result says which."""
+
+    def __init__(self, vehicle):
+        self.direct = getattr(vehicle, "direct", None)
+        self.results: list[str] = []
+        self._task: asyncio.Task | None = None
+
+    async def __aenter__(self) -> _CommandAcks:
+        if self.direct is not None:
+            self._task = asyncio.create_task(self._listen())
+            await asyncio.sleep(0)
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._task
+
+    async def _listen(self) -> None:
+        async for msg in self.direct.subscribe_message("COMMAND_ACK"):
+            with contextlib.suppress(ValueError, TypeError, KeyError):
+                f = json.loads(msg.fields_json)
+                if int(f["command"]) in (MAV_CMD_DO_SET_MODE, MAV_CMD_MISSION_START):
+                    name = "DO_SET_MODE" if int(f["command"]) == MAV_CMD_DO_SET_MODE else "MISSION_START"
+                    result = int(f["result"])
+                    self.results.append(f"{name} {MAV_RESULT_NAMES.get(result, str(result))}")
+
+
+async def start_with_reason(vehicle, texts_since: Callable[[int], list[str]], text_count: Callable[[], int],
+                            attempts: int = 3, reason_wait_s: float = 1.5) -> None:
+    """Start the mission (mavsdk: a mode switch to Mission/AUTO); a refusal raises with the command's result and
+    the firmware's own STATUSTEXTs quoted (PX4: "Switching to Mission is currently not available"; ArduCopter: "Auto:
+    Missing Takeoff Cmd", "Mode change to AUTO failed: init failed"). Only a timed-out command is tried again."""
+    async with _CommandAcks(vehicle) as acks:
+        for attempt in range(1, attempts + 1):
+            mark, acked = text_count(), len(acks.results)
+            try:
+                await vehicle.mission.start_mission()
+                return
+            except Exception as exc:
+                result = getattr(getattr(exc, "result", None), "name", str(exc))
+                if result in _LINK_RESULTS and attempt < attempts:
+                    log.warning("mission start timed out (attempt %d of %d), retrying", attempt, attempts)
+                    await asyncio.sleep(0.5)
+                    continue
+                if result in _LINK_RESULTS:
+                    raise CompanionError(f"the mission start got no answer ({result}, {attempts} attempts)",
+                                         "check the link to the vehicle, then retry") from exc
+                await asyncio.sleep(reason_wait_s)  # the STATUSTEXT may trail the COMMAND_ACK
+                said = texts_since(mark)
+                reason = "it said: " + "; ".join(said) if said else "it gave no reason (no STATUSTEXT)"
+                answered = acks.results[acked:]
+                how = f"{answered[-1]}; mavsdk: {result}" if answered else result
+                raise CompanionError(f"the vehicle refused the mission start ({how}); {reason}",
+                                     "fix what the vehicle reports (e.g. a mission that starts with a takeoff, "
+                                     "inside its geofence; check its feasibility on the ground station), then "
+                                     "retry") from exc

@@ -24,6 +24,7 @@ from typing import IO
 
 from companion.attitude import quat_to_euler
 from companion.files import read_jsonl
+from companion.flight.status_texts import clean_text
 from companion.mission import items as mi
 from companion.records import GimbalSource, pose_json
 
@@ -177,9 +178,10 @@ class TelemetryRecorder:
         self.progress_event.set()
 
     def _on_status_text(self, s) -> None:
-        text = f"{s.type.name}: {s.text}"
+        said = clean_text(s.text)  # PX4 ends its texts with a tab
+        text = f"{s.type.name}: {said}"
         self.status_texts.append(text)
-        self.status_events.append((time.monotonic(), s.type.name, s.text))
+        self.status_events.append((time.monotonic(), s.type.name, said))
         log.info("vehicle says %s", text)
 
     def _on_boot_time(self, t_boot_s: float, stream: str = "") -> None:

@@ -7,12 +7,14 @@ yaw commands, ArduPilot's seq-0 home placeholder) and its download works on both
 from __future__ import annotations
 
 import logging
+import re
 from collections.abc import Sequence
 
 from mavsdk.asyncio.plugins.mission_raw import MissionItem as RawItem
 from mavsdk.asyncio.plugins.mission_raw import MissionRawError
 
 from companion.errors import CompanionError
+from companion.flight.status_texts import StatusTexts, quote
 from companion.flight.stored_form import mismatches
 from companion.mission.firmware import ardupilot_param_refusal, check_autopilot
 from companion.mission.items import MissionItem
@@ -88,24 +90,47 @@ async def _with_retries(what: str, coro_fn, attempts: int):
     return None
 
 
-async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str, attempts: int = 4) -> None:
-    """Upload ``items``, download them again and compare; raises CompanionError naming the problem."""
+_CAPACITY_TEXT = re.compile(r"Only (\d+) items are supported")
+
+
+def _refusal_fix(name: str, said: list[str], count: int) -> str:
+    """The fix for a refused upload, from what the vehicle said when it says more than the result code: ArduPilot's
+    "Only N items are supported" gives its capacity, and N = 0 means its mission storage is not initialised yet
+    (real ArduCopter SITL right after boot), which no shorter mission fixes."""
+    for text in said:
+        match = _CAPACITY_TEXT.search(text)
+        if match and int(match.group(1)) == 0:
+            return ("the vehicle is still starting up (its mission storage is not initialised, so it takes no "
+                    "items): wait until it has finished booting, then retry")
+        if match:
+            return (f"the vehicle takes at most {match.group(1)} items and this mission has {count}: shorten the "
+                    "scan or split it")
+    return _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")
+
+
+async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str, attempts: int = 4,
+                            texts: StatusTexts | None = None) -> None:
+    """Upload ``items``, download them again and compare; raises CompanionError naming the problem.
+
+    ``texts``: the vehicle's STATUSTEXTs being collected; a refusal then quotes what the vehicle said about it."""
     if not items:
         raise CompanionError("the mission has no items", "plan the scan first (companion plan ...)")
     seqs = [it.seq for it in items]
     if seqs != list(range(len(items))):
         raise CompanionError("mission items are not numbered 0..N-1 in order", "renumber the items (seq)")
     raw = to_raw(items)
+    mark = texts.mark() if texts is not None else 0
     try:
         await _with_retries("mission upload", lambda: mission_plugin.upload_mission(raw), attempts)
     except MissionRawError as exc:
         name = getattr(exc.result, "name", str(exc.result))
-        fix = _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")
         if name in _LINK_FAILURES:
             raise CompanionError(f"mission upload failed: the link lost too much ({name}, "
-                                 f"{attempts} attempts, {len(items)} items)", fix) from exc
+                                 f"{attempts} attempts, {len(items)} items)", _UPLOAD_FIXES[name]) from exc
+        said = await texts.reason(mark) if texts is not None else []
         raise CompanionError(f"the vehicle rejected the mission upload ({name}, {len(items)} items)"
-                             + _culprit(items, autopilot, name), fix) from exc
+                             + _culprit(items, autopilot, name) + (f"; {quote(said)}" if texts is not None else ""),
+                             _refusal_fix(name, said, len(items))) from exc
     log.info("uploaded %d mission items", len(items))
     try:
         got = from_raw(await _with_retries("mission download", mission_plugin.download_mission, attempts))

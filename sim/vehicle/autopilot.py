@@ -61,6 +61,8 @@ class VehicleConfig:
     gps_noise_m: float = 0.0
     packet_loss: float = 0.0
     latency_ms: float = 0.0
+    stream_stall_s: float = 0.0  # ATTITUDE / GLOBAL_POSITION_INT each lag behind now and then, up to this (simulated)
+    stream_stall_every_s: float = 30.0  # simulated seconds between one stream's stalls, on average
     outage_at_s: float | None = None
     outage_s: float = 0.0
     gps_glitch_at_s: float | None = None
@@ -80,6 +82,7 @@ class VehicleConfig:
     geofence_max_dist_m: float | None = None
     gps_ready_after_s: float | None = None
     storage: Path | None = None
+    init_s: float | None = None  # wall seconds of start-up after each boot (None: the flavour's, firmware.py)
     limits: Limits = field(default_factory=Limits)
 
 
@@ -118,6 +121,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.params.update({name: type(self.params.get(name, 0.0))(value) for name, value in cfg.params.items()})
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due: dict[str, float] = {}
+        self.stream_rng = np.random.default_rng(cfg.seed + 4)  # its own draws: other faults keep their sequences
+        self._held: dict[str, list] = {}  # stream -> messages held back while it stalls (--stream-stall)
+        self._stall_until: dict[str, float] = {}
+        self._next_stall: dict[str, float] = {}
         self.home_item = mi.MissionItem(0, mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
                                         round(cfg.home.lat * 1e7), round(cfg.home.lon * 1e7), cfg.home.alt_amsl_m)
         self.missions = MissionServer(
@@ -125,7 +132,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.flavour.max_mission_items if cfg.max_mission_items is None else cfg.max_mission_items,
             transform_upload=lambda items: self.flavour.transform_upload(items, self.home_item),
             transform_download=lambda items: self.flavour.transform_download(items, self.home_item),
-            on_too_many=self._too_many_items)
+            on_too_many=self._too_many_items, on_invalid_item=self._invalid_item)
         self.pose_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if cfg.pose_port else None
         self.truth_file = open(cfg.truth_log, "w") if cfg.truth_log else None  # noqa: SIM115 (closed in close())
 
@@ -212,6 +219,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         if self.flavour.too_many_items_text:
             self.statustext(mavlink.MAV_SEVERITY_WARNING, self.flavour.too_many_items_text.format(n=limit))
 
+    def _invalid_item(self, result: int) -> None:
+        if self.flavour.invalid_item_text:
+            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.flavour.invalid_item_text)
+
     def statustext(self, severity: int, text: str) -> None:
         log.info("statustext: %s", text)
         self._send(self.mav.statustext_encode(severity, text.encode()[:50]))
@@ -240,7 +251,9 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             if self.on_ground and self.armed:
                 refusal = self.flavour.ground_start_refusal(self.mission)
                 if refusal:
-                    return refusal
+                    for severity, text in refusal[:-1]:
+                        self.statustext(severity, text)
+                    return refusal[-1][1]  # said (WARNING) with the refusing ACK
                 if self.refuse_infeasible_start():
                     self.mode = mode
                     self.task = Hold(self.model.state.pos)
@@ -348,9 +361,11 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 if yaw is None and math.hypot(*(target[:2] - nav[:2])) > 2.0 and self.param("MIS_YAWMODE", 0) == 0:
                     yaw = math.degrees(math.atan2(target[1] - nav[1], target[0] - nav[0])) % 360.0
             radius = self.flavour.waypoint_reached_m
-            if radius is None:
+            alt_radius = None
+            if radius is None:  # PX4: param2 (else NAV_ACC_RAD) horizontally, NAV_MC_ALT_RAD vertically
                 radius = item.param2 if item.param2 > 0 else self.param("NAV_ACC_RAD", 2.0)
-            self.mission_task = Line(prev, target, radius, max(item.param1, 0.0), yaw)
+                alt_radius = self.param("NAV_MC_ALT_RAD", 0.8)
+            self.mission_task = Line(prev, target, radius, max(item.param1, 0.0), yaw, alt_radius_m=alt_radius)
             return False
         if cmd == mi.MAV_CMD_NAV_LAND:
             if copter:
@@ -563,6 +578,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
     def run(self) -> None:
         speed = self.cfg.speedup
         t0 = time.monotonic()
+        self.begin_boot()
         try:
             while not self._stop:
                 now = time.monotonic()
@@ -573,6 +589,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                     steps += 1
                 if steps == 50:  # cannot keep up: slow the simulated clock down instead of jumping
                     t0 = now - self.t / speed
+                self.update_init()
                 self._update_outage()
                 self.update_outage_after_takeoff()
                 if self.update_reboot():

@@ -57,6 +57,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gps-noise", type=float, default=0.0, help="GPS position error std (random walk), metres")
     p.add_argument("--packet-loss", type=float, default=0.0, metavar="PCT", help="drop this percent of datagrams")
     p.add_argument("--latency-ms", type=float, default=0.0, help="added one-way link latency, wall ms")
+    p.add_argument("--stream-stall", type=float, default=0.0, metavar="S",
+                   help="ATTITUDE and GLOBAL_POSITION_INT each stall now and then (held back, then sent in order) "
+                        "for up to S simulated seconds, so their time stamps disagree on the link by that much as "
+                        "real PX4 SITL's did at speed-up 4 (up to 7 s, mostly under 1 s); 0 (default): off")
+    p.add_argument("--stream-stall-every", type=float, default=30.0, metavar="S",
+                   help="mean simulated seconds between one stream's stalls (default 30)")
     p.add_argument("--outage-at", type=float, metavar="S", help="link outage begins at this simulated time, s")
     p.add_argument("--outage-s", type=float, default=5.0, metavar="N", help="link outage length, wall seconds")
     p.add_argument("--gps-glitch-at", type=float, metavar="S", help="GPS jumps at this simulated time, s")
@@ -86,12 +92,16 @@ def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
                    help="simulated seconds after boot until the estimator uses GPS (default: ArduCopter 38, PX4 0)")
     p.add_argument("--storage", type=Path,
                    help="PX4 flavour: keep the mission and its current item in this file across restarts")
+    p.add_argument("--init-s", type=float, metavar="S",
+                   help="wall seconds after (re)boot until the autopilot has initialised: only HEARTBEAT is sent and "
+                        "a mission upload is refused (ArduCopter: NO_SPACE, 'Only 0 items are supported'); default "
+                        "ArduCopter 1, PX4 0")
 
 
 def firmware_config(args: argparse.Namespace) -> dict:
     return dict(reboot_after_takeoff_s=args.reboot_after_takeoff, reboot_s=args.reboot_s,
                 geofence_max_dist_m=args.geofence_max_dist, gps_ready_after_s=args.gps_ready_after,
-                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff)
+                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff, init_s=args.init_s)
 
 
 def config_from_args(args: argparse.Namespace) -> VehicleConfig:
@@ -100,11 +110,16 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
                              "give e.g. --packet-loss 20")
     if args.speedup <= 0:
         raise CompanionError(f"--speedup {args.speedup} must be positive", "use e.g. --speedup 10")
+    if args.stream_stall < 0 or args.stream_stall_every <= 0:
+        raise CompanionError(f"--stream-stall {args.stream_stall} / --stream-stall-every {args.stream_stall_every}: "
+                             "a stall cannot be negative nor stalls come every 0 s",
+                             "give e.g. --stream-stall 2.5 --stream-stall-every 30")
     return VehicleConfig(
         home=args.home, home_yaw_deg=args.home_yaw, speedup=args.speedup, seed=args.seed, autopilot=args.autopilot,
         target=(args.mavlink_host, args.mavlink_port), bind_port=args.bind_port, pose_port=args.pose_port or None,
         truth_log=args.truth_log, wind_m_s=args.wind, gusts_m_s=args.gusts, wind_from_deg=args.wind_from,
         gps_noise_m=args.gps_noise, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
+        stream_stall_s=args.stream_stall, stream_stall_every_s=args.stream_stall_every,
         outage_at_s=args.outage_at, outage_s=args.outage_s,
         gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,
         duration_s=args.duration, max_mission_items=args.max_mission_items, params=dict(args.params),

@@ -100,9 +100,9 @@ class CommandHandler:
     def _ack(self, msg, command: int, result: int) -> None:
         self._send(self.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
 
-    def _refused(self, msg, command: int, reason: str) -> None:
+    def _refused(self, msg, command: int, reason: str, result: int = mavlink.MAV_RESULT_DENIED) -> None:
         self.statustext(mavlink.MAV_SEVERITY_WARNING, reason)
-        self._ack(msg, command, mavlink.MAV_RESULT_DENIED)
+        self._ack(msg, command, result)
 
     def _on_command(self, msg, cmd: int, p: list[float]) -> None:
         ok = mavlink.MAV_RESULT_ACCEPTED
@@ -128,12 +128,14 @@ class CommandHandler:
             if mode == self.mode and mode != fl.MISSION:
                 return self._ack(msg, cmd, ok)
             reason = self.set_mode(mode)
-            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
+            refused = self.flavour.mode_refused_result
+            return self._refused(msg, cmd, reason, refused) if reason else self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_MISSION_START:
             if _int(p[0]) > 0 and not self._set_current(_int(p[0])):
                 return self._ack(msg, cmd, mavlink.MAV_RESULT_DENIED)
             reason = self.set_mode(fl.MISSION)
-            return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
+            refused = self.flavour.mode_refused_result
+            return self._refused(msg, cmd, reason, refused) if reason else self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_DO_PAUSE_CONTINUE:
             reason = self.set_mode(fl.MISSION if p[0] >= 0.5 else fl.HOLD)
             return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
@@ -167,7 +169,7 @@ class CommandHandler:
                 msg_id = _int(p[0], -1)
             reply = self._requested(msg_id)
             self._ack(msg, cmd, ok if reply is not None else mavlink.MAV_RESULT_UNSUPPORTED)
-            if reply is not None:
-                self._send(reply)
+            if reply is not None and (not self.initialising or reply.get_type() == "AUTOPILOT_VERSION"):
+                self._send(reply)  # while starting up, ArduPilot answers only AUTOPILOT_VERSION at once
             return None
         return self._ack(msg, cmd, mavlink.MAV_RESULT_UNSUPPORTED)

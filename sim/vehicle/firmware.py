@@ -9,9 +9,13 @@ Each rule here was seen on real firmware in SITL (shared/notes/real-firmware.md;
 * A reboot mid-flight (``--reboot-after-takeoff``): the link goes silent for a moment, then the vehicle is back on
   the ground, disarmed, with ``time_boot_ms`` restarting from 0 and (PX4) its stored mission and current item.
 * A mission outside PX4's geofence (``--geofence-max-dist``, PX4's GF_MAX_HOR_DIST): the upload is accepted, the
-  takeoff is refused at start with PX4's STATUSTEXTs and the vehicle disarms on the ground (COM_DISARM_PRFLT).
+  takeoff is refused at start with PX4's STATUSTEXTs ("Geofence violation for waypoint N", "Switching to Mission is
+  currently not available") and the vehicle disarms on the ground (COM_DISARM_PRFLT).
 * ArduCopter's EKF uses GPS only 35-40 s after boot: until then no home, no absolute position, and arming is
   refused with a "PreArm: ..." STATUSTEXT.
+* ArduCopter starts up for about a second of wall time after each boot (real SITL at speed-ups 1 and 5): it sends
+  HEARTBEAT only (no SYS_STATUS: ``AP_Vehicle::scheduler_delay_callback``) and, its mission storage not
+  initialised, refuses any mission upload with NO_SPACE and "Only 0 items are supported"; then "ArduPilot Ready".
 * The failsafe parameters with the firmware defaults (FS_GCS_ENABLE 0 and RTL_ALT 1500 cm on ArduCopter,
   NAV_DLL_ACT 0 and RTL_RETURN_ALT 30 m on PX4) and the lost-link action each of them selects.
 """
@@ -44,6 +48,11 @@ FAILSAFE_DEFAULTS = {
 # Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
 GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
 COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
+# Wall seconds from (re)boot until the autopilot has initialised. Real ArduCopter 4.7 SITL (-w, wiped storage): its
+# first words ("ArduPilot Ready") came about 1 s after the first heartbeat at speed-up 1 and at 5 alike, so the
+# start-up is wall time (storage and sensor set-up), not simulated time. PX4 SITL answers from its first heartbeat.
+INIT_WALL_S = {"px4": 0.0, "ardupilot": 1.0}
+COPTER_READY_TEXT = "ArduPilot Ready"
 
 
 def lost_link_action(flavour: str, params: dict) -> str | None:
@@ -84,7 +93,35 @@ class FirmwareRules:
         self._reboot_wall: float | None = None
         self._takeoff_t: float | None = None
         self._outage_wall: float | None = None
+        self._init_until_wall: float | None = None
+        self._mission_capacity = self.missions.max_items
         self._load_storage()
+
+    # --- start-up after each boot (ArduCopter: about 1 s of wall time) ---------------------------------------
+    @property
+    def initialising(self) -> bool:
+        """Still starting up: HEARTBEAT only, and no room for a mission (ArduPilot's storage is not initialised)."""
+        return self._init_until_wall is not None
+
+    def begin_boot(self) -> None:
+        """The autopilot process starts (``run()``) or restarts (``reboot()``)."""
+        init_s = INIT_WALL_S[self.flavour.name] if self.cfg.init_s is None else float(self.cfg.init_s)
+        if init_s <= 0:
+            return
+        if self._init_until_wall is None:
+            self._mission_capacity = self.missions.max_items
+        self._init_until_wall = time.monotonic() + init_s
+        self.missions.max_items = 0  # MissionItemProtocol: max_items() is 0 until AP_Mission::init()
+        log.info("starting up for %.1f s (wall): heartbeat only, mission uploads refused", init_s)
+
+    def update_init(self) -> None:
+        if self._init_until_wall is None or time.monotonic() < self._init_until_wall:
+            return
+        self._init_until_wall = None
+        self.missions.max_items = self._mission_capacity
+        if self.flavour.name == "ardupilot":
+            self.statustext(mavlink.MAV_SEVERITY_INFO, COPTER_READY_TEXT)
+        log.info("initialised")
 
     # --- estimator readiness (ArduCopter: 35-40 s after boot) -----------------------------------------
     @property
@@ -150,8 +187,10 @@ class FirmwareRules:
         bad = self.geofence_violation()
         if bad is None:
             return False
-        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Geofence violation for waypoint {bad}")
-        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "No valid mission available, refusing takeoff")
+        # real PX4 main (2026-03) SITL, GF_MAX_HOR_DIST 5 m: these two, CRITICAL, each ending in a tab (PX4's events
+        # marker); the mode switch itself was acknowledged (the companion's start command did not fail)
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Geofence violation for waypoint {bad}\t")
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Switching to Mission is currently not available\t")
         self.mission_refused = True
         return True
 
@@ -232,7 +271,9 @@ class FirmwareRules:
         self.battery = Battery()
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due = {}
+        self._held, self._stall_until, self._next_stall = {}, {}, {}  # a new boot: no stream is held back
         if self.flavour.name != "px4":
             self.mission_seq = self.flavour.first_seq
+        self.begin_boot()
         log.warning("autopilot booted again (boot %d): mission of %d items, current item %d", self.boot_count + 1,
                     len(self.mission), self.mission_seq)

@@ -72,6 +72,11 @@ class Px4:
     first_seq = 0
     max_mission_items = 500  # a larger MISSION_COUNT is refused with NO_SPACE
     too_many_items_text: str | None = None  # STATUSTEXT (WARNING) after that refusal, {n} = the limit
+    # STATUSTEXT (CRITICAL) before the ACK that refuses an item (PX4 MavlinkMissionManager::handle_mission_item:
+    # "IGN MISSION_ITEM: Invalid item", tab-terminated like all PX4 mavlink_log texts); ArduPilot says nothing
+    invalid_item_text: str | None = "IGN MISSION_ITEM: Invalid item\t"
+    # COMMAND_ACK of a refused mode change (Commander::handle_command DO_SET_MODE / MISSION_START)
+    mode_refused_result = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
     param_bytewise = True
     default_rates_hz = {
         "HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "GPS_RAW_INT": 5.0, "GLOBAL_POSITION_INT": 10.0,
@@ -84,7 +89,7 @@ class Px4:
         "MPC_XY_VEL_MAX": 12.0, "MPC_Z_VEL_MAX_UP": 3.0, "MPC_Z_VEL_MAX_DN": 1.5, "MPC_LAND_SPEED": 0.7,
         "MPC_ACC_HOR": 4.0, "MPC_YAWRAUTO_MAX": 60.0, "NAV_ACC_RAD": 2.0, "COM_DL_LOSS_T": 10, "NAV_DLL_ACT": 2,
         "COM_DISARM_LAND": 2.0, "BAT_LOW_THR": 0.15, "MIS_YAWMODE": 0, "MPC_Z_V_AUTO_UP": 3.0,
-        "MPC_Z_V_AUTO_DN": 1.5,
+        "MPC_Z_V_AUTO_DN": 1.5, "NAV_MC_ALT_RAD": 0.8,
     }
     waypoint_reached_m: float | None = None  # None: the item's acceptance radius (param2), else NAV_ACC_RAD
 
@@ -110,8 +115,9 @@ class Px4:
     def arm_refusal(self, mode: str) -> str | None:
         return None if mode in (HOLD, POSCTL, TAKEOFF, MISSION, GUIDED) else f"arming not allowed in {mode}"
 
-    def ground_start_refusal(self, items: list) -> str | None:
-        return None
+    def ground_start_refusal(self, items: list) -> list[tuple[int, str]]:
+        """The STATUSTEXTs (severity, text) with which the firmware refuses to start ``items`` on the ground."""
+        return []
 
     def transform_upload(self, items: list, home_item: mi.MissionItem) -> list:
         return [px4_stored_item(it) for it in items]
@@ -144,6 +150,8 @@ class ArduCopter(Px4):
     # supported" (MissionItemProtocol::handle_mission_count: ack first, then the text)
     max_mission_items = 650
     too_many_items_text = "Only {n} items are supported"
+    invalid_item_text = None  # MissionItemProtocol::handle_mission_item acks the refusal without a text
+    mode_refused_result = mavlink.MAV_RESULT_FAILED  # GCS_MAVLINK::_set_mode_common: set_mode() false -> FAILED
     params = {
         "WPNAV_SPEED": 500.0, "WPNAV_SPEED_UP": 250.0, "WPNAV_SPEED_DN": 150.0, "WPNAV_RADIUS": 200.0,
         "WP_YAW_BEHAVIOR": 2,
@@ -175,10 +183,13 @@ class ArduCopter(Px4):
             return f"Arm: Mode not armable ({mode})"
         return None
 
-    def ground_start_refusal(self, items: list) -> str | None:
+    def ground_start_refusal(self, items: list) -> list[tuple[int, str]]:
+        """ModeAuto::init refuses AUTO when landed and armed unless the mission starts with a takeoff, then
+        Copter::set_mode says the mode change failed (ArduCopter 4.7 source; the command is answered FAILED)."""
         if len(items) < 2 or items[1].command != mi.MAV_CMD_NAV_TAKEOFF:
-            return "Auto: Missing Takeoff Cmd"
-        return None
+            return [(mavlink.MAV_SEVERITY_CRITICAL, "Auto: Missing Takeoff Cmd"),
+                    (mavlink.MAV_SEVERITY_WARNING, "Mode change to AUTO failed: init failed")]
+        return []
 
     def transform_upload(self, items: list, home_item: mi.MissionItem) -> list:
         """What Copter keeps: home at seq 0, every other item in its stored form (which it then flies)."""

@@ -55,9 +55,11 @@ class MissionServer:
                  validate: Callable[[MissionItem, int], int | None], on_new_mission: Callable[[list], None],
                  max_items: int = 500, transform_upload: Callable[[list], list] | None = None,
                  transform_download: Callable[[list], list] | None = None,
-                 on_too_many: Callable[[int], None] | None = None):
+                 on_too_many: Callable[[int], None] | None = None,
+                 on_invalid_item: Callable[[int], None] | None = None):
         self.mav = mav
         self.on_too_many = on_too_many  # told the limit after a too-large MISSION_COUNT was refused
+        self.on_invalid_item = on_invalid_item  # told the result code before an item is refused
         self.send = send
         self.validate = validate
         self.on_new_mission = on_new_mission
@@ -142,6 +144,8 @@ class MissionServer:
         if error is not None:
             log.info("mission upload refused at item %d (command %d): result %d", msg.seq, msg.command, error)
             self._upload = None
+            if self.on_invalid_item is not None:
+                self.on_invalid_item(error)
             self._ack(src, error, up.mission_type)
             return
         up.items.append(item)

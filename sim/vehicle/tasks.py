@@ -48,18 +48,30 @@ class Climb(Task):
 
 
 class Line(Task):
-    """Fly the straight line a->b; reached inside ``radius`` with the heading within 10 degrees, done after hold."""
+    """Fly the straight line a->b; reached inside ``radius`` with the heading within 10 degrees, done after hold.
 
-    def __init__(self, a, b, radius_m: float, hold_s: float = 0.0, yaw_deg: float | None = None):
+    ``alt_radius_m``: reached when within ``radius`` horizontally and ``alt_radius_m`` vertically, as PX4 accepts a
+    multicopter waypoint (``MissionBlock::is_mission_item_reached``: acceptance radius in xy, NAV_MC_ALT_RAD in z);
+    None: inside ``radius`` in 3D."""
+
+    def __init__(self, a, b, radius_m: float, hold_s: float = 0.0, yaw_deg: float | None = None,
+                 alt_radius_m: float | None = None):
         self.a = np.array(a, dtype=float)
         self.b = np.array(b, dtype=float)
         self.radius_m = radius_m
+        self.alt_radius_m = alt_radius_m
         self.hold_s = hold_s
         self.yaw_deg = yaw_deg
         self._held = 0.0
 
+    def _inside(self, nav) -> bool:
+        if self.alt_radius_m is None:
+            return float(np.linalg.norm(nav - self.b)) <= self.radius_m
+        return (float(np.linalg.norm(nav[:2] - self.b[:2])) <= self.radius_m
+                and abs(float(nav[2] - self.b[2])) <= self.alt_radius_m)
+
     def command(self, nav, on_ground, dt, ctx):
-        if not self.reached and float(np.linalg.norm(nav - self.b)) <= self.radius_m:
+        if not self.reached and self._inside(nav):
             heading_ok = self.yaw_deg is None or abs(wrap_deg(self.yaw_deg - ctx.yaw_deg)) < 10.0
             self.reached = heading_ok
         if self.reached:

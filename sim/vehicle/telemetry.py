@@ -18,6 +18,12 @@ from sim.vehicle import flavours as fl
 log = logging.getLogger(__name__)
 
 REACHED_REPEATS = 3
+# Streams whose time stamps real SITL disagreed on, seen on the link (a pymavlink listener beside the companion, PX4
+# SIH at speed-up 4, paper-edge mission, 250 s): 509 of 59473 messages came more than 0.3 s of autopilot time behind
+# the other stream's latest, 17 more than 1 s, 5 more than 2 s (at most 7.1 s), in both directions, each stream in
+# order within itself. --stream-stall reproduces it: the stream is held back a while, then sent in order with its
+# old stamps.
+STALLING_STREAMS = ("ATTITUDE", "GLOBAL_POSITION_INT")
 WALL_CAP_HZ = 25.0  # no stream faster than this in wall time, whatever the speed-up
 SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
            | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
@@ -159,6 +165,8 @@ class TelemetryStreams:
                 continue
             if name == "HOME_POSITION" and not self.position_ready:
                 continue  # no home until the estimator uses GPS
+            if self.initialising and name != "HEARTBEAT":
+                continue  # ArduPilot sends only HEARTBEAT while it starts up (should_send_message_in_delay_callback)
             due = self._next_due.get(name, 0.0)
             if self.t + 1e-9 < due:
                 continue
@@ -166,12 +174,33 @@ class TelemetryStreams:
             if name == "HEARTBEAT":
                 interval = min(interval, self.cfg.speedup * 1.0)  # at least 1 Hz of wall time
             self._next_due[name] = self.t + interval
-            self._send(getattr(self, self.STREAMS[name])())
+            self._send_stream(name, getattr(self, self.STREAMS[name])())
             if name == "MISSION_CURRENT" and self.reached_seq >= 0 and self.reached_repeats < REACHED_REPEATS:
                 # Like PX4, repeat the last MISSION_ITEM_REACHED a few times: it is an event, and mavsdk only
                 # reports a mission as finished (current == total) once it has seen the last one.
                 self.reached_repeats += 1
                 self._send(self.mav.mission_item_reached_encode(self.reached_seq))
+
+    def _send_stream(self, name: str, msg) -> None:
+        """Send a stream message, or hold it (in order) while that stream is stalled (``--stream-stall``)."""
+        stall_s = self.cfg.stream_stall_s
+        if stall_s <= 0 or name not in STALLING_STREAMS:
+            self._send(msg)
+            return
+        held = self._held.setdefault(name, [])
+        until, next_stall = self._stall_until, self._next_stall
+        if name not in next_stall:
+            next_stall[name] = self.t + self.stream_rng.exponential(self.cfg.stream_stall_every_s)
+        if self.t < until.get(name, -1.0):
+            held.append(msg)
+            return
+        for old in held:
+            self._send(old)
+        held.clear()
+        self._send(msg)
+        if self.t >= next_stall[name]:
+            until[name] = self.t + self.stream_rng.uniform(0.25 * stall_s, stall_s)
+            next_stall[name] = until[name] + self.stream_rng.exponential(self.cfg.stream_stall_every_s)
 
     def _requested(self, msg_id: int):
         if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:

@@ -66,7 +66,7 @@ def test_keyframe_files_and_tags(tmp_path):
     assert gps[piexif.GPSIFD.GPSAltitude][0] / gps[piexif.GPSIFD.GPSAltitude][1] == pytest.approx(41.25)
     assert exif["Exif"][piexif.ExifIFD.SubSecTimeOriginal] == b"123"
     xmp = read_xmp(jpeg)
-    assert 'drone-dji:FlightYawDegree="+359.00"' in xmp and 'Camera:Pitch="90.00"' in xmp  # horizontal camera
+    assert 'drone-dji:FlightYawDegree="-1.00"' in xmp and 'Camera:Pitch="90.00"' in xmp  # horizontal camera
     assert "GimbalPitchDegree" not in xmp  # DJI's gimbal convention only for DJI makes (test_outputs_exif.py)
     assert entry.mask == entry.image.replace(".jpg", "_mask.png")
     side = json.loads((tmp_path / entry.sidecar).read_text())

@@ -141,3 +141,60 @@ def test_sparse_masking_gets_its_reference_from_the_frames_only_tracked():
     assert masker.stats.parallax_frames == len(masked_frames)
     assert r.render(59).wall_fraction == 0.0 and out[59][0] is None
     assert r.render(46).wall_fraction > 0.2 and out[46][0] is not None
+
+
+class _FlatDepthSession:
+    """The shipped model's metadata, and a network that reads every pixel at one depth (what it says of a frame
+    filled with plain wall, or of a background it misreads as nearly near)."""
+
+    def __init__(self, depth_m: float):
+        from companion.depth.session import DepthSession
+
+        self.info = DepthSession().info
+        self.depth_m = depth_m
+
+    def disparity(self, image):
+        return np.full((self.info.height, self.info.width), self.info.disparity_for_depth(self.depth_m), np.float32)
+
+
+def test_the_flow_is_spent_only_where_the_network_is_in_doubt(renderer):
+    """A frame the network reads as facade everywhere at the 4 m standoff costs no flow (it stays a reference);
+    the same frames read at 10 m (a background misread as near: under the 15 m limit, so the network keeps it)
+    are judged by parallax, which drops the background-only ones. Without a standoff every frame is judged."""
+    from companion.depth.masker import Masker
+    from companion.depth.parallax import SequenceParallax
+    from companion.records import Frame, TaggedFrame
+
+    def run(depth_m: float, standoff_m: float | None) -> tuple[Masker, dict]:
+        masker = Masker(session=_FlatDepthSession(depth_m), parallax=SequenceParallax(69.0, standoff_m=standoff_m))
+        out = {}
+        for i in range(100, 120):
+            f = renderer.render(i)
+            out[i] = (f, masker.mask(TaggedFrame(Frame(i, i * 0.1, f.image), _geo_pose(i, f)))[0])
+        return masker, out
+
+    sure, out = run(4.0, 4.0)
+    assert sure.stats.parallax_frames == 0 and sure.stats.parallax_skipped_sure == 20
+    assert all(m is not None and (m.mask > 0).all() for _, m in out.values())  # the network's answer stands
+    doubt, out = run(10.0, 4.0)
+    assert doubt.stats.parallax_skipped_sure == 0 and doubt.stats.parallax_frames >= 15
+    background_only = [i for i, (f, _) in out.items() if f.wall_fraction == 0.0]
+    assert len(background_only) >= 5 and all(out[i][1] is None for i in background_only)
+    no_standoff, _ = run(4.0, None)
+    assert no_standoff.stats.parallax_skipped_sure == 0 and no_standoff.stats.parallax_frames >= 15
+
+
+def test_network_is_sure_needs_a_whole_frame_of_facade_near_the_standoff():
+    from companion.depth.parallax import network_is_sure
+    from companion.depth.roi import extract_roi
+    from companion.depth.session import DepthSession
+
+    info = DepthSession().info
+    flat = np.full((info.height, info.width), info.disparity_for_depth(4.5), np.float32)
+    roi = extract_roi(flat, out_size=(640, 360))
+    assert roi.no_boundary and network_is_sure(roi, info, standoff_m=4.0)
+    assert not network_is_sure(roi, info, standoff_m=2.0)  # 4.5 m is over 1.5 standoffs of 2 m: in doubt
+    assert not network_is_sure(roi, info, standoff_m=None)
+    split = flat.copy()
+    split[: info.height // 2] = info.disparity_for_depth(120.0)  # a far half: a boundary, so in doubt
+    assert not network_is_sure(extract_roi(split, out_size=(640, 360)), info, standoff_m=4.0)

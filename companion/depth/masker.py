@@ -19,6 +19,7 @@ class MaskerStats:
     dropped_empty: int = 0  # whole frame background: no ROI, frame dropped
     no_boundary: int = 0  # whole frame facade
     parallax_frames: int = 0  # frames whose mask parallax confirmed or corrected (the rest: network alone)
+    parallax_skipped_sure: int = 0  # frames the network read as wall everywhere at the standoff: no flow spent
     depth_ms: list[float] = field(default_factory=list)
     mask_ms: list[float] = field(default_factory=list)
 
@@ -92,9 +93,14 @@ class Masker:
             self.parallax.remember(tagged.frame.image, tagged.pose)
 
     def _with_parallax(self, image, tagged: TaggedFrame, roi: RoiResult) -> RoiResult:
-        from companion.depth.parallax import fuse_with_network
+        from companion.depth.parallax import fuse_with_network, network_is_sure
 
-        par = self.parallax.update(image, None if tagged.pose_stale else tagged.pose)
+        pose = None if tagged.pose_stale else tagged.pose
+        if network_is_sure(roi, self.session.info, self.parallax.standoff_m, self.parallax.params):
+            self.stats.parallax_skipped_sure += 1
+            self.parallax.remember(image, pose)  # still a reference for the next frame in doubt
+            return roi
+        par = self.parallax.update(image, pose)
         if par is None:
             return roi
         self.stats.parallax_frames += 1

@@ -25,7 +25,10 @@ from companion.errors import CompanionError
 
 @dataclass(frozen=True)
 class ParallaxParams:
-    work_width: int = 480  # flow is computed at this width (frames are resized, aspect kept)
+    # flow is computed at this width (frames are resized, aspect kept). 240 px: on three validation passes built
+    # from training-split photos the mask error fell from 480 to 320 to 240 px and flattened below (docs/DEPTH.md);
+    # small copies track the wall's motion over the whole 8-60 cm baseline, and the flow costs a quarter
+    work_width: int = 240
     max_near_depth_m: float = 15.0  # nearer than this is near surface (the masker's all-background limit)
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
     max_fb_error_px: float = 0.6  # forward-backward flow disagreement above which a pixel is not trusted
@@ -35,6 +38,9 @@ class ParallaxParams:
     drop_max_untrusted_kept: float = 0.10
     min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
     max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
+    # the network needs no second opinion on a frame it reads as facade everywhere (no depth boundary) no farther
+    # than this many standoffs: the flow is skipped there (the bulk of a scan's frames). None: judge every frame.
+    sure_wall_standoffs: float | None = 1.5
 
 
 @dataclass(frozen=True)
@@ -178,6 +184,25 @@ def pick_reference(positions: list[np.ndarray], current: np.ndarray,
     return None
 
 
+def network_is_sure(roi, info, standoff_m: float | None, params: ParallaxParams | None = None) -> bool:
+    """True when the network reads the whole frame as facade (no depth boundary) at about the planned standoff.
+
+    Why: two dense flows cost about as much as the network itself, and in the bulk of a scan (the camera filling
+    its frame with wall) they only confirm what the network says. Parallax earns its cost where the network cuts
+    something (windows read as far, a roof line, the wall's end) or reads the frame as nearly-near (a background
+    read at 8-11 m, under the 15 m limit): those frames keep their second opinion. ``roi`` is the network's
+    :class:`companion.depth.roi.RoiResult`, ``info`` its model's ``ModelInfo``; without a standoff or a metric
+    model every frame is judged.
+    """
+    p = params or ParallaxParams()
+    if p.sure_wall_standoffs is None or standoff_m is None or not info.metric:
+        return False
+    if roi.empty or not roi.no_boundary or not np.isfinite(roi.roi_mean_disparity):
+        return False
+    depth = float(info.depth_from_disparity(np.float32(roi.roi_mean_disparity)))
+    return depth <= p.sure_wall_standoffs * standoff_m
+
+
 class SequenceParallax:
     """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
 
@@ -185,15 +210,18 @@ class SequenceParallax:
     least ``min_baseline_m`` away. Returns None (the network alone decides) without a pose, while hovering, or at
     the start of a pass. The onboard chain masks only the frames around a keyframe decision (about two per
     keyframe, a metre apart), so it also shows the masker every frame it tracks (:meth:`remember`, a resize and
-    no flow): that is what gives the masked frame a reference a few centimetres back.
+    no flow): that is what gives the masked frame a reference a few centimetres back. ``standoff_m`` (the
+    mission's) lets the masker skip the flow where the network is sure (:func:`network_is_sure`).
     """
 
-    def __init__(self, hfov_deg: float, params: ParallaxParams | None = None, keep: int = 12):
+    def __init__(self, hfov_deg: float, params: ParallaxParams | None = None, keep: int = 12,
+                 standoff_m: float | None = None):
         if not 1.0 < hfov_deg < 179.0:
             raise CompanionError(f"camera hfov {hfov_deg} deg is out of range", "give the horizontal field of view")
         self.hfov_deg = hfov_deg
         self.params = params or ParallaxParams()
         self.keep = keep
+        self.standoff_m = standoff_m
         self._origin: tuple[float, float, float] | None = None
         self._history: list[tuple[np.ndarray, np.ndarray, tuple[int, ...]]] = []  # (grey copy, ENU, frame shape)
 

@@ -45,6 +45,7 @@ class ChainStats:
     before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
     dropped_no_roi: int = 0
     parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
+    parallax_skipped_sure: int = 0  # masked frames the network read as wall everywhere: no flow spent on them
     frames_tracked: int = 0  # followed by the wall tracker only (cheap); 0 without a tracker
     frames_measured: int = 0  # depth mask + SIFT measurement (every processed frame without a tracker)
     keyframes: int = 0
@@ -178,6 +179,7 @@ class CullChain:
         masked = self.masker(tagged)
         self.stats.dropped_no_roi += int(masked is None)
         self.stats.parallax_frames = self.masker.stats.parallax_frames
+        self.stats.parallax_skipped_sure = self.masker.stats.parallax_skipped_sure
         return masked
 
     def _cross_check(self, kf: Keyframe) -> Keyframe:

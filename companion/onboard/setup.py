@@ -67,7 +67,7 @@ def build_chain(
         if parallax and mission is not None:
             from companion.depth.parallax import SequenceParallax
 
-            seq = SequenceParallax(mission.camera.hfov_deg)
+            seq = SequenceParallax(mission.camera.hfov_deg, standoff_m=mission.standoff_m)
         masker = Masker(model, parallax=seq)
         model_name = str(model) if model is not None else "shipped default"
     settings = {"rth": gate_cfg.rth, "depth_model": model_name, "mask": mask,

@@ -28,6 +28,7 @@ import numpy as np
 
 from companion.depth.evaluate import MaskEval, frame_eval, save_visual
 from companion.depth.masker import Masker
+from companion.depth.parallax import ParallaxParams
 from companion.depth.roi import ROI_RULES
 from companion.depth.session import DEFAULT_MODEL, DepthSession
 
@@ -49,10 +50,12 @@ def photo_pass_frames(name: str, args) -> Iterator[tuple[int, np.ndarray, np.nda
     R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
     for i in range(len(renderer)):
         f = renderer.render(i)
-        yield i, f.image, f.roi_mask, (np.array([f.along_m, spec.standoff_m, f.up_m]), R, spec.camera.fx)
+        yield i, f.image, f.roi_mask, (np.array([f.along_m, spec.standoff_m, f.up_m]), R, spec.camera.fx,
+                                       spec.standoff_m)
 
 
 def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    from companion.mission import load_mission
     from sim.camera.recording import generate_recording, load_recording
 
     n = 0
@@ -63,45 +66,54 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
         rec = load_recording(path)
         print(f"pass sim: simulator recording {path} ({len(rec)} frames, every {args.sim_stride})")
         fx = float(rec.K[0, 0])
+        standoff_m = load_mission(ROOT / "missions" / "demo-facade.yaml").standoff_m
         for i in range(0, len(rec), args.sim_stride):
             pose = rec.camera_pose(i)
-            yield n, rec.image(i), rec.roi_mask(i), (pose.position_enu, pose.R_world_from_cam, fx)
+            yield n, rec.image(i), rec.roi_mask(i), (pose.position_enu, pose.R_world_from_cam, fx, standoff_m)
             n += 1
 
 
 def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], save: Path | None,
-                  parallax: bool = False):
+                  parallax_widths: tuple[int, ...] = ()):
     """Run every model once per frame and every ROI rule on its disparity; MaskEval per (model, rule).
 
-    With ``parallax``: also each (model, rule) corrected by motion parallax against an earlier frame of the pass
-    (true camera positions as telemetry), and parallax alone (model "-", untrusted pixels background).
+    With ``parallax_widths``: also each (model, rule) corrected by motion parallax (flow at each working width)
+    against an earlier frame of the pass (true camera positions as telemetry), once on every frame and once
+    skipping the frames the network is sure of (``network_is_sure``: no depth boundary, at about the standoff),
+    as the onboard masker does; and parallax alone (model "-", untrusted pixels background).
     """
     from companion.depth.parallax import (
         ParallaxParams,
         camera_translation,
         fuse_with_network,
+        network_is_sure,
         parallax_depth,
         pick_reference,
     )
 
     maskers = {(m, r): Masker(session=s, params=ROI_RULES[r]) for m, s in sessions.items() for r in rules}
     evals = {key: MaskEval(recording=f"{key[0]} / {key[1]}") for key in maskers}
-    if parallax:
-        for m, r in list(maskers):
-            evals[(m, f"{r}+parallax")] = MaskEval(recording=f"{m} / {r}+parallax")
+    params = {w: ParallaxParams(work_width=w) for w in parallax_widths}
+    for m, r in list(maskers):
+        for w in params:
+            for tag in ("", " sure skipped"):
+                evals[(m, f"{r}+parallax@{w}{tag}")] = MaskEval(recording=f"{m} / {r}+parallax@{w}{tag}")
+    if params:
         evals[("-", "parallax alone")] = MaskEval(recording="parallax alone")
+    skipped = {key: 0 for key in evals}
     history: list[tuple[np.ndarray, np.ndarray]] = []  # (image, camera position) of recent frames
-    pp = ParallaxParams()
-    for i, image, truth, (pos, R, fx) in frames:
-        par = None
-        if parallax and fx:
-            k = pick_reference([h[1] for h in history], pos, pp)
-            if k is not None:
-                par = parallax_depth(history[k][0], image, camera_translation(R, history[k][1], R, pos), fx, pp)
+    for i, image, truth, (pos, R, fx, standoff_m) in frames:
+        pars = {}
+        if params and fx:
+            for w, pp in params.items():
+                k = pick_reference([h[1] for h in history], pos, pp)
+                t = camera_translation(R, history[k][1], R, pos) if k is not None else None
+                pars[w] = parallax_depth(history[k][0], image, t, fx, pp) if t is not None else None
             history = (history + [(image, pos)])[-12:]
-        if parallax:
+        if params:
             zero = np.zeros(image.shape[:2], np.uint8)
-            alone, dropped = fuse_with_network(zero, par) if par is not None else (zero, False)
+            first = pars.get(next(iter(params)))
+            alone, dropped = fuse_with_network(zero, first) if first is not None else (zero, False)
             evals[("-", "parallax alone")].frames.append(frame_eval(i, truth, np.zeros((8, 8), np.float32),
                                                                     _as_roi(alone, dropped)))
         for model, session in sessions.items():
@@ -114,13 +126,19 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                 roi = masker.roi_from_disparity(disp, image.shape[:2])
                 ev = frame_eval(i, truth, disp, roi, depth_ms=depth_ms, mask_ms=(time.perf_counter() - t1) * 1e3)
                 evals[(model, rule)].frames.append(ev)
-                if parallax:
+                sure = network_is_sure(roi, session.info, standoff_m)
+                for w, par in pars.items():
                     fused, dropped = fuse_with_network(roi.mask, par) if par is not None else (roi.mask, roi.empty)
-                    evals[(model, f"{rule}+parallax")].frames.append(frame_eval(i, truth, disp,
-                                                                                _as_roi(fused, dropped)))
+                    evals[(model, f"{rule}+parallax@{w}")].frames.append(frame_eval(i, truth, disp,
+                                                                                    _as_roi(fused, dropped)))
+                    key = (model, f"{rule}+parallax@{w} sure skipped")
+                    skipped[key] += int(sure and par is not None)
+                    if sure:
+                        fused, dropped = roi.mask, roi.empty
+                    evals[key].frames.append(frame_eval(i, truth, disp, _as_roi(fused, dropped)))
                 if save is not None and i % 10 == 0:
                     save_visual(save / f"{Path(model).stem}_{rule}" / f"{i:04d}.jpg", image, disp, roi.mask, truth)
-    return evals
+    return evals, skipped
 
 
 def _as_roi(mask: np.ndarray, dropped: bool):
@@ -131,20 +149,21 @@ def _as_roi(mask: np.ndarray, dropped: bool):
     return RoiResult(mask, dropped, share == 1.0, share, 0, 0, float("nan"), float("nan"), float("nan"))
 
 
-def print_table(name: str, evals: dict) -> list[dict]:
+def print_table(name: str, evals: dict, skipped: dict) -> list[dict]:
     print(f"\n{name}: model / ROI rule | error mean / p95 | wall-only frames: error | facade lost | background kept "
           f"(mixed frames) | all-background frames dropped | wrongly dropped (frames with wall)")
     rows = []
     for (model, rule), ev in evals.items():
         s = ev.summary()
-        s.update(model=model, rule=rule, pass_name=name)
+        s.update(model=model, rule=rule, pass_name=name, flow_skipped_sure=skipped.get((model, rule), 0))
         rows.append(s)
         print(f"  {Path(model).name} / {rule} | {100 * s['error_mean']:.2f} % / {100 * s['error_p95']:.2f} % | "
               f"{100 * s['error_wall_only_mean']:.2f} % ({s['wall_only_frames']}) | "
               f"{100 * s['facade_lost_mean']:.1f} % | {100 * s['background_kept_mixed_mean']:.1f} % "
               f"({s['mixed_frames']}) | {s['dropped_empty'] - s['dropped_with_facade']} of {s['true_empty']} | "
               f"{s['dropped_with_facade']} (most wall {100 * s['dropped_with_facade_max_share']:.1f} %) | "
-              f"{s['frames']} frames, depth {s['depth_ms_median']:.0f} ms median")
+              f"{s['frames']} frames, depth {s['depth_ms_median']:.0f} ms median"
+              + (f", flow skipped on {s['flow_skipped_sure']} (network sure)" if "sure skipped" in rule else ""))
     return rows
 
 
@@ -166,6 +185,8 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--parallax", action="store_true",
                     help="also correct each mask by motion parallax with the true camera positions as telemetry")
+    ap.add_argument("--parallax-widths", nargs="+", type=int, default=[ParallaxParams().work_width],
+                    help="working widths of the flow to compare (with --parallax)")
     ap.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures (every 10th)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
@@ -175,7 +196,8 @@ def main() -> None:
     for name in args.passes:
         frames = sim_frames(args) if name == "sim" else photo_pass_frames(name, args)
         save = Path(args.save) / name if args.save else None
-        rows += print_table(name, evaluate_pass(frames, sessions, args.roi, save, args.parallax))
+        widths = tuple(args.parallax_widths) if args.parallax else ()
+        rows += print_table(name, *evaluate_pass(frames, sessions, args.roi, save, widths))
     print(f"\nmachine: {platform.machine()} {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; "
           f"{time.perf_counter() - t0:.0f} s")
     if args.json:

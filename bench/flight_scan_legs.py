@@ -2,7 +2,8 @@
 ``firmware.flight_parameters`` lists, through the simulator process + mavsdk + companion.flight.
 
 Simulator figures (the simulator's PX4 / ArduCopter flavours), judged from its truth log: worst relative speed
-error along a scan leg (middle 60 % of each leg) and worst heading error against wall-facing (whole leg).
+error along a scan leg (middle 60 % of each leg), worst heading error against wall-facing (whole leg), and how far
+before its planned end each leg turned (PX4 accepts a waypoint within NAV_MC_ALT_RAD vertically).
 
     PYTHONPATH=. python bench/flight_scan_legs.py [--speedup 25]
 """
@@ -43,9 +44,11 @@ def main() -> None:
             reports = scan_leg_reports(plan, read_truth_log(truth))
             speed_error, yaw_error = worst(reports)
             speeds = [r.median_speed_m_s for r in reports]
+            shorts = [r.end_short_m for r in reports]
             print(f"{autopilot:9s} params {text or '(defaults)':45s} completed={result.completed} "
                   f"worst speed error {speed_error * 100:6.1f} %  worst heading error {yaw_error:5.2f} deg  "
-                  f"leg speeds {min(speeds):.3f}..{max(speeds):.3f} m/s", flush=True)
+                  f"leg speeds {min(speeds):.3f}..{max(speeds):.3f} m/s  "
+                  f"strip ends short {min(shorts):.2f}..{max(shorts):.2f} m (last {shorts[-1]:.2f})", flush=True)
 
 
 if __name__ == "__main__":

@@ -129,12 +129,12 @@ def flight_parameters(plan, autopilot: str) -> dict[str, float]:
     * PX4: ``NAV_MC_ALT_RAD`` = the plan's scan acceptance radius (0.3 m), when scan legs move vertically. PX4
       accepts a multicopter waypoint within its acceptance radius (param2) horizontally but within NAV_MC_ALT_RAD
       (default 0.8 m) vertically (``MissionBlock::is_mission_item_reached``); no mission item can set the vertical
-      one (``alt_acceptance_radius`` is NaN for mission items, ``mission_block.cpp``). So a vertical strip ended
-      up to 0.8 m before its planned end, still at scan speed, and turned there: real PX4 SIH turned 0.6-1.0 m
-      above the bottom of the demo's last strip, losing the wall's base from it. With the plan's radius PX4
-      accepts the strip's end where the plan means it to, in 3D as horizontally; its trajectory already brakes to
-      a stop in z at a strip end (the next leg is level or reverses), so the tighter radius costs about a second
-      per strip end, not a hover.
+      one (``alt_acceptance_radius`` is NaN for mission items, ``mission_block.cpp``). So a vertical strip was
+      accepted up to 0.8 m before its planned end, still moving, and turned there: real PX4 SIH turned the demo's
+      last strip 0.5-0.8 m above its bottom, losing the wall's base from it. With the plan's radius PX4 accepts the
+      strip's end where the plan means it to, in 3D as horizontally (real PX4 SIH: last strip 0.06 m early). Its
+      trajectory already brakes to a stop in z at a strip end (the next leg is level or reverses), so the tighter
+      radius is no hover: the real flights with it took no longer (docs/FLIGHT.md).
 
     Raises CompanionError when a needed value lies outside the range the firmware accepts.
     """

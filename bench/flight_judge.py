@@ -12,7 +12,12 @@ per scan leg:
   slope against the autopilot's time since boot). On real PX4 SIH the reported vertical velocity carried a slowly
   varying bias of up to 0.25 m/s against the vehicle's own altitude track, so the two can disagree there;
 * standoff: the largest |horizontal distance to the wall plane - planned standoff| over the same samples as the
-  heading.
+  heading;
+* end short (printed, not judged): the planned end of the leg minus the furthest point reached on the same pass
+  (negative: beyond it). PX4 accepts a waypoint within NAV_MC_ALT_RAD vertically and turns there. The logged
+  altitude can sit a constant offset from the one the autopilot navigated by (PX4 SIH: up to 0.9 m), which makes
+  down strips look short by that much and up strips long; the summary line takes the mean of the down and the up
+  legs before the last (the offset cancels) and corrects the last leg with the offset that pair gives.
 
 A sample belongs to a leg when its projection on the leg falls inside it, it is within ``--max-cross`` metres of
 the leg measured in the wall's plane (along / up) and within ``--max-out`` metres (default 2) of the standoff
@@ -62,6 +67,8 @@ class LegFigures:
     samples: int  # samples on the leg (heading, standoff)
     core_samples: int  # of which in its middle (speed)
     track_speed_m_s: float = math.nan  # rate of the position along the leg over its middle (not judged)
+    end_short_m: float = math.nan  # planned end minus the furthest point reached on the pass (not judged)
+    descending: bool = False
 
     @property
     def speed_error(self) -> float:
@@ -162,8 +169,9 @@ def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: flo
         u = (b - a) / length
         s = (pos - a) @ u
         cross = np.abs((pos - a) @ np.array([-u[1], u[0]]))
-        on_leg = _first_pass(((cross <= max_cross_m) & (np.abs(out - standoff) <= max_out_m)
-                              & (s >= trim * length) & (s <= (1.0 - trim) * length)), s, length)
+        near = (cross <= max_cross_m) & (np.abs(out - standoff) <= max_out_m) & (s >= trim * length)
+        on_leg = _first_pass(near & (s <= (1.0 - trim) * length), s, length)
+        reach = _first_pass(near & (s <= length + max_cross_m), s, length)  # to the end (and a little beyond)
         middle = on_leg & (np.abs(s - length / 2.0) <= core * length / 2.0)
         speeds = vel[middle] @ u
         timed = middle & np.isfinite(t_boot)
@@ -174,8 +182,34 @@ def leg_figures(plan, rows: list[dict], max_cross_m: float = 1.0, max_out_m: flo
             median_speed_m_s=float(np.median(speeds)) if speeds.size else math.nan,
             max_yaw_error_deg=float(np.abs(_wrap_deg(yaw[on_leg] - wall_yaw)).max()) if on_leg.any() else math.nan,
             max_standoff_error_m=float(np.abs(out[on_leg] - standoff).max()) if on_leg.any() else math.nan,
-            samples=int(on_leg.sum()), core_samples=int(middle.sum()), track_speed_m_s=track))
+            samples=int(on_leg.sum()), core_samples=int(middle.sum()), track_speed_m_s=track,
+            end_short_m=length - float(s[reach].max()) if reach.any() else math.nan, descending=bool(u[1] < -0.9)))
     return legs
+
+
+@dataclass(frozen=True)
+class StripEnds:
+    """How far before their planned ends the vertical strips turned, with a constant altitude offset removed."""
+
+    mean_short_m: float  # over the down and the up legs before the last, weighted equally
+    altitude_offset_m: float  # logged altitude minus the one navigated by, as the down / up pair gives it
+    last_short_m: float  # the last vertical leg, corrected by that offset
+
+
+def strip_ends(legs: list[LegFigures]) -> StripEnds | None:
+    """Down legs read ``short + offset``, up legs ``short - offset``: the pair gives both (None without one of
+    each before the last vertical leg)."""
+    vertical = [g for g in legs if g.vertical and math.isfinite(g.end_short_m)]
+    if len(vertical) < 3:
+        return None
+    down = [g.end_short_m for g in vertical[:-1] if g.descending]
+    up = [g.end_short_m for g in vertical[:-1] if not g.descending]
+    if not down or not up:
+        return None
+    offset = (float(np.mean(down)) - float(np.mean(up))) / 2.0
+    last = vertical[-1]
+    return StripEnds(mean_short_m=(float(np.mean(down)) + float(np.mean(up))) / 2.0, altitude_offset_m=offset,
+                     last_short_m=last.end_short_m - offset if last.descending else last.end_short_m + offset)
 
 
 def flight_figures(plan, rows: list[dict], **kw) -> FlightFigures:
@@ -197,12 +231,13 @@ def flight_figures(plan, rows: list[dict], **kw) -> FlightFigures:
 
 def report(fig: FlightFigures) -> str:
     lines = [f"{'leg':>3} {'dir':4} {'len m':>6} {'plan m/s':>8} {'flown m/s':>9} {'speed err':>9} "
-             f"{'track m/s':>9} {'yaw err deg':>11} {'standoff err m':>14} {'samples':>7}"]
+             f"{'track m/s':>9} {'yaw err deg':>11} {'standoff err m':>14} {'end short m':>11} {'samples':>7}"]
     for g in fig.legs:
         lines.append(f"{g.leg:3d} {'vert' if g.vertical else 'horz':4} {g.length_m:6.2f} {g.planned_speed_m_s:8.3f} "
                      f"{g.median_speed_m_s:9.3f} {g.speed_error * 100:8.1f}% {g.track_speed_m_s:9.3f} "
                      f"{g.max_yaw_error_deg:11.2f} "
-                     f"{g.max_standoff_error_m:14.3f} {g.samples:7d}{'' if g.passed else '  FAIL'}")
+                     f"{g.max_standoff_error_m:14.3f} {g.end_short_m:11.2f} {g.samples:7d}"
+                     f"{'' if g.passed else '  FAIL'}")
     legs = fig.legs
     if legs:
         worst = (max(g.speed_error for g in legs), max(g.max_yaw_error_deg for g in legs),
@@ -210,6 +245,10 @@ def report(fig: FlightFigures) -> str:
         lines.append(f"worst: speed error {worst[0] * 100:.1f} % (limit {MAX_SPEED_ERROR * 100:.0f} %), "
                      f"yaw error {worst[1]:.2f} deg (limit {MAX_YAW_ERROR_DEG:g}), "
                      f"standoff error {worst[2]:.3f} m (limit {MAX_STANDOFF_ERROR_M:g})")
+    ends = strip_ends(legs)
+    if ends is not None:
+        lines.append(f"strip ends (not judged): {ends.mean_short_m:.2f} m short on average, last strip "
+                     f"{ends.last_short_m:.2f} m (logged altitude offset {ends.altitude_offset_m:+.2f} m removed)")
     lines.append(f"items reached {fig.items_reached}/{fig.items_total}, landed {fig.landed}, "
                  f"disarmed {fig.disarmed}")
     lines.append("PASS" if fig.passed else "FAIL")

@@ -2,7 +2,9 @@
 
 Works on the simulator's true poses (``--truth-log`` lines or ``SimVehicle.true_pose()`` dicts: NED metres from
 home, velocities, yaw). Only the middle of each leg counts for speed (``core``: the vehicle accelerates and brakes
-at its ends); the heading counts over the whole leg except the first and last 2 %.
+at its ends); the heading counts over the whole leg except the first and last 2 %. How far before its planned end
+a leg turned (PX4 accepts a waypoint within NAV_MC_ALT_RAD vertically) is measured at the furthest point reached on
+it: the end rows of the wall that the camera missed.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class LegReport:
     median_speed_m_s: float  # along the leg, in its middle
     max_yaw_error_deg: float  # against the wall-facing heading, anywhere on the leg
     samples: int
+    end_short_m: float = math.nan  # how far before its planned end the vehicle turned off the leg (0: it got there)
 
     @property
     def speed_error(self) -> float:
@@ -64,10 +67,12 @@ def scan_leg_reports(plan, poses: Iterable[dict], core: float = 0.6, max_cross_m
         middle = on_leg & (np.abs(s - length / 2.0) <= core * length / 2.0)
         speeds = vel[middle] @ u
         errors = [abs(_wrap(y - wall_yaw)) for y in yaw[on_leg]]
+        reach = s[(cross < max_cross_m) & (s > 0.02 * length)]  # a pass on beyond the end (an exit climb) is no loss
         out.append(LegReport(
             leg=k, length_m=length, vertical=abs(u[2]) > 0.9, planned_speed_m_s=plan.waypoints[j].speed_m_s,
             median_speed_m_s=float(np.median(speeds)) if len(speeds) else math.nan,
-            max_yaw_error_deg=max(errors) if errors else math.nan, samples=int(middle.sum())))
+            max_yaw_error_deg=max(errors) if errors else math.nan, samples=int(middle.sum()),
+            end_short_m=max(0.0, length - float(reach.max())) if reach.size else math.nan))
     return out
 
 

@@ -97,7 +97,8 @@ def test_px4_gets_horizontal_speed_items_and_vertical_speed_parameters(plan):
     params = fw.flight_parameters(plan, "px4")
     v = plan.estimates.scan_speed_m_s
     if plan.mission.pattern == "vertical":
-        assert params == {"MPC_Z_V_AUTO_UP": pytest.approx(v, abs=1e-3), "MPC_Z_V_AUTO_DN": pytest.approx(v, abs=1e-3)}
+        assert params == {"MPC_Z_V_AUTO_UP": pytest.approx(v, abs=1e-3), "MPC_Z_V_AUTO_DN": pytest.approx(v, abs=1e-3),
+                          "NAV_MC_ALT_RAD": 0.3}  # the strips' acceptance radius, not PX4's 0.8 m vertically
     else:
         assert params == {}
 

@@ -161,3 +161,26 @@ def test_track_speed_comes_from_positions_not_the_reported_velocity(plan):
         assert math.isclose(g.track_speed_m_s, g.planned_speed_m_s, rel_tol=0.01)
         assert not math.isclose(g.median_speed_m_s, g.planned_speed_m_s, rel_tol=0.1)
     assert "track m/s" in judge.report(fig)
+
+
+def test_strip_ends_are_measured_without_the_logged_altitude_offset(plan):
+    """PX4 turned its last strip 0.5-0.8 m above the bottom (NAV_MC_ALT_RAD); its logged altitude sat a constant
+    offset from the one it navigated by, which the down and up strips before the last cancel out."""
+    judge = _judge()
+    rows = [{**r, "alt_amsl_m": r["alt_amsl_m"] + 0.5} for r in synthetic_rows(plan)]
+    ends = judge.strip_ends(judge.flight_figures(plan, rows).legs)
+    step = plan.waypoints[plan.scan_legs[0][1]].speed_m_s * 0.1  # the synthetic samples stop within a step
+    assert ends.altitude_offset_m == pytest.approx(0.5, abs=0.01)
+    assert 0.0 <= ends.mean_short_m <= step and 0.0 <= ends.last_short_m <= step
+    i, j = plan.scan_legs[-1]
+    length = plan.waypoints[i].up_m - plan.waypoints[j].up_m
+    bottom = plan.frame.origin.alt_amsl_m + plan.waypoints[j].up_m + 0.5
+    assert length > 5 and plan.waypoints[j].up_m < plan.waypoints[i].up_m
+    last = len(np.arange(0.0, length, step)) + 2  # the last strip's samples, then the two landing rows
+    cut = rows[:-last] + [r for r in rows[-last:-2] if r["alt_amsl_m"] >= bottom + 0.8]  # turned 0.8 m up
+    cut += [{**cut[-1], "mission_item": 35}, {**cut[-1], "mission_item": 35, "in_air": False, "armed": False}]
+    fig = judge.flight_figures(plan, cut)
+    ends = judge.strip_ends(fig.legs)
+    assert ends.last_short_m == pytest.approx(0.8, abs=step + 0.01)
+    assert fig.legs[-1].end_short_m == pytest.approx(1.3, abs=step + 0.01)  # as logged: 0.8 m + the offset
+    assert ends.altitude_offset_m == pytest.approx(0.5, abs=0.01)

@@ -201,3 +201,18 @@ def test_px4_climbs_at_its_auto_speeds_unless_the_parameters_are_set(small_plan)
     speed_error, yaw_error = worst(tuned)
     assert speed_error < 0.15 and yaw_error < 3.0, tuned
     assert np.median([r.median_speed_m_s for r in tuned]) == pytest.approx(v, rel=0.05)
+
+
+def test_px4_strips_end_where_planned_only_with_nav_mc_alt_rad_set_for_the_flight(small_plan):
+    """PX4 accepts a waypoint within NAV_MC_ALT_RAD (0.8 m) vertically: real PX4 SIH turned its strips up to 1 m
+    before their ends. The speed parameters alone leave that (the simulator turns about 0.25 m early on these legs);
+    the plan's NAV_MC_ALT_RAD (its 0.3 m acceptance radius) brings every strip's end to within 0.15 m."""
+    items = small_plan.mavlink_items("px4")
+    params = fw.flight_parameters(small_plan, "px4")
+    assert params["NAV_MC_ALT_RAD"] == 0.3
+    speeds_only = {k: v for k, v in params.items() if k != "NAV_MC_ALT_RAD"}
+    before = scan_leg_reports(small_plan, fly_in_process(small_plan, "px4", items, speeds_only))
+    after = scan_leg_reports(small_plan, fly_in_process(small_plan, "px4", items, params))
+    assert max(r.end_short_m for r in before) > 0.2, before
+    assert all(r.end_short_m < 0.15 for r in after), after
+    assert worst(after)[0] < 0.15

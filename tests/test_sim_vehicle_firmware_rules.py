@@ -170,16 +170,20 @@ def test_px4_accepts_a_waypoint_within_nav_mc_alt_rad_of_its_altitude():
              mi.MissionItem(2, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.5, 0.3, 0.0, 0.0, HOME_X, HOME_Y, 2.0),
              mi.MissionItem(3, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.5, 0.3, 0.0, 0.0, HOME_X, HOME_Y, 12.0),
              mi.MissionItem(4, 6, mi.MAV_CMD_NAV_LAND, 0, 1, 0.0, 0.0, 0.0, nan, 0, 0, 0.0)]
-    v = _vehicle(params={"MPC_Z_V_AUTO_UP": 0.716, "MPC_Z_V_AUTO_DN": 0.716})
-    try:
-        v._on_new_mission(v.flavour.transform_upload(items, v.home_item))
-        assert v.arm() is None and v.set_mode(fl.MISSION) is None
-        lowest = np.inf
-        while v.mission_seq < 4 and v.t < 200.0:
-            v.step()
-            if v.mission_seq in (2, 3):
-                lowest = min(lowest, -float(v.model.state.pos[2]))
-        assert v.mission_seq == 4
-        assert 2.0 + 0.3 < lowest < 2.0 + 0.8  # turned back above the strip's end, inside NAV_MC_ALT_RAD
-    finally:
-        v.close()
+    def lowest_turn(params) -> float:
+        v = _vehicle(params={"MPC_Z_V_AUTO_UP": 0.716, "MPC_Z_V_AUTO_DN": 0.716, **params})
+        try:
+            v._on_new_mission(v.flavour.transform_upload(items, v.home_item))
+            assert v.arm() is None and v.set_mode(fl.MISSION) is None
+            lowest = np.inf
+            while v.mission_seq < 4 and v.t < 200.0:
+                v.step()
+                if v.mission_seq in (2, 3):
+                    lowest = min(lowest, -float(v.model.state.pos[2]))
+            assert v.mission_seq == 4
+            return lowest
+        finally:
+            v.close()
+
+    assert 2.0 + 0.3 < lowest_turn({}) < 2.0 + 0.8  # turned back above the strip's end, inside NAV_MC_ALT_RAD
+    assert 2.0 < lowest_turn({"NAV_MC_ALT_RAD": 0.3}) < 2.0 + 0.3  # the companion's setting for a flight

@@ -20,6 +20,7 @@ import logging
 from collections.abc import Callable
 
 from companion.errors import CompanionError
+from companion.flight.stream_listener import StreamListener
 
 log = logging.getLogger(__name__)
 
@@ -131,26 +132,16 @@ MAV_RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "U
                     5: "IN_PROGRESS", 6: "CANCELLED"}
 
 
-class _CommandAcks:
+class _CommandAcks(StreamListener):
     """The COMMAND_ACKs of mode switches and mission starts, read beside mavsdk's own handling: mavsdk reports a
     refused start as DENIED or UNKNOWN (ArduCopter's MAV_RESULT_FAILED), the vehicle's own result says which."""
 
     def __init__(self, vehicle):
         self.direct = getattr(vehicle, "direct", None)
         self.results: list[str] = []
-        self._task: asyncio.Task | None = None
 
-    async def __aenter__(self) -> _CommandAcks:
-        if self.direct is not None:
-            self._task = asyncio.create_task(self._listen())
-            await asyncio.sleep(0)
-        return self
-
-    async def __aexit__(self, *exc) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._task
+    def _can_listen(self) -> bool:
+        return self.direct is not None
 
     async def _listen(self) -> None:
         async for msg in self.direct.subscribe_message("COMMAND_ACK"):

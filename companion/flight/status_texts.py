@@ -13,6 +13,8 @@ import asyncio
 import contextlib
 import time
 
+from companion.flight.stream_listener import StreamListener
+
 REASON_WAIT_S = 1.5  # after a refusal, how long to wait for the text that explains it (it may trail the ACK)
 QUIET_AFTER_TEXT_S = 0.3  # once a text came, how long to wait for the ones that follow it
 
@@ -22,7 +24,7 @@ def clean_text(text: str) -> str:
     return text.strip()
 
 
-class StatusTexts:
+class StatusTexts(StreamListener):
     """``async with StatusTexts(vehicle.telemetry) as texts: mark = texts.mark(); ...; await texts.reason(mark)``.
 
     Keeps every STATUSTEXT as ``"SEVERITY: text"`` while the block runs."""
@@ -30,19 +32,7 @@ class StatusTexts:
     def __init__(self, telemetry):
         self.telemetry = telemetry
         self.texts: list[tuple[float, str]] = []  # (monotonic time, "SEVERITY: text")
-        self._task: asyncio.Task | None = None
         self._arrived = asyncio.Event()
-
-    async def __aenter__(self) -> StatusTexts:
-        self._task = asyncio.create_task(self._listen())
-        await asyncio.sleep(0)  # let the subscription start before the request it is meant to explain
-        return self
-
-    async def __aexit__(self, *exc) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._task
 
     async def _listen(self) -> None:
         async for s in self.telemetry.subscribe_status_text():

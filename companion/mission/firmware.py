@@ -48,6 +48,7 @@ PX4_Z_V_AUTO_UP_RANGE = (0.5, 8.0)
 PX4_Z_V_AUTO_DN_RANGE = (0.5, 4.0)
 PX4_Z_VEL_MAX_UP_DEFAULT = 3.0  # multicopter_position_control_limits_params.c (range 0.5..8)
 PX4_Z_VEL_MAX_DN_DEFAULT = 1.5  # (range 0.5..4)
+PX4_MC_ALT_RAD_RANGE = (0.05, 200.0)  # NAV_MC_ALT_RAD (navigator_params.c; default 0.8 m)
 
 COMMAND_NAMES = {
     mi.MAV_CMD_NAV_WAYPOINT: "NAV_WAYPOINT", mi.MAV_CMD_NAV_RETURN_TO_LAUNCH: "NAV_RETURN_TO_LAUNCH",
@@ -103,6 +104,11 @@ def _vertical_scan_speed(plan) -> float | None:
     return min(speeds) if speeds else None
 
 
+def _scan_acceptance_m(plan) -> float:
+    """The acceptance radius the plan gives the ends of its scan legs (the tightest one)."""
+    return min(plan.waypoints[j].acceptance_m for _, j in plan.scan_legs)
+
+
 def flight_parameters(plan, autopilot: str) -> dict[str, float]:
     """Every autopilot parameter the plan needs set for its flight (and restored after), by name.
 
@@ -120,6 +126,15 @@ def flight_parameters(plan, autopilot: str) -> dict[str, float]:
       descent of a landing above MPC_LAND_ALT1 and of an RTL to the scan speed, which is safe. PX4 honours
       NAV_WAYPOINT param4, so yaw needs no parameter. PX4 caps the auto speeds at MPC_Z_VEL_MAX_UP/DN: when the
       scan speed is above their defaults (3 / 1.5 m/s) they are raised to it too.
+    * PX4: ``NAV_MC_ALT_RAD`` = the plan's scan acceptance radius (0.3 m), when scan legs move vertically. PX4
+      accepts a multicopter waypoint within its acceptance radius (param2) horizontally but within NAV_MC_ALT_RAD
+      (default 0.8 m) vertically (``MissionBlock::is_mission_item_reached``); no mission item can set the vertical
+      one (``alt_acceptance_radius`` is NaN for mission items, ``mission_block.cpp``). So a vertical strip was
+      accepted up to 0.8 m before its planned end, still moving, and turned there: real PX4 SIH turned the demo's
+      last strip 0.5-0.8 m above its bottom, losing the wall's base from it. With the plan's radius PX4 accepts the
+      strip's end where the plan means it to, in 3D as horizontally (real PX4 SIH: last strip 0.06 m early). Its
+      trajectory already brakes to a stop in z at a strip end (the next leg is level or reverses), so the tighter
+      radius is no hover: the real flights with it took no longer (docs/FLIGHT.md).
 
     Raises CompanionError when a needed value lies outside the range the firmware accepts.
     """
@@ -138,6 +153,8 @@ def flight_parameters(plan, autopilot: str) -> dict[str, float]:
                 "fly pattern: horizontal, whose speed PX4 takes from the mission items",
             )
         params[name] = round(v, 3)
+    lo, hi = PX4_MC_ALT_RAD_RANGE
+    params["NAV_MC_ALT_RAD"] = round(min(max(_scan_acceptance_m(plan), lo), hi), 3)
     # PX4 caps the auto speeds at MPC_Z_VEL_MAX_UP/DN (MulticopterPositionControl.cpp): raise a cap only when the
     # scan speed is above its default, so a pilot taking over keeps the vehicle's normal limits otherwise.
     for name, default, (lo, hi) in (("MPC_Z_VEL_MAX_UP", PX4_Z_VEL_MAX_UP_DEFAULT, PX4_Z_V_AUTO_UP_RANGE),

@@ -192,6 +192,9 @@ class TiledTexture:
             self._tiles.popitem(last=False)
         return t
 
+    def has_tile(self, level: int, ix: int, iy: int) -> bool:
+        return (level, ix, iy) in self._tiles
+
     def patch(self, a0: float, u0: float, a1: float, u1: float, level: int) -> tuple[np.ndarray, float, float, float]:
         """Texture covering [a0, a1] x [u0, u1]: (image uint8 with rows growing upwards, a_org, u_org, px_m)."""
         px = (2**level) / 1000.0

@@ -355,7 +355,7 @@ class WarpRenderer(Renderer):
         return int(np.clip(math.floor(math.log2(max(texel_mm, 1.0))), 0, f.max_level))
 
     def _patch(self, f: Face, key: int, s0, t0, s1, t1, level, pixels: int):
-        """Shaded texture patch over face coordinates [s0, s1] x [t0, t1] (cached while the tile range holds).
+        """Shaded BGRA texture patch covering face coordinates [s0, s1] x [t0, t1] (cached while it covers them).
         At most about 4 texels per pixel drawn: a plane seen at a grazing angle (the ground) spans footprints
         from millimetres to metres, and tiles at the median footprint over all of it would cost more than the
         frame; its far part is hazed and sampled below its texel size anyway."""
@@ -365,17 +365,24 @@ class WarpRenderer(Renderer):
         cap = min(12e6, max(4.0 * pixels, 4.0 * tex.TILE**2))
         while ((a1 - a0) * 1000 / 2**level) * ((u1 - u0) * 1000 / 2**level) > cap and level < f.max_level + 2:
             level += 1
-        span = tex.TILE * (2**level) / 1000.0
-        tiles = (level, math.floor(a0 / span), math.floor(a1 / span), math.floor(u0 / span), math.floor(u1 / span))
         hit = self._patch_cache.get(key)
-        if hit is not None and hit[0] == tiles:
-            return hit[1]
+        if hit is not None:  # the cached patch still covers the range at this level: no rebuild
+            (lvl, ca0, cu0, ca1, cu1), got = hit
+            if lvl == level and ca0 <= a0 and a1 <= ca1 and cu0 <= u0 and u1 <= cu1:
+                return got
+        # a new patch reaches a tile further on every side (within the face), so a moving camera rebuilds it
+        # about once per tile it travels, and a hovering or wobbling one across a tile border not every frame
+        pad = tex.TILE * (2**level) / 1000.0
+        fa0, fu0 = f.uv_offset
+        fa1, fu1 = fa0 + f.size[0], fu0 + f.size[1]
+        a0, u0 = max(min(a0, a0 - pad), min(a0, fa0)), max(min(u0, u0 - pad), min(u0, fu0))
+        a1, u1 = min(max(a1, a1 + pad), max(a1, fa1)), min(max(u1, u1 + pad), max(u1, fu1))
         patch, ao, uo, px = tex.patch(a0, u0, max(a1, a0 + 1e-3), max(u1, u0 + 1e-3), level)
         if f.shade != 1.0:  # the face's Lambert factor, applied once per patch rather than per frame
             patch = cv2.convertScaleAbs(patch, alpha=f.shade)
         patch = cv2.cvtColor(patch, cv2.COLOR_BGR2BGRA)  # 4 channels: see _warp
         got = (patch, ao, uo, px)
-        self._patch_cache[key] = (tiles, got)
+        self._patch_cache[key] = ((level, ao, uo, ao + patch.shape[1] * px, uo + patch.shape[0] * px), got)
         return got
 
     def _cube_face(self, k: int, n, e1, e2) -> np.ndarray:
@@ -434,7 +441,6 @@ class WarpRenderer(Renderer):
         s = np.clip(np.einsum("ij,ij->i", rel, E1), 0.0, S[:, 0])
         t = np.clip(np.einsum("ij,ij->i", rel, E2), 0.0, S[:, 1])
         dist = np.linalg.norm(rel - s[:, None] * E1 - t[:, None] * E2, axis=1)
-        dist[-1] = np.inf
         cams = (C - orig) @ A
         z = cams[..., 2]
         ahead = z > _NEAR
@@ -444,6 +450,10 @@ class WarpRenderer(Renderer):
             v = self._fy * cams[..., 1] / z + self._cy - 0.5
         outside = ahead.all(axis=1) & ((u.max(1) < -1) | (u.min(1) > W) | (v.max(1) < -1) | (v.min(1) > H))
         keep = np.nonzero(front & ahead.any(axis=1) & ~outside)[0]
+        # the ground faces (the last two) go after everything else: everything stands on the ground and the
+        # camera is above it, so the ground never hides anything, while drawn first (low over the ground, it is
+        # the nearest face) it would be warped and hazed only to be covered by the wall
+        dist[-2], dist[-1] = np.finfo(np.float64).max / 2, np.inf  # near ground, then far ground
         return cams, [int(i) for i in keep[np.argsort(dist[keep], kind="stable")]]
 
     def _draw_face(self, f: Face, key: int, cam, A, orig, img, zb, sid):

@@ -121,6 +121,7 @@ class WarpRenderer(Renderer):
         self._zb_min: float | None = None  # smallest inverse depth drawn in the frame so far (None: unknown)
         self._median_dn2: float | None = None
         self._dnorm32 = self._dnorm.astype(np.float32)
+        self._horizon_img: np.ndarray | None = None
 
     # ---- the scene as planes -----------------------------------------------------------------------------
     def _lambert(self, n) -> float:
@@ -585,9 +586,10 @@ class WarpRenderer(Renderer):
         if float(keep.min()) > 0.998:
             return col
         keep = cv2.resize(keep, (wd, h), interpolation=cv2.INTER_LINEAR)
-        hor = np.empty_like(col)
-        hor[:] = np.round(self._horizon_u8).astype(np.uint8)
-        return cv2.blendLinear(col, hor, keep, np.float32(1.0) - keep)
+        if self._horizon_img is None:  # the horizon colour as an image, made once
+            self._horizon_img = np.empty((self.camera.height, self.camera.width, 3), np.uint8)
+            self._horizon_img[:] = np.round(self._horizon_u8).astype(np.uint8)
+        return cv2.blendLinear(col, self._horizon_img[:h, :wd], keep, np.float32(1.0) - keep)
 
     def _rect_rays(self, rect, A):
         """Ray directions (facade axes, camera z = 1) of the pixels of an image rectangle."""

@@ -648,7 +648,7 @@ class WarpRenderer(Renderer):
                 vis = w > zr
                 if not vis.any():
                     continue
-                where = np.nonzero(vis)
+                where = vis  # a boolean mask indexes faster than index arrays
                 Dv, t = [d[vis] for d in Dc], th[vis]
                 w = w[vis]
             else:  # the same ray test on the candidate pixels only (same float32 operations, same values)

@@ -65,6 +65,39 @@ def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "ra
     }
 
 
+def bench_scan(mission, width: int, every_s: float, seed: int, renderer: str) -> dict:
+    """CPU per frame along the whole planned scan (kinematic flight), one frame every ``every_s`` seconds, each
+    right after a frame 1/fps earlier (as in a 30 fps stream: that frame builds the texture tiles and patches
+    the place needs, so the figure is the steady per-frame cost, tile building excluded for every renderer)."""
+    import numpy as np
+
+    plan = plan_scan(mission)
+    cam = camera_from_mission(mission, width)
+    scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=seed)
+    r = make_renderer(renderer, scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=seed)
+    flight = KinematicFlight(plan.frame, scan_path(plan), seed=seed)
+    ae = AutoExposure(seed=seed)
+    dt = 1.0 / float(mission.camera.fps)
+    cpu, jpg, wall_frac = [], [], []
+    for i, t in enumerate(np.arange(dt, flight.duration_s, every_s)):
+        r.render(flight.pose(float(t) - dt), index=2 * i, time_s=float(t) - dt, exposure=ae)
+        pose = flight.pose(float(t))
+        c0 = time.process_time()
+        f = r.render(pose, index=2 * i + 1, time_s=float(t), exposure=ae)
+        cpu.append(time.process_time() - c0)
+        c0 = time.process_time()
+        cv2.imencode(".jpg", f.image, [cv2.IMWRITE_JPEG_QUALITY, 88])
+        jpg.append(time.process_time() - c0)
+        wall_frac.append(float(np.mean(f.roi_mask > 0)))
+    cpu, jpg, wall_frac = np.array(cpu), np.array(jpg), np.array(wall_frac)
+    plain = wall_frac > 0.99
+    return {"frames": len(cpu), "duration_s": flight.duration_s, "p": np.percentile(cpu, [10, 50, 90]),
+            "mean": float(cpu.mean()), "jpeg": float(np.median(jpg)), "plain": int(plain.sum()),
+            "plain_median": float(np.median(cpu[plain])) if plain.any() else float("nan"),
+            "edge_median": float(np.median(cpu[~plain])) if (~plain).any() else float("nan"),
+            "in_budget": float(np.mean(cpu + jpg <= dt))}
+
+
 def _climb_pose(frame, t: float, speed_m_s: float = 0.7) -> dict:
     """A vehicle climbing along the wall's middle at the scan speed, 4 m out (above the roof after ~15 s)."""
     lat, lon, alt = frame.facade_to_geodetic(frame.length_m / 2, 4.0, 1.5 + speed_m_s * t)
@@ -151,6 +184,9 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=20, help="frames per width (the 3840 run uses a quarter)")
     p.add_argument("--generator-frames", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scan-every", type=float, default=0.0, metavar="S",
+                   help="also render the whole planned scan at --live-width, one frame every S seconds (each after "
+                        "a frame 1/fps earlier), per-frame CPU percentiles, plain-wall and edge frames apart")
     p.add_argument("--live", type=float, default=0.0, metavar="S",
                    help="also run the live camera for S wall seconds per renderer on real-time poses (mid-wall)")
     p.add_argument("--live-width", type=int, default=1280)
@@ -177,6 +213,15 @@ def main() -> int:
                       f"{r['first_wall_s']:.2f} | {r['cpu_s']:.3f} | {r['wall_s']:.3f} | {1 / r['cpu_s']:.1f} | "
                       f"{r['jpeg_s']:.4f} | "
                       f"{r['cpu_s'] / base:.2f}  (median of {r['frames']})", flush=True)
+    for kind in a.renderers if a.scan_every > 0 else []:
+        r = bench_scan(mission, a.live_width, a.scan_every, a.seed, kind)
+        p10, p50, p90 = (1000 * v for v in r["p"])
+        print(f"whole scan, {kind}, {a.live_width} px, {r['frames']} frames over {r['duration_s']:.0f} s: CPU per "
+              f"frame p10/median/p90 {p10:.1f} / {p50:.1f} / {p90:.1f} ms, mean {1000 * r['mean']:.1f} ms; plain wall "
+              f"({r['plain']} frames) median {1000 * r['plain_median']:.1f} ms, frames with an edge median "
+              f"{1000 * r['edge_median']:.1f} ms; JPEG q88 {1000 * r['jpeg']:.1f} ms; render + JPEG within "
+              f"1/{mission.camera.fps:g} s: {100 * r['in_budget']:.0f} % of frames (load average "
+              f"{os.getloadavg()[0]:.1f})", flush=True)
     for kind in a.renderers if a.live > 0 else []:
         r = bench_live(a.mission, a.live_width, a.live_fps, a.live, kind, a.live_path, a.live_lead)
         lead = (f"; {a.live_lead:g} s lead before the first pose: {r['lead_cpu']:.1f} CPU-s, "

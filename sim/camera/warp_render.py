@@ -626,6 +626,9 @@ class WarpRenderer(Renderer):
                 continue
             rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
             c = np.array(tr.centre)
+            rect = self._ellipse_rect(c, rad, orig, A, rect)
+            if rect is None:
+                continue
             zr = zb[rect]
             near = float(nears[ti])
             if near > 0 and float(zr.min()) * near > 1.001:  # everything there is nearer than the crown's box
@@ -672,6 +675,35 @@ class WarpRenderer(Renderer):
             keep = math.exp(-float(np.linalg.norm(c - orig)) / 900.0)  # haze: a crown is small against 900 m
             col = col.astype(np.float32) * np.float32(keep) + np.array(self._horizon_u8, np.float32) * (1 - keep)
             img[rect][where] = np.clip(col + 0.5, 0, 255).astype(np.uint8)
+
+    def _ellipse_rect(self, c, rad, orig, A, rect):
+        """The image rectangle of an ellipsoid's outline (its projection is an ellipse, whose extent in x/z is
+        where a plane through the camera touches the ellipsoid), within ``rect`` (its bounding box's, which can
+        be twice the area): the ray test then runs only where a ray can hit. ``rect`` itself when the ellipsoid
+        reaches behind the camera's near plane; None when no pixel centre can see it."""
+        m = (c - orig) @ A  # centre in camera axes; a point of the ellipsoid is m + s @ Q for |s| = 1
+        Q = rad[:, None] * A
+        qz = Q[:, 2]
+        a = m[2] * m[2] - qz @ qz
+        if m[2] - math.sqrt(qz @ qz) <= 0.05 or a <= 0:
+            return rect
+        bounds = []
+        for j, f, cc, n in ((0, self._fx, self.K[0, 2], self.camera.width), (1, self._fy, self.K[1, 2],
+                                                                                  self.camera.height)):
+            q = Q[:, j]
+            b = m[j] * m[2] - q @ qz
+            disc = b * b - a * (m[j] * m[j] - q @ q)
+            if disc < 0:
+                return rect
+            k0, k1 = (b - math.sqrt(disc)) / a, (b + math.sqrt(disc)) / a
+            lo, hi = max(int(math.floor(f * k0 + cc)) - 1, 0), min(int(math.ceil(f * k1 + cc)) + 1, n)
+            bounds.append((lo, hi))
+        (u0, u1), (v0, v1) = bounds
+        v0, v1 = max(v0, rect[0].start), min(v1, rect[0].stop)
+        u0, u1 = max(u0, rect[1].start), min(u1, rect[1].stop)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        return (slice(v0, v1), slice(u0, u1))
 
     def _crown_colour(self, ti: int, unit) -> np.ndarray:
         """Crown colour (N x 3 uint8) at unit-sphere points of tree ``ti``'s ellipsoid, looked up in a texture

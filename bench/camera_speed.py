@@ -65,41 +65,112 @@ def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "ra
     }
 
 
-def _poses(port: int, frame, stop: threading.Event, speed_m_s: float = 0.7) -> None:
-    """A vehicle climbing along the wall's middle at the scan speed, 4 m out: true poses at 50 Hz, real time."""
+def bench_scan(mission, width: int, every_s: float, seed: int, renderer: str) -> dict:
+    """CPU per frame along the whole planned scan (kinematic flight), one frame every ``every_s`` seconds, each
+    right after a frame 1/fps earlier (as in a 30 fps stream: that frame builds the texture tiles and patches
+    the place needs, so the figure is the steady per-frame cost, tile building excluded for every renderer)."""
+    import numpy as np
+
+    plan = plan_scan(mission)
+    cam = camera_from_mission(mission, width)
+    scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=seed)
+    r = make_renderer(renderer, scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=seed)
+    flight = KinematicFlight(plan.frame, scan_path(plan), seed=seed)
+    ae = AutoExposure(seed=seed)
+    dt = 1.0 / float(mission.camera.fps)
+    cpu, jpg, wall_frac = [], [], []
+    for i, t in enumerate(np.arange(dt, flight.duration_s, every_s)):
+        r.render(flight.pose(float(t) - dt), index=2 * i, time_s=float(t) - dt, exposure=ae)
+        pose = flight.pose(float(t))
+        c0 = time.process_time()
+        f = r.render(pose, index=2 * i + 1, time_s=float(t), exposure=ae)
+        cpu.append(time.process_time() - c0)
+        c0 = time.process_time()
+        cv2.imencode(".jpg", f.image, [cv2.IMWRITE_JPEG_QUALITY, 88])
+        jpg.append(time.process_time() - c0)
+        wall_frac.append(float(np.mean(f.roi_mask > 0)))
+    cpu, jpg, wall_frac = np.array(cpu), np.array(jpg), np.array(wall_frac)
+    plain = wall_frac > 0.99
+    return {"frames": len(cpu), "duration_s": flight.duration_s, "p": np.percentile(cpu, [10, 50, 90]),
+            "mean": float(cpu.mean()), "jpeg": float(np.median(jpg)), "plain": int(plain.sum()),
+            "plain_median": float(np.median(cpu[plain])) if plain.any() else float("nan"),
+            "edge_median": float(np.median(cpu[~plain])) if (~plain).any() else float("nan"),
+            "in_budget": float(np.mean(cpu + jpg <= dt))}
+
+
+def _climb_pose(frame, t: float, speed_m_s: float = 0.7) -> dict:
+    """A vehicle climbing along the wall's middle at the scan speed, 4 m out (above the roof after ~15 s)."""
+    lat, lon, alt = frame.facade_to_geodetic(frame.length_m / 2, 4.0, 1.5 + speed_m_s * t)
+    return {"lat": float(lat), "lon": float(lon), "alt_amsl_m": float(alt), "vn_m_s": 0.0, "ve_m_s": 0.0,
+            "vd_m_s": -speed_m_s, "yaw_deg": frame.yaw_facing_wall_deg, "gimbal_pitch_deg": 0.0,
+            "gimbal_yaw_deg": 0.0}
+
+
+def _scan_pose(flight, t: float) -> dict:
+    """The mission's planned scan flown by the kinematic model (strips at the wall's ends and across it)."""
+    p = flight.pose(min(t, flight.duration_s))
+    v = p.velocity_enu_m_s
+    return {"lat": p.lat, "lon": p.lon, "alt_amsl_m": p.alt_amsl_m, "vn_m_s": float(v[1]), "ve_m_s": float(v[0]),
+            "vd_m_s": -float(v[2]), "yaw_deg": p.yaw_deg, "gimbal_pitch_deg": p.pitch_deg, "gimbal_yaw_deg": 0.0}
+
+
+def _poses(port: int, pose_at, stop: threading.Event) -> None:
+    """True poses at 50 Hz in real time from ``pose_at(t)``, as the simulated vehicle sends them."""
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     t0 = time.monotonic()
     k = 0
     while not stop.is_set():
         t = k * 0.02
         time.sleep(max(0.0, t0 + t - time.monotonic()))
-        lat, lon, alt = frame.facade_to_geodetic(frame.length_m / 2, 4.0, 1.5 + speed_m_s * t)
-        msg = {"t_s": round(t, 4), "lat": float(lat), "lon": float(lon), "alt_amsl_m": float(alt),
-               "vn_m_s": 0.0, "ve_m_s": 0.0, "vd_m_s": -speed_m_s, "yaw_deg": frame.yaw_facing_wall_deg,
-               "gimbal_pitch_deg": 0.0, "gimbal_yaw_deg": 0.0}
+        msg = {"t_s": round(t, 4), **pose_at(t)}
         s.sendto(json.dumps(msg).encode(), ("127.0.0.1", port))
         k += 1
     s.close()
 
 
-def bench_live(mission_path: Path, width: int, fps: float, seconds: float, renderer: str) -> dict:
+def _cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def bench_live(mission_path: Path, width: int, fps: float, seconds: float, renderer: str, path: str = "climb",
+               lead_s: float = 0.0) -> dict:
     """The live camera process's own loop (render, then JPEG + stream on its delivery thread) fed real-time
-    poses for ``seconds``: frames sent and dropped, and CPU of this process (camera + pose sender) per second."""
+    poses for ``seconds``: frames sent and dropped, and CPU of this process (camera + pose sender) per second
+    and per frame sent. ``lead_s``: the camera runs this long before the first pose (a real flight's takeoff
+    and transit), which it may use to build wall texture ahead (its CPU is reported separately)."""
     from sim.camera.live import LiveCamera, LiveConfig
     from sim.process import free_port
 
     pose_port = free_port()
     cam = LiveCamera(mission_path, LiveConfig(pose_port=pose_port, stream_port=free_port(socket.SOCK_STREAM),
-                                              width_px=width, fps=fps, duration_s=seconds, renderer=renderer))
+                                              width_px=width, fps=fps, duration_s=lead_s + seconds,
+                                              renderer=renderer))
+    if path == "scan":
+        plan = plan_scan(load_mission(mission_path))
+        flight = KinematicFlight(plan.frame, scan_path(plan), seed=0)
+
+        def pose_at(t):
+            return _scan_pose(flight, t)
+    else:
+        def pose_at(t):
+            return _climb_pose(cam.frame, t)
     stop = threading.Event()
-    sender = threading.Thread(target=_poses, args=(pose_port, cam.frame, stop), daemon=True)
-    r0 = resource.getrusage(resource.RUSAGE_SELF)
+    sender = threading.Thread(target=_poses, args=(pose_port, pose_at, stop), daemon=True)
+    result: dict = {}
+    runner = threading.Thread(target=lambda: result.update(sent=cam.run()), daemon=True)
+    c0 = _cpu_s()
+    runner.start()
+    time.sleep(lead_s)
+    c1 = _cpu_s()
     sender.start()
-    sent = cam.run()
+    runner.join()
     stop.set()
-    r1 = resource.getrusage(resource.RUSAGE_SELF)
-    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
-    return {"sent": sent, "dropped": cam.skipped, "fps": sent / seconds, "cpu_per_s": cpu / seconds}
+    cpu = _cpu_s() - c1
+    sent = result.get("sent", 0)
+    return {"sent": sent, "dropped": cam.skipped, "fps": sent / seconds, "cpu_per_s": cpu / seconds,
+            "cpu_per_frame": cpu / max(sent, 1), "lead_cpu": c1 - c0,
+            "prefetched": getattr(cam, "prefetched", "-")}
 
 
 def main() -> int:
@@ -113,17 +184,25 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=20, help="frames per width (the 3840 run uses a quarter)")
     p.add_argument("--generator-frames", type=int, default=100)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scan-every", type=float, default=0.0, metavar="S",
+                   help="also render the whole planned scan at --live-width, one frame every S seconds (each after "
+                        "a frame 1/fps earlier), per-frame CPU percentiles, plain-wall and edge frames apart")
     p.add_argument("--live", type=float, default=0.0, metavar="S",
                    help="also run the live camera for S wall seconds per renderer on real-time poses (mid-wall)")
     p.add_argument("--live-width", type=int, default=1280)
     p.add_argument("--live-fps", type=float, default=30.0)
+    p.add_argument("--live-path", choices=["climb", "scan"], default="climb",
+                   help="climb: up the wall's middle at 0.7 m/s, 4 m out (above the roof after ~15 s); scan: the "
+                        "mission's planned scan from its first strip (the wall's left end), kinematic flight")
+    p.add_argument("--live-lead", type=float, default=0.0, metavar="S",
+                   help="seconds the camera runs before the first pose (takeoff and transit in a real flight)")
     a = p.parse_args()
     mission = load_mission(a.mission)
     print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
           f"mission {a.mission}; load average {os.getloadavg()[0]:.1f}")
     print("view | renderer | width x height | first frame cpu/wall s | per frame cpu s | per frame wall s | "
           "frames/s (cpu) | jpeg s | cpu vs first renderer")
-    for view in a.views:
+    for view in a.views if a.frames > 0 else []:  # --frames 0: only the live camera
         for w in a.widths:
             n = max(3, a.frames // 4) if w >= 2000 else a.frames
             base = None
@@ -134,14 +213,26 @@ def main() -> int:
                       f"{r['first_wall_s']:.2f} | {r['cpu_s']:.3f} | {r['wall_s']:.3f} | {1 / r['cpu_s']:.1f} | "
                       f"{r['jpeg_s']:.4f} | "
                       f"{r['cpu_s'] / base:.2f}  (median of {r['frames']})", flush=True)
+    for kind in a.renderers if a.scan_every > 0 else []:
+        r = bench_scan(mission, a.live_width, a.scan_every, a.seed, kind)
+        p10, p50, p90 = (1000 * v for v in r["p"])
+        print(f"whole scan, {kind}, {a.live_width} px, {r['frames']} frames over {r['duration_s']:.0f} s: CPU per "
+              f"frame p10/median/p90 {p10:.1f} / {p50:.1f} / {p90:.1f} ms, mean {1000 * r['mean']:.1f} ms; plain wall "
+              f"({r['plain']} frames) median {1000 * r['plain_median']:.1f} ms, frames with an edge median "
+              f"{1000 * r['edge_median']:.1f} ms; JPEG q88 {1000 * r['jpeg']:.1f} ms; render + JPEG within "
+              f"1/{mission.camera.fps:g} s: {100 * r['in_budget']:.0f} % of frames (load average "
+              f"{os.getloadavg()[0]:.1f})", flush=True)
     for kind in a.renderers if a.live > 0 else []:
-        r = bench_live(a.mission, a.live_width, a.live_fps, a.live, kind)
-        print(f"live camera, {kind}, {a.live_width} px at {a.live_fps:g} fps for {a.live:g} s: {r['sent']} frames "
-              f"sent ({r['fps']:.1f}/s), {r['dropped']} dropped, {r['cpu_per_s']:.2f} CPU-s per second "
+        r = bench_live(a.mission, a.live_width, a.live_fps, a.live, kind, a.live_path, a.live_lead)
+        lead = (f"; {a.live_lead:g} s lead before the first pose: {r['lead_cpu']:.1f} CPU-s, "
+                f"{r['prefetched']} wall tiles built ahead in all" if a.live_lead > 0 else "")
+        print(f"live camera, {kind}, {a.live_path}, {a.live_width} px at {a.live_fps:g} fps for {a.live:g} s: "
+              f"{r['sent']} frames sent ({r['fps']:.1f}/s), {r['dropped']} dropped, {r['cpu_per_s']:.2f} CPU-s per "
+              f"second, {r['cpu_per_frame'] * 1000:.1f} CPU-ms per frame sent{lead} "
               f"(load average {os.getloadavg()[0]:.1f})", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
-        for kind in a.renderers:
+        for kind in a.renderers if a.generator_frames > 0 else []:
             c0, w0 = time.process_time(), time.perf_counter()
             generate_recording(mission, Path(tmp) / kind, seed=a.seed, width_px=640, max_frames=a.generator_frames,
                                renderer=kind)

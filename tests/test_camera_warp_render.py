@@ -136,3 +136,27 @@ def test_random_poses_around_the_building_agree_with_the_ray_caster():
         assert not (differ & ~_boundaries(ref.surface)).any()
         same = ~differ & np.isfinite(ref.depth)
         assert (np.abs(got.depth[same] - ref.depth[same]) <= 1e-4 * ref.depth[same]).all()
+
+
+@pytest.mark.parametrize("width", [320, 1280])
+def test_wall_tiles_built_ahead_are_the_ones_the_frame_uses(width):
+    """The live camera builds the wall's texture tiles while it waits for poses (prefetch_wall at wall_level of
+    the standoff): a face-on frame at that standoff must then find every wall tile it needs already built, and
+    look the same as without the prefetch."""
+    scene = Scene.build(L, H, seed=2)
+    cam = CameraModel().scaled(width)
+    ahead = WarpRenderer(scene, FRAME, cam, noise=False, blur=False)
+    along, up = L / 2, 6.0
+    level = ahead.wall_level(4.0)
+    assert ahead.prefetch_wall(level, along, up, max_tiles=80) > 0  # nearest first: the view's ~50 and more
+    tiles = scene.texture._tiles
+    before = set(tiles)
+    frame = ahead.render(pose_at(along, 4.0, up))
+    assert set(tiles) == before  # no wall tile built during the frame
+    if width == 320:  # the whole wall in tiles of 4 m fits the prefetch: then nothing is left to build
+        span = scene.texture.TILE * 2**level / 1000.0
+        ahead.prefetch_wall(level, along, up, max_tiles=1000)
+        assert len(tiles) == (int(L // span) + 1) * (int(H // span) + 1)
+        assert ahead.prefetch_wall(level, along, up) == 0
+    cold = WarpRenderer(Scene.build(L, H, seed=2), FRAME, cam, noise=False, blur=False).render(pose_at(along, 4.0, up))
+    assert np.array_equal(frame.image, cold.image) and np.array_equal(frame.depth, cold.depth)

@@ -251,7 +251,8 @@ class LiveCamera:
 
         self.mission = resolve_mission(mission)
         self.cfg = cfg
-        self.frame = plan_scan(self.mission).frame
+        plan = plan_scan(self.mission)
+        self.frame = plan.frame
         self.camera = camera_from_mission(self.mission, cfg.width_px)
         self.fps = float(cfg.fps or self.mission.camera.fps)
         if not self.fps > 0:
@@ -260,6 +261,12 @@ class LiveCamera:
         self.renderer = make_renderer(cfg.renderer, self.scene, self.frame, self.camera,
                                       exposure_s=float(self.mission.camera.exposure_s), seed=cfg.seed)
         self.exposure = AutoExposure(seed=cfg.seed)
+        # the wall texture is built ahead of the camera while it waits for poses (WarpRenderer.prefetch_wall):
+        # at the level the scan's standoff gives, first around the first scan waypoint, then around the camera
+        self._prefetch_level = (self.renderer.wall_level(float(self.mission.standoff_m))
+                                if hasattr(self.renderer, "prefetch_wall") else None)
+        first = plan.waypoints[plan.scan_legs[0][0]] if plan.scan_legs else None
+        self._wall_point = (float(first.along_m), float(first.up_m)) if first is not None else (0.0, 0.0)
         self.listener = PoseListener(cfg.pose_port)
         try:
             self.server = FrameServer(cfg.stream_host, cfg.stream_port)
@@ -276,6 +283,7 @@ class LiveCamera:
         self._delivery = threading.Thread(target=self._deliver_frames, name="camera-delivery", daemon=True)
         self._delivery.start()
         self.skipped = 0
+        self.prefetched = 0  # wall texture tiles built while waiting for poses
 
     def _meta(self) -> dict:
         cam = self.camera
@@ -300,13 +308,15 @@ class LiveCamera:
             while not self.stop.is_set() and time.monotonic() < t_end:
                 newest = self.listener.newest_time()
                 if newest is None:
-                    self.listener.wait_newer(-math.inf, 0.2)
+                    if not self._prefetch():
+                        self.listener.wait_newer(-math.inf, 0.2)
                     continue
                 if k is None or newest < last_t - 1.0:  # first pose, or the vehicle's clock restarted
                     k = int(math.ceil(newest * self.fps))
                 t = k / self.fps
                 if newest < t:
-                    self.listener.wait_newer(t, 0.2)
+                    if not self._prefetch():
+                        self.listener.wait_newer(t, 0.2)
                     continue
                 if newest - t > self.cfg.max_lag_frames / self.fps:
                     k_new = int(math.floor(newest * self.fps))
@@ -326,10 +336,21 @@ class LiveCamera:
             raise self._delivery_error
         return self.sent
 
+    def _prefetch(self) -> bool:
+        """Use time the camera would spend waiting for the next pose to build one wall texture tile near the
+        camera (about 30 ms at 1280 px); False when there is nothing left to build there."""
+        if self._prefetch_level is None:
+            return False
+        built = self.renderer.prefetch_wall(self._prefetch_level, *self._wall_point)
+        self.prefetched += built
+        return built > 0
+
     def _emit(self, k: int, t: float, msg: dict, rate: float):
         """Render frame k here; JPEG encoding, streaming and recording happen on the delivery thread (the other
         core), in order. A full hand-over queue blocks, so a slow encoder makes the camera drop frames too."""
         pose = camera_pose(msg, self.frame, yaw_rate_deg_s=rate)
+        along, _, up = self.frame.enu_to_facade(*pose.position_enu)
+        self._wall_point = (float(along), float(up))
         rendered = self.renderer.render(pose, index=k, time_s=t, exposure=self.exposure)
         if self._delivery_error is not None:
             raise self._delivery_error

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim.camera.noise import fbm, hash2, value_noise
+from sim.camera.noise import fbm, grid_coords, hash2, value_noise
 
 MATERIALS = ("brick", "concrete", "panels")
 
@@ -185,12 +185,15 @@ class TiledTexture:
         px = (2**level) / 1000.0
         n = self.TILE
         c = (np.arange(n) + 0.5) * px
-        aa, uu = np.meshgrid(ix * n * px + c, iy * n * px + c)
+        aa, uu = grid_coords(ix * n * px + c, iy * n * px + c)  # a regular grid: separable noise
         t = (self.evaluate(aa, uu, px) * 255 + 0.5).astype(np.uint8)
         self._tiles[key] = t
         while len(self._tiles) > self.max_tiles:
             self._tiles.popitem(last=False)
         return t
+
+    def has_tile(self, level: int, ix: int, iy: int) -> bool:
+        return (level, ix, iy) in self._tiles
 
     def patch(self, a0: float, u0: float, a1: float, u1: float, level: int) -> tuple[np.ndarray, float, float, float]:
         """Texture covering [a0, a1] x [u0, u1]: (image uint8 with rows growing upwards, a_org, u_org, px_m)."""
@@ -363,6 +366,6 @@ class FacadeTexture(TiledTexture):
         for r0 in range(0, h, step):
             rr = np.arange(r0, min(h, r0 + step))
             uu = s.height_m - (rr + 0.5) * px
-            aa, ug = np.meshgrid((np.arange(w) + 0.5) * px, uu)
+            aa, ug = grid_coords((np.arange(w) + 0.5) * px, uu)
             out[r0:r0 + len(rr)] = (self.evaluate(aa, ug, px) * 255 + 0.5).astype(np.uint8)
         return out

@@ -325,7 +325,7 @@ def run_photo_passes(args) -> int:
                 if report is None:
                     score = {"map": False}
                 elif image_only:
-                    score = score_map(image, None, wall_truth(rp, frames, truth_grid_for_pass(rp)), rectified=False)
+                    score = score_map(image, cov, wall_truth(rp, frames, truth_grid_for_pass(rp)), rectified=False)
                 else:
                     score = score_map(image, cov, wall_truth(rp, frames, grid_of_report(report)), rectified=True)
                 row = {"pass": name, "variant": variant, "method": method, "frames": len(frames), "mask": mask,

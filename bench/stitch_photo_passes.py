@@ -183,9 +183,9 @@ def grid_of_report(report: dict) -> MapGrid:
 
 def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: WallTruth, *,
               rectified: bool) -> dict:
-    """After the best homography onto the wall photo (SIFT): SSIM, seams (patch shifts left after it) and the
-    share of the seen wall covered; for a map in wall coordinates also where it lies (the shift, absolute);
-    and the background photo's matches in the map."""
+    """After the best homography onto the wall photo (SIFT; each separate piece of the map its own): SSIM, seams
+    (patch shifts left after it) and the share of the seen wall covered; for a map in wall coordinates also where
+    it lies (the shift, absolute); and the background photo's matches in the map."""
     if image is None:
         return {"map": False}
     out: dict = {"map": True, "background_inliers": background_inliers(image, truth.background)}
@@ -193,19 +193,46 @@ def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: Wall
         cov = cv2.bitwise_and(coverage, truth.seen)
         acc = map_accuracy(image, cov, truth.image, truth.grid.m_per_px)
         out.update(shift_median_mm=acc.get("median_mm"), shift_p95_mm=acc.get("p95_mm"))
-    # the gate's feature settings (CLAHE, low contrast threshold): with OpenCV's defaults a plain wall's map
-    # registers on its one window frame and the extrapolated homography misplaces the far end by 10-15 px
-    H = truth_homography(image, truth.image, equalize=True)
-    if H is None:
+    parts = _map_parts(coverage if coverage is not None else (image.max(axis=2) > 0).astype(np.uint8) * 255)
+    scored, drawn_all = [], np.zeros_like(truth.seen)
+    for part in parts:
+        sub = cv2.bitwise_and(image, image, mask=part)
+        # the gate's feature settings (CLAHE, low contrast threshold): with OpenCV's defaults a plain wall's map
+        # registers on its one window frame and the extrapolated homography misplaces the far end by 10-15 px
+        H = truth_homography(sub, truth.image, equalize=True)
+        if H is None:
+            continue
+        warped, cov = register_to_truth(sub, truth.image, H=H, drawn=part)
+        seen = cv2.bitwise_and(cov, truth.seen)
+        acc = map_accuracy(warped, seen, truth.image, truth.grid.m_per_px)
+        drawn_all |= register_to_truth(sub, truth.image, erode_px=1, H=H, drawn=part)[1]
+        scored.append((np.count_nonzero(seen), acc))
+    if not scored:
         out["registered"] = False
         return out
-    warped, cov = register_to_truth(image, truth.image, H=H)
-    acc = map_accuracy(warped, cv2.bitwise_and(cov, truth.seen), truth.image, truth.grid.m_per_px)
-    _, drawn = register_to_truth(image, truth.image, erode_px=1, H=H)
-    out.update(registered=True, ssim=acc.get("ssim"), seam_p95_px=acc.get("rel_p95_px"),
-               coverage=float(np.count_nonzero(cv2.bitwise_and(drawn, truth.seen)))
+    weight = np.array([w for w, _ in scored], float) + 1e-9
+    out.update(registered=True, parts=len(parts),
+               ssim=float(np.average([a.get("ssim", 0.0) for _, a in scored], weights=weight)),
+               seam_p95_px=max((a["rel_p95_px"] for _, a in scored if "rel_p95_px" in a), default=None),
+               coverage=float(np.count_nonzero(cv2.bitwise_and(drawn_all, truth.seen)))
                / max(1, np.count_nonzero(truth.seen)))
     return out
+
+
+def _map_parts(drawn: np.ndarray, min_share: float = 0.02) -> list[np.ndarray]:
+    """The map's separate pieces (0/255 masks): scan strips that no image overlap ties together (two strips far
+    apart on a tall wall) are each placed on the wall by their own telemetry, so each is registered onto the
+    wall photo by its own homography; what is measured is then ghosting and seams, not GNSS (that is the shift,
+    and report.json's anchor). Pieces under ``min_share`` of the drawn area are specks, left out."""
+    joined = cv2.dilate(drawn, np.ones((9, 9), np.uint8))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((joined > 0).astype(np.uint8), connectivity=8)
+    total = max(1, int(np.count_nonzero(drawn)))
+    parts = []
+    for k in range(1, n):
+        part = ((labels == k) & (drawn > 0)).astype(np.uint8) * 255
+        if np.count_nonzero(part) >= min_share * total:
+            parts.append(part)
+    return parts
 
 
 def background_inliers(image: np.ndarray, background: np.ndarray) -> int:

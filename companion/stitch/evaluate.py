@@ -165,16 +165,24 @@ def truth_homography(image: np.ndarray, truth: np.ndarray, *, equalize: bool = F
 
 
 def register_to_truth(
-    image: np.ndarray, truth: np.ndarray, *, erode_px: int = 5, equalize: bool = False, H: np.ndarray | None = None
+    image: np.ndarray,
+    truth: np.ndarray,
+    *,
+    erode_px: int = 5,
+    equalize: bool = False,
+    H: np.ndarray | None = None,
+    drawn: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """Best homography placement of a map with no known geometry (a peer stitcher's panorama) onto the truth
     grid (``truth_homography``, or ``H`` when given). Returns (warped image, warped coverage eroded by
-    ``erode_px``, so interpolated borders do not count) or None when it cannot be registered."""
+    ``erode_px``, so interpolated borders do not count) or None when it cannot be registered. Coverage is the
+    map's own (``drawn``, 0/255) where it has one, else its non-black pixels (a black wall texel is drawn too)."""
     if H is None:
         H = truth_homography(image, truth, equalize=equalize)
     if H is None:
         return None
     size = (truth.shape[1], truth.shape[0])
     warped = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR)
-    cov = cv2.warpPerspective((image.max(axis=2) > 0).astype(np.uint8) * 255, H, size, flags=cv2.INTER_NEAREST)
+    drawn = (image.max(axis=2) > 0).astype(np.uint8) * 255 if drawn is None else drawn
+    cov = cv2.warpPerspective(drawn, H, size, flags=cv2.INTER_NEAREST)
     return warped, cv2.erode(cov, np.ones((erode_px, erode_px), np.uint8)) if erode_px > 1 else cov

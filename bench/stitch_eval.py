@@ -124,7 +124,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--out", default="/tmp/stitch_eval")
     ap.add_argument("--passes", default=None, help="real-texture passes (comma list) instead of a recording")
     ap.add_argument("--frames", type=int, default=80, help="--passes: rendered frames per pass")
-    ap.add_argument("--variants", default="exact,noise,jump,raw", help="--passes: telemetry/input variants")
+    ap.add_argument("--variants", default="exact,noise,jump,raw,image-only",
+                    help="--passes: telemetry/input variants (image-only: the keyframes with --no-poses)")
+    ap.add_argument("--masks", default="truth,real-nc",
+                    help="--passes: ROI masks: truth, none, or a shipped depth model (sim, real-nc) through the "
+                         "onboard Masker with parallax")
     ap.add_argument("--jump-m", type=float, default=1.5, help="--passes: the GNSS jump (along the wall)")
     ap.add_argument("--baseline-ref", default=None, help="--passes: also stitch with this git ref's code")
     return ap.parse_args(argv)
@@ -231,7 +235,7 @@ def baseline_tree(ref: str, out: Path) -> Path:
     return tree
 
 
-def stitch_with(tree: Path, spool: Path, out: Path) -> tuple[float, dict | None]:
+def stitch_with(tree: Path, spool: Path, out: Path, *, no_poses: bool = False) -> tuple[float, dict | None]:
     """``companion stitch`` from another checkout's code, in its own process: (seconds, report or None)."""
     import os
     import subprocess
@@ -239,7 +243,8 @@ def stitch_with(tree: Path, spool: Path, out: Path) -> tuple[float, dict | None]
     env = {**os.environ, "PYTHONPATH": str(tree)}
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "companion.cli", "stitch", str(spool.resolve()), "--out", str(out.resolve())]
-    done = subprocess.run([*cmd, "--quiet"], env=env, cwd=str(tree), capture_output=True, text=True)
+    done = subprocess.run([*cmd, "--quiet", *(["--no-poses"] if no_poses else [])], env=env, cwd=str(tree),
+                          capture_output=True, text=True)
     seconds = time.perf_counter() - t0
     if done.returncode != 0 or not (out / "report.json").exists():
         print(f"  baseline failed ({done.returncode}): {done.stderr.strip()[-300:]}")
@@ -247,10 +252,32 @@ def stitch_with(tree: Path, spool: Path, out: Path) -> tuple[float, dict | None]
     return seconds, json.loads((out / "report.json").read_text())
 
 
+def photo_inputs(variants: list[str], masks: list[str]) -> list[tuple[str, str]]:
+    """(variant, mask) pairs to stitch: every variant with every mask, except that raw frames with the truth
+    mask would hide the background they are there to test, so raw frames go without a mask instead."""
+    out: list[tuple[str, str]] = []
+    for mask in masks:
+        for variant in variants:
+            pair = (variant, "none" if variant == "raw" and mask == "truth" else mask)
+            if pair not in out:
+                out.append(pair)
+    return out
+
+
 def run_photo_passes(args) -> int:
-    """Every pass x variant: our stitcher, the baseline ref's, cv2.Stitcher on the keyframes; one JSON line each
-    and a markdown table at the end."""
-    from stitch_photo_passes import grid_of_report, jump_errors, render_pass, score_map, wall_truth, write_spool
+    """Every pass x variant x mask: our stitcher, the baseline ref's, cv2.Stitcher on the keyframes; one JSON
+    line each and a markdown table at the end. Variants: exact telemetry, 0.5 m / 2 deg noise, the noise plus a
+    jump, raw frames (every rendered frame) with the noise, and image-only (``--no-poses``) on the keyframes."""
+    from stitch_photo_passes import (
+        grid_of_report,
+        jump_errors,
+        mask_error,
+        pass_masks,
+        render_pass,
+        score_map,
+        wall_truth,
+        write_spool,
+    )
 
     from companion.stitch.inputs import load_input
     from companion.stitch.synthetic import TelemetryErrors
@@ -259,6 +286,7 @@ def run_photo_passes(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     tree = baseline_tree(args.baseline_ref, out) if args.baseline_ref else None
     peers = [] if args.peers == "none" else [p for p in args.peers.split(",") if p == "scans"]
+    masks = args.masks.split(",")
     rows = []
     for name in args.passes.split(","):
         t0 = time.process_time()
@@ -266,37 +294,54 @@ def run_photo_passes(args) -> int:
         print(f"pass {name}: {len(rp.renderer)} frames {args.width_px} px -> {len(rp.keyframes)} keyframes "
               f"(minimum {len(rp.minimum)}); keyframe pairs' true overlap min {min(rp.pair_overlap):.1f} %, "
               f"all {[round(v, 1) for v in rp.pair_overlap]} ({time.process_time() - t0:.0f} s CPU)", flush=True)
-        for variant in args.variants.split(","):
-            raw = variant == "raw"
+        model_masks = {}
+        for m in masks:
+            if m not in ("truth", "none"):
+                t0 = time.process_time()
+                model_masks[m] = pass_masks(rp, m)
+                err_k = mask_error(rp, rp.keyframes, model_masks[m])
+                err_all = mask_error(rp, list(range(len(rp.renderer))), model_masks[m])
+                print(f"  mask {m} + parallax: keyframes {json.dumps(err_k)}, all frames {json.dumps(err_all)} "
+                      f"({time.process_time() - t0:.0f} s CPU)", flush=True)
+        for variant, mask in photo_inputs(args.variants.split(","), masks):
+            raw, image_only = variant == "raw", variant == "image-only"
             frames = list(range(len(rp.renderer))) if raw else rp.keyframes
-            errors = {"exact": TelemetryErrors()}.get(variant) or (
+            errors = {"exact": TelemetryErrors(), "image-only": TelemetryErrors()}.get(variant) or (
                 jump_errors(rp, frames, 0.5, 2.0, (args.jump_m, 0.0)) if variant == "jump"
                 else TelemetryErrors(0.5, 2.0))
-            mask = "none" if raw else "truth"
-            spool = write_spool(rp, frames, out / name / f"spool-{variant}", mask=mask, errors=errors)
+            spool = write_spool(rp, frames, out / name / f"spool-{variant}-{mask}", mask=mask, errors=errors,
+                                model_masks=model_masks.get(mask))
             methods = {"ours": None} | ({"baseline": tree} if tree else {})
             for method, code in methods.items():
-                dest = out / name / f"{method}-{variant}"
+                dest = out / name / f"{method}-{variant}-{mask}"
                 t1 = time.perf_counter()
                 if code is None:
-                    res = stitch(load_input(spool), dest, StitchConfig(), progress=False)
+                    res = stitch(load_input(spool), dest, StitchConfig(use_poses=not image_only), progress=False)
                     seconds, report, image, cov = time.perf_counter() - t1, res.report, res.map_image, res.coverage
                 else:
-                    seconds, report = stitch_with(code, spool, dest)
+                    seconds, report = stitch_with(code, spool, dest, no_poses=image_only)
                     image = cv2.imread(str(dest / "map.png")) if report else None
                     cov = cv2.imread(str(dest / "coverage.png"), cv2.IMREAD_GRAYSCALE) if report else None
-                grid = grid_of_report(report) if report else None
-                score = score_map(image, cov, wall_truth(rp, frames, grid), rectified=True) if grid else {"map": False}
+                if report is None:
+                    score = {"map": False}
+                elif image_only:
+                    score = score_map(image, cov, wall_truth(rp, frames, truth_grid_for_pass(rp)), rectified=False)
+                else:
+                    score = score_map(image, cov, wall_truth(rp, frames, grid_of_report(report)), rectified=True)
                 row = {"pass": name, "variant": variant, "method": method, "frames": len(frames), "mask": mask,
                        "time_s": round(seconds, 1), **score,
-                       "anchor": (report or {}).get("anchor"), "pairs": (report or {}).get("pairs_accepted")}
+                       "connected": len(report["keyframes_used"]) if report else 0,
+                       "anchor": (report or {}).get("anchor"), "pairs": (report or {}).get("pairs_accepted"),
+                       "pairs_tried": (report or {}).get("pairs_tried")}
                 rows.append(row)
                 print(json.dumps(row, default=float), flush=True)
             if "scans" in peers and variant == "exact":
-                images = [rp.renderer.render(i).image for i in frames]
-                masks = [rp.renderer.render(i).roi_mask for i in frames]
+                renders = [rp.renderer.render(i) for i in frames]
+                images = [r.image for r in renders]
+                peer_masks = [r.roi_mask if mask == "truth" else model_masks[mask][i]
+                              for r, i in zip(renders, frames, strict=True)]
                 t1 = time.perf_counter()
-                pano, status = peer_cv2(images, masks, cv2.Stitcher_SCANS)
+                pano, status = peer_cv2(images, peer_masks, cv2.Stitcher_SCANS)
                 seconds = time.perf_counter() - t1
                 grid = truth_grid_for_pass(rp)
                 score = score_map(pano, None, wall_truth(rp, frames, grid), rectified=False) if pano is not None \
@@ -322,7 +367,8 @@ def photo_table(rows: list[dict]) -> str:
         return "-" if v is None else format(v, fmt)
 
     lines = ["| pass | input | method | SSIM | seams p95 px | seen wall covered | shift median mm | "
-             "background inliers | anchor: outvoted / placement sigma | time s |", "|" + "---|" * 10]
+             "background inliers | keyframes placed | pairs | anchor: outvoted / placement sigma | time s |",
+             "|" + "---|" * 12]
     for r in rows:
         a = r.get("anchor") or {}
         anchor = f"{len(a.get('outvoted', []))} / {a.get('placement_sigma_m')} m" if a else "-"
@@ -330,7 +376,8 @@ def photo_table(rows: list[dict]) -> str:
         lines.append(f"| {r['pass']} | {r['variant']} ({r['frames']}, mask {r['mask']}) | {r['method']} | "
                      f"{f(r.get('ssim'), '.3f')} | {f(r.get('seam_p95_px'), '.2f')} | "
                      f"{'-' if cov is None else f'{100 * cov:.1f} %'} | {f(r.get('shift_median_mm'), '.0f')} | "
-                     f"{r.get('background_inliers', '-')} | {anchor} | {r['time_s']} |")
+                     f"{r.get('background_inliers', '-')} | {r.get('connected', '-')} of {r['frames']} | "
+                     f"{r.get('pairs', '-')} of {r.get('pairs_tried', '-')} | {anchor} | {r['time_s']} |")
     return "\n".join(lines)
 
 

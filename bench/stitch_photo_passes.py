@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from companion.matching import make_matcher, ransac_homography, ratio_test_matches
-from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
+from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_homography, truth_on_grid
 from companion.stitch.render import MapGrid
 from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
 
@@ -75,15 +75,14 @@ def jump_errors(rp: RenderedPass, frames: list[int], noise_m: float, noise_deg: 
 
 
 def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, errors: TelemetryErrors,
-                seed: int = 0) -> Path:
-    """A keyframe spool of ``frames`` of the pass: images, masks (``truth``, ``none`` or ``model``: the shipped
-    depth model through the onboard Masker) and telemetry as reported with ``errors``."""
+                seed: int = 0, model_masks: dict[int, np.ndarray] | None = None) -> Path:
+    """A keyframe spool of ``frames`` of the pass: images, masks (``truth``, ``none``, or a depth model's:
+    ``model_masks`` from :func:`pass_masks`) and telemetry as reported with ``errors``."""
     spec = rp.spec
     cam = spec.camera
     wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
     frame = wall_frame(wall)
     rng = np.random.default_rng(seed)
-    masker = _masker() if mask == "model" else None
     (out / "frames").mkdir(parents=True, exist_ok=True)
     lines = []
     for k, i in enumerate(frames):
@@ -91,7 +90,7 @@ def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, er
         name = f"frames/{k:06d}.jpg"
         cv2.imwrite(str(out / name), f.image, [cv2.IMWRITE_JPEG_QUALITY, 95])
         entry = {"index": k, "image": name, "source_frame": i}
-        roi = f.roi_mask if mask == "truth" else (_model_mask(masker, f, i) if mask == "model" else None)
+        roi = f.roi_mask if mask == "truth" else (None if mask == "none" else model_masks[i])
         if roi is not None:
             cv2.imwrite(str(out / f"frames/{k:06d}_mask.png"), roi)
             entry["mask"] = f"frames/{k:06d}_mask.png"
@@ -103,18 +102,42 @@ def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, er
     return out
 
 
-def _masker():
+def pass_masks(rp: RenderedPass, model: str, *, parallax: bool = True) -> dict[int, np.ndarray]:
+    """Every frame's mask from the onboard Masker with a shipped depth model (``sim``, the default, or
+    ``real-nc``, the setting docs/DEPTH.md gives for real facades), frames shown in capture order with their
+    telemetry (exact: the short baselines parallax uses are relative motion, not absolute GNSS), so ``parallax``
+    confirms or corrects the network as in the onboard chain. A frame the masker drops gets an empty mask."""
     from companion.depth.masker import Masker
+    from companion.depth.parallax import SequenceParallax
+    from companion.records import Frame, Pose, TaggedFrame
 
-    return Masker(None)
+    spec = rp.spec
+    wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
+    frame = wall_frame(wall)
+    rng = np.random.default_rng(0)
+    seq = SequenceParallax(spec.camera.hfov_deg) if parallax else None
+    masker = Masker(model, parallax=seq)
+    masks = {}
+    for i in range(len(rp.renderer)):
+        f = rp.renderer.render(i)
+        row = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
+        pose = Pose.from_json({**row, "t_boot_s": i / 10.0})
+        masked, _ = masker.mask(TaggedFrame(Frame(i, i / 10.0, f.image), pose))
+        masks[i] = np.zeros(f.roi_mask.shape, np.uint8) if masked is None else masked.mask
+    return masks
 
 
-def _model_mask(masker, f, i: int) -> np.ndarray:
-    """The shipped model's mask of a frame; a frame it drops as all background gets an empty mask."""
-    from companion.records import Frame, TaggedFrame
-
-    masked = masker(TaggedFrame(Frame(i, i / 10.0, f.image), None))
-    return np.zeros(f.roi_mask.shape, np.uint8) if masked is None else masked.mask
+def mask_error(rp: RenderedPass, frames: list[int], masks: dict[int, np.ndarray]) -> dict:
+    """How the model's masks of ``frames`` differ from the truth: wall pixels cut, background pixels kept."""
+    wall = bg = cut = kept = 0
+    for i in frames:
+        t = rp.renderer.render(i).roi_mask > 0
+        m = masks[i] > 0
+        wall += int(t.sum())
+        bg += int((~t).sum())
+        cut += int((t & ~m).sum())
+        kept += int((~t & m).sum())
+    return {"wall_cut": cut / max(1, wall), "background_kept": kept / max(1, bg)}
 
 
 @dataclass(frozen=True)
@@ -160,9 +183,9 @@ def grid_of_report(report: dict) -> MapGrid:
 
 def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: WallTruth, *,
               rectified: bool) -> dict:
-    """After the best homography onto the wall photo (SIFT): SSIM, seams (patch shifts left after it) and the
-    share of the seen wall covered; for a map in wall coordinates also where it lies (the shift, absolute);
-    and the background photo's matches in the map."""
+    """After the best homography onto the wall photo (SIFT; each separate piece of the map its own): SSIM, seams
+    (patch shifts left after it) and the share of the seen wall covered; for a map in wall coordinates also where
+    it lies (the shift, absolute); and the background photo's matches in the map."""
     if image is None:
         return {"map": False}
     out: dict = {"map": True, "background_inliers": background_inliers(image, truth.background)}
@@ -170,17 +193,46 @@ def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: Wall
         cov = cv2.bitwise_and(coverage, truth.seen)
         acc = map_accuracy(image, cov, truth.image, truth.grid.m_per_px)
         out.update(shift_median_mm=acc.get("median_mm"), shift_p95_mm=acc.get("p95_mm"))
-    reg = register_to_truth(image, truth.image)
-    if reg is None:
+    parts = _map_parts(coverage if coverage is not None else (image.max(axis=2) > 0).astype(np.uint8) * 255)
+    scored, drawn_all = [], np.zeros_like(truth.seen)
+    for part in parts:
+        sub = cv2.bitwise_and(image, image, mask=part)
+        # the gate's feature settings (CLAHE, low contrast threshold): with OpenCV's defaults a plain wall's map
+        # registers on its one window frame and the extrapolated homography misplaces the far end by 10-15 px
+        H = truth_homography(sub, truth.image, equalize=True)
+        if H is None:
+            continue
+        warped, cov = register_to_truth(sub, truth.image, H=H, drawn=part)
+        seen = cv2.bitwise_and(cov, truth.seen)
+        acc = map_accuracy(warped, seen, truth.image, truth.grid.m_per_px)
+        drawn_all |= register_to_truth(sub, truth.image, erode_px=1, H=H, drawn=part)[1]
+        scored.append((np.count_nonzero(seen), acc))
+    if not scored:
         out["registered"] = False
         return out
-    warped, cov = reg
-    acc = map_accuracy(warped, cv2.bitwise_and(cov, truth.seen), truth.image, truth.grid.m_per_px)
-    _, drawn = register_to_truth(image, truth.image, erode_px=1)
-    out.update(registered=True, ssim=acc.get("ssim"), seam_p95_px=acc.get("rel_p95_px"),
-               coverage=float(np.count_nonzero(cv2.bitwise_and(drawn, truth.seen)))
+    weight = np.array([w for w, _ in scored], float) + 1e-9
+    out.update(registered=True, parts=len(parts),
+               ssim=float(np.average([a.get("ssim", 0.0) for _, a in scored], weights=weight)),
+               seam_p95_px=max((a["rel_p95_px"] for _, a in scored if "rel_p95_px" in a), default=None),
+               coverage=float(np.count_nonzero(cv2.bitwise_and(drawn_all, truth.seen)))
                / max(1, np.count_nonzero(truth.seen)))
     return out
+
+
+def _map_parts(drawn: np.ndarray, min_share: float = 0.02) -> list[np.ndarray]:
+    """The map's separate pieces (0/255 masks): scan strips that no image overlap ties together (two strips far
+    apart on a tall wall) are each placed on the wall by their own telemetry, so each is registered onto the
+    wall photo by its own homography; what is measured is then ghosting and seams, not GNSS (that is the shift,
+    and report.json's anchor). Pieces under ``min_share`` of the drawn area are specks, left out."""
+    joined = cv2.dilate(drawn, np.ones((9, 9), np.uint8))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats((joined > 0).astype(np.uint8), connectivity=8)
+    total = max(1, int(np.count_nonzero(drawn)))
+    parts = []
+    for k in range(1, n):
+        part = ((labels == k) & (drawn > 0)).astype(np.uint8) * 255
+        if np.count_nonzero(part) >= min_share * total:
+            parts.append(part)
+    return parts
 
 
 def background_inliers(image: np.ndarray, background: np.ndarray) -> int:

@@ -23,6 +23,7 @@ class StitchConfig:
     # to a wall is off by metres (0.5 m noise on each of two keyframes and a 1.5 m jump: ~3 m between them)
     pose_gate_m: float = 4.0
     far_motion_ratio: float = 0.25  # a plane moving less than this fraction of another in a pair is background
+    wall_check: bool = True  # cut mask pixels that neighbouring keyframes show are off the wall plane
     use_poses: bool = True
     # the telemetry prior in the global alignment is robust (Cauchy): within about sigma it pulls like a Gaussian,
     # far beyond (a GNSS jump) it hardly pulls at all, so the images outvote it

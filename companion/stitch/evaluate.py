@@ -136,19 +136,23 @@ def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_p
     return res
 
 
-def register_to_truth(
-    image: np.ndarray, truth: np.ndarray, *, erode_px: int = 5
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """Best homography placement of a map with no known geometry (a peer stitcher's panorama) onto the truth
-    grid, by SIFT + RANSAC. Returns (warped image, warped coverage eroded by ``erode_px``, so interpolated
-    borders do not count) or None when it cannot be registered."""
-    sift = cv2.SIFT_create(nfeatures=8000)
+def truth_homography(image: np.ndarray, truth: np.ndarray, *, equalize: bool = False) -> np.ndarray | None:
+    """The best homography from a map with no known geometry (a peer stitcher's panorama) onto the truth grid,
+    by SIFT + RANSAC (seeded: the same map always scores the same). ``equalize``: CLAHE and a low contrast
+    threshold, the gate's and stitcher's settings; with OpenCV's defaults a plain wall gives features only at its
+    few strong edges (a window frame), and a homography fitted to one corner of the map extrapolates badly."""
+    sift = cv2.SIFT_create(nfeatures=8000, contrastThreshold=0.01 if equalize else 0.04)
     g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     g2 = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY)
-    k1, d1 = sift.detectAndCompute(g1, (g1 > 0).astype(np.uint8) * 255)
+    drawn = (g1 > 0).astype(np.uint8) * 255
+    if equalize:
+        clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
+        g1, g2 = clahe.apply(g1), clahe.apply(g2)
+    k1, d1 = sift.detectAndCompute(g1, drawn)
     k2, d2 = sift.detectAndCompute(g2, None)
     if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
         return None
+    cv2.setRNGSeed(7)
     q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
     if len(q1) < 8:
         return None
@@ -157,7 +161,28 @@ def register_to_truth(
     H, inl = ransac_homography(p1, p2, method=cv2.USAC_MAGSAC, threshold_px=3.0, max_iters=2000, confidence=0.995)
     if H is None or inl.sum() < 8:
         return None
+    return H
+
+
+def register_to_truth(
+    image: np.ndarray,
+    truth: np.ndarray,
+    *,
+    erode_px: int = 5,
+    equalize: bool = False,
+    H: np.ndarray | None = None,
+    drawn: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Best homography placement of a map with no known geometry (a peer stitcher's panorama) onto the truth
+    grid (``truth_homography``, or ``H`` when given). Returns (warped image, warped coverage eroded by
+    ``erode_px``, so interpolated borders do not count) or None when it cannot be registered. Coverage is the
+    map's own (``drawn``, 0/255) where it has one, else its non-black pixels (a black wall texel is drawn too)."""
+    if H is None:
+        H = truth_homography(image, truth, equalize=equalize)
+    if H is None:
+        return None
     size = (truth.shape[1], truth.shape[0])
     warped = cv2.warpPerspective(image, H, size, flags=cv2.INTER_LINEAR)
-    cov = cv2.warpPerspective((image.max(axis=2) > 0).astype(np.uint8) * 255, H, size, flags=cv2.INTER_NEAREST)
+    drawn = (image.max(axis=2) > 0).astype(np.uint8) * 255 if drawn is None else drawn
+    cov = cv2.warpPerspective(drawn, H, size, flags=cv2.INTER_NEAREST)
     return warped, cv2.erode(cov, np.ones((erode_px, erode_px), np.uint8)) if erode_px > 1 else cov

@@ -36,6 +36,7 @@ from companion.stitch.pairs import RegisteredPairs, register_pairs
 from companion.stitch.priors import PlanePriors, plane_priors
 from companion.stitch.render import MapGrid
 from companion.stitch.report import StitchRun, build_report, measure_coverage, write_map_images
+from companion.stitch.wallcheck import check_wall
 from companion.viewer import write_viewer
 
 __all__ = ["StitchConfig", "StitchResult", "Stitcher", "stitch"]
@@ -90,6 +91,8 @@ class Stitcher:
         clock.lap("matching")
         aligned = self.alignment(found, priors, pairs)
         clock.lap("alignment")
+        found = self.wall_check(found, aligned, out)
+        clock.lap("wall_check")
         layout = self.mesh(found, priors, aligned)
         clock.lap("mesh")
         rendered = self.render(found, aligned, layout, out)
@@ -125,6 +128,13 @@ class Stitcher:
         aligned = align_keyframes(pairs, priors, found.input.camera, self.config)
         self.debug.alignment(found, aligned)
         return aligned
+
+    def wall_check(self, found: KeyframeFeatures, aligned: AlignedKeyframes, out: Path) -> KeyframeFeatures:
+        """Mask pixels the neighbouring keyframes show are not on the wall plane are cut (``wallcheck.py``)."""
+        if not self.config.wall_check:
+            return found
+        checked = check_wall(found.input, aligned.accepted, out / "cache" / "masks")
+        return replace(found, input=checked.input)
 
     def mesh(self, found: KeyframeFeatures, priors: PlanePriors, aligned: AlignedKeyframes) -> MapLayout:
         layout = lay_out(found.input, priors, aligned, self.config, progress=self.progress)

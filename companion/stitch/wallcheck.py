@@ -1,0 +1,128 @@
+"""Pixels a keyframe's mask keeps that are not on the wall: cut before the map is drawn (issue 15 items 2, 4).
+
+The depth mask is a network's guess: on real facades it keeps some background (trees and houses seen through a
+gap in the wall, beside its end, above the roof line), and raw input may have no mask at all. The pairs stage
+rejects far scenery in the *matches* (a second, slower plane), but a region seen near the frame edge as the
+camera moves on is matched in no pair, and the map would draw it. What the images say about such a pixel: the
+wall's homography of an accepted pair carries it into the neighbouring keyframe, and there it lands on something
+else (the wall that hid it, or other background), because it is not on the wall plane. A pixel is cut when it
+disagrees with most of the neighbours that see the same wall point, by more than ``grey_tolerance`` grey levels
+after smoothing and the pair's exposure ratio. Wall pixels agree to a few levels (the pairs are registered to
+a fraction of a pixel); parallax too small to measure (hover, the wall motion below a few RANSAC thresholds)
+decides nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from companion.files import atomic_path
+from companion.stitch.features import load_image_and_mask
+from companion.stitch.geometry import apply_h
+from companion.stitch.inputs import StitchInput
+from companion.stitch.pairs import PairResult
+
+
+@dataclass(frozen=True)
+class WallCheck:
+    """What the check cut: per keyframe position, the share of its mask found off the wall plane."""
+
+    input: StitchInput  # keyframes whose mask changed point at the checked mask
+    cut_share: dict[int, float]
+
+
+@dataclass(frozen=True)
+class WallCheckSettings:
+    grey_tolerance: float = 25.0  # mean grey difference (after smoothing) above which a pixel is not the wall
+    min_motion_px: float = 8.0  # the wall must move this much between the two keyframes (parallax measurable)
+    work_width: int = 960  # the check runs on copies this wide
+    min_region_px: int = 5  # opening: specks smaller than this (work px) are noise
+
+
+def check_wall(
+    inp: StitchInput, pairs: list[PairResult], cache_dir: Path, settings: WallCheckSettings | None = None
+) -> WallCheck:
+    """Cuts off-plane pixels from the masks of the keyframes in accepted ``pairs`` (H: pixels of i -> pixels
+    of j); checked masks are written to ``cache_dir``. Keyframes in no pair are left as they are."""
+    s = settings or WallCheckSettings()
+    involved = sorted({k for r in pairs for k in (r.i, r.j)})
+    if not involved:
+        return WallCheck(inp, {})
+    grey, masks, full_masks, scale = _load(inp, involved, s.work_width)
+    S = np.diag([scale, scale, 1.0])
+    votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+    checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+    for r in pairs:
+        Hw = S @ r.H @ np.linalg.inv(S)
+        gain = float(np.exp(r.lum_ratio)) if r.lum_ratio is not None else 1.0
+        # lum_ratio = log(grey_i / grey_j): j's grey times the gain reads as i's, i's over it as j's
+        for a, b, H, g, pts in ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j)):
+            if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
+                continue
+            off, valid = _disagreement(grey[a], masks[a], grey[b], masks[b], H, g, s.grey_tolerance)
+            votes[a] += off
+            checks[a] += valid
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    kfs = list(inp.keyframes)
+    cut_share = {}
+    for k in involved:
+        share = np.where(checks[k] > 0, votes[k] / np.maximum(checks[k], 1.0), 0.0)
+        off = (share > 0.5).astype(np.uint8) * 255
+        off = cv2.morphologyEx(off, cv2.MORPH_OPEN, np.ones((s.min_region_px, s.min_region_px), np.uint8))
+        if not off.any():
+            continue
+        h, w = full_masks[k].shape
+        off_full = cv2.resize(off, (w, h), interpolation=cv2.INTER_NEAREST)
+        checked = cv2.bitwise_and(full_masks[k], cv2.bitwise_not(off_full))
+        kept = int(np.count_nonzero(full_masks[k]))
+        cut_share[k] = 1.0 - int(np.count_nonzero(checked)) / max(1, kept)
+        kfs[k] = replace(kfs[k], mask_path=_write_mask(cache_dir, kfs[k], checked))
+    return WallCheck(replace(inp, keyframes=kfs), cut_share)
+
+
+def _load(inp: StitchInput, positions: list[int], work_width: int):
+    grey, masks, full = {}, {}, {}
+    scale = 1.0
+    for k in positions:
+        img, mask = load_image_and_mask(inp.keyframes[k])
+        scale = min(1.0, work_width / img.shape[1])
+        size = (round(img.shape[1] * scale), round(img.shape[0] * scale))
+        g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        g = cv2.resize(g, size, interpolation=cv2.INTER_AREA) if scale < 1.0 else g
+        grey[k] = cv2.GaussianBlur(g.astype(np.float32), (0, 0), 1.5)
+        masks[k] = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) if scale < 1.0 else mask
+        full[k] = mask
+    return grey, masks, full, scale
+
+
+def _motion(H: np.ndarray, pts: np.ndarray) -> float:
+    return float(np.median(np.linalg.norm(apply_h(H, pts) - pts, axis=1)))
+
+
+def _disagreement(ga, ma, gb, mb, H, gain: float, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(pixels of a whose wall point in b shows something else, pixels of a checkable in b): b sampled at H(x),
+    both masks valid, away from b's frame edge."""
+    h, w = ga.shape
+    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
+    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=flags) * gain
+    nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
+    inside = cv2.warpPerspective(np.full(gb.shape, 255, np.uint8), H, (w, h), flags=nearest)
+    mb_at = cv2.warpPerspective(mb, H, (w, h), flags=nearest)
+    valid = (cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0) & (ma > 0) & (mb_at > 0)
+    diff = cv2.GaussianBlur(np.abs(ga - gb_at), (0, 0), 3.0)
+    return (valid & (diff > tolerance)).astype(np.float32), valid.astype(np.float32)
+
+
+def _write_mask(cache_dir: Path, kf, mask: np.ndarray) -> Path:
+    ok, png = cv2.imencode(".png", mask)
+    tag = hashlib.sha1(png.tobytes()).hexdigest()[:12]
+    path = cache_dir / f"{kf.index:06d}-{tag}.png"
+    if not path.exists():
+        with atomic_path(path) as tmp:
+            Path(tmp).write_bytes(png.tobytes())
+    return path

@@ -44,7 +44,7 @@ class DescriptorIndex:
     a 2000 x 2000 match; the keyframe gate matches every candidate against the same keyframe, so it builds the
     keyframe's trees once here. Queries return numpy index arrays (no per-match DMatch objects), and ``checks``
     (leaves FLANN visits per query) is a parameter: 32 finds the same ratio-test matches as 64 on SIFT at half
-    the search time (docs/BENCHMARKS.md, "Keyframe gate: cost per measured frame"). ``kind="bf"`` is exact.
+    the search time (docs/BENCHMARKS.md, Keyframe gate, "Cost per measured frame"). ``kind="bf"`` is exact.
     """
 
     def __init__(self, descriptors: np.ndarray, kind: str = "flann", checks: int = 32):
@@ -52,14 +52,16 @@ class DescriptorIndex:
             raise ValueError(f"unknown matcher {kind!r}: use one of {', '.join(MATCHERS)}")
         if checks < 1:
             raise ValueError(f"checks={checks} must be at least 1 (FLANN leaves visited per query)")
-        self.descriptors = np.ascontiguousarray(descriptors, dtype=np.float32)
+        self.descriptors = np.ascontiguousarray(
+            np.zeros((0, 128), np.float32) if descriptors is None else descriptors, dtype=np.float32
+        )
         self.kind = kind
         self._checks = checks
         self._flann = None
         self._bf = None
-        if kind == "flann":
+        if kind == "flann" and len(self) >= 2:  # a ratio test needs two neighbours; fewer never match
             self._flann = cv2.flann_Index(self.descriptors, {"algorithm": _FLANN_KDTREE, "trees": _FLANN_TREES})
-        else:
+        elif kind == "bf":
             self._bf = cv2.BFMatcher(cv2.NORM_L2)
 
     def __len__(self) -> int:

@@ -65,6 +65,14 @@ def test_estimator_builds_the_reference_index_once_and_measures_true_overlap(fea
     assert len(built) == 2  # a new reference gets its own index
 
 
+def test_fewer_than_two_indexed_descriptors_never_match():
+    query = np.ones((3, 128), np.float32)
+    for kind in ("flann", "bf"):
+        for base in (None, np.zeros((0, 128), np.float32), np.ones((1, 128), np.float32)):
+            qi, ti = DescriptorIndex(base, kind).ratio_test(query, 0.75)
+            assert len(qi) == 0 and len(ti) == 0
+
+
 def test_bad_index_settings_are_refused():
     d = np.zeros((4, 128), np.float32)
     with pytest.raises(ValueError, match="unknown matcher"):

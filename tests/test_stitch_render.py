@@ -4,6 +4,8 @@ end to end on a synthetic spool with noisy telemetry."""
 
 from __future__ import annotations
 
+import shutil
+
 import cv2
 import numpy as np
 import pytest
@@ -109,3 +111,30 @@ def test_the_cache_with_the_plan_decodes_what_the_plan_counts_and_less_than_lru(
             assert cache.get(k)[1].shape == (2, 2)
         counts[name] = cache.decoded
     assert counts["plan"] == decodes(rows, needs, 8) < counts["lru"]
+
+
+@pytest.fixture(scope="module")
+def noisy_cache(noisy_spool, tmp_path_factory):
+    """Features and pairs of the noisy spool, computed once for the runs that differ only in how they draw."""
+    out = tmp_path_factory.mktemp("cached")
+    stitch(load_input(noisy_spool), out, StitchConfig(workers=1), progress=False)
+    return out / "cache"
+
+
+@pytest.mark.parametrize("max_in_memory_px", [6e7, 1000])
+def test_tiles_drawn_on_threads_are_the_tiles_drawn_on_one(noisy_spool, noisy_cache, tmp_path, max_in_memory_px):
+    maps = []
+    for workers in (1, 3):  # one: every tile drawn on the stage's thread; three: on a pool of drawing threads
+        out = tmp_path / f"w{workers}"
+        shutil.copytree(noisy_cache, out / "cache")
+        cfg = StitchConfig(workers=workers, tile_px=128, max_in_memory_px=max_in_memory_px)
+        res = stitch(load_input(noisy_spool), out, cfg, progress=False)
+        if res.map_image is not None:
+            maps.append({"map": np.dstack((res.map_image, res.coverage))})
+        else:
+            maps.append({p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in (out / "tiles").glob("*.png")})
+        assert res.report["render"]["tiles"] > 8 and res.coverage_fraction > 0.5
+    one, threads = maps
+    assert sorted(one) == sorted(threads) and len(one) >= (1 if max_in_memory_px > 1000 else 8)
+    for name in one:
+        assert np.array_equal(one[name], threads[name]), name  # pixel for pixel

@@ -28,7 +28,7 @@ from companion.stitch.render import MapGrid
 from companion.stitch.synthetic import SyntheticWall, make_spool
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
-from companion.viewer.tiles import MapReader, halve, max_zoom_for
+from companion.viewer.tiles import MapReader, halve, halve_weighted, max_zoom_for
 
 WALL = SyntheticWall(length_m=8.0, height_m=4.0)
 HOLE = (3.6, 4.4, 1.6, 2.4)
@@ -102,6 +102,19 @@ def test_halving_does_not_darken_the_coverage_edge():
     out = halve(block)
     assert out[0, 1, 3] == 128 and tuple(out[0, 1, :3]) == (200, 150, 100)
     assert tuple(out[0, 0]) == (200, 150, 100, 255)
+
+
+def test_halving_wholly_covered_or_blank_blocks_takes_the_byte_path_with_the_same_pixels():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        block = rng.integers(0, 256, (512, 512, 4), dtype=np.uint8)
+        block[..., 3] = 255  # wholly covered: the plain 2x2 average, rounded as the weighted path rounds
+        assert np.array_equal(halve(block), halve_weighted(block))
+    blank = np.zeros((512, 512, 4), np.uint8)
+    assert np.array_equal(halve(blank), halve_weighted(blank)) and not halve(blank).any()
+    edge = rng.integers(0, 256, (512, 512, 4), dtype=np.uint8)
+    edge[:, :100, 3] = 0  # partly covered: the weighted path itself
+    assert np.array_equal(halve(edge), halve_weighted(edge))
 
 
 def test_a_tiled_map_reads_like_the_in_memory_one(mapped, tmp_path):

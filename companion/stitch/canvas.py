@@ -176,14 +176,32 @@ class _MapSink:
         self.coverage_preview = np.zeros((self.ph, self.pw), np.uint8)
         self.tiles_dir = tiles_dir
         self.covered_px = 0
+        self._blanks: dict[tuple[int, int], bytes] = {}  # an all-transparent tile's PNG, per tile size
 
     def write_tile(self, x0: int, y0: int, img: np.ndarray, cov: np.ndarray) -> None:
         """The tile's file, when the map is kept as tiles (called on the drawing threads: one file each)."""
         if not self.in_memory:
             self.tiles_dir.mkdir(exist_ok=True)
             path = self.tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"
-            if not cv2.imwrite(str(path), cv2.merge((img, cov))):
-                raise CompanionError(f"cannot write {path}", "check free disk space and permissions of --out")
+            if cv2.countNonZero(cov) == 0 and cv2.countNonZero(img.reshape(img.shape[0], -1)) == 0:
+                png = self._blank_png(cov.shape)  # most tiles of a big map hold nothing: the same PNG each time
+            else:
+                ok, png = cv2.imencode(".png", cv2.merge((img, cov)))
+                png = png.tobytes() if ok else None
+            try:
+                if png is None:
+                    raise OSError("the PNG encoder failed")
+                path.write_bytes(png)
+            except OSError as exc:
+                raise CompanionError(
+                    f"cannot write {path} ({exc})", "check free disk space and permissions of --out"
+                ) from exc
+
+    def _blank_png(self, shape: tuple[int, int]) -> bytes:
+        png = self._blanks.get(shape)
+        if png is None:
+            png = self._blanks[shape] = cv2.imencode(".png", np.zeros((*shape, 4), np.uint8))[1].tobytes()
+        return png
 
     def put(self, x0: int, y0: int, img: np.ndarray, cov: np.ndarray) -> None:
         """The tile in the map (in memory), the preview and the coverage count (on the stage's thread)."""

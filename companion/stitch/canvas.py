@@ -69,9 +69,9 @@ def render_map(
     def weight_of(k):
         return drawable(load_mask(kfs[k], (W, H)))[1]
 
-    # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB (and,
-    # with the OpenCV renderer, the next one decoded ahead on a second thread while tiles are drawn)
-    cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
+    # decoded keyframes kept for neighbouring tiles: image + float32 seam weight (7 bytes a pixel), within
+    # ~600 MB (and, with the OpenCV renderer, the next one decoded ahead on a second thread while tiles are drawn)
+    cache_size = int(np.clip(6e8 / (W * H * 7), 3, 16))
     workers = worker_count(cfg)
     with ThreadPoolExecutor(workers) as pool, ThreadPoolExecutor(workers) as draw:
         schedule = _schedule(layout, cfg, weight_of, cache_size, legacy, pool)

@@ -82,14 +82,14 @@ def render_map(
         for x0, y0 in progress_bar(schedule.tiles, desc="render", disable=not progress, leave=False, unit="it"):
             # the keyframes are taken from the cache here, in the plan's order (the cache's schedule), and the
             # tile is drawn (and its file written) on a drawing thread: OpenCV releases the GIL, so tiles are
-            # drawn on every core; at most ``workers`` tiles wait, so memory stays bounded
+            # drawn on every core; at most ``workers`` tiles hold keyframes at a time, so memory stays bounded
+            while len(drawing) >= workers or (drawing and drawing[0][1].done()):
+                (tx, ty), done = drawing.popleft()
+                sink.put(tx, ty, *done.result())
             near = schedule.drawn[(x0, y0)]
             taken = _Taken({p.position: sources.get(p.position) for p in near})
             job = partial(_draw_tile, x0, y0, near, taken, layout, cfg, sink)
             drawing.append(((x0, y0), draw.submit(job) if workers > 1 else _done(job())))
-            while len(drawing) > workers or (drawing and drawing[0][1].done()):
-                (tx, ty), done = drawing.popleft()
-                sink.put(tx, ty, *done.result())
         while drawing:
             (tx, ty), done = drawing.popleft()
             sink.put(tx, ty, *done.result())

@@ -77,10 +77,10 @@ def place(position: int, mesh: WarpedMesh, grid: MapGrid) -> PlacedKeyframe | No
 
 
 def seam_weight(mask: np.ndarray) -> np.ndarray:
-    """Distance (px) from each ROI pixel to the nearest background pixel or image border."""
+    """Distance (px) from each ROI pixel to the nearest background pixel or image border (float32; a view into the
+    padded transform, which OpenCV reads as it is: no 4K copy per decode)."""
     padded = cv2.copyMakeBorder(mask, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0)
-    d = cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
-    return d.astype(np.float32)
+    return cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1]
 
 
 def drawable(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

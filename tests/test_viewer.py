@@ -15,6 +15,7 @@ import re
 import shutil
 import threading
 import urllib.request
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -130,15 +131,19 @@ def test_a_tiled_map_reads_like_the_in_memory_one(mapped, tmp_path):
             tiles.append((name, x0, y0, part.shape[1], part.shape[0]))
     grid = MapGrid(0.0, 4.0, res.grid.m_per_px, bgra.shape[1], bgra.shape[0])
     (tmp_path / "map.vrt").write_text(tiles_vrt(grid, tiles, None))
-    reader = MapReader.open(tmp_path)
-    assert (reader.width, reader.height) == (bgra.shape[1], bgra.shape[0])
-    for y0 in range(-100, bgra.shape[0], 256):
-        for x0 in range(-100, bgra.shape[1], 256):
-            want = np.zeros((256, 256, 4), np.uint8)
-            ya, xa = max(0, y0), max(0, x0)
-            src = bgra[ya : y0 + 256, xa : x0 + 256]
-            want[ya - y0 : ya - y0 + src.shape[0], xa - x0 : xa - x0 + src.shape[1]] = src
-            assert np.array_equal(reader.read(x0, y0, 256, 256), want)
+    for preload in (False, True):  # tiles decoded as read, or a band's tiles decoded on a pool first
+        reader = MapReader.open(tmp_path)
+        assert (reader.width, reader.height) == (bgra.shape[1], bgra.shape[0])
+        with ThreadPoolExecutor(2) as pool:
+            for y0 in range(-100, bgra.shape[0], 256):
+                if preload:
+                    reader.preload(y0, 256, pool)
+                for x0 in range(-100, bgra.shape[1], 256):
+                    want = np.zeros((256, 256, 4), np.uint8)
+                    ya, xa = max(0, y0), max(0, x0)
+                    src = bgra[ya : y0 + 256, xa : x0 + 256]
+                    want[ya - y0 : ya - y0 + src.shape[0], xa - x0 : xa - x0 + src.shape[1]] = src
+                    assert np.array_equal(reader.read(x0, y0, 256, 256), want)
 
 
 def test_rewriting_without_the_spool_keeps_the_photos(mapped, tmp_path):

@@ -17,7 +17,7 @@ import math
 import os
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -131,14 +131,27 @@ class MapReader:
     def _load(self, t: _SourceTile) -> np.ndarray:
         img = self._cache.get(t)
         if img is None:
-            img = cv2.imread(str(t.path), cv2.IMREAD_UNCHANGED)
-            if img is None or img.shape[:2] != (t.height, t.width) or img.ndim != 3 or img.shape[2] != 4:
-                raise CompanionError(
-                    f"map tile {t.path} is missing or not the {t.width}x{t.height} BGRA tile map.vrt names",
-                    "run `companion stitch` again to rewrite the tiles",
-                )
-            self._cache[t] = img
+            img = self._cache[t] = _decode_source(t)
         return img
+
+    def preload(self, y0: int, h: int, pool: Executor) -> None:
+        """Decodes the source tiles the band of rows [y0, y0 + h) reads, side by side on ``pool`` (PNG decoding
+        runs in OpenCV without the GIL); ``read`` then finds them decoded. A map in memory needs nothing."""
+        for done in [t for t in self._cache if t.y0 + t.height <= y0]:
+            del self._cache[done]  # bands above are cut: at most one row of source tiles held, as by ``read``
+        band = [t for t in self._tiles if t.y0 < y0 + h and t.y0 + t.height > y0 and t not in self._cache]
+        for t, img in zip(band, pool.map(_decode_source, band), strict=True):
+            self._cache[t] = img
+
+
+def _decode_source(t: _SourceTile) -> np.ndarray:
+    img = cv2.imread(str(t.path), cv2.IMREAD_UNCHANGED)
+    if img is None or img.shape[:2] != (t.height, t.width) or img.ndim != 3 or img.shape[2] != 4:
+        raise CompanionError(
+            f"map tile {t.path} is missing or not the {t.width}x{t.height} BGRA tile map.vrt names",
+            "run `companion stitch` again to rewrite the tiles",
+        )
+    return img
 
 
 def max_zoom_for(width: int, height: int, tile_px: int = TILE_PX) -> int:
@@ -239,6 +252,8 @@ def write_pyramid(reader: MapReader, tiles_dir: Path, *, url_prefix: str, tile_p
     with ThreadPoolExecutor(max(1, len(os.sched_getaffinity(0)))) as pool:
         written = []
         for tx, ty in _tiles_of_level(w, h, tile_px):
+            if tx == 0:  # a new band of rows: its source tiles decoded on every thread first
+                reader.preload(ty * tile_px, tile_px, pool)
             (tiles_dir / str(zmax) / str(tx)).mkdir(parents=True, exist_ok=True)
             block = reader.read(tx * tile_px, ty * tile_px, tile_px, tile_px)
             written.append(pool.submit(tiles.write, zmax, tx, ty, block))

@@ -10,12 +10,15 @@ main``) and this one alternately, each from a fresh cache, ``--rounds`` times: o
 CPU seconds (user + sys, all threads) of the two, and the wall seconds only within one round. The pairs each
 accepted, the local residuals and the coverage are printed with the largest and mean map difference where both
 drew. The pullback reference starts from a copy of the first run's cache, so both align the same pairs.
+``--cache-from DIR`` starts every run from a copy of DIR's feature and pair cache (a finished run's ``--out``),
+so two checkouts are compared on their render and report stages alone, from the same alignment.
 
     python -c "from sim.camera.recording import generate_recording; generate_recording(
         'missions/demo-facade.yaml', '/tmp/rec4k', stride=20, width_px=3840, max_frames=35)"
     python bench/stitch_speed.py --recording /tmp/rec4k --out /tmp/stitch_speed
     mkdir /tmp/main && git archive main | tar -x -C /tmp/main
     python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --rounds 2
+    python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --cache-from /tmp/stitch_speed/warp
 """
 
 from __future__ import annotations
@@ -130,6 +133,8 @@ def _pair_difference(a: dict, b: dict) -> dict:
 
 
 def _launch(args, run_out: Path, renderer: str, code: Path | None) -> dict:
+    if args.cache_from and not (run_out / "cache").exists():
+        shutil.copytree(args.cache_from / "cache", run_out / "cache")
     cmd = [sys.executable, __file__, "--recording", args.recording, "--out", str(run_out), "--renderer", renderer]
     cmd += ["--pose-noise-m", str(args.pose_noise_m), "--attitude-noise-deg", str(args.attitude_noise_deg)]
     if args.mm_per_px:
@@ -164,9 +169,12 @@ def main(argv=None) -> int:
     ap.add_argument("--renderers", default="warp,pullback", help="run these, in this order (first: fresh cache)")
     ap.add_argument("--compare-with", type=Path, default=None, help="another checkout, run alternately with this")
     ap.add_argument("--rounds", type=int, default=1, help="with --compare-with: how many alternations")
+    ap.add_argument("--cache-from", type=Path, default=None, help="start every run from this run folder's cache")
     ap.add_argument("--renderer", default=None, help=argparse.SUPPRESS)  # one run in this process
     ap.add_argument("--load0", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.cache_from and not (args.cache_from / "cache").is_dir():
+        ap.error(f"--cache-from {args.cache_from}: it holds no cache/ folder; give the --out folder of a finished run")
     if args.renderer:
         print(json.dumps(run_one(args), default=float))
         return 0

@@ -4,6 +4,8 @@ end to end on a synthetic spool with noisy telemetry."""
 
 from __future__ import annotations
 
+import shutil
+
 import cv2
 import numpy as np
 import pytest
@@ -109,3 +111,56 @@ def test_the_cache_with_the_plan_decodes_what_the_plan_counts_and_less_than_lru(
             assert cache.get(k)[1].shape == (2, 2)
         counts[name] = cache.decoded
     assert counts["plan"] == decodes(rows, needs, 8) < counts["lru"]
+
+
+@pytest.fixture(scope="module")
+def noisy_cache(noisy_spool, tmp_path_factory):
+    """Features and pairs of the noisy spool, computed once for the runs that differ only in how they draw."""
+    out = tmp_path_factory.mktemp("cached")
+    stitch(load_input(noisy_spool), out, StitchConfig(workers=1), progress=False)
+    return out / "cache"
+
+
+def test_tiles_drawn_on_threads_are_the_tiles_drawn_on_one(noisy_spool, noisy_cache, tmp_path):
+    runs = {}
+    # one worker: every tile drawn on the stage's thread; three: on a pool of drawing threads, in memory and as
+    # tile files
+    for workers, max_in_memory_px in ((1, 6e7), (3, 6e7), (3, 1000)):
+        out = tmp_path / f"w{workers}_{max_in_memory_px:g}"
+        shutil.copytree(noisy_cache, out / "cache")  # the same features and pairs: only the drawing differs
+        cfg = StitchConfig(workers=workers, tile_px=128, max_in_memory_px=max_in_memory_px)
+        res = stitch(load_input(noisy_spool), out, cfg, progress=False)
+        assert res.report["render"]["tiles"] > 8 and res.coverage_fraction > 0.5
+        if res.map_image is not None:
+            runs[workers, "memory"] = np.dstack((res.map_image, res.coverage))
+            continue
+        tiled = np.zeros((res.grid.height, res.grid.width, 4), np.uint8)
+        for p in (out / "tiles").glob("tile_y*_x*.png"):
+            y0, x0 = int(p.stem.split("_")[1][1:]), int(p.stem.split("_")[2][1:])
+            tile = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            assert tile.shape == (min(128, res.grid.height - y0), min(128, res.grid.width - x0), 4)
+            tiled[y0 : y0 + tile.shape[0], x0 : x0 + tile.shape[1]] = tile
+        runs[workers, "tiles"] = tiled
+    one = runs[1, "memory"]
+    assert np.array_equal(runs[3, "memory"], one)  # pixel for pixel
+    assert np.array_equal(runs[3, "tiles"], one)
+
+
+def test_a_blank_tile_file_is_a_transparent_png_of_the_tile_size(tmp_path):
+    from types import SimpleNamespace
+
+    from companion.stitch.canvas import _MapSink
+
+    layout = SimpleNamespace(grid=SimpleNamespace(width=300, height=200))
+    sink = _MapSink(layout, StitchConfig(tile_px=128, max_in_memory_px=1000), tmp_path / "tiles")
+    drawn = np.zeros((72, 128, 3), np.uint8)
+    drawn[5, 7] = (1, 2, 3)
+    cov = np.zeros((72, 128), np.uint8)
+    cov[5, 7] = 255
+    for x0, img, c in ((0, np.zeros((72, 128, 3), np.uint8), np.zeros((72, 128), np.uint8)), (128, drawn, cov)):
+        sink.write_tile(x0, 128, img, c)
+        sink.write_tile(x0, 128, img, c)  # rewritten: the same file
+    blank = cv2.imread(str(tmp_path / "tiles" / "tile_y0000128_x0000000.png"), cv2.IMREAD_UNCHANGED)
+    assert blank.shape == (72, 128, 4) and not blank.any()
+    one = cv2.imread(str(tmp_path / "tiles" / "tile_y0000128_x0000128.png"), cv2.IMREAD_UNCHANGED)
+    assert tuple(one[5, 7]) == (1, 2, 3, 255) and np.count_nonzero(one.any(axis=2)) == 1

@@ -118,3 +118,17 @@ def test_candidate_pairs_follow_the_path_and_its_revisits_not_every_keyframe_in_
     assert {i for i, _ in across} == set(range(21)) and len(pairs) < 41 * 8
     # without telemetry: the path alone
     assert candidate_pairs(4, [None] * 4, corners) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
+
+
+def test_block_bounds_in_two_passes_are_the_max_and_min_of_every_block():
+    from companion.stitch.render_plan import _block_bounds
+
+    rng = np.random.default_rng(5)
+    for shape, block in (((2160, 3840), 8), ((361, 643), 7), ((50, 33), 5), ((16, 16), 1)):
+        weight = rng.uniform(0, 500, shape).astype(np.float32)
+        hi, lo = _block_bounds(weight, block)
+        ph, pw = -(-shape[0] // block) * block, -(-shape[1] // block) * block
+        padded = np.zeros((ph, pw), np.float32)  # edge blocks padded with 0, as the plan's bound needs
+        padded[: shape[0], : shape[1]] = weight
+        blocks = padded.reshape(ph // block, block, pw // block, block)
+        assert np.array_equal(hi, blocks.max(axis=(1, 3))) and np.array_equal(lo, blocks.min(axis=(1, 3)))

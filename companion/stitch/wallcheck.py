@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from companion.files import atomic_path
-from companion.stitch.features import load_image_and_mask
+from companion.stitch.features import load_image_and_mask, load_mask
 from companion.stitch.geometry import apply_h
 from companion.stitch.inputs import StitchInput
 from companion.stitch.pairs import PairResult
@@ -53,7 +53,7 @@ def check_wall(
     involved = sorted({k for r in pairs for k in (r.i, r.j)})
     if not involved:
         return WallCheck(inp, {})
-    grey, masks, full_masks, scale = _load(inp, involved, s.work_width)
+    grey, masks, sizes, scale = _load(inp, involved, s.work_width)
     S = np.diag([scale, scale, 1.0])
     votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
@@ -76,17 +76,19 @@ def check_wall(
         off = cv2.morphologyEx(off, cv2.MORPH_OPEN, np.ones((s.min_region_px, s.min_region_px), np.uint8))
         if not off.any():
             continue
-        h, w = full_masks[k].shape
-        off_full = cv2.resize(off, (w, h), interpolation=cv2.INTER_NEAREST)
-        checked = cv2.bitwise_and(full_masks[k], cv2.bitwise_not(off_full))
-        kept = int(np.count_nonzero(full_masks[k]))
+        full_mask = load_mask(kfs[k], sizes[k])  # read again only where something is cut
+        off_full = cv2.resize(off, sizes[k], interpolation=cv2.INTER_NEAREST)
+        checked = cv2.bitwise_and(full_mask, cv2.bitwise_not(off_full))
+        kept = int(np.count_nonzero(full_mask))
         cut_share[k] = 1.0 - int(np.count_nonzero(checked)) / max(1, kept)
         kfs[k] = replace(kfs[k], mask_path=_write_mask(cache_dir, kfs[k], checked))
     return WallCheck(replace(inp, keyframes=kfs), cut_share)
 
 
 def _load(inp: StitchInput, positions: list[int], work_width: int):
-    grey, masks, full = {}, {}, {}
+    """Smoothed grey and mask copies at the working width, and each frame's (width, height): only the small copies
+    stay in memory, so a long spool of 4K keyframes costs what its 960 px copies cost."""
+    grey, masks, sizes = {}, {}, {}
     scale = 1.0
     for k in positions:
         img, mask = load_image_and_mask(inp.keyframes[k])
@@ -96,8 +98,8 @@ def _load(inp: StitchInput, positions: list[int], work_width: int):
         g = cv2.resize(g, size, interpolation=cv2.INTER_AREA) if scale < 1.0 else g
         grey[k] = cv2.GaussianBlur(g.astype(np.float32), (0, 0), 1.5)
         masks[k] = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) if scale < 1.0 else mask
-        full[k] = mask
-    return grey, masks, full, scale
+        sizes[k] = (img.shape[1], img.shape[0])
+    return grey, masks, sizes, scale
 
 
 def _motion(H: np.ndarray, pts: np.ndarray) -> float:

@@ -17,7 +17,10 @@ truth (the paper's rule on every frame's true overlap), the lowest true overlap 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
 import json
+import pstats
 import sys
 import tempfile
 import time
@@ -94,9 +97,17 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
         runner = LiveRunner(source, chain, queue_size=30 if tracked else 3, drop="thin" if tracked else "oldest")
         runner.run_until_done(poll_s=0.05)
     else:  # unpaced: every frame through the chain, none dropped (the chain's CPU per frame, whatever the load)
+        profile = cProfile.Profile(time.thread_time) if args.profile else None
         for i, data in enumerate(jpegs):
-            chain.process(Frame(i, i / args.fps, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)))
+            frame = Frame(i, i / args.fps, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+            if profile is not None:
+                profile.enable()
+            chain.process(frame)
+            if profile is not None:
+                profile.disable()
         chain.finish()
+        if profile is not None:
+            print_profile(profile, f"{name}, working copy {working or 'none'}")
     wall = time.monotonic() - wall0
     st = chain.stats
     kept = [json.loads(x)["index"] for x in (spool / "manifest.jsonl").read_text().splitlines()]
@@ -123,6 +134,14 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
     }
 
 
+def print_profile(profile: cProfile.Profile, label: str) -> None:
+    """Where the chain thread's CPU went (``CullChain.process`` only; cProfile's own overhead inflates the
+    Python-heavy rows): the calls that cost most, by own time."""
+    text = io.StringIO()
+    pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(14)
+    print(f"-- CPU profile of the chain thread: {label}\n{text.getvalue()}", flush=True)
+
+
 def minimum_keyframes(scene: WallScene, cams, rth: float) -> int:
     """The paper's rule on every frame's true overlap: the next keyframe is the last frame still >= Rth."""
     count, key = 1, 0
@@ -141,6 +160,7 @@ def main() -> int:
     p.add_argument("--speedup", type=float, default=1.0,
                    help="replay rate (simulated s per wall s); below 1 gives a starved chain more CPU per frame; "
                         "0: unpaced, every frame processed in turn (CPU per frame, no drops)")
+    p.add_argument("--profile", action="store_true", help="with --speedup 0: print the chain thread's CPU profile")
     p.add_argument("--parallax", action="store_true", help="the depth mask with motion parallax (the demo's chain)")
     p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")

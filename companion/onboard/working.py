@@ -2,11 +2,13 @@
 
 Why: tracker, depth mask and SIFT each shrank the frame on their own (a 320 px grey copy, the network's input, a
 960 px SIFT copy that OpenCV doubles inside), so their cost grew with the camera: at 1280x720 a SIFT extraction
-took about 0.5 s of CPU against about 0.15 s at 640x360 (docs/BENCHMARKS.md, issue 17), and the chain skipped nine
-frames in ten. The overlap the gate decides on (paper Eq. 2) is a ratio of the image size, so it is the same on a
-copy: the frame is resized once, to ``long_side_px`` (640 by default, measured in bench/chain_working_size.py: R at
-640 and at 960 px on the same pairs agree well inside the gate's 3-point telemetry margin), and tracker, masker and
-gate all work on that copy. The full-resolution frame is kept only while it may still become a keyframe (held for a
+took 224 ms of CPU against 121 ms on a 640 px copy (docs/BENCHMARKS.md, issue 17), and the judged 30 fps demo
+skipped nine frames in ten. The overlap the gate decides on (paper Eq. 2) is a ratio of the image size, so it is
+the same on a copy: the frame is resized once, to ``long_side_px`` (640 by default: on 480 pairs of a synthetic
+1280x720 wall with 70-90 % true overlap, R on a 640 px copy and on the old 960 px SIFT copy differ by at most 0.01
+points and put every pair on the same side of Rth as truth, at half the CPU, bench/chain_working_size.py; on
+simulator frames even a 480 px copy kept the same keyframes, docs/BENCHMARKS.md), and tracker, masker and gate all
+work on that copy. The full-resolution frame is kept only while it may still become a keyframe (held for a
 decision, or the gate's candidate); a keyframe goes to the spool with its full-resolution image, its ROI mask
 scaled up to it, and its displacements in full-resolution pixels.
 """

@@ -32,6 +32,22 @@ def spool_meta(mission) -> dict:
     }
 
 
+def scan_scope(mission):
+    """The frames of this mission's scan (``companion.keyframes.gate_scope``): its wall, standoff, scan extent and
+    lens."""
+    from companion.geo import FacadeFrame
+    from companion.keyframes.gate_scope import ScanScope
+    from companion.mission.geometry import wall_ends
+    from companion.mission.planner import scan_extent
+
+    cam = mission.camera
+    wall = FacadeFrame.from_wall(*wall_ends(mission))
+    extent = scan_extent(mission, wall.length_m)
+    return ScanScope(wall, float(mission.standoff_m),
+                     extent=(extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m),
+                     hfov_deg=cam.hfov_deg, aspect=cam.height_px / cam.width_px)
+
+
 def build_chain(
     out: Path,
     tagger: FrameTagger,
@@ -81,18 +97,11 @@ def build_chain(
     )
     crosscheck = scope = None
     if mission is not None:
-        from companion.geo import FacadeFrame
-        from companion.keyframes.gate_scope import ScanScope
-        from companion.mission.geometry import wall_ends
-        from companion.mission.planner import scan_extent
         from companion.onboard.crosscheck import OverlapCrossCheck
 
         cam = mission.camera
-        wall = FacadeFrame.from_wall(*wall_ends(mission))
-        extent = scan_extent(mission, wall.length_m)
-        scope = ScanScope(wall, float(mission.standoff_m),
-                          extent=(extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m),
-                          hfov_deg=cam.hfov_deg, aspect=cam.height_px / cam.width_px)
+        scope = scan_scope(mission)
+        wall = scope.frame
         crosscheck = OverlapCrossCheck(
             wall,
             cam.hfov_deg,

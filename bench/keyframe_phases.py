@@ -11,7 +11,8 @@ time, else the spool's telemetry pose):
   facing the wall, 9-14 m out on the demo);
 * ``approach`` / ``exit``: on the standoff before the first scan leg / after the last (the descent onto the first
   strip and the climb off the last one, over the roof margin);
-* ``strip``: within 0.15 m of a planned scan leg, ``strip end`` within 0.3 m of its ends;
+* ``strip``: within 0.15 m of a planned scan leg, ``strip end`` within 0.3 m of its ends (the demo's climb off the
+  last strip retraces that strip, so its keyframes count here);
 * ``turn``: on the standoff between two scan legs (the strip-to-strip move).
 
 Per phase: keyframes, the TRUE overlap of each keyframe with the previous one (footprints on the wall plane from
@@ -38,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 from companion.geo import FacadeFrame  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.mission.geometry import wall_ends  # noqa: E402
+from companion.onboard.setup import scan_scope  # noqa: E402
 from companion.records import Pose  # noqa: E402
 
 PHASES = ("take-off/transit/landing", "approach", "strip", "strip end", "turn", "exit")
@@ -73,6 +75,13 @@ def classify(plan, centres: list[tuple[float, float, float]]) -> list[str]:
         else:
             phases.append("approach" if k < first else "exit" if k > last else "turn")
     return phases
+
+
+def _legs_over_spacing(plan) -> int:
+    """The planner's count before issue 17: one keyframe per spacing along each scan leg, plus its start."""
+    e, wps = plan.estimates, plan.waypoints
+    return sum(math.ceil(math.dist((wps[i].along_m, wps[i].up_m), (wps[j].along_m, wps[j].up_m))
+                         / e.keyframe_spacing_m - 1e-9) + 1 for i, j in plan.scan_legs)
 
 
 def _truth_poses(path: Path, gimbal_pitch: float):
@@ -136,6 +145,14 @@ def main() -> int:
         print(f"{phase:26s} {len(v):9d} {tm:>24s} {f'{np.mean(r):.1f}' if r else '-':>18s} {tel:16d}")
     scan = len(rows) - len(table.get("take-off/transit/landing", []))
     print(f"on the standoff (approach, strips, turns, exit): {scan} keyframes ({scan / expected:.2f}x the planner's)")
+    # Side by side: the count before issue 17's fix (every frame judged; the planner's legs / spacing) and the
+    # chain's gate scope replayed on these keyframes' own telemetry poses (what the chain decides on).
+    scope = scan_scope(mission)
+    off = sum(scope.off_scan(Pose.from_json(r["pose"]), bool(r.get("pose_stale"))) for r in rows)
+    legs_only = _legs_over_spacing(plan)
+    print(f"before: {len(rows)} keyframes against legs / spacing {legs_only} ({len(rows) / legs_only:.2f}x); "
+          f"the gate scope puts {off} of them off the scan: {len(rows) - off} against the rule's count {expected} "
+          f"({(len(rows) - off) / expected:.2f}x)")
     return 0
 
 

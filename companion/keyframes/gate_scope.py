@@ -7,14 +7,14 @@ distance; they are no keyframes of the scan the planner laid out and the stitche
 gate judged them badly besides (the telemetry's wall motion assumes the planned standoff, so it put true 94 %
 overlaps at 80 %, and its prior made the image's own measurement fail: a keyframe every 0.2-0.9 s).
 
-Likewise the transit above the roof and the top of the climb off the last strip: the camera at the standoff but
-its footprint on the wall plane metres above the wall and the roof margin the mission asks for (it sees the roof
-and the sky; the gate judged those on the telemetry alone and kept keyframes below Rth when the wall came back).
+Likewise the transit above the roof: the camera near the standoff but its footprint on the wall plane metres above
+the wall and the roof margin the mission asks for (roof and sky only; on the demo the gate kept two such frames on
+the telemetry alone, and the first frame of the wall after them was then kept at R 0 %).
 
 The rules here are deliberately loose, so that no frame of the scan is lost to a position error: a frame is off the
 scan only when its camera is more than ``max_distance_factor`` times the standoff from the wall plane (twice the
-planned GSD and more; at the demo's 4 m, beyond 8 m: a GNSS error of 4 m towards the wall would be a crash, not a
-scan), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
+planned GSD and more; at the demo's 4 m, beyond 8 m: a position error that large would have flown the vehicle
+into the wall), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
 ``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
 """
 

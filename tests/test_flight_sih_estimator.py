@@ -80,8 +80,6 @@ def test_only_sih_gets_the_estimator_parameters():
 
 
 def test_the_values_are_sih_noise_within_ekf2_ranges():
-    # EKF2 module.yaml ranges at 02e73e3b6f: ACC 0.01..1.0, GYR 0.0001..0.1, BARO 0.01..15; SIH injects more IMU
-    # noise than the range tops and 1 Pa (0.08 m) on its barometer
-    p = PX4_SIH_ESTIMATOR_PARAMETERS
-    assert p["EKF2_ACC_NOISE"] == 1.0 and p["EKF2_GYR_NOISE"] == 0.1
-    assert 0.08 <= p["EKF2_BARO_NOISE"] <= 0.15
+    # EKF2 module.yaml ranges at 02e73e3b6f: ACC 0.01..1.0, GYR 0.0001..0.1; SIH injects more IMU noise than the
+    # range tops. The barometer noise is not told (a real SIH flight with it flew into the ground: docs/FLIGHT.md)
+    assert PX4_SIH_ESTIMATOR_PARAMETERS == {"EKF2_ACC_NOISE": 1.0, "EKF2_GYR_NOISE": 0.1}

@@ -17,7 +17,7 @@ from tests.sitl import ROOT, SitlVehicle
 
 pytestmark = pytest.mark.sitl
 DEMO = ROOT / "missions/demo-facade.yaml"
-EKF2_DEFAULTS = {"EKF2_ACC_NOISE": 0.35, "EKF2_GYR_NOISE": 0.015, "EKF2_BARO_NOISE": 3.5}
+EKF2_DEFAULTS = {"EKF2_ACC_NOISE": 0.35, "EKF2_GYR_NOISE": 0.015}
 REAL_FMU = "CAL_ACC0_ID=2490378,CAL_GYRO0_ID=2490378,SYS_AUTOSTART=4001"  # ICM-42688-P on SPI 1, a quad X airframe
 
 

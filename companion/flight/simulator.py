@@ -1,12 +1,12 @@
 """Recognise PX4's SIH simulator from its parameters, and tell its estimator the simulator's sensor noise.
 
-Why: PX4 SIH (SITL) adds white noise to its IMU 3.5x (accelerometer) and 8x (gyro) what EKF2's defaults assume,
-and to its barometer 40x less. With those defaults EKF2's estimate wanders 0.3-0.6 m off its setpoint out from the
-wall and its vertical velocity by up to 0.25 m/s off its own height track, which a real vehicle (whose EKF2 tuning
-matches its IMU) does not share. So on SIH only, and only for the flight (restored after, logged both ways like
-every flight parameter), EKF2 is told the noise SIH injects. A real vehicle's estimator is never touched: it is
-recognised by its IMU's device type (companion.mission.firmware.px4_sih_verdict); a vehicle whose markers cannot
-be read is treated as real.
+Why: PX4 SIH (SITL) adds white noise to its IMU 3.5x (accelerometer) and 8x (gyro) what EKF2's defaults assume.
+With those defaults EKF2's estimate wandered 0.3-0.6 m off its setpoint out from the wall and its vertical velocity
+by up to 0.25 m/s off its own height track (docs/FLIGHT.md), which a real vehicle (whose EKF2 tuning matches its
+IMU) does not share. So on SIH only, and only for the flight (restored after, logged both ways like every flight
+parameter), EKF2 is told the noise SIH injects. A real vehicle's estimator is never touched: it is recognised by
+its IMU's device type (companion.mission.firmware.px4_sih_verdict); a vehicle whose markers cannot be read is
+treated as real.
 """
 
 from __future__ import annotations

@@ -205,13 +205,18 @@ def px4_sih_verdict(markers: dict[str, float | None]) -> Px4SihVerdict:
     acc, gyro = markers.get("CAL_ACC0_ID"), markers.get("CAL_GYRO0_ID")
     autostart, hitl = markers.get("SYS_AUTOSTART"), markers.get("SYS_HITL")
     if acc is None or gyro is None or not (_is_simulated_imu(int(acc)) and _is_simulated_imu(int(gyro))):
-        return Px4SihVerdict(False, f"its IMU is not a simulated one (CAL_ACC0_ID {acc}, CAL_GYRO0_ID {gyro})")
+        return Px4SihVerdict(False, f"its IMU is not a simulated one (CAL_ACC0_ID {_text(acc)}, CAL_GYRO0_ID "
+                                    f"{_text(gyro)})")
     airframe = autostart is not None and int(autostart) in PX4_SIH_AIRFRAMES
     if not airframe and not (hitl is not None and int(hitl) == PX4_SIH_HITL):
-        return Px4SihVerdict(False, f"a simulated IMU, but not SIH's airframe (SYS_AUTOSTART {autostart}, "
-                                    f"SYS_HITL {hitl})")
+        return Px4SihVerdict(False, f"a simulated IMU, but not SIH's airframe (SYS_AUTOSTART {_text(autostart)}, "
+                                    f"SYS_HITL {_text(hitl)})")
     return Px4SihVerdict(True, f"simulated IMU (CAL_ACC0_ID {int(acc)}), SIH airframe (SYS_AUTOSTART "
-                               f"{autostart if autostart is None else int(autostart)}, SYS_HITL {hitl})")
+                               f"{_text(autostart)}, SYS_HITL {_text(hitl)})")
+
+
+def _text(value: float | None) -> str:
+    return "not readable" if value is None else f"{int(value)}"
 
 
 def simulator_estimator_parameters(verdict: Px4SihVerdict) -> dict[str, float]:

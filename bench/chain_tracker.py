@@ -41,6 +41,7 @@ from companion.geo import FacadeFrame  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.mission.geometry import wall_ends  # noqa: E402
 from companion.onboard.live import run_live_scan  # noqa: E402
+from companion.onboard.setup import scan_scope  # noqa: E402
 from companion.records import Pose  # noqa: E402
 from companion.wall_footprint import facade_from_enu, visible_footprint  # noqa: E402
 from sim.evaluate_live import TruthTrack, read_jsonl  # noqa: E402
@@ -92,11 +93,18 @@ class TrueOverlap:
                 cv2.fillPoly(grid, [np.round(cells).astype(np.int32)], 1, cv2.LINE_8, shift=4)
         return float(grid.mean())
 
-    def minimum_keyframes(self, t0: float, t1: float, rth: float, step_s: float = 1 / 30) -> int:
+    def minimum_keyframes(self, t0: float, t1: float, rth: float, step_s: float = 1 / 30, scope=None) -> int:
         """The paper's rule on the truth, every ``step_s``: the next keyframe is the last time still >= Rth; a
-        stretch with the wall out of view ends the segment and the first time it is back starts a new one."""
+        stretch with the wall out of view ends the segment (its last view kept, as the gate keeps its candidate)
+        and the first time it is back starts a new one.
+        ``scope`` (a ``ScanScope``): times whose true pose is off the scan (take-off, transit, landing) count as
+        out of view, as the chain does not judge them."""
         count, key, last_ok = 0, None, None
         for t in np.arange(t0, t1 + 1e-9, step_s):
+            if scope is not None and scope.off_scan(self.pose(t)):
+                count += int(key is not None and last_ok > key)  # the segment's last view (the gate's flush)
+                key = last_ok = None
+                continue
             if key is None:
                 if self.percent(t, t) is not None:
                     key = last_ok = t
@@ -104,6 +112,7 @@ class TrueOverlap:
                 continue
             r = self.percent(key, t)
             if r is None:
+                count += int(last_ok > key)  # the segment's last view: the gate keeps its candidate
                 key = None
             elif r >= rth:
                 last_ok = t
@@ -165,6 +174,9 @@ def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: 
         "keyframes": st.keyframes,
         "planner_expected": rig.plan.estimates.expected_keyframes,
         "minimum_from_truth": truth.minimum_keyframes(times[0], times[-1], rth) if times else None,
+        "minimum_from_truth_on_the_scan": (truth.minimum_keyframes(times[0], times[-1], rth,
+                                                                   scope=scan_scope(rig.plan.mission))
+                                           if times else None),
         "lowest_true_overlap_of_a_pair_percent": round(min(known), 1) if known else None,
         "pairs_true_below_rth": sum(p < rth for p in known),
         "pairs_true_below_rth_minus_3": sum(p < rth - 3.0 for p in known),

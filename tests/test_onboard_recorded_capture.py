@@ -41,8 +41,10 @@ def _frames(folder: Path, n: int = 30, times: list[float] | None = None) -> Path
 
 
 def _row(t: float) -> dict:
-    return {"t_wall": round(time.time(), 4), "t_boot_s": round(t, 3), "lat": 37.5665, "lon": 126.978 + t * 1e-6,
-            "alt_amsl_m": 40.0, "rel_alt_m": 10.0, "roll_deg": 0.0, "pitch_deg": 0.0, "yaw_deg": 0.0,
+    # On the small wall's scan: 4.4 m south of it (its standoff is 4 m), 3 m up, facing north; frames taken far off
+    # the scan are not judged by the gate (companion.keyframes.gate_scope)
+    return {"t_wall": round(time.time(), 4), "t_boot_s": round(t, 3), "lat": 37.56646, "lon": 126.978 + t * 1e-6,
+            "alt_amsl_m": 33.0, "rel_alt_m": 3.0, "roll_deg": 0.0, "pitch_deg": 0.0, "yaw_deg": 0.0,
             "vn_m_s": 0.0, "ve_m_s": 0.1, "vd_m_s": 0.0, "mission_item": 3, "mission_total": 10,
             "flight_mode": "MISSION", "armed": True, "in_air": True}
 

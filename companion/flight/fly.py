@@ -37,6 +37,7 @@ from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, rea
 from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
+from companion.flight.simulator import simulator_parameters
 from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item, start_with_reason
 from companion.flight.status_texts import StatusTexts
 from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
@@ -387,6 +388,7 @@ async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: f
     overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
                                                 return_alt=return_alt)
     wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
+    wanted.update(await simulator_parameters(vehicle))  # PX4 SIH only: EKF2 told the simulator's sensor noise
     wanted.update(flight_parameters or {})
     wanted.update(overrides)
     first_seq = await start_from_first_item(vehicle)

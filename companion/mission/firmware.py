@@ -162,3 +162,63 @@ def flight_parameters(plan, autopilot: str) -> dict[str, float]:
         if v > default:
             params[name] = round(min(max(v, lo), hi), 3)
     return params
+
+
+# PX4's SIH simulator (src/modules/simulation/simulator_sih at 02e73e3b6f), recognised from parameters a real vehicle
+# never has: the IMU the estimator is calibrated for is the simulator's (CAL_ACC0_ID / CAL_GYRO0_ID 1310988 =
+# DRV_IMU_DEVTYPE_SIM 0x14 on bus type SIMULATION, which only SIH and PX4's other simulators publish: sih.hpp,
+# init.d-posix/rcS), and the airframe is one of SIH's (SYS_AUTOSTART 10040-10045 in SITL, 1100-1104 on a board
+# with SYS_HITL 2). Both are needed: Gazebo SITL has the same simulated IMU id but other sensor noise.
+PX4_SIM_IMU_DEVTYPE = 0x14  # drv_sensor.h DRV_IMU_DEVTYPE_SIM
+PX4_BUS_TYPE_SIMULATION = 4  # device::Device::DeviceBusType_SIMULATION (the low 3 bits of a device id)
+PX4_SIH_AIRFRAMES = frozenset(range(10040, 10046)) | frozenset(range(1100, 1105))
+PX4_SIH_HITL = 2  # SYS_HITL value that runs SIH on a flight controller
+PX4_SIH_MARKERS = ("CAL_ACC0_ID", "CAL_GYRO0_ID", "SYS_AUTOSTART", "SYS_HITL")
+# What EKF2 is told for a flight on SIH, and why (sih.cpp, SensorBaroSim.cpp; EKF2 module.yaml ranges):
+# * SIH adds white noise of 0.5 / 1.7 / 1.4 m/s^2 (accelerometer) and 0.14 / 0.07 / 0.03 rad/s (gyro) per body axis
+#   while armed; after PX4's filters real SIH flights read 1.22 m/s^2 and 0.12 rad/s std on the scan strips.
+#   EKF2 assumes 0.35 and 0.015 (EKF2_ACC_NOISE / EKF2_GYR_NOISE defaults): 3.5x and 8x too little. Their range
+#   tops (1.0, 0.1) are the nearest EKF2 accepts.
+# * EKF2_BARO_NOISE is left at its default: told SIH's 1 Pa (0.08 m) barometer noise (0.1 m), one real SIH flight
+#   held its vertical speed within 6.4 % but its height estimate sat 0.5 m above the truth and it flew into the
+#   ground at the bottom of a strip (docs/FLIGHT.md).
+PX4_SIH_ESTIMATOR_PARAMETERS = {"EKF2_ACC_NOISE": 1.0, "EKF2_GYR_NOISE": 0.1}
+
+
+def _is_simulated_imu(device_id: int) -> bool:
+    return (device_id >> 16) & 0xFF == PX4_SIM_IMU_DEVTYPE and device_id & 0x7 == PX4_BUS_TYPE_SIMULATION
+
+
+@dataclass(frozen=True)
+class Px4SihVerdict:
+    """Whether a PX4 vehicle is the SIH simulator, and the markers that say so (for the flight log)."""
+
+    is_sih: bool
+    reason: str
+
+
+def px4_sih_verdict(markers: dict[str, float | None]) -> Px4SihVerdict:
+    """Decide from PX4's own parameters (``PX4_SIH_MARKERS``, None where the vehicle lacks one) whether it is SIH.
+
+    Only a simulated IMU on both calibration slots *and* an SIH airframe (or SYS_HITL 2) count: a real vehicle's
+    IMU has a real device type, so its estimator is never retuned by the companion."""
+    acc, gyro = markers.get("CAL_ACC0_ID"), markers.get("CAL_GYRO0_ID")
+    autostart, hitl = markers.get("SYS_AUTOSTART"), markers.get("SYS_HITL")
+    if acc is None or gyro is None or not (_is_simulated_imu(int(acc)) and _is_simulated_imu(int(gyro))):
+        return Px4SihVerdict(False, f"its IMU is not a simulated one (CAL_ACC0_ID {_text(acc)}, CAL_GYRO0_ID "
+                                    f"{_text(gyro)})")
+    airframe = autostart is not None and int(autostart) in PX4_SIH_AIRFRAMES
+    if not airframe and not (hitl is not None and int(hitl) == PX4_SIH_HITL):
+        return Px4SihVerdict(False, f"a simulated IMU, but not SIH's airframe (SYS_AUTOSTART {_text(autostart)}, "
+                                    f"SYS_HITL {_text(hitl)})")
+    return Px4SihVerdict(True, f"simulated IMU (CAL_ACC0_ID {int(acc)}), SIH airframe (SYS_AUTOSTART "
+                               f"{_text(autostart)}, SYS_HITL {_text(hitl)})")
+
+
+def _text(value: float | None) -> str:
+    return "not readable" if value is None else f"{int(value)}"
+
+
+def simulator_estimator_parameters(verdict: Px4SihVerdict) -> dict[str, float]:
+    """EKF2's sensor noise set to SIH's for a flight on PX4 SIH (SITL only); nothing for any other vehicle."""
+    return dict(PX4_SIH_ESTIMATOR_PARAMETERS) if verdict.is_sih else {}

@@ -14,6 +14,7 @@ from companion.geo import FacadeFrame, GeoPoint
 from companion.mission import firmware as fw
 from companion.mission import items as mi
 from companion.mission.geometry import footprint_enu, polyline_clearance, wall_frame
+from companion.mission.keyframe_count import PathPoint, ScanView, expected_keyframes
 from companion.mission.spec import Mission
 
 # Nominal multirotor dynamics for the time estimate (a typical 1-2 kg inspection quad).
@@ -316,13 +317,13 @@ def _waypoints(
     return wps, scan_legs
 
 
-def _expected_keyframes(wps: list[Waypoint], scan_legs: list[tuple[int, int]], kf_spacing: float) -> int:
-    """Keyframes a gate at the mission's overlap keeps: one per keyframe spacing along each leg, plus its start."""
-    expected_kf = 0
-    for i, j in scan_legs:
-        leg = math.dist((wps[i].along_m, wps[i].up_m), (wps[j].along_m, wps[j].up_m))
-        expected_kf += math.ceil(leg / kf_spacing - 1e-9) + 1
-    return expected_kf
+def _expected_keyframes(m: Mission, wps: list[Waypoint], fp: Footprint, extent: WallRegion) -> int:
+    """Keyframes the paper's rule keeps on this path at the camera's frame rate (``keyframe_count``: whole frame
+    steps, strip-to-strip moves, the roof margin on the way in and out; take-off, transit and landing excluded)."""
+    path = [PathPoint(w.along_m, w.out_m, w.up_m, w.speed_m_s) for w in wps]
+    view = ScanView(fp.width_m, fp.height_m, effective_fps(m), m.standoff_m, STANDOFF_TOLERANCE_M,
+                    (extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m))
+    return expected_keyframes(path, view, m.overlap)
 
 
 def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> ScanPlan:
@@ -362,7 +363,7 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
         scan_speed_m_s=v_scan,
         speed_limited_by=limited_by,
         keyframe_spacing_m=kf_spacing,
-        expected_keyframes=_expected_keyframes(wps, scan_legs, kf_spacing),
+        expected_keyframes=_expected_keyframes(m, wps, fp, extent),
         frames_per_keyframe=effective_fps(m) * kf_spacing / v_scan,
         motion_blur_px=v_scan * m.camera.exposure_s / (fp.gsd_mm_per_px / 1000.0),
         gsd_mm_per_px=fp.gsd_mm_per_px,

@@ -17,6 +17,7 @@ from companion.capture.tagging import FrameTagger
 from companion.depth.masker import Masker
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateEventKind, KeyframeGate
+from companion.keyframes.gate_scope import ScanScope
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
 from companion.onboard.working import FullResolution, WorkingCopy
@@ -44,6 +45,7 @@ class ChainStats:
     capture: CaptureCounters = field(default_factory=CaptureCounters)
     stale_pose: int = 0
     before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
+    off_scan: int = 0  # frames not of the scan (take-off, transit, landing: keyframes/gate_scope.py): not judged
     dropped_no_roi: int = 0
     parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
     parallax_skipped_sure: int = 0  # masked frames the network read as wall everywhere: no flow spent on them
@@ -95,6 +97,8 @@ class CullChain:
     """Frames before the first telemetry sample are not culled (``require_telemetry``): they cannot be placed on
     the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped.
 
+    ``scope`` (a ``ScanScope``): frames taken too far from the wall to belong to the scan are counted, not judged.
+
     ``track`` (a ``MeasureSchedule``): every frame is tracked cheaply and only the frames around each keyframe
     decision are masked and measured (``companion.onboard.tracked``); None masks and measures every frame.
 
@@ -116,6 +120,7 @@ class CullChain:
         crosscheck: OverlapCrossCheck | None = None,
         track: MeasureSchedule | None = None,
         working: WorkingCopy | None = None,
+        scope: ScanScope | None = None,
     ):
         self.tagger = tagger
         self.working = working or WorkingCopy()
@@ -129,6 +134,7 @@ class CullChain:
         self.spool_disabled = False
         self.require_telemetry = require_telemetry
         self.crosscheck = crosscheck
+        self.scope = scope
         if crosscheck is not None and gate.predictor is None:
             gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
@@ -162,6 +168,10 @@ class CullChain:
             return []
         self._seen_pose = self._seen_pose or tagged.pose is not None
         st.stale_pose += int(tagged.pose_stale)
+        if self.scope is not None and self.scope.off_scan(tagged.pose, tagged.pose_stale):
+            st.off_scan += 1  # take-off, transit, landing: not a frame of the scan, so the gate never judges it
+            self._full.release_below(self._oldest_undecided(tagged.index + 1))  # this one is never a keyframe
+            return []
         if self.selection is not None:
             keyframes = self.selection.offer(tagged)
             st.frames_tracked = self.selection.counts.tracked

@@ -22,6 +22,7 @@ class EmptyCause(Enum):
     BEFORE_TELEMETRY = "before telemetry"  # every frame is older than the first telemetry sample
     AFTER_TELEMETRY = "after telemetry"  # every frame is later than the last telemetry sample
     OUTSIDE_TELEMETRY = "outside telemetry"  # frames straddle the telemetry or fall in its gaps
+    OFF_SCAN = "off the scan"  # every placed frame was off the scan (keyframes/gate_scope.py)
     NO_USABLE_FRAME = "no usable frame"  # placed frames, but no facade in the depth mask or no texture to match
     SPOOL = "spool"  # the spool refused every keyframe
     BACKLOG = "backlog"  # every frame was dropped because the worker could not keep up
@@ -52,6 +53,10 @@ def explain_empty_cull(stats: ChainStats, tagger: FrameTagger) -> EmptyCull | No
         last = stats.warnings[-1] if stats.warnings else ""
         return EmptyCull(EmptyCause.SPOOL, f"the spool refused every keyframe ({stats.spool_errors} errors; {last})")
     placed = processed - stats.before_telemetry
+    if placed > 0 and stats.off_scan >= placed:
+        return EmptyCull(EmptyCause.OFF_SCAN, f"all {placed} placed frames were taken more than twice the mission's "
+                                              "standoff from its wall or show none of it and its margins (take-off, "
+                                              "transit or landing only, or another wall)")
     if placed > 0:
         return EmptyCull(EmptyCause.NO_USABLE_FRAME, f"none of the {placed} placed frames made a keyframe "
                                                      f"({stats.dropped_no_roi} showed no facade in the depth mask, "

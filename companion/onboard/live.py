@@ -266,6 +266,8 @@ def _live_fix(empty: EmptyCull, recorded: bool) -> str:
         return ("the camera's frames must be stamped on a clock the telemetry can be matched to: check that the "
                 "telemetry log gets rows (with t_wall) while the camera runs and that the companion's clock is "
                 "steady (NTP steps during a flight break the mapping)")
+    if empty.cause is EmptyCause.OFF_SCAN:
+        return "check that the mission's facade ends and standoff are those of the wall this flight scanned"
     if empty.cause is EmptyCause.NO_USABLE_FRAME:
         return "check that the camera faces the facade at the standoff; try --no-mask or another --model"
     if empty.cause is EmptyCause.NO_FRAMES:

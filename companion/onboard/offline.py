@@ -90,6 +90,8 @@ def _empty_cull_fix(empty: EmptyCull, request: OfflineCull) -> str:
             "the image folder a times.csv (name,seconds) on the autopilot clock, or use the log of this recording's "
             "flight"
         )
+    if empty.cause is EmptyCause.OFF_SCAN:
+        return "check that the mission's facade ends and standoff are those of the wall this flight scanned"
     if empty.cause is EmptyCause.NO_USABLE_FRAME:
         return "check that the frames show the facade at the standoff; try --no-mask or another --model"
     if empty.cause is EmptyCause.NO_FRAMES:

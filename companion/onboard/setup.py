@@ -33,6 +33,22 @@ def spool_meta(mission) -> dict:
     }
 
 
+def scan_scope(mission):
+    """The frames of this mission's scan (``companion.keyframes.gate_scope``): its wall, standoff, scan extent and
+    lens."""
+    from companion.geo import FacadeFrame
+    from companion.keyframes.gate_scope import ScanScope
+    from companion.mission.geometry import wall_ends
+    from companion.mission.planner import scan_extent
+
+    cam = mission.camera
+    wall = FacadeFrame.from_wall(*wall_ends(mission))
+    extent = scan_extent(mission, wall.length_m)
+    return ScanScope(wall, float(mission.standoff_m),
+                     extent=(extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m),
+                     hfov_deg=cam.hfov_deg, aspect=cam.height_px / cam.width_px)
+
+
 def build_chain(
     out: Path,
     tagger: FrameTagger,
@@ -82,15 +98,15 @@ def build_chain(
         camera_tags=camera_tags_for_mission(mission.camera) if mission is not None else None,
         capture_clock=capture_clock,
     )
-    crosscheck = None
+    crosscheck = scope = None
     if mission is not None:
-        from companion.geo import FacadeFrame
-        from companion.mission.geometry import wall_ends
         from companion.onboard.crosscheck import OverlapCrossCheck
 
         cam = mission.camera
+        scope = scan_scope(mission)
+        wall = scope.frame
         crosscheck = OverlapCrossCheck(
-            FacadeFrame.from_wall(*wall_ends(mission)),
+            wall,
             cam.hfov_deg,
             cam.height_px / cam.width_px,
             standoff_m=float(mission.standoff_m),
@@ -105,4 +121,5 @@ def build_chain(
         crosscheck=crosscheck,
         track=MeasureSchedule() if track else None,
         working=working,
+        scope=scope,
     )

@@ -1,0 +1,110 @@
+"""Which frames the keyframe gate judges: frames of the constant-standoff scan, not of the take-off or the landing.
+
+Why (issue 17, measured on the fresh-clone demo's spool, ``bench/keyframe_phases.py``): of 375 keyframes, 74 were
+taken during take-off, transit and landing, 9-14 m from the wall where the vehicle climbs and descends facing it
+(the planned scan is flown at 4 m). Those frames show the whole wall at three times the scan's ground sample
+distance; they are no keyframes of the scan the planner laid out and the stitcher maps at the standoff, and the
+gate judged them badly besides (the telemetry's wall motion assumes the planned standoff, so it put true 94 %
+overlaps at 80 %, and its prior made the image's own measurement fail: a keyframe every 0.2-0.9 s).
+
+Likewise the transit above the roof: the camera near the standoff but its footprint on the wall plane metres above
+the wall and the roof margin the mission asks for (roof and sky only; on the demo the gate kept two such frames on
+the telemetry alone, and the first frame of the wall after them was then kept at R 0 %).
+
+The rules here are deliberately loose, so that no frame of the scan is lost to a position error: a frame is off the
+scan only when its camera is more than ``max_distance_factor`` times the standoff from the wall plane (twice the
+planned GSD and more; at the demo's 4 m, beyond 8 m: a position error that large would have flown the vehicle
+into the wall), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
+``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.attitude import camera_rotation_enu
+from companion.errors import CompanionError
+from companion.geo import FacadeFrame
+from companion.records import Pose
+from companion.wall_footprint import corner_footprint, facade_from_enu
+
+_NOMINAL_WIDTH_PX = 1600.0  # a footprint depends on the lens and the aspect, not the pixel count
+
+
+@dataclass(frozen=True)
+class ScanScope:
+    """``frame``: the wall (facade frame); ``standoff_m``: the planned camera-to-wall distance; ``extent``: the
+    scan extent on the wall plane (along_min, along_max, up_min, up_max in metres: the wall plus the mission's
+    margins) with the lens (``hfov_deg``, ``aspect`` = height / width), or None to judge by distance alone."""
+
+    frame: FacadeFrame
+    standoff_m: float
+    max_distance_factor: float = 2.0
+    extent: tuple[float, float, float, float] | None = None
+    hfov_deg: float = 69.0
+    aspect: float = 9.0 / 16.0
+    extent_tolerance_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.standoff_m > 0.0 and math.isfinite(self.standoff_m)):
+            raise CompanionError(f"standoff_m={self.standoff_m} is not a distance in front of the wall",
+                                 "give the planned camera-to-wall distance in metres (e.g. 4.0)")
+        if self.extent_tolerance_m < 0.0 or not 1.0 < self.hfov_deg < 179.0:
+            raise CompanionError(f"extent_tolerance_m={self.extent_tolerance_m}, hfov_deg={self.hfov_deg} are not a "
+                                 "tolerance and a lens", "give a tolerance >= 0 m and the camera's hfov in degrees")
+        if not self.max_distance_factor > 1.0:
+            raise CompanionError(f"max_distance_factor={self.max_distance_factor} would drop frames of the scan",
+                                 "use a factor above 1 (e.g. 2: frames beyond twice the standoff are off the scan)")
+
+    @property
+    def max_distance_m(self) -> float:
+        return self.max_distance_factor * self.standoff_m
+
+    def distance_m(self, pose: Pose | None) -> float | None:
+        """The camera's distance out from the wall plane (None without a usable pose)."""
+        if pose is None:
+            return None
+        values = (pose.lat, pose.lon, pose.alt_amsl_m)
+        if not all(math.isfinite(float(v)) for v in values):
+            return None
+        _, out, _ = self.frame.geodetic_to_facade(*values)
+        return float(out)
+
+    def footprint(self, pose: Pose | None) -> np.ndarray | None:
+        """The frame's corners on the wall plane, (4, 2) along/up metres (None: no pose, or a corner's ray misses
+        the wall plane ahead)."""
+        if pose is None or not all(math.isfinite(float(v)) for v in (pose.lat, pose.lon, pose.alt_amsl_m,
+                                                                        *pose.camera_angles())):
+            return None
+        centre = np.array([float(v) for v in self.frame.geodetic_to_facade(pose.lat, pose.lon, pose.alt_amsl_m)])
+        yaw, pitch, roll = pose.camera_angles()
+        rotation = facade_from_enu(self.frame) @ camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
+        w, h = _NOMINAL_WIDTH_PX, _NOMINAL_WIDTH_PX * self.aspect
+        f = (w / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
+        K = np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
+        return corner_footprint(K, w, h, centre, rotation)
+
+    def misses_extent(self, pose: Pose | None) -> bool:
+        """True when the frame's footprint lies wholly outside the scan extent grown by the tolerance."""
+        if self.extent is None:
+            return False
+        corners = self.footprint(pose)
+        if corners is None:
+            return False
+        a0, a1, u0, u1 = self.extent
+        tol = self.extent_tolerance_m
+        along, up = corners[:, 0], corners[:, 1]
+        return bool(along.max() < a0 - tol or along.min() > a1 + tol or up.max() < u0 - tol or up.min() > u1 + tol)
+
+    def off_scan(self, pose: Pose | None, stale: bool = False) -> bool:
+        """True when the frame was taken too far from the wall, or shows none of the scan extent, to be a frame of
+        the scan."""
+        if stale:
+            return False
+        distance = self.distance_m(pose)
+        if distance is not None and abs(distance) > self.max_distance_m:
+            return True
+        return self.misses_extent(pose)

@@ -84,3 +84,21 @@ def test_chain_on_1280_px_frames_spools_full_resolution_keyframes_at_the_overlap
         frames = side["frames_since_previous"]
         # the wall moved right, so its image moved left by `step` full-resolution px per frame
         assert abs(side["dx_px"] + step * frames) < 0.02 * step * frames + 2.0
+
+
+def test_off_scan_frames_do_not_pile_up_at_full_resolution(tmp_path):
+    from companion.keyframes.gate_scope import ScanScope
+    from companion.keyframes.synthetic import WallCamera, WallScene
+
+    scene = WallScene(textured_wall(600, 200, seed=1), textured_wall(160, 60, seed=2), 16.0, 10.0,
+                      width_px=1280, height_px=720)
+    buf = TelemetryBuffer()
+    for i in range(12):  # a transit 15 m out: every frame off the scan
+        buf.add(scene.pose(WallCamera(4.0 + 0.1 * i, 15.0, 5.0), i / 10.0))
+    chain = build_chain(tmp_path, FrameTagger(buf, ClockMap(0.0)), mask=False)
+    chain.scope = ScanScope(scene.frame, 4.0)
+    image = np.zeros((720, 1280, 3), np.uint8)
+    for i in range(10):
+        chain.process(Frame(i, i / 10.0, image))
+        assert chain.full_resolution_held == 0
+    assert chain.stats.off_scan == 10 and chain.stats.keyframes == 0

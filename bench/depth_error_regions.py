@@ -54,10 +54,10 @@ from companion.depth.session import DepthSession
 EVAL_WIDTH = 480
 VARIANTS: dict[str, ParallaxParams] = {
     "today": PARALLAX_RULES["fixed-15m"],
-    "ratio": ParallaxParams(plain_rule="network", wall_in_view_rule=False),
-    "ratio+continuity": ParallaxParams(plain_rule="continuity", wall_in_view_rule=False),
-    "ratio+calibrated": ParallaxParams(wall_in_view_rule=False),
-    "ratio+calibrated+in-view": ParallaxParams(),
+    "ratio": ParallaxParams(plain_rule="network"),
+    "ratio+continuity": ParallaxParams(plain_rule="continuity"),
+    "ratio+calibrated": ParallaxParams(),
+    "ratio+calibrated+in-view": ParallaxParams(wall_in_view_rule=True),
 }
 
 

@@ -63,13 +63,15 @@ class ParallaxParams:
     drop_max_untrusted_kept: float = 0.10
     min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
     max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
-    # No frame is dropped while the wall the last kept frame showed is still in view: that mask, moved by the
-    # wall's image motion between the two camera positions (f x baseline / wall depth; the wall's end is a fixed
-    # point on the wall plane), is a strip of wall this frame still shows. Where it covers at least
-    # ``wall_in_view_min_share`` of the frame, the frame is kept with that strip (less what trusted parallax calls
-    # far) instead of dropped, by parallax or by the network. Only from a kept frame at most
-    # ``wall_in_view_max_m`` back (a strip change or a long gap moves the camera too far to carry the mask).
-    wall_in_view_rule: bool = True
+    # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
+    # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
+    # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
+    # this frame still shows. Where it covers at least ``wall_in_view_min_share`` of the frame, the frame is kept
+    # with that strip (less what trusted parallax calls far) instead of dropped, by parallax or by the network.
+    # Only from a kept frame at most ``wall_in_view_max_m`` back. It rescued 4 of 11 frames with wall on a
+    # validation pass, but carried the plain sky the last kept frame held into every background-only frame of
+    # another (12 of 12 dropped -> 0 of 12): the kept mask is only as good as the frame it came from.
+    wall_in_view_rule: bool = False
     wall_in_view_min_share: float = 0.002
     wall_in_view_max_m: float = 1.5
     # the network needs no second opinion on a frame it reads as facade everywhere (no depth boundary) no farther
@@ -81,8 +83,8 @@ class ParallaxParams:
 PARALLAX_RULES: dict[str, ParallaxParams] = {
     "default": ParallaxParams(),
     # the rules before issue 13's diagnosis: trusted pixels nearer than 15 m are near, plain pixels keep the
-    # network's answer, a frame dropped whatever the frame before it showed
-    "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network", wall_in_view_rule=False),
+    # network's answer
+    "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network"),
 }
 
 
@@ -329,10 +331,10 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     Why: parallax sees only textured pixels, and on real facades the network's mistakes are mostly on plain ones
     (a plain stretch of wall read as far, a patch of sky kept). A plain patch the network cut that is enclosed by
     trusted near pixels and touches no frame border is a piece of the wall; a plain patch the network kept whose
-    trusted neighbours are (almost) all far is background (a plain strip of wall leaving the view beside the
-    background is carried from the last kept frame instead: ``keep_wall_in_view``). Patches touching the border
-    with near neighbours (sky above a roof line) are left to the network: nothing in the two frames says which
-    side of the roof line they belong to.
+    trusted neighbours are (almost) all far is background, unless it runs from the top of the frame to the bottom
+    at one side (a plain strip of wall entering or leaving the view has only the background beside it). Patches
+    touching the border with near neighbours (sky above a roof line) are left to the network: nothing in the two
+    frames says which side of the roof line they belong to.
     """
     p = parallax.params
     plain = ~parallax.trusted
@@ -344,13 +346,19 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     touches_far = cv2.dilate(parallax.far.astype(np.uint8), ring).astype(bool) & plain
     near_votes = np.bincount(labels[touches_near], minlength=n)
     far_votes = np.bincount(labels[touches_far], minlength=n)
-    border = np.zeros(n, bool)
-    border[np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))] = True
+    top, bottom, left, right = (np.zeros(n, bool) for _ in range(4))
+    for flag, edge in ((top, labels[0]), (bottom, labels[-1]), (left, labels[:, 0]), (right, labels[:, -1])):
+        flag[np.unique(edge)] = True
+    border = top | bottom | left | right
+    # a full-height plain strip at one side of the frame: the wall's end entering or leaving the view (sky touches
+    # the top, not the bottom; a background street the bottom, not the top; a plain background filling the frame's
+    # height spans from side to side)
+    side_strip = top & bottom & (left ^ right)
     kept = np.bincount(labels.ravel(), weights=(net >= 0.5).ravel(), minlength=n)
     size = np.bincount(labels.ravel(), minlength=n)
     votes = np.maximum(near_votes + far_votes, 1)
     wall = (near_votes > 0) & (far_votes <= p.continuity_max_dissent * votes) & ~border & (kept < size)
-    background = (far_votes > 0) & (near_votes <= p.continuity_max_dissent * votes) & (kept > 0)
+    background = (far_votes > 0) & (near_votes <= p.continuity_max_dissent * votes) & (kept > 0) & ~side_strip
     wall[0] = background[0] = False  # label 0: the trusted pixels
     out = net.copy()
     out[wall[labels]] = 1.0

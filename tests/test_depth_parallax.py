@@ -292,3 +292,25 @@ def test_a_plain_wall_strip_leaving_the_view_is_carried_from_the_last_kept_frame
     assert carried_wall(kept, far_back, R, CAM.fx, CAM.width, pp) is None  # too far to carry a mask
     off = ParallaxParams()
     assert carried_wall(kept, np.array([last.along_m + 0.1, 4.0, last.up_m]), R, CAM.fx, CAM.width, off) is None
+
+
+def test_the_masker_carries_the_wall_only_with_the_rule_on():
+    """SequenceParallax remembers the last kept frame's wall only when the in-view rule is on, and then gives it
+    back moved by the camera's motion (the chain's path of the rule the test above checks on its own)."""
+    import cv2
+
+    from companion.depth.parallax import ParallaxParams, SequenceParallax
+
+    r = PhotoPassRenderer(PhotoPass("t", PhotoTexture("wall", _texture(600, 1200, 1), 12.0),
+                                    PhotoTexture("bg", _texture(600, 800, 2), 1.0), camera=CAM, frames=120,
+                                    background_frames=10))
+    f, g = r.render(104), r.render(107)  # 33 cm apart, the wall's end leaving the view
+    off = SequenceParallax(69.0)
+    off.note_kept(f.roi_mask, _geo_pose(0, f), 4.0)
+    assert off.wall_in_view(_geo_pose(1, g), g.roi_mask.shape) is None
+    on = SequenceParallax(69.0, ParallaxParams(wall_in_view_rule=True))
+    on.note_kept(f.roi_mask, _geo_pose(0, f), 4.0)
+    carried = on.wall_in_view(_geo_pose(1, g), g.roi_mask.shape)
+    truth = cv2.resize(g.roi_mask, carried.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert 0.02 < truth.mean() < (f.roi_mask > 0).mean()
+    assert (carried & truth).sum() / (carried | truth).sum() > 0.9  # where the wall's end is now

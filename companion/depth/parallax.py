@@ -429,7 +429,7 @@ class SequenceParallax:
 
     def note_kept(self, mask: np.ndarray, pose, wall_depth_m: float) -> None:
         """Remember a kept frame's final mask (frame size), where it was taken and its wall's depth."""
-        if pose is None or not np.isfinite(wall_depth_m) or wall_depth_m <= 0:
+        if not self.params.wall_in_view_rule or pose is None or not np.isfinite(wall_depth_m) or wall_depth_m <= 0:
             return
         self._kept = (kept_wall(mask, self._enu(pose), wall_depth_m, self.params), mask.shape[:2])
 

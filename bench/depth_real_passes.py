@@ -22,13 +22,14 @@ import os
 import platform
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from companion.depth.evaluate import MaskEval, frame_eval, save_visual
 from companion.depth.masker import Masker
-from companion.depth.parallax import ParallaxParams
+from companion.depth.parallax import PARALLAX_RULES, ParallaxParams
 from companion.depth.roi import ROI_RULES
 from companion.depth.session import DEFAULT_MODEL, DepthSession
 
@@ -74,26 +75,31 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
 
 
 def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], save: Path | None,
-                  parallax_widths: tuple[int, ...] = ()):
+                  parallax: dict | None = None):
     """Run every model once per frame and every ROI rule on its disparity; MaskEval per (model, rule).
 
-    With ``parallax_widths``: also each (model, rule) corrected by motion parallax (flow at each working width)
+    With ``parallax`` (label -> ParallaxParams): also each (model, rule) corrected by motion parallax (each label's
+    flow width and rules)
     against an earlier frame of the pass (true camera positions as telemetry), once on every frame and once
     skipping the frames the network is sure of (``network_is_sure``: no depth boundary, at about the standoff),
     as the onboard masker does; and parallax alone (model "-", untrusted pixels background).
     """
     from companion.depth.parallax import (
-        ParallaxParams,
         camera_translation,
+        carried_wall,
+        dense_flow,
+        depth_from_flow,
         fuse_with_network,
+        keep_wall_in_view,
+        kept_wall,
         network_is_sure,
-        parallax_depth,
         pick_reference,
+        wall_depth_of,
     )
 
     maskers = {(m, r): Masker(session=s, params=ROI_RULES[r]) for m, s in sessions.items() for r in rules}
     evals = {key: MaskEval(recording=f"{key[0]} / {key[1]}") for key in maskers}
-    params = {w: ParallaxParams(work_width=w) for w in parallax_widths}
+    params = parallax or {}
     for m, r in list(maskers):
         for w in params:
             for tag in ("", " sure skipped"):
@@ -102,13 +108,21 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
         evals[("-", "parallax alone")] = MaskEval(recording="parallax alone")
     skipped = {key: 0 for key in evals}
     history: list[tuple[np.ndarray, np.ndarray]] = []  # (image, camera position) of recent frames
+    kept = {}  # per parallax row: the last kept frame's wall (carried into frames about to be dropped)
     for i, image, truth, (pos, R, fx, standoff_m) in frames:
         pars = {}
         if params and fx:
+            flows = {}  # one flow per working width, shared by the rule sets
             for w, pp in params.items():
                 k = pick_reference([h[1] for h in history], pos, pp)
                 t = camera_translation(R, history[k][1], R, pos) if k is not None else None
-                pars[w] = parallax_depth(history[k][0], image, t, fx, pp) if t is not None else None
+                if t is None:
+                    pars[w] = None
+                    continue
+                key = pp.work_width
+                if key not in flows:
+                    flows[key] = dense_flow(history[k][0], image, pp)
+                pars[w] = depth_from_flow(flows[key], t, fx, pp)
             history = (history + [(image, pos)])[-12:]
         if params:
             zero = np.zeros(image.shape[:2], np.uint8)
@@ -127,15 +141,25 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                 ev = frame_eval(i, truth, disp, roi, depth_ms=depth_ms, mask_ms=(time.perf_counter() - t1) * 1e3)
                 evals[(model, rule)].frames.append(ev)
                 sure = network_is_sure(roi, session.info, standoff_m)
+                net_depth = session.info.depth_from_disparity(np.squeeze(disp))
                 for w, par in pars.items():
-                    fused, dropped = fuse_with_network(roi.mask, par) if par is not None else (roi.mask, roi.empty)
-                    evals[(model, f"{rule}+parallax@{w}")].frames.append(frame_eval(i, truth, disp,
-                                                                                    _as_roi(fused, dropped)))
-                    key = (model, f"{rule}+parallax@{w} sure skipped")
-                    skipped[key] += int(sure and par is not None)
-                    if sure:
-                        fused, dropped = roi.mask, roi.empty
-                    evals[key].frames.append(frame_eval(i, truth, disp, _as_roi(fused, dropped)))
+                    pp = params[w]
+                    for tag in ("", " sure skipped"):
+                        key = (model, f"{rule}+parallax@{w}{tag}")
+                        judged = par if not (tag and sure) else None
+                        if judged is not None:
+                            fused, dropped = fuse_with_network(roi.mask, judged, net_depth)
+                        else:
+                            fused, dropped = roi.mask, roi.empty
+                        in_view = carried_wall(kept.get(key), pos, R, fx, image.shape[1], pp) if fx else None
+                        carried = keep_wall_in_view(fused, dropped, in_view, judged, pp)
+                        wall_m = (wall_depth_of(judged, standoff_m) if carried[0] is fused
+                                  else kept[key].wall_depth_m)
+                        fused, dropped = carried
+                        if not dropped and fused.any():
+                            kept[key] = kept_wall(fused, pos, wall_m, pp)
+                        skipped[key] += int(bool(tag) and sure and par is not None)
+                        evals[key].frames.append(frame_eval(i, truth, disp, _as_roi(fused, dropped)))
                 if save is not None and i % 10 == 0:
                     save_visual(save / f"{Path(model).stem}_{rule}" / f"{i:04d}.jpg", image, disp, roi.mask, truth)
     return evals, skipped
@@ -187,17 +211,25 @@ def main() -> None:
                     help="also correct each mask by motion parallax with the true camera positions as telemetry")
     ap.add_argument("--parallax-widths", nargs="+", type=int, default=[ParallaxParams().work_width],
                     help="working widths of the flow to compare (with --parallax)")
+    ap.add_argument("--parallax-rules", nargs="+", default=["default"], choices=sorted(PARALLAX_RULES),
+                    help="parallax rule sets to compare (with --parallax): 'fixed-15m' is the rule before issue 13's "
+                         "wall-ratio far rule, plain-pixel calibration and strip-safe drop rule")
     ap.add_argument("--save", default=None, help="folder for frame | disparity | mask | truth pictures (every 10th)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     sessions = {m: DepthSession(m, threads=args.threads) for m in args.model}
+    parallax = {}
+    if args.parallax:
+        for w in args.parallax_widths:
+            for rule in args.parallax_rules:
+                label = f"{w}" if args.parallax_rules == ["default"] else f"{w} {rule}"
+                parallax[label] = replace(PARALLAX_RULES[rule], work_width=w)
     rows = []
     t0 = time.perf_counter()
     for name in args.passes:
         frames = sim_frames(args) if name == "sim" else photo_pass_frames(name, args)
         save = Path(args.save) / name if args.save else None
-        widths = tuple(args.parallax_widths) if args.parallax else ()
-        rows += print_table(name, *evaluate_pass(frames, sessions, args.roi, save, widths))
+        rows += print_table(name, *evaluate_pass(frames, sessions, args.roi, save, parallax))
     print(f"\nmachine: {platform.machine()} {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; "
           f"{time.perf_counter() - t0:.0f} s")
     if args.json:

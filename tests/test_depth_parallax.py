@@ -198,3 +198,119 @@ def test_network_is_sure_needs_a_whole_frame_of_facade_near_the_standoff():
     split = flat.copy()
     split[: info.height // 2] = info.disparity_for_depth(120.0)  # a far half: a boundary, so in doubt
     assert not network_is_sure(extract_roi(split, out_size=(640, 360)), info, standoff_m=4.0)
+
+
+def _plain_patch_texture(h: int, w: int, seed: int, patch: tuple[slice, slice]) -> np.ndarray:
+    tex = _texture(h, w, seed)
+    tex[patch] = (150, 150, 150)  # plain: nothing for the flow to track
+    return tex
+
+
+def test_a_background_nearer_than_the_metric_limit_is_far_against_the_walls_own_flow():
+    """A background 9 m behind a wall at 4 m (13 m from the camera) is under the fixed 15 m limit, so the old rule
+    kept it as near wherever it was trusted; judged against the wall's own measured flow (2.5x its depth) it is
+    far. The wall stays near under both rules."""
+    import cv2
+
+    from companion.depth.parallax import ParallaxParams
+
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 12.0)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    r = PhotoPassRenderer(PhotoPass("t", wall, bg, background_distance_m=9.0, camera=CAM, frames=120,
+                                    background_frames=10))
+    a, b = r.render(93), r.render(95)
+    assert 0.2 < b.wall_fraction < 0.8
+    t = camera_translation(R, np.array([a.along_m, 4.0, a.up_m]), R, np.array([b.along_m, 4.0, b.up_m]))
+    fixed = parallax_depth(a.image, b.image, t, CAM.fx, ParallaxParams(near_rule="fixed"))
+    ratio = parallax_depth(a.image, b.image, t, CAM.fx)
+    truth = cv2.resize(b.roi_mask, ratio.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert fixed.near[~truth & fixed.trusted].mean() > 0.7  # the old rule: the background is "near"
+    assert ratio.far[~truth & ratio.trusted].mean() > 0.9
+    assert ratio.near[truth & ratio.trusted].mean() > 0.9
+
+
+def test_plain_patches_take_the_side_of_the_trusted_pixels_around_them():
+    """A plain patch inside the wall (no texture: parallax cannot see it) that the network cut is wall: background
+    cannot show through a wall. A plain patch of background the network kept, with only far pixels around it,
+    is background. With the plain rule off both keep the network's mistake."""
+    import cv2
+
+    from companion.depth.parallax import ParallaxParams
+
+    wall_tex = _plain_patch_texture(600, 1200, 1, (slice(200, 400), slice(900, 1100)))
+    bg_tex = _plain_patch_texture(600, 800, 2, (slice(200, 330), slice(665, 740)))  # lands right of the wall
+    wall = PhotoTexture("wall", wall_tex, 12.0)
+    bg = PhotoTexture("bg", bg_tex, 1.0)
+    r = PhotoPassRenderer(PhotoPass("t", wall, bg, camera=CAM, frames=120, background_frames=10))
+    a, b = r.render(73), r.render(75)
+    t = camera_translation(R, np.array([a.along_m, 4.0, a.up_m]), R, np.array([b.along_m, 4.0, b.up_m]))
+    wall_px = b.roi_mask > 0
+    plain_wall = wall_px & (np.abs(b.image.astype(int) - 150).max(axis=2) <= 3)
+    plain_bg = ~wall_px & (np.abs(b.image.astype(int) - 150).max(axis=2) <= 3)
+    plain_bg &= cv2.erode(plain_bg.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0  # its inside
+    assert plain_wall.mean() > 0.03 and plain_bg.mean() > 0.01
+    network = np.where(wall_px & ~plain_wall, 255, 0).astype(np.uint8)  # cuts the plain wall patch ...
+    network[plain_bg] = 255  # ... and keeps a plain patch of background
+    for rule, expect in (("continuity", True), ("network", False)):
+        par = parallax_depth(a.image, b.image, t, CAM.fx, ParallaxParams(plain_rule=rule))
+        fused, dropped = fuse_with_network(network, par)
+        assert not dropped
+        assert bool((fused[plain_wall] > 0).mean() > 0.9) is expect
+        assert bool((fused[plain_bg] == 0).mean() > 0.9) is expect
+
+
+def test_a_plain_wall_strip_leaving_the_view_is_carried_from_the_last_kept_frame_not_dropped():
+    """At the wall's end a plain wall (nothing to track) leaves the view beside a textured background: parallax
+    sees only far pixels and drops the frame, though it shows a strip of wall. The last kept frame's mask moved by
+    the wall's motion is that strip: the frame is kept with it. Once the wall has left the view the carried strip
+    is empty and a background-only frame is still dropped."""
+
+    from companion.depth.parallax import ParallaxParams, carried_wall, keep_wall_in_view, kept_wall
+
+    plain = np.full((600, 1200, 3), 140, np.uint8)
+    r = PhotoPassRenderer(PhotoPass("t", PhotoTexture("wall", plain, 12.0), PhotoTexture("bg", _texture(600, 800, 2),
+                                                                                         1.0),
+                                    camera=CAM, frames=120, background_frames=10))
+    pp = ParallaxParams(wall_in_view_rule=True)  # off by default: docs/DEPTH.md says why
+    last = r.render(104)
+    kept = kept_wall(last.roi_mask, np.array([last.along_m, 4.0, last.up_m]), 4.0, pp)
+    for i, leaving in ((107, True), (112, False)):
+        f, before = r.render(i), r.render(i - 2)
+        assert (f.wall_fraction > 0.02) is leaving
+        pos = np.array([f.along_m, 4.0, f.up_m])
+        t = camera_translation(R, np.array([before.along_m, 4.0, before.up_m]), R, pos)
+        par = parallax_depth(before.image, f.image, t, CAM.fx, pp)
+        mask, dropped = fuse_with_network(np.zeros_like(f.roi_mask), par)
+        assert dropped  # the rule before: only far pixels are trusted, so the frame goes
+        in_view = carried_wall(kept, pos, R, CAM.fx, CAM.width, pp)
+        mask, dropped = keep_wall_in_view(mask, dropped, in_view, par, pp)
+        assert dropped is not leaving
+        if leaving:
+            truth = f.roi_mask > 0
+            assert ((mask > 0) == truth).mean() > 0.97 and (mask[truth] > 0).mean() > 0.9
+    far_back = np.array([last.along_m - 2.0, 4.0, last.up_m])
+    assert carried_wall(kept, far_back, R, CAM.fx, CAM.width, pp) is None  # too far to carry a mask
+    off = ParallaxParams()
+    assert carried_wall(kept, np.array([last.along_m + 0.1, 4.0, last.up_m]), R, CAM.fx, CAM.width, off) is None
+
+
+def test_the_masker_carries_the_wall_only_with_the_rule_on():
+    """SequenceParallax remembers the last kept frame's wall only when the in-view rule is on, and then gives it
+    back moved by the camera's motion (the chain's path of the rule the test above checks on its own)."""
+    import cv2
+
+    from companion.depth.parallax import ParallaxParams, SequenceParallax
+
+    r = PhotoPassRenderer(PhotoPass("t", PhotoTexture("wall", _texture(600, 1200, 1), 12.0),
+                                    PhotoTexture("bg", _texture(600, 800, 2), 1.0), camera=CAM, frames=120,
+                                    background_frames=10))
+    f, g = r.render(104), r.render(107)  # 33 cm apart, the wall's end leaving the view
+    off = SequenceParallax(69.0)
+    off.note_kept(f.roi_mask, _geo_pose(0, f), 4.0)
+    assert off.wall_in_view(_geo_pose(1, g), g.roi_mask.shape) is None
+    on = SequenceParallax(69.0, ParallaxParams(wall_in_view_rule=True))
+    on.note_kept(f.roi_mask, _geo_pose(0, f), 4.0)
+    carried = on.wall_in_view(_geo_pose(1, g), g.roi_mask.shape)
+    truth = cv2.resize(g.roi_mask, carried.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert 0.02 < truth.mean() < (f.roi_mask > 0).mean()
+    assert (carried & truth).sum() / (carried | truth).sum() > 0.9  # where the wall's end is now

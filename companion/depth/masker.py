@@ -74,7 +74,7 @@ class Masker:
         t1 = time.perf_counter()
         roi = self.roi_from_disparity(disp, image.shape[:2])
         if self.parallax is not None:
-            roi = self._with_parallax(image, tagged, roi)
+            roi = self._with_parallax(image, tagged, roi, disp)
         t2 = time.perf_counter()
         st = self.stats
         st.frames += 1
@@ -92,21 +92,36 @@ class Masker:
         if self.parallax is not None and not tagged.pose_stale:
             self.parallax.remember(tagged.frame.image, tagged.pose)
 
-    def _with_parallax(self, image, tagged: TaggedFrame, roi: RoiResult) -> RoiResult:
-        from companion.depth.parallax import fuse_with_network, network_is_sure
+    def _with_parallax(self, image, tagged: TaggedFrame, roi: RoiResult, disparity: np.ndarray) -> RoiResult:
+        from companion.depth.parallax import fuse_with_network, keep_wall_in_view, network_is_sure, wall_depth_of
 
         pose = None if tagged.pose_stale else tagged.pose
-        if network_is_sure(roi, self.session.info, self.parallax.standoff_m, self.parallax.params):
+        info = self.session.info
+        network_wall_m = (float(info.depth_from_disparity(np.float32(roi.roi_mean_disparity)))
+                          if info.metric and np.isfinite(roi.roi_mean_disparity) else float("nan"))
+        fallback_m = self.parallax.standoff_m or network_wall_m
+        if network_is_sure(roi, info, self.parallax.standoff_m, self.parallax.params):
             self.stats.parallax_skipped_sure += 1
             self.parallax.remember(image, pose)  # still a reference for the next frame in doubt
+            self.parallax.note_kept(roi.mask, pose, fallback_m)
             return roi
+        in_view = self.parallax.wall_in_view(pose, image.shape)
         par = self.parallax.update(image, pose)
-        if par is None:
-            return roi
-        self.stats.parallax_frames += 1
         network = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
-        mask, dropped = fuse_with_network(network, par)
+        if par is None:
+            mask, dropped = network, roi.empty
+        else:
+            self.stats.parallax_frames += 1
+            depth = info.depth_from_disparity(np.squeeze(disparity))  # its ordering is all the split needs
+            mask, dropped = fuse_with_network(network, par, depth)
+        carried = keep_wall_in_view(mask, dropped, in_view, par, self.parallax.params)
+        wall_m = wall_depth_of(par, fallback_m) if carried[0] is mask else self.parallax.kept_wall_depth_m()
+        mask, dropped = carried
         share = float(np.count_nonzero(mask)) / mask.size
+        if not dropped and share > 0.0:
+            self.parallax.note_kept(mask, pose, wall_m)
+        if par is None and mask is network:
+            return roi
         return replace(roi, mask=mask, empty=dropped or share == 0.0, no_boundary=share == 1.0, roi_fraction=share)
 
     def roi_from_disparity(self, disparity, frame_shape: tuple[int, int]) -> RoiResult:

@@ -30,6 +30,31 @@ class ParallaxParams:
     # small copies track the wall's motion over the whole 8-60 cm baseline, and the flow costs a quarter
     work_width: int = 240
     max_near_depth_m: float = 15.0  # nearer than this is near surface (the masker's all-background limit)
+    # Which trusted pixels are near. "wall_ratio": within ``wall_ratio`` x the depth of the wall this frame's own
+    # flow measured (the median depth of the nearest trusted pixels that cover ``min_wall_share`` of the frame,
+    # when there are that many nearer than ``max_near_depth_m``), and never beyond ``max_near_depth_m``. A
+    # background's flow is judged against the wall's, not against a fixed metric limit that hills 40 m behind
+    # come within by flow noise.
+    # 2.5 as the ROI's near ratio 0.4: windows and recesses a metre or two off the wall are at most ~1.5x farther
+    # at a 4 m standoff, a background at 20 m or more 5x. "fixed": nearer than ``max_near_depth_m`` only.
+    near_rule: str = "wall_ratio"
+    wall_ratio: float = 2.5
+    min_wall_share: float = 0.05
+    # Plain (untracked) pixels: "continuity" labels each connected plain patch by the trusted pixels around it
+    # when they agree (at most ``continuity_max_dissent`` of its trusted neighbours disagree): a plain patch
+    # enclosed by the wall (no frame border) that the network cut is wall (background cannot show through a
+    # wall), and a plain patch the network kept whose trusted neighbours are all far is background. Every other
+    # plain pixel keeps the network's answer. "network": every plain pixel keeps the network's answer.
+    # "calibrated" (needs the network's depth): first, in a frame where trusted pixels show both the wall and the
+    # background (each at least ``calibrate_min_share`` of the frame), the network's depth that best separates
+    # them (equal weight to both sides) becomes this frame's near/far split for the plain pixels: the network
+    # orders near and far well on real photos but puts the split in the wrong place (a street 40 m behind read
+    # at 14 m, inside its 15 m limit). Only where its ordering holds (at most ``calibrate_max_error`` of the
+    # trusted pixels on the wrong side). Otherwise, or without the network's depth, "continuity".
+    plain_rule: str = "calibrated"
+    continuity_max_dissent: float = 0.05
+    calibrate_min_share: float = 0.03
+    calibrate_max_error: float = 0.15
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
     max_fb_error_px: float = 0.6  # forward-backward flow disagreement above which a pixel is not trusted
     min_confident_share: float = 0.15  # a frame judged by parallax needs this share of trusted pixels
@@ -38,9 +63,29 @@ class ParallaxParams:
     drop_max_untrusted_kept: float = 0.10
     min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
     max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
+    # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
+    # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
+    # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
+    # this frame still shows. Where it covers at least ``wall_in_view_min_share`` of the frame, the frame is kept
+    # with that strip (less what trusted parallax calls far) instead of dropped, by parallax or by the network.
+    # Only from a kept frame at most ``wall_in_view_max_m`` back. It rescued 4 of 11 frames with wall on a
+    # validation pass, but carried the plain sky the last kept frame held into every background-only frame of
+    # another (12 of 12 dropped -> 0 of 12): the kept mask is only as good as the frame it came from.
+    wall_in_view_rule: bool = False
+    wall_in_view_min_share: float = 0.002
+    wall_in_view_max_m: float = 1.5
     # the network needs no second opinion on a frame it reads as facade everywhere (no depth boundary) no farther
     # than this many standoffs: the flow is skipped there (the bulk of a scan's frames). None: judge every frame.
     sure_wall_standoffs: float | None = 1.5
+
+
+# Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
+PARALLAX_RULES: dict[str, ParallaxParams] = {
+    "default": ParallaxParams(),
+    # the rules before issue 13's diagnosis: trusted pixels nearer than 15 m are near, plain pixels keep the
+    # network's answer
+    "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network"),
+}
 
 
 @dataclass(frozen=True)
@@ -136,6 +181,13 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     with np.errstate(divide="ignore"):
         depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
     near = flow.trusted & (depth < p.max_near_depth_m)
+    k = int(p.min_wall_share * depth.size)
+    if p.near_rule == "wall_ratio" and k >= 2 and int(near.sum()) >= k:
+        # the wall: the nearest trusted pixels covering min_wall_share of the frame (their median depth), so a
+        # background that fills most of the frame does not set the scale, and a few mistracked pixels do not
+        near_depths = depth[near]
+        wall_depth_m = float(np.partition(near_depths, k // 2)[k // 2])
+        near &= depth < p.wall_ratio * wall_depth_m
     far = flow.trusted & ~near
     return ParallaxResult(depth, flow.trusted, near, far, p)
 
@@ -150,7 +202,71 @@ def parallax_depth(ref_image: np.ndarray, cur_image: np.ndarray, translation_cam
     return depth_from_flow(dense_flow(ref_image, cur_image, params), t, fx_px, params)
 
 
-def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult) -> tuple[np.ndarray, bool]:
+@dataclass(frozen=True)
+class KeptWall:
+    """The last kept frame's mask at work resolution, its camera position and its wall's depth."""
+
+    mask: np.ndarray  # bool, work resolution
+    position: np.ndarray  # metres, in the frame the translations are measured in
+    wall_depth_m: float
+
+
+def wall_depth_of(parallax: ParallaxResult | None, fallback_m: float) -> float:
+    """The wall's depth a frame measured by parallax (median of its trusted near pixels, when they cover
+    ``min_wall_share`` of the frame: a few near pixels are as likely mistracked background), else ``fallback_m``
+    (the mission's standoff, or the network's)."""
+    if parallax is not None and float(parallax.near.mean()) >= parallax.params.min_wall_share:
+        return float(np.median(parallax.depth_m[parallax.near]))
+    return fallback_m
+
+
+def wall_still_in_view(kept: KeptWall, translation_cam_m: np.ndarray, fx_work_px: float) -> np.ndarray:
+    """The kept frame's wall seen from the current camera: its mask shifted by the wall's image motion
+    (a point at depth Z moves by -f t / Z when the camera moves by t); bool at work resolution."""
+    t = np.asarray(translation_cam_m, float)
+    dx, dy = (-fx_work_px * t[0] / kept.wall_depth_m, -fx_work_px * t[1] / kept.wall_depth_m)
+    h, w = kept.mask.shape
+    moved = cv2.warpAffine(kept.mask.astype(np.uint8), np.float32([[1, 0, dx], [0, 1, dy]]), (w, h),
+                           flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return moved > 0
+
+
+def kept_wall(mask: np.ndarray, position: np.ndarray, wall_depth_m: float, params: ParallaxParams) -> KeptWall:
+    """A kept frame's final mask (frame size) as a :class:`KeptWall` at work resolution."""
+    h, w = mask.shape[:2]
+    size = (params.work_width, max(8, round(h * params.work_width / w)))
+    small = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) > 0
+    return KeptWall(small, np.asarray(position, float), float(wall_depth_m))
+
+
+def carried_wall(kept: KeptWall | None, position: np.ndarray, R_world_from_cam: np.ndarray, fx_px: float,
+                 frame_width: int, params: ParallaxParams) -> np.ndarray | None:
+    """The last kept frame's wall as the camera at ``position`` must still see it (work resolution), or None
+    (rule off, nothing kept yet, or kept more than ``wall_in_view_max_m`` away). ``fx_px`` at full width."""
+    if kept is None or not params.wall_in_view_rule:
+        return None
+    if np.linalg.norm(np.asarray(position, float) - kept.position) > params.wall_in_view_max_m:
+        return None
+    t = camera_translation(R_world_from_cam, kept.position, R_world_from_cam, position)
+    return wall_still_in_view(kept, t, fx_px * params.work_width / frame_width)
+
+
+def keep_wall_in_view(mask: np.ndarray, dropped: bool, in_view: np.ndarray | None,
+                      parallax: ParallaxResult | None, params: ParallaxParams) -> tuple[np.ndarray, bool]:
+    """A frame about to be dropped (or left with an empty mask) keeps the strip of wall ``in_view`` predicts,
+    less the pixels trusted parallax calls far, when that strip covers ``wall_in_view_min_share``."""
+    if not params.wall_in_view_rule or in_view is None or (not dropped and mask.any()):
+        return mask, dropped
+    strip = in_view & ~parallax.far if parallax is not None and parallax.far.shape == in_view.shape else in_view
+    if strip.mean() < params.wall_in_view_min_share:
+        return mask, dropped
+    h, w = mask.shape[:2]
+    full = cv2.resize(strip.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
+    return np.where(full > 0, 255, 0).astype(np.uint8), False
+
+
+def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
+                      network_depth_m: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """The network's mask (uint8 0/255 at frame size) corrected by parallax where parallax is trusted.
 
     Returns (mask, dropped). A frame whose trusted pixels are (almost) all far is dropped unless the network
@@ -159,8 +275,7 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult) -> tup
     (plain wall, sky) keep the network's answer.
     """
     h, w = network_mask.shape[:2]
-    ph, pw = parallax.near.shape
-    net = cv2.resize(network_mask, (pw, ph), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    net = plain_vote(network_mask, parallax, network_depth_m)
     # all background: the trusted pixels say so, and what the network keeps is not hiding in untrusted (plain)
     # parts of the frame, such as a plain strip of wall parallax cannot track
     untrusted_kept = float((net[~parallax.trusted] >= 0.5).sum()) / net.size
@@ -170,6 +285,85 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult) -> tup
     vote = cv2.medianBlur(vote, 5)
     fused = cv2.resize(vote, (w, h), interpolation=cv2.INTER_LINEAR)
     return np.where(fused >= 0.5, 255, 0).astype(np.uint8), False
+
+
+def plain_vote(network_mask: np.ndarray, parallax: ParallaxResult,
+               network_depth_m: np.ndarray | None = None) -> np.ndarray:
+    """The network's 0..1 vote at work resolution, with its plain (untracked) pixels decided by
+    ``params.plain_rule`` (trusted pixels are overridden by parallax afterwards)."""
+    ph, pw = parallax.near.shape
+    net = cv2.resize(network_mask, (pw, ph), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    rule = parallax.params.plain_rule
+    split = None
+    if rule == "calibrated" and network_depth_m is not None:
+        depth = cv2.resize(np.asarray(network_depth_m, np.float32), (pw, ph), interpolation=cv2.INTER_LINEAR)
+        split = calibrated_split_m(depth, parallax)
+        if split is not None:
+            net = np.where(parallax.trusted, net, (depth <= split).astype(np.float32))
+    if rule in ("continuity", "calibrated") and split is None:
+        net = plain_by_continuity(net, parallax)
+    return net
+
+
+def calibrated_split_m(network_depth_m: np.ndarray, parallax: ParallaxResult) -> float | None:
+    """The network depth (metres) that best separates the trusted near pixels from the trusted far ones (equal
+    weight to both sides); None when either side covers less than ``calibrate_min_share`` of the frame or the
+    network orders them wrongly on more than ``calibrate_max_error`` of them."""
+    p = parallax.params
+    near_d = np.sort(network_depth_m[parallax.near].ravel())
+    far_d = np.sort(network_depth_m[parallax.far].ravel())
+    need = p.calibrate_min_share * network_depth_m.size
+    if len(near_d) < need or len(far_d) < need:
+        return None
+    candidates = np.unique(np.concatenate([near_d, far_d])[:: max(1, (len(near_d) + len(far_d)) // 512)])
+    near_wrong = 1.0 - np.searchsorted(near_d, candidates, side="right") / len(near_d)  # near read beyond
+    far_wrong = np.searchsorted(far_d, candidates, side="right") / len(far_d)  # far read within
+    error = 0.5 * (near_wrong + far_wrong)
+    best = int(np.argmin(error))
+    if error[best] > p.calibrate_max_error:
+        return None
+    return float(candidates[best])
+
+
+def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray:
+    """The network's 0..1 vote (work resolution) with plain patches relabelled by the trusted pixels around them.
+
+    Why: parallax sees only textured pixels, and on real facades the network's mistakes are mostly on plain ones
+    (a plain stretch of wall read as far, a patch of sky kept). A plain patch the network cut that is enclosed by
+    trusted near pixels and touches no frame border is a piece of the wall; a plain patch the network kept whose
+    trusted neighbours are (almost) all far is background, unless it runs from the top of the frame to the bottom
+    at one side (a plain strip of wall entering or leaving the view has only the background beside it). Patches
+    touching the border with near neighbours (sky above a roof line) are left to the network: nothing in the two
+    frames says which side of the roof line they belong to.
+    """
+    p = parallax.params
+    plain = ~parallax.trusted
+    if not plain.any() or not parallax.trusted.any():
+        return net
+    n, labels = cv2.connectedComponents(plain.astype(np.uint8), connectivity=4)
+    ring = np.ones((3, 3), np.uint8)
+    touches_near = cv2.dilate(parallax.near.astype(np.uint8), ring).astype(bool) & plain
+    touches_far = cv2.dilate(parallax.far.astype(np.uint8), ring).astype(bool) & plain
+    near_votes = np.bincount(labels[touches_near], minlength=n)
+    far_votes = np.bincount(labels[touches_far], minlength=n)
+    top, bottom, left, right = (np.zeros(n, bool) for _ in range(4))
+    for flag, edge in ((top, labels[0]), (bottom, labels[-1]), (left, labels[:, 0]), (right, labels[:, -1])):
+        flag[np.unique(edge)] = True
+    border = top | bottom | left | right
+    # a full-height plain strip at one side of the frame: the wall's end entering or leaving the view (sky touches
+    # the top, not the bottom; a background street the bottom, not the top; a plain background filling the frame's
+    # height spans from side to side)
+    side_strip = top & bottom & (left ^ right)
+    kept = np.bincount(labels.ravel(), weights=(net >= 0.5).ravel(), minlength=n)
+    size = np.bincount(labels.ravel(), minlength=n)
+    votes = np.maximum(near_votes + far_votes, 1)
+    wall = (near_votes > 0) & (far_votes <= p.continuity_max_dissent * votes) & ~border & (kept < size)
+    background = (far_votes > 0) & (near_votes <= p.continuity_max_dissent * votes) & (kept > 0) & ~side_strip
+    wall[0] = background[0] = False  # label 0: the trusted pixels
+    out = net.copy()
+    out[wall[labels]] = 1.0
+    out[background[labels]] = 0.0
+    return out
 
 
 def pick_reference(positions: list[np.ndarray], current: np.ndarray,
@@ -224,6 +418,7 @@ class SequenceParallax:
         self.standoff_m = standoff_m
         self._origin: tuple[float, float, float] | None = None
         self._history: list[tuple[np.ndarray, np.ndarray, tuple[int, ...]]] = []  # (grey copy, ENU, frame shape)
+        self._kept: tuple[KeptWall, tuple[int, ...]] | None = None  # the last kept frame's wall, its frame shape
 
     def _enu(self, pose) -> np.ndarray:
         import pymap3d
@@ -231,6 +426,25 @@ class SequenceParallax:
         if self._origin is None:
             self._origin = (pose.lat, pose.lon, pose.alt_amsl_m)
         return np.array(pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, *self._origin), float)
+
+    def note_kept(self, mask: np.ndarray, pose, wall_depth_m: float) -> None:
+        """Remember a kept frame's final mask (frame size), where it was taken and its wall's depth."""
+        if not self.params.wall_in_view_rule or pose is None or not np.isfinite(wall_depth_m) or wall_depth_m <= 0:
+            return
+        self._kept = (kept_wall(mask, self._enu(pose), wall_depth_m, self.params), mask.shape[:2])
+
+    def kept_wall_depth_m(self) -> float:
+        """The wall depth of the last kept frame (a frame kept by carrying its strip measured none of its own)."""
+        return self._kept[0].wall_depth_m if self._kept is not None else float("nan")
+
+    def wall_in_view(self, pose, frame_shape: tuple[int, ...]) -> np.ndarray | None:
+        """The last kept frame's wall as this frame must still see it (work resolution), or None."""
+        if pose is None or self._kept is None or self._kept[1] != tuple(frame_shape[:2]):
+            return None
+        yaw, pitch, roll = pose.camera_angles()
+        R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
+        fx = (frame_shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
+        return carried_wall(self._kept[0], self._enu(pose), R, fx, frame_shape[1], self.params)
 
     def remember(self, image: np.ndarray, pose) -> None:
         """Keep a frame as a possible reference without judging it (frames closer than a quarter of the minimum

@@ -6,6 +6,7 @@ Real PX4 moves home's altitude for 120 s after take-off whenever its barometer a
 
 from __future__ import annotations
 
+import argparse
 import logging
 import os
 import subprocess
@@ -13,8 +14,12 @@ import sys
 
 import pytest
 
+from companion.errors import CompanionError
 from companion.flight.home_watch import MIN_GROUND_CLEARANCE_M, HomeWatch
+from companion.mission import items as mi
 from companion.mission import load_mission, plan_scan
+from sim.vehicle import flavours as fl
+from sim.vehicle.autopilot import SimVehicle, VehicleConfig
 from tests.sitl import ROOT
 
 DEMO = ROOT / "missions/demo-facade.yaml"
@@ -91,3 +96,45 @@ def test_px4_moving_home_down_in_flight_ends_the_scan_with_rtl_and_a_clear_error
     assert "0.35 m above the take-off ground" in out and "raise the strip bottoms" in out, out[-4000:]
     assert "stopped by home" in out and "mission NOT complete" in out, out[-4000:]
     assert "landed and disarmed after RTL" in out, out[-4000:]
+
+
+def test_sim_px4_moves_home_and_later_items_fly_above_the_new_home():
+    """In process: 5 s after take-off PX4 moves home 1.5 m down; HOME_POSITION and the relative altitude say so, and
+    the next waypoint (6 m above home) is flown 4.5 m above the true ground."""
+    nan = float("nan")
+    x, y = 375663800, 1269781500
+    mission = [mi.MissionItem(0, 6, mi.MAV_CMD_NAV_TAKEOFF, 1, 1, 0.0, 0.0, 0.0, nan, x, y, 6.0),
+               mi.MissionItem(1, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 5.0, 0.5, 0.0, 0.0, x + 900, y, 6.0),
+               mi.MissionItem(2, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.5, 0.0, 0.0, x, y, 6.0),
+               mi.MissionItem(3, 6, mi.MAV_CMD_NAV_LAND, 0, 1, 0.0, 0.0, 0.0, nan, 0, 0, 0.0)]
+    v = SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), home_shift_after_takeoff_s=5.0,
+                                 home_shift_m=-1.5))
+    try:
+        v._on_new_mission(mission)
+        assert v.arm() is None and v.set_mode(fl.MISSION) is None
+        for _ in range(int(120 / 0.02)):
+            v.step()
+            if v.mission_seq >= 2 and v.home_alt_shift_m != 0.0:
+                break
+        assert v.home_alt_shift_m == -1.5
+        assert v._home_position().altitude == pytest.approx((v.cfg.home.alt_amsl_m - 1.5) * 1000, abs=1)
+        for _ in range(int(60 / 0.02)):
+            v.step()
+            if v.mission_seq >= 3:
+                break
+        true_height = -float(v.model.state.pos[2])
+        assert true_height == pytest.approx(4.5, abs=0.3)  # item 2: 6 m above the moved home
+        assert v._global_position().relative_alt / 1000.0 == pytest.approx(true_height + 1.5, abs=0.05)
+    finally:
+        v.close()
+
+
+def test_sim_refuses_a_home_move_px4_would_not_make():
+    from sim.vehicle.cli import add_arguments, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    for argv in (["--autopilot", "ardupilot", "--home-shift-after-takeoff", "30"],
+                 ["--home-shift-after-takeoff", "200"]):  # outside PX4's 120 s correction window
+        with pytest.raises(CompanionError, match="only PX4 moves home in flight"):
+            config_from_args(parser.parse_args(argv))

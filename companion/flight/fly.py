@@ -279,17 +279,31 @@ class _Supervisor:
     async def _home_moved_too_low(self, current_seq: int, airborne: bool) -> bool:
         """Feed the latest home altitude to the watch; when its move puts a waypoint ahead too near the ground, end
         the scan now, while the vehicle is still clear of it (pause, RTL, wait for the landing)."""
-        alt = self.rec.state.get("home_alt_m")
-        if alt is not None and alt != self.home.home_now_m:
-            self.home.on_home(alt)
+        before = self.rec.home_before_air_m  # home at arming (PX4 sets it again when it arms)
+        if not self.home.airborne and before is not None and before != self.home.home_now_m:
+            self.home.on_home(before)
         if airborne and not self.home.airborne:
             self.home.on_airborne()
+        alt = self.rec.state.get("home_alt_m")
+        if self.home.airborne and alt is not None and alt != self.home.home_now_m:
+            self.home.on_home(alt)
         low = self.home.too_low(current_seq)
         if low is None:
             return False
         self._fail(low.problem(self.home.min_clearance_m))
         await self._rtl_and_wait(timeout_s=self.stop_wait_s)
         return True
+
+    async def read_home_before_arming(self, timeout_s: float = 5.0) -> None:
+        """The home altitude before arming, so the watch has its reference even if the vehicle is in the air
+        before the next HOME_POSITION arrives (0.5 Hz); one received later, before take-off, replaces it."""
+        try:
+            home = await asyncio.wait_for(self.v.telemetry.home(), timeout_s)
+        except Exception as exc:  # the watch still takes the first one the recorder receives before take-off
+            log.warning("could not read home before arming (%s): its in-flight moves are measured from the first "
+                        "home received before take-off", exc)
+            return
+        self.home.on_home(home.absolute_altitude_m)
 
     def _start_refused(self, refusal_seen: float | None, now: float) -> str | None:
         """Before take-off: the vehicle disarmed again (PX4 refuses the takeoff of an infeasible mission and
@@ -519,6 +533,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
                         loop.add_signal_handler(sig, sup.on_signal)
                         installed.append(sig)
+            await sup.read_home_before_arming()
             await _arm_and_start(vehicle, rec, first_seq)
             sup.t0 = time.monotonic()
             reason = await sup.run()

@@ -113,6 +113,7 @@ class TelemetryRecorder:
         # while the companion is still waiting for a slow command acknowledgement on a lossy link)
         self.was_in_air = False
         self.was_armed = False  # latched likewise: armed at some point while recording
+        self.home_before_air_m: float | None = None  # the last home altitude received before the vehicle flew
         self.reboot: str | None = None
         self._boot_time_max: dict[str, float] = {}  # per message stream
         self.status_events: list[tuple[float, str, str]] = []  # (monotonic time, severity name, text)
@@ -176,7 +177,10 @@ class TelemetryRecorder:
 
     def _on_home(self, h) -> None:
         """HOME_POSITION: the autopilot may move it in flight (PX4 does for 120 s after take-off; home_watch.py)."""
-        self.state["home_alt_m"] = _num(h.absolute_altitude_m)
+        alt = _num(h.absolute_altitude_m)
+        self.state["home_alt_m"] = alt
+        if alt is not None and not self.was_in_air:
+            self.home_before_air_m = alt  # home at arming: the ground the vehicle takes off from
 
     def _on_progress(self, p) -> None:
         self.state.update(mission_item=p.current, mission_total=p.total)

@@ -486,6 +486,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.took_off = True
         self._landing_logic()
         self.preflight_disarm()
+        self.update_home_shift()  # simulated time after take-off: reproducible whatever the machine's load
         self.battery.step(dt, self.armed, float(np.linalg.norm(st.vel)))
         self._failsafes()
         self._publish_truth()
@@ -596,7 +597,6 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 self.update_init()
                 self._update_outage()
                 self.update_outage_after_takeoff()
-                self.update_home_shift()
                 if self.update_reboot():
                     t0 = time.monotonic()
                 for data in self.link.receive():

@@ -3,19 +3,24 @@ along a synthetic wall (``companion.keyframes.synthetic.WallScene``: textured wa
 true overlap), rendered ahead of time, JPEG-encoded, and replayed in real time through the live runner.
 
     python bench/chain_tracker_synthetic.py [--fps 30] [--width 1280] [--speed 1.0] [--length 24] [--speedup 1]
-                                            [--busy-core]
+                                            [--busy-core] [--working 0 640]
 
 Why beside bench/chain_tracker.py: the SITL camera renders 1280 px frames at a few per second on a loaded 2-core
 machine (docs/BENCHMARKS.md, camera simulator), so in SITL the chain never sees 30 fps; here the frames arrive at
 the camera's rate whatever the renderer costs, with the real depth mask and gate. Prints per chain: frames
 considered per second, frames measured, CPU share of one core (chain thread), keyframes against the minimum from
 truth (the paper's rule on every frame's true overlap), the lowest true overlap of a keyframe pair, warnings, gaps.
+``--working``: the chain's working copy (long side px; 0 = decide on the camera's frames, the chain before issue
+17's working copy), each chain run once per size, side by side.
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
 import json
+import pstats
 import sys
 import tempfile
 import time
@@ -33,12 +38,14 @@ from companion.capture.sources import FrameSource  # noqa: E402
 from companion.capture.tagging import FrameTagger  # noqa: E402
 from companion.capture.telemetry import ClockMap, TelemetryBuffer  # noqa: E402
 from companion.depth.masker import Masker  # noqa: E402
+from companion.depth.parallax import SequenceParallax  # noqa: E402
 from companion.keyframes.gate import GateConfig, KeyframeGate  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 from companion.onboard.chain import CullChain  # noqa: E402
 from companion.onboard.runner import LiveRunner  # noqa: E402
 from companion.onboard.tracked import MeasureSchedule  # noqa: E402
+from companion.onboard.working import WorkingCopy  # noqa: E402
 from companion.records import Frame  # noqa: E402
 from companion.spool import KeyframeSpool  # noqa: E402
 
@@ -72,26 +79,44 @@ def scene_and_path(args) -> tuple[WallScene, list[WallCamera]]:
     return scene, cams
 
 
-def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path) -> dict:
+def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working: int) -> dict:
     buffer = TelemetryBuffer()
     for i, cam in enumerate(cams):
         buffer.add(scene.pose(cam, i / args.fps))
     predictor = WallMotionPredictor(scene.frame, scene.hfov_deg, standoff_m=STANDOFF_M)
     gate = KeyframeGate(GateConfig(), predictor)
-    chain = CullChain(FrameTagger(buffer, ClockMap(fixed_offset_s=0.0)), Masker(), gate, KeyframeSpool(out / name),
-                      track=MeasureSchedule() if name == "tracker" else None)  # fmt: skip
-    source = PacedJpegSource(jpegs, args.fps, args.speedup)
+    spool = out / f"{name}-{working}"
+    parallax = SequenceParallax(scene.hfov_deg, standoff_m=STANDOFF_M) if args.parallax else None
+    chain = CullChain(FrameTagger(buffer, ClockMap(fixed_offset_s=0.0)), Masker(parallax=parallax), gate,
+                      KeyframeSpool(spool), track=MeasureSchedule() if name == "tracker" else None,
+                      working=WorkingCopy(working))  # fmt: skip
+    source = PacedJpegSource(jpegs, args.fps, args.speedup or 1.0)
     tracked = name == "tracker"
-    runner = LiveRunner(source, chain, queue_size=30 if tracked else 3, drop="thin" if tracked else "oldest")
     wall0 = time.monotonic()
-    runner.run_until_done(poll_s=0.05)
+    if args.speedup > 0:
+        runner = LiveRunner(source, chain, queue_size=30 if tracked else 3, drop="thin" if tracked else "oldest")
+        runner.run_until_done(poll_s=0.05)
+    else:  # unpaced: every frame through the chain, none dropped (the chain's CPU per frame, whatever the load)
+        profile = cProfile.Profile(time.thread_time) if args.profile else None
+        for i, data in enumerate(jpegs):
+            frame = Frame(i, i / args.fps, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+            if profile is not None:
+                profile.enable()
+            chain.process(frame)
+            if profile is not None:
+                profile.disable()
+        chain.finish()
+        if profile is not None:
+            print_profile(profile, f"{name}, working copy {working or 'none'}")
     wall = time.monotonic() - wall0
     st = chain.stats
-    kept = [json.loads(x)["index"] for x in (out / name / "manifest.jsonl").read_text().splitlines()]
+    kept = [json.loads(x)["index"] for x in (spool / "manifest.jsonl").read_text().splitlines()]
     pairs = [100.0 * scene.true_overlap(cams[a], cams[b]) for a, b in zip(kept, kept[1:], strict=False)]
     span = len(cams) / args.fps
     return {
         "chain": name,
+        "working_copy_px": working or "camera's frames",
+        "speedup": args.speedup,
         "frames_offered": len(cams),
         "frames_considered_per_s": round((st.frames_in - st.skipped_backlog) / span, 2),
         "frames_skipped_for_cpu": st.skipped_backlog,
@@ -107,6 +132,14 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path) -> dict
         "gaps": st.gaps,
         "wall_s": round(wall, 1),
     }
+
+
+def print_profile(profile: cProfile.Profile, label: str) -> None:
+    """Where the chain thread's CPU went (``CullChain.process`` only; cProfile's own overhead inflates the
+    Python-heavy rows): the calls that cost most, by own time."""
+    text = io.StringIO()
+    pstats.Stats(profile, stream=text).sort_stats("tottime").print_stats(14)
+    print(f"-- CPU profile of the chain thread: {label}\n{text.getvalue()}", flush=True)
 
 
 def minimum_keyframes(scene: WallScene, cams, rth: float) -> int:
@@ -125,9 +158,14 @@ def main() -> int:
     p.add_argument("--speed", type=float, default=1.0, help="scan speed along the wall, m/s")
     p.add_argument("--length", type=float, default=24.0, help="length of the scan leg, m")
     p.add_argument("--speedup", type=float, default=1.0,
-                   help="replay rate (simulated s per wall s); below 1 gives a starved chain more CPU per frame")
+                   help="replay rate (simulated s per wall s); below 1 gives a starved chain more CPU per frame; "
+                        "0: unpaced, every frame processed in turn (CPU per frame, no drops)")
+    p.add_argument("--profile", action="store_true", help="with --speedup 0: print the chain thread's CPU profile")
+    p.add_argument("--parallax", action="store_true", help="the depth mask with motion parallax (the demo's chain)")
     p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
+    p.add_argument("--working", type=int, nargs="+", default=[640],
+                   help="working copy long side(s), px (0: the camera's frames, as before the working copy)")
     p.add_argument("--out", type=Path)
     args = p.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="chain-tracker-syn-"))
@@ -137,7 +175,8 @@ def main() -> int:
           f"{args.fps:g} fps", flush=True)
     with busy_core(args.busy_core):
         for name in args.chains:
-            print(json.dumps(run_chain(name, scene, cams, jpegs, args, out), indent=1), flush=True)
+            for working in args.working:
+                print(json.dumps(run_chain(name, scene, cams, jpegs, args, out, working), indent=1), flush=True)
     return 0
 
 

@@ -14,7 +14,7 @@ Camera model: a pinhole with square pixels and the principal point at the image 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -60,6 +60,9 @@ class WallMotionPredictor:
     frame: FacadeFrame
     hfov_deg: float
     standoff_m: float | None = None
+    # pose -> (centre, rotation): the tracker predicts from the previous frame's pose and the keyframe's on every
+    # frame, so each pose is turned into a camera once, not two to four times (bounded, oldest dropped)
+    _cameras: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         if not 1.0 < self.hfov_deg < 179.0:
@@ -78,6 +81,14 @@ class WallMotionPredictor:
 
     def _camera(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
         """(camera centre in facade coordinates, rotation facade <- camera)."""
+        known = self._cameras.get(pose)
+        if known is None:
+            known = self._cameras[pose] = self._camera_of(pose)
+            while len(self._cameras) > 64:
+                self._cameras.pop(next(iter(self._cameras)))
+        return known
+
+    def _camera_of(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
         centre = np.array([float(v) for v in self.frame.geodetic_to_facade(pose.lat, pose.lon, pose.alt_amsl_m)])
         yaw, pitch, roll = pose.camera_angles()
         rot = self._basis().T @ camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)

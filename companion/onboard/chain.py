@@ -20,6 +20,7 @@ from companion.keyframes.gate import GateEventKind, KeyframeGate
 from companion.keyframes.gate_scope import ScanScope
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
+from companion.onboard.working import FullResolution, WorkingCopy
 from companion.records import Frame, Keyframe, MaskedFrame, TaggedFrame
 from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 
@@ -100,6 +101,10 @@ class CullChain:
 
     ``track`` (a ``MeasureSchedule``): every frame is tracked cheaply and only the frames around each keyframe
     decision are masked and measured (``companion.onboard.tracked``); None masks and measures every frame.
+
+    ``working``: each frame is resized once to this working copy, on which tagging, tracking, the depth mask and the
+    gate all run, so the chain's cost per frame does not grow with the camera's resolution; keyframes are spooled
+    with their full-resolution pixels (``companion.onboard.working``).
     """
 
     def __init__(
@@ -114,9 +119,12 @@ class CullChain:
         require_telemetry: bool = True,
         crosscheck: OverlapCrossCheck | None = None,
         track: MeasureSchedule | None = None,
+        working: WorkingCopy | None = None,
         scope: ScanScope | None = None,
     ):
         self.tagger = tagger
+        self.working = working or WorkingCopy()
+        self._full = FullResolution()
         self.masker = masker
         self.gate = gate
         self.spool = spool
@@ -135,6 +143,11 @@ class CullChain:
         self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track,
                                                                      observe=observe)
 
+    @property
+    def full_resolution_held(self) -> int:
+        """Full-resolution frames kept because they may still become keyframes (the chain decides on copies)."""
+        return len(self._full)
+
     def warn(self, message: str) -> None:
         message = one_line(message)
         self.stats.warnings.append(message)
@@ -146,14 +159,18 @@ class CullChain:
         st.first_frame_wall_s = st.first_frame_wall_s or now
         st.last_frame_wall_s = now
         st.frames_processed += 1
-        tagged = self.tagger.tag(frame)
+        work = self.working.of(frame)
+        self._full.keep(frame, work)
+        tagged = self.tagger.tag(work)
         if tagged.pose is None and not self._seen_pose and self.require_telemetry:
             st.before_telemetry += 1
+            self._full.release_below(None)
             return []
         self._seen_pose = self._seen_pose or tagged.pose is not None
         st.stale_pose += int(tagged.pose_stale)
         if self.scope is not None and self.scope.off_scan(tagged.pose, tagged.pose_stale):
             st.off_scan += 1  # take-off, transit, landing: not a frame of the scan, so the gate never judges it
+            self._full.release_below(self._oldest_undecided(tagged.index + 1))  # this one is never a keyframe
             return []
         if self.selection is not None:
             keyframes = self.selection.offer(tagged)
@@ -164,6 +181,7 @@ class CullChain:
         st.telemetry_vetoes = self.gate.telemetry_vetoes
         self._events()
         out = self._spool(keyframes)
+        self._full.release_below(self._oldest_undecided(tagged.index))
         st.busy_s += time.monotonic() - now
         st.cpu_s += time.thread_time() - cpu0
         return out
@@ -172,6 +190,7 @@ class CullChain:
         """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
         out = [] if self.selection is None else self._spool(self.selection.finish())
         out += self._spool(self.gate.flush())
+        self._full.release_below(None)
         self._events()
         if not self.spool_disabled:
             try:
@@ -179,6 +198,12 @@ class CullChain:
             except OSError as exc:
                 self.warn(f"cannot mark the spool closed: {exc}")
         return out
+
+    def _oldest_undecided(self, newest: int) -> int:
+        """The oldest frame that may still become a keyframe: held for a decision, or the gate's candidate."""
+        held = [] if self.selection is None else self.selection.held_indices()
+        candidate = self.gate.candidate_index
+        return min([newest, *held, *([] if candidate is None else [candidate])])
 
     def _mask(self, tagged: TaggedFrame) -> MaskedFrame | None:
         """The depth mask stage (None: the frame holds no facade, counted)."""
@@ -226,7 +251,7 @@ class CullChain:
     def _spool(self, keyframes: list[Keyframe]) -> list[SpoolEntry]:
         out = []
         for kf in keyframes:
-            kf = self._cross_check(kf)
+            kf = self._cross_check(self._full.restore(kf))
             if self.spool_disabled:
                 continue
             try:

@@ -8,6 +8,7 @@ from companion.capture.tagging import FrameTagger
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.onboard.chain import CullChain
 from companion.onboard.tracked import MeasureSchedule
+from companion.onboard.working import WorkingCopy
 from companion.spool import KeyframeSpool
 from companion.spool.camera import camera_tags_for_mission
 from companion.spool.clock import CaptureClock
@@ -86,8 +87,10 @@ def build_chain(
             seq = SequenceParallax(mission.camera.hfov_deg, standoff_m=mission.standoff_m)
         masker = Masker(model, parallax=seq)
         model_name = str(model) if model is not None else "shipped default"
+    working = WorkingCopy()
     settings = {"rth": gate_cfg.rth, "depth_model": model_name, "mask": mask,
-                "parallax": bool(masker is not None and masker.parallax is not None)}
+                "parallax": bool(masker is not None and masker.parallax is not None),
+                "working_long_side_px": working.long_side_px}
     spool = KeyframeSpool(
         out,
         meta=spool_meta(mission) if mission is not None else None,
@@ -117,5 +120,6 @@ def build_chain(
         on_warning=on_warning,
         crosscheck=crosscheck,
         track=MeasureSchedule() if track else None,
+        working=working,
         scope=scope,
     )

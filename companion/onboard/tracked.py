@@ -85,6 +85,10 @@ class TrackedSelection:
     def counts(self) -> TrackedCounts:
         return TrackedCounts(self._tracked, self._measured, self._searches, self._lost, self._held_dropped)
 
+    def held_indices(self) -> list[int]:
+        """Frames held for a decision (capture order): any of them may still become a keyframe."""
+        return [t.frame.index for t in self._held]
+
     def offer(self, tagged: TaggedFrame) -> list[Keyframe]:
         if self.tracker.anchor_index is None or self.gate.keyframe_index is None:
             return self._measure_and_push(tagged)

@@ -1,0 +1,104 @@
+"""The chain decides on a working copy and spools full-resolution keyframes (issue 17: cost independent of the
+camera's resolution)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+
+from companion.capture.tagging import FrameTagger
+from companion.capture.telemetry import ClockMap, TelemetryBuffer
+from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
+from companion.onboard.setup import build_chain
+from companion.onboard.working import FullResolution, WorkingCopy
+from companion.records import Frame, GateDecision, Keyframe, Pose
+from companion.spool.layout import MANIFEST
+
+
+def _buffer(n, fps=10.0):
+    buf = TelemetryBuffer()
+    for i in range(n + 2):
+        buf.add(Pose(i / fps, 37.0 + i * 1e-6, 127.0, 40.0, 10.0, 0.0, 0.0, 0.0))
+    return buf
+
+
+def test_working_copy_resizes_large_frames_once_and_leaves_small_ones():
+    work = WorkingCopy(640)
+    small = Frame(3, 0.3, np.zeros((360, 640, 3), np.uint8))
+    assert work.of(small) is small
+    big = Frame(4, 0.4, np.full((720, 1280, 3), 77, np.uint8))
+    copy = work.of(big)
+    assert copy.image.shape == (360, 640, 3) and (copy.index, copy.capture_time_s) == (4, 0.4)
+    assert int(copy.image[100, 100, 0]) == 77
+    assert WorkingCopy(0).of(big) is big
+
+
+def test_restore_gives_a_keyframe_its_full_resolution_image_mask_and_pixel_shifts():
+    full = Frame(7, 0.7, np.zeros((720, 1280, 3), np.uint8))
+    work = WorkingCopy(640).of(full)
+    mask = np.zeros((360, 640), np.uint8)
+    mask[:, 320:] = 255
+    kf = Keyframe(work, None, mask,
+                  GateDecision(overlap_to_previous=81.0, dx_px=-50.0, dy_px=4.0, prediction_miss_px=1.5))
+    held = FullResolution()
+    held.keep(full, work)
+    out = held.restore(kf)
+    assert out.image is full.image and out.mask.shape == (720, 1280)
+    assert set(np.unique(out.mask)) == {0, 255} and out.mask[:, 700:].all() and not out.mask[:, :600].any()
+    d = out.decision
+    assert (d.dx_px, d.dy_px, d.prediction_miss_px, d.overlap_to_previous) == (-100.0, 8.0, 3.0, 81.0)
+    held.release_below(8)
+    assert len(held) == 0 and held.restore(kf) is kf  # released: nothing to restore
+
+
+def test_chain_on_1280_px_frames_spools_full_resolution_keyframes_at_the_overlap_target(tmp_path):
+    tex = textured_wall(3200, 1000, seed=3)
+    step = 40  # texture px per frame at zoom 1: the true full-resolution shift
+    views = sweep(tex, 36, step, 1280, 720, y=500)
+    chain = build_chain(tmp_path, FrameTagger(_buffer(len(views)), ClockMap(0.0)), mask=False)
+    seen = []  # the frame sizes the gate decided on
+    for name in ("measure", "push"):
+        method = getattr(chain.gate, name)
+        setattr(chain.gate, name, lambda masked, method=method: seen.append(masked.image.shape) or method(masked))
+    held = []
+    for i, view in enumerate(views):
+        chain.process(Frame(i, i / 10.0, render(tex, view)))
+        held.append(chain.full_resolution_held)
+    chain.finish()
+    assert seen and set(seen) == {(360, 640, 3)}  # the gate's cost is that of a 640 px frame
+    assert max(held) <= chain.selection.schedule.max_held + 2  # full-resolution frames are let go once decided
+    lines = [json.loads(x) for x in (tmp_path / MANIFEST).read_text().splitlines()]
+    idx = [x["index"] for x in lines]
+    assert idx[0] == 0 and idx[-1] == len(views) - 1 and len(idx) >= 4
+    for a, b in zip(idx, idx[1:], strict=False):
+        assert true_overlap(views[a], views[b]) >= 0.80 - 0.03
+        if b + 1 < len(views):
+            assert true_overlap(views[a], views[b + 1]) < 0.80 + 0.03
+    for line in lines[1:]:
+        stem = tmp_path / f"kf_{line['index']:06d}"
+        assert cv2.imread(str(stem) + ".jpg").shape == (720, 1280, 3)
+        assert cv2.imread(str(stem) + "_mask.png", cv2.IMREAD_GRAYSCALE).shape == (720, 1280)
+        side = json.loads((stem.with_suffix(".json")).read_text())
+        frames = side["frames_since_previous"]
+        # the wall moved right, so its image moved left by `step` full-resolution px per frame
+        assert abs(side["dx_px"] + step * frames) < 0.02 * step * frames + 2.0
+
+
+def test_off_scan_frames_do_not_pile_up_at_full_resolution(tmp_path):
+    from companion.keyframes.gate_scope import ScanScope
+    from companion.keyframes.synthetic import WallCamera, WallScene
+
+    scene = WallScene(textured_wall(600, 200, seed=1), textured_wall(160, 60, seed=2), 16.0, 10.0,
+                      width_px=1280, height_px=720)
+    buf = TelemetryBuffer()
+    for i in range(12):  # a transit 15 m out: every frame off the scan
+        buf.add(scene.pose(WallCamera(4.0 + 0.1 * i, 15.0, 5.0), i / 10.0))
+    chain = build_chain(tmp_path, FrameTagger(buf, ClockMap(0.0)), mask=False)
+    chain.scope = ScanScope(scene.frame, 4.0)
+    image = np.zeros((720, 1280, 3), np.uint8)
+    for i in range(10):
+        chain.process(Frame(i, i / 10.0, image))
+        assert chain.full_resolution_held == 0
+    assert chain.stats.off_scan == 10 and chain.stats.keyframes == 0

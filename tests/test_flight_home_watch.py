@@ -96,6 +96,7 @@ def test_px4_moving_home_down_in_flight_ends_the_scan_with_rtl_and_a_clear_error
     assert "0.35 m above the take-off ground" in out and "raise the strip bottoms" in out, out[-4000:]
     assert "stopped by home" in out and "mission NOT complete" in out, out[-4000:]
     assert "landed and disarmed after RTL" in out, out[-4000:]
+    assert "parameter MPC_Z_V_AUTO_DN restored to 1.5" in out, out[-4000:]  # what it set for the flight is restored
 
 
 def test_sim_px4_moves_home_and_later_items_fly_above_the_new_home():

@@ -37,6 +37,7 @@ class _Recorder:
         self.reboot: str | None = None
         self.status_texts: list[str] = []
         self.status_events: list[tuple[float, str, str]] = []
+        self.home_before_air_m: float | None = None
 
     def say(self, severity: str, text: str) -> None:
         self.status_texts.append(f"{severity}: {text}")
@@ -172,3 +173,25 @@ def test_recorder_compares_each_stream_only_with_itself():
     assert rec.reboot is None
     rec._on_boot_time(3.0, "ATTITUDE")  # the autopilot really restarted
     assert rec.reboot is not None and "512.0 s to 3.0 s" in rec.reboot
+
+
+def test_home_moved_down_in_flight_ends_the_scan_with_rtl():
+    """The recorder saw home at 30 m before take-off; in the air the autopilot moved it to 25.5 m: the waypoints
+    ahead (5 m above home) would be flown 0.5 m above the take-off ground, under the 1 m minimum."""
+    rec = _Recorder(item=3, armed=True, in_air=True, was_in_air=True)
+    rec.home_before_air_m = 30.0
+    rec.state["home_alt_m"] = 25.5  # waypoints 5 m above home now 0.5 m above the take-off ground
+    vehicle = _Vehicle()
+    sup = _supervisor(rec, vehicle, flight_timeout_s=600.0, stop_wait_s=0.5)
+    reason, took = _run(sup, rec)
+    assert reason == "home" and vehicle.rtl_commands == 1 and took < 5.0
+    assert "moved home's altitude by -4.50 m" in sup.problem and "0.50 m above the take-off ground" in sup.problem
+
+
+def test_home_moving_within_the_clearance_lets_the_flight_go_on():
+    rec = _Recorder(item=len(_items()), armed=False, in_air=False, was_in_air=True)
+    rec.home_before_air_m = 30.0
+    rec.state["home_alt_m"] = 28.0  # 5 m waypoints now 3 m above the ground: said, not ended
+    sup = _supervisor(rec, flight_timeout_s=600.0)
+    reason, _ = _run(sup, rec)
+    assert reason is None and sup.problem is None and sup.home.moves == [-2.0]

@@ -9,6 +9,9 @@ Supervision rules (why they look like this; docs/FLIGHT.md "Supervision"):
   * every ending is bounded and said: a start the vehicle refuses (it disarms on the ground, or reports a critical
     error before taking off) ends within seconds; a link silent for ``link_loss_s`` is counted as a loss, one
     silent for ``link_dead_s`` ends supervision as failed; a timeout commands RTL; a failed RTL is reported;
+  * the autopilot's home altitude is watched (mission altitudes are relative to it and PX4 moves it in flight):
+    each move of more than 0.3 m is said; one that brings a waypoint still ahead under 1 m above the take-off
+    ground ends the scan (pause, RTL) as failed (``home_watch.py``);
   * SIGINT/SIGTERM: pause (hold), then RTL, then wait at most ``stop_wait_s`` for landed + disarmed (said, with the
     time left); a second signal stops waiting.
 """
@@ -34,6 +37,7 @@ from companion.flight.connection import (
     wait_initialised,
 )
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
+from companion.flight.home_watch import HomeWatch
 from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
@@ -66,7 +70,8 @@ class FlightResult:
     """What happened. ``completed``: every mission item was reached and the vehicle ended landed + disarmed.
 
     ``aborted``: 'signal', 'timeout', 'failsafe' (landed early), 'reboot' (the autopilot restarted), 'link' (silent
-    longer than the limit) or None; ``problem`` says it in words for a person."""
+    longer than the limit), 'home' (the autopilot moved home so low that a waypoint ahead nears the ground) or
+    None; ``problem`` says it in words for a person."""
 
     completed: bool
     landed: bool
@@ -137,6 +142,7 @@ class _Supervisor:
         self.telemetry_rate_hz = telemetry_rate_hz
         self._rerequest: asyncio.Task | None = None
         self._rerequested_at = 0.0
+        self.home = HomeWatch(items)
 
     def on_signal(self) -> None:
         self.signal_count += 1
@@ -234,6 +240,8 @@ class _Supervisor:
                     self.progress.update(self.max_reached, f"item {self.max_reached}/{total}")
                     if st["in_air"] or self.rec.was_in_air:  # latched: the flight may predate this loop
                         airborne = True
+                    if await self._home_moved_too_low(current, airborne):
+                        return "home"
                     if not airborne:
                         reason = self._start_refused(refusal_seen, now)
                         if reason is not None:
@@ -267,6 +275,35 @@ class _Supervisor:
         finally:
             self.close_open_loss()
             self.progress.close()
+
+    async def _home_moved_too_low(self, current_seq: int, airborne: bool) -> bool:
+        """Feed the latest home altitude to the watch; when its move puts a waypoint ahead too near the ground, end
+        the scan now, while the vehicle is still clear of it (pause, RTL, wait for the landing)."""
+        before = self.rec.home_before_air_m  # home at arming (PX4 sets it again when it arms)
+        if not self.home.airborne and before is not None and before != self.home.home_now_m:
+            self.home.on_home(before)
+        if airborne and not self.home.airborne:
+            self.home.on_airborne()
+        alt = self.rec.state.get("home_alt_m")
+        if self.home.airborne and alt is not None and alt != self.home.home_now_m:
+            self.home.on_home(alt)
+        low = self.home.too_low(current_seq)
+        if low is None:
+            return False
+        self._fail(low.problem(self.home.min_clearance_m))
+        await self._rtl_and_wait(timeout_s=self.stop_wait_s)
+        return True
+
+    async def read_home_before_arming(self, timeout_s: float = 5.0) -> None:
+        """The home altitude before arming, so the watch has its reference even if the vehicle is in the air
+        before the next HOME_POSITION arrives (0.5 Hz); one received later, before take-off, replaces it."""
+        try:
+            home = await asyncio.wait_for(self.v.telemetry.home(), timeout_s)
+        except Exception as exc:  # the watch still takes the first one the recorder receives before take-off
+            log.warning("could not read home before arming (%s): its in-flight moves are measured from the first "
+                        "home received before take-off", exc)
+            return
+        self.home.on_home(home.absolute_altitude_m)
 
     def _start_refused(self, refusal_seen: float | None, now: float) -> str | None:
         """Before take-off: the vehicle disarmed again (PX4 refuses the takeoff of an infeasible mission and
@@ -496,6 +533,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
                         loop.add_signal_handler(sig, sup.on_signal)
                         installed.append(sig)
+            await sup.read_home_before_arming()
             await _arm_and_start(vehicle, rec, first_seq)
             sup.t0 = time.monotonic()
             reason = await sup.run()

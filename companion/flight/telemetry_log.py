@@ -108,11 +108,12 @@ class TelemetryRecorder:
         self.path = Path(path) if path else None
         self._file: IO[str] | None = None
         self.state: dict = {"mission_item": -1, "mission_total": 0, "armed": None, "in_air": None,
-                            "flight_mode": None, "landed_state": None}
+                            "flight_mode": None, "landed_state": None, "home_alt_m": None}
         # latched: the vehicle was seen in the air at some point while recording (a short flight can start and end
         # while the companion is still waiting for a slow command acknowledgement on a lossy link)
         self.was_in_air = False
         self.was_armed = False  # latched likewise: armed at some point while recording
+        self.home_before_air_m: float | None = None  # the last home altitude received before the vehicle flew
         self.reboot: str | None = None
         self._boot_time_max: dict[str, float] = {}  # per message stream
         self.status_events: list[tuple[float, str, str]] = []  # (monotonic time, severity name, text)
@@ -140,6 +141,7 @@ class TelemetryRecorder:
                      self._follow(t.subscribe_in_air(), lambda v: self._on_state("in_air", bool(v))),
                      self._follow(t.subscribe_landed_state(), lambda v: self.state.update(landed_state=v.name)),
                      self._follow(t.subscribe_status_text(), self._on_status_text),
+                     self._follow(t.subscribe_home(), self._on_home),
                      self._follow(m.subscribe_mission_progress(), self._on_progress)):
             self._tasks.append(asyncio.create_task(coro))
         direct = getattr(self.vehicle, "direct", None)
@@ -172,6 +174,13 @@ class TelemetryRecorder:
 
     def _on_velocity(self, v) -> None:
         self.state.update(vn_m_s=_num(v.north_m_s), ve_m_s=_num(v.east_m_s), vd_m_s=_num(v.down_m_s))
+
+    def _on_home(self, h) -> None:
+        """HOME_POSITION: the autopilot may move it in flight (PX4 does for 120 s after take-off; home_watch.py)."""
+        alt = _num(h.absolute_altitude_m)
+        self.state["home_alt_m"] = alt
+        if alt is not None and not self.was_in_air:
+            self.home_before_air_m = alt  # home at arming: the ground the vehicle takes off from
 
     def _on_progress(self, p) -> None:
         self.state.update(mission_item=p.current, mission_total=p.total)

@@ -83,6 +83,8 @@ class VehicleConfig:
     gps_ready_after_s: float | None = None
     storage: Path | None = None
     init_s: float | None = None  # wall seconds of start-up after each boot (None: the flavour's, firmware.py)
+    home_shift_after_takeoff_s: float | None = None  # PX4 moves home's altitude this long (simulated) after take-off
+    home_shift_m: float = 0.0  # ... by this much (up positive)
     limits: Limits = field(default_factory=Limits)
 
 
@@ -238,7 +240,9 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             north, east = float(self.nav[0]), float(self.nav[1])
         else:
             north, east, _ = pymap3d.geodetic2ned(item.lat, item.lon, h.alt_amsl_m, h.lat, h.lon, h.alt_amsl_m)
-        down = -(item.z - h.alt_amsl_m) if item.frame in (mi.MAV_FRAME_GLOBAL, mi.MAV_FRAME_GLOBAL_INT) else -item.z
+        # relative altitudes are above home as it is now (PX4 may have moved it in flight: firmware.py)
+        down = (-(item.z - h.alt_amsl_m) if item.frame in (mi.MAV_FRAME_GLOBAL, mi.MAV_FRAME_GLOBAL_INT)
+                else -(item.z + self.home_alt_shift_m))
         return np.array([north, east, down], dtype=float)
 
     # --- modes ---------------------------------------------------------------------------------------------
@@ -482,6 +486,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.took_off = True
         self._landing_logic()
         self.preflight_disarm()
+        self.update_home_shift()  # simulated time after take-off: reproducible whatever the machine's load
         self.battery.step(dt, self.armed, float(np.linalg.norm(st.vel)))
         self._failsafes()
         self._publish_truth()

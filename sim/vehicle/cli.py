@@ -11,6 +11,7 @@ from pathlib import Path
 from companion.errors import CompanionError
 from companion.geo import GeoPoint
 from sim.vehicle.autopilot import SimVehicle, VehicleConfig
+from sim.vehicle.firmware import PX4_HOME_CORRECTION_WINDOW_S
 from sim.vehicle.flavours import FLAVOURS
 from sim.vehicle.model import Limits
 
@@ -92,6 +93,12 @@ def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
                    help="simulated seconds after boot until the estimator uses GPS (default: ArduCopter 38, PX4 0)")
     p.add_argument("--storage", type=Path,
                    help="PX4 flavour: keep the mission and its current item in this file across restarts")
+    p.add_argument("--home-shift-after-takeoff", type=float, metavar="S",
+                   help="PX4 flavour: this many simulated seconds after take-off (at most 120, PX4's correction "
+                        "window) the autopilot moves home's altitude by --home-shift-m, as real PX4 does when its "
+                        "barometer and GPS altitude disagree; later mission altitudes move with it")
+    p.add_argument("--home-shift-m", type=float, default=0.0, metavar="M",
+                   help="how far home's altitude moves (up positive; real PX4 SIH: -1.51 .. +1.50 m)")
     p.add_argument("--init-s", type=float, metavar="S",
                    help="wall seconds after (re)boot until the autopilot has initialised: only HEARTBEAT is sent and "
                         "a mission upload is refused (ArduCopter: NO_SPACE, 'Only 0 items are supported'); default "
@@ -101,7 +108,8 @@ def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
 def firmware_config(args: argparse.Namespace) -> dict:
     return dict(reboot_after_takeoff_s=args.reboot_after_takeoff, reboot_s=args.reboot_s,
                 geofence_max_dist_m=args.geofence_max_dist, gps_ready_after_s=args.gps_ready_after,
-                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff, init_s=args.init_s)
+                storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff, init_s=args.init_s,
+                home_shift_after_takeoff_s=args.home_shift_after_takeoff, home_shift_m=args.home_shift_m)
 
 
 def config_from_args(args: argparse.Namespace) -> VehicleConfig:
@@ -114,6 +122,11 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
         raise CompanionError(f"--stream-stall {args.stream_stall} / --stream-stall-every {args.stream_stall_every}: "
                              "a stall cannot be negative nor stalls come every 0 s",
                              "give e.g. --stream-stall 2.5 --stream-stall-every 30")
+    shift_at = args.home_shift_after_takeoff
+    if shift_at is not None and (args.autopilot != "px4" or not 0.0 <= shift_at <= PX4_HOME_CORRECTION_WINDOW_S):
+        raise CompanionError(f"--home-shift-after-takeoff {shift_at:g} with --autopilot {args.autopilot}: only PX4 "
+                             f"moves home in flight, and only within {PX4_HOME_CORRECTION_WINDOW_S:g} s of take-off",
+                             "use --autopilot px4 and a time between 0 and 120 s")
     return VehicleConfig(
         home=args.home, home_yaw_deg=args.home_yaw, speedup=args.speedup, seed=args.seed, autopilot=args.autopilot,
         target=(args.mavlink_host, args.mavlink_port), bind_port=args.bind_port, pose_port=args.pose_port or None,

@@ -18,6 +18,11 @@ Each rule here was seen on real firmware in SITL (shared/notes/real-firmware.md;
   initialised, refuses any mission upload with NO_SPACE and "Only 0 items are supported"; then "ArduPilot Ready".
 * The failsafe parameters with the firmware defaults (FS_GCS_ENABLE 0 and RTL_ALT 1500 cm on ArduCopter,
   NAV_DLL_ACT 0 and RTL_RETURN_ALT 30 m on PX4) and the lost-link action each of them selects.
+* PX4 moves its home altitude in flight (``--home-shift-after-takeoff``, ``--home-shift-m``): for 120 s after
+  take-off (commander HomePosition.cpp, ``kHomePositionCorrectionTimeWindow``, COM_HOME_EN 1) it shifts home by the
+  barometer-vs-GPS altitude difference whenever that exceeds 1 m; real PX4 SIH ended 11 flights with home -1.51 to
+  +1.50 m off the true ground (docs/FLIGHT.md). HOME_POSITION and the relative altitude report the new home, and
+  every mission item activated later flies its altitude above the new home.
 """
 
 from __future__ import annotations
@@ -45,6 +50,8 @@ FAILSAFE_DEFAULTS = {
             "GF_MAX_HOR_DIST": 0.0},
     "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500},
 }
+# PX4 corrects home's altitude only this long after take-off (HomePosition.cpp kHomePositionCorrectionTimeWindow).
+PX4_HOME_CORRECTION_WINDOW_S = 120.0
 # Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
 GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
 COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
@@ -95,6 +102,7 @@ class FirmwareRules:
         self._outage_wall: float | None = None
         self._init_until_wall: float | None = None
         self._mission_capacity = self.missions.max_items
+        self.home_alt_shift_m = 0.0  # how far PX4 has moved home's altitude from the take-off ground (up positive)
         self._load_storage()
 
     # --- start-up after each boot (ArduCopter: about 1 s of wall time) ---------------------------------------
@@ -226,6 +234,19 @@ class FirmwareRules:
         if self.link.down and not down:
             log.warning("link outage ends")
         self.link.down = down
+
+    def update_home_shift(self) -> None:
+        """``--home-shift-after-takeoff S --home-shift-m M``: S simulated seconds after take-off PX4 moves home's
+        altitude by M metres (once; the last of its corrections is the one that stays)."""
+        cfg = self.cfg
+        if cfg.home_shift_after_takeoff_s is None or self.home_alt_shift_m == cfg.home_shift_m:
+            return
+        since = self.seconds_since_takeoff()
+        if since is None or since < cfg.home_shift_after_takeoff_s:
+            return
+        self.home_alt_shift_m = float(cfg.home_shift_m)
+        log.warning("home altitude moved by %+.2f m %.1f s after take-off (PX4's baro/GPS home correction)",
+                    self.home_alt_shift_m, since)
 
     # --- reboot mid-flight ----------------------------------------------------------------------------
     def update_reboot(self) -> bool:

@@ -65,7 +65,8 @@ class TelemetryStreams:
         lat, lon, alt = self.ned_to_geodetic(self.nav)
         v = self.model.state.vel
         return self.mav.global_position_int_encode(
-            int(self.t * 1000), round(lat * 1e7), round(lon * 1e7), int(alt * 1000), int(-self.nav[2] * 1000),
+            int(self.t * 1000), round(lat * 1e7), round(lon * 1e7), int(alt * 1000),
+            int((-self.nav[2] - self.home_alt_shift_m) * 1000),  # above home as the autopilot has it now
             int(v[0] * 100), int(v[1] * 100), int(v[2] * 100), int(self.yaw_deg * 100) % 36000)
 
     def _gps_raw(self):
@@ -94,8 +95,10 @@ class TelemetryStreams:
 
     def _home_position(self):
         h = self.cfg.home
-        return self.mav.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), int(h.alt_amsl_m * 1000),
-                                             0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, int(self.t * 1e6))
+        alt_mm = int((h.alt_amsl_m + self.home_alt_shift_m) * 1000)  # PX4 may have moved it in flight
+        return self.mav.home_position_encode(round(h.lat * 1e7), round(h.lon * 1e7), alt_mm,
+                                             0.0, 0.0, -self.home_alt_shift_m, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+                                             int(self.t * 1e6))
 
     def _battery_status(self):
         b = self.battery

@@ -1,0 +1,107 @@
+"""Watch the autopilot's home altitude during a flight: mission altitudes are relative to home, so when the autopilot
+moves home, every later mission altitude moves with it.
+
+Real PX4 does this on its own: for 120 s after take-off (commander ``HomePosition.cpp``, COM_HOME_EN 1, the default)
+it shifts home's altitude by the barometer-vs-GPS difference whenever that exceeds 1 m. Over 11 PX4 SIH flights home
+ended -1.51 .. +1.50 m off the true ground, and with home 1.51 m low the demo's strip bottoms (planned 1.55 m above
+home) were 0.04 m above the ground: the drone flew into it (docs/FLIGHT.md). A real vehicle's home can move the same
+way when its GPS and barometer disagree.
+
+The reference is home's altitude at arming (the last HOME_POSITION before the vehicle was seen in the air): the
+ground the vehicle took off from. Each move of more than ``HOME_MOVE_REPORT_M`` is said once; a move that brings the
+lowest waypoint still ahead closer than ``MIN_GROUND_CLEARANCE_M`` to that ground ends the scan.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from companion.mission import items as mi
+
+log = logging.getLogger(__name__)
+
+# A move smaller than this is within what the autopilot's own altitude estimate wanders; larger ones are said.
+HOME_MOVE_REPORT_M = 0.3
+# The lowest a waypoint still ahead may come to the take-off ground after home moved. The demo's strip bottoms are
+# planned 1.55 m above home; PX4 SIH's home ended up to 1.51 m low (ground contact at 0.04 m). 1 m keeps the rotor
+# wash, the altitude estimate's wander (PX4 SIH: 0.5 m white GPS altitude noise) and a landing-gear height clear.
+MIN_GROUND_CLEARANCE_M = 1.0
+# Items whose altitude is above home and that the vehicle flies to (take-off, land and return are not scan heights).
+_RELATIVE_FRAMES = {mi.MAV_FRAME_GLOBAL_RELATIVE_ALT, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
+_FLOWN_TO = {mi.MAV_CMD_NAV_WAYPOINT}
+
+
+@dataclass(frozen=True)
+class HomeTooLow:
+    """Home moved so far that a waypoint still ahead is too close to the take-off ground."""
+
+    offset_m: float  # home now minus home at arming (up positive)
+    seq: int  # the lowest waypoint still ahead
+    planned_m: float  # its altitude above home as planned
+    clearance_m: float  # where it now is above the take-off ground
+
+    def problem(self, min_clearance_m: float) -> str:
+        return (f"the autopilot moved home's altitude by {self.offset_m:+.2f} m during the flight, so waypoint "
+                f"{self.seq} (planned {self.planned_m:.2f} m above home) would be flown {self.clearance_m:.2f} m "
+                f"above the take-off ground, under the {min_clearance_m:g} m minimum: the scan ends here and the "
+                f"vehicle returns to launch. Fix: raise the strip bottoms (the mission's scan margin) or let the "
+                f"autopilot's home settle before the scan (PX4 corrects it for 120 s after take-off)")
+
+
+class HomeWatch:
+    """Fed HOME_POSITION altitudes and the flight state; says each move once and checks the waypoints ahead."""
+
+    def __init__(self, items: Sequence[mi.MissionItem], *, report_m: float = HOME_MOVE_REPORT_M,
+                 min_clearance_m: float = MIN_GROUND_CLEARANCE_M):
+        self.items = list(items)
+        self.report_m = report_m
+        self.min_clearance_m = min_clearance_m
+        self.home_at_arming_m: float | None = None
+        self.home_now_m: float | None = None
+        self.airborne = False
+        self._reported_offset_m = 0.0
+        self.moves: list[float] = []  # every offset said, in order
+
+    def on_home(self, alt_amsl_m: float) -> None:
+        """A HOME_POSITION altitude. Before the vehicle is in the air it is the reference (home at arming)."""
+        if not math.isfinite(alt_amsl_m):
+            return
+        self.home_now_m = alt_amsl_m
+        if not self.airborne:
+            self.home_at_arming_m = alt_amsl_m
+            return
+        offset = self.offset_m
+        if offset is not None and abs(offset - self._reported_offset_m) > self.report_m:
+            self._reported_offset_m = offset
+            self.moves.append(offset)
+            log.warning("the autopilot moved home's altitude by %+.2f m during the flight (now %.2f m AMSL, %.2f m "
+                        "at arming): every later mission altitude moved with it", offset, alt_amsl_m,
+                        self.home_at_arming_m)
+
+    def on_airborne(self) -> None:
+        self.airborne = True
+
+    @property
+    def offset_m(self) -> float | None:
+        if self.home_at_arming_m is None or self.home_now_m is None:
+            return None
+        return self.home_now_m - self.home_at_arming_m
+
+    def too_low(self, current_seq: int) -> HomeTooLow | None:
+        """The lowest waypoint from ``current_seq`` on, when home's move puts it under the minimum clearance."""
+        offset = self.offset_m
+        if offset is None or not self.airborne:
+            return None
+        ahead = [it for it in self.items[max(0, current_seq):]
+                 if it.command in _FLOWN_TO and it.frame in _RELATIVE_FRAMES]
+        if not ahead:
+            return None
+        lowest = min(ahead, key=lambda it: it.z)
+        clearance = lowest.z + offset
+        # only the move's doing: a plan that itself flies lower than the minimum is the planner's decision
+        if clearance >= self.min_clearance_m or clearance > lowest.z - self.report_m:
+            return None
+        return HomeTooLow(offset, int(lowest.seq), float(lowest.z), clearance)

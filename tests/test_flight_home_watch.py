@@ -1,0 +1,141 @@
+"""The companion watches the autopilot's home altitude in flight (companion/flight/home_watch.py).
+
+Real PX4 moves home's altitude for 120 s after take-off whenever its barometer and GPS altitude differ by more than
+1 m; mission altitudes are relative to home, so a home moved down flies every later waypoint lower (PX4 SIH: home
+1.51 m low, the demo's strip bottoms 0.04 m above the ground; docs/FLIGHT.md)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import subprocess
+import sys
+
+import pytest
+
+from companion.errors import CompanionError
+from companion.flight.home_watch import MIN_GROUND_CLEARANCE_M, HomeWatch
+from companion.mission import items as mi
+from companion.mission import load_mission, plan_scan
+from sim.vehicle import flavours as fl
+from sim.vehicle.autopilot import SimVehicle, VehicleConfig
+from tests.sitl import ROOT
+
+DEMO = ROOT / "missions/demo-facade.yaml"
+
+
+@pytest.fixture(scope="module")
+def demo_items():
+    return plan_scan(load_mission(DEMO)).mavlink_items(flavour="px4")
+
+
+def _flying(items, home_alt=30.0) -> HomeWatch:
+    watch = HomeWatch(items)
+    watch.on_home(home_alt)
+    watch.on_airborne()
+    return watch
+
+
+def test_home_at_arming_is_the_last_one_before_the_vehicle_is_in_the_air(demo_items):
+    watch = HomeWatch(demo_items)
+    watch.on_home(30.4)
+    watch.on_home(30.0)  # PX4 sets home again at arming
+    watch.on_airborne()
+    watch.on_home(29.5)
+    assert watch.home_at_arming_m == 30.0 and watch.offset_m == pytest.approx(-0.5)
+
+
+def test_each_move_over_the_threshold_is_said_once(demo_items, caplog):
+    watch = _flying(demo_items)
+    with caplog.at_level(logging.WARNING, logger="companion.flight.home_watch"):
+        for alt in (30.1, 29.9, 29.6, 29.6, 29.55, 29.2, 30.0):
+            watch.on_home(alt)
+    assert watch.moves == pytest.approx([-0.4, -0.8, 0.0])
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 3 and "moved home's altitude by -0.40 m" in said[0]
+    assert "every later mission altitude moved with it" in said[0]
+
+
+def test_a_move_that_brings_a_strip_bottom_near_the_ground_ends_the_scan(demo_items):
+    watch = _flying(demo_items)
+    watch.on_home(29.8)  # -0.2 m: strip bottoms at 1.35 m, still clear
+    assert watch.too_low(7) is None
+    watch.on_home(28.49)  # -1.51 m, the real PX4 SIH re-fly: strip bottoms 0.04 m above the ground
+    low = watch.too_low(7)
+    assert low is not None and low.planned_m == pytest.approx(1.55, abs=0.01)
+    assert low.clearance_m == pytest.approx(0.04, abs=0.01) and low.clearance_m < MIN_GROUND_CLEARANCE_M
+    text = low.problem(MIN_GROUND_CLEARANCE_M)
+    assert "-1.51 m" in text and "raise the strip bottoms" in text and "settle" in text
+
+
+def test_only_waypoints_still_ahead_count(demo_items):
+    watch = _flying(demo_items)
+    watch.on_home(28.5)
+    last_bottom = max(it.seq for it in demo_items if it.command == 16 and it.z < 2.0)
+    assert watch.too_low(last_bottom) is not None
+    assert watch.too_low(last_bottom + 1) is None  # only the exit climb, transit and the landing are left
+    up = _flying(demo_items)
+    up.on_home(31.5)  # home moved up: everything ahead is higher, nothing to end
+    assert up.too_low(7) is None
+
+
+@pytest.mark.sitl
+def test_px4_moving_home_down_in_flight_ends_the_scan_with_rtl_and_a_clear_error(tmp_path):
+    """The simulator's PX4 moves home 1.2 m down 30 s after take-off (inside PX4's 120 s window): the strip bottoms
+    (1.55 m above home) would be flown 0.35 m above the ground. Before the watch the flight flew on and completed
+    (exit 0); now the scan ends at once with RTL, a landing, and an error naming the problem and the fix."""
+    cmd = [sys.executable, "-m", "companion.cli", "fly", "--connect-timeout", "60", str(DEMO), "--sitl",
+           "--speedup", "20", "--no-progress", "--telemetry-log", str(tmp_path / "t.jsonl"),
+           "--sim-arg", "home-shift-after-takeoff=30", "--sim-arg", "home-shift-m=-1.2"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                          timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 1, out[-4000:]
+    assert "moved home's altitude by -1.20 m during the flight" in out, out[-4000:]
+    assert "0.35 m above the take-off ground" in out and "raise the strip bottoms" in out, out[-4000:]
+    assert "stopped by home" in out and "mission NOT complete" in out, out[-4000:]
+    assert "landed and disarmed after RTL" in out, out[-4000:]
+    assert "parameter MPC_Z_V_AUTO_DN restored to 1.5" in out, out[-4000:]  # what it set for the flight is restored
+
+
+def test_sim_px4_moves_home_and_later_items_fly_above_the_new_home():
+    """In process: 5 s after take-off PX4 moves home 1.5 m down; HOME_POSITION and the relative altitude say so, and
+    the next waypoint (6 m above home) is flown 4.5 m above the true ground."""
+    nan = float("nan")
+    x, y = 375663800, 1269781500
+    mission = [mi.MissionItem(0, 6, mi.MAV_CMD_NAV_TAKEOFF, 1, 1, 0.0, 0.0, 0.0, nan, x, y, 6.0),
+               mi.MissionItem(1, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 5.0, 0.5, 0.0, 0.0, x + 900, y, 6.0),
+               mi.MissionItem(2, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.5, 0.0, 0.0, x, y, 6.0),
+               mi.MissionItem(3, 6, mi.MAV_CMD_NAV_LAND, 0, 1, 0.0, 0.0, 0.0, nan, 0, 0, 0.0)]
+    v = SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), home_shift_after_takeoff_s=5.0,
+                                 home_shift_m=-1.5))
+    try:
+        v._on_new_mission(mission)
+        assert v.arm() is None and v.set_mode(fl.MISSION) is None
+        for _ in range(int(120 / 0.02)):
+            v.step()
+            if v.mission_seq >= 2 and v.home_alt_shift_m != 0.0:
+                break
+        assert v.home_alt_shift_m == -1.5
+        assert v._home_position().altitude == pytest.approx((v.cfg.home.alt_amsl_m - 1.5) * 1000, abs=1)
+        for _ in range(int(60 / 0.02)):
+            v.step()
+            if v.mission_seq >= 3:
+                break
+        true_height = -float(v.model.state.pos[2])
+        assert true_height == pytest.approx(4.5, abs=0.3)  # item 2: 6 m above the moved home
+        assert v._global_position().relative_alt / 1000.0 == pytest.approx(true_height + 1.5, abs=0.05)
+    finally:
+        v.close()
+
+
+def test_sim_refuses_a_home_move_px4_would_not_make():
+    from sim.vehicle.cli import add_arguments, config_from_args
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    for argv in (["--autopilot", "ardupilot", "--home-shift-after-takeoff", "30"],
+                 ["--home-shift-after-takeoff", "200"]):  # outside PX4's 120 s correction window
+        with pytest.raises(CompanionError, match="only PX4 moves home in flight"):
+            config_from_args(parser.parse_args(argv))

@@ -5,11 +5,22 @@ gap in the wall, beside its end, above the roof line), and raw input may have no
 rejects far scenery in the *matches* (a second, slower plane), but a region seen near the frame edge as the
 camera moves on is matched in no pair, and the map would draw it. What the images say about such a pixel: the
 wall's homography of an accepted pair carries it into the neighbouring keyframe, and there it lands on something
-else (the wall that hid it, or other background), because it is not on the wall plane. A pixel is cut when it
-disagrees with most of the neighbours that see the same wall point, by more than ``grey_tolerance`` grey levels
-after smoothing and the pair's exposure ratio. Wall pixels agree to a few levels (the pairs are registered to
-a fraction of a pixel); parallax too small to measure (hover, the wall motion below a few RANSAC thresholds)
-decides nothing.
+else (the wall that hid it, or other background), because it is not on the wall plane. Two tests, per pair:
+
+* the wall hypothesis fails: the pixel differs from its wall point in the neighbour by more than
+  ``grey_tolerance`` grey levels after smoothing and the pair's exposure ratio;
+* a far hypothesis explains it better: carried by the homography of a plane far behind the wall (the pair's
+  rotation alone, from the wall homography's decomposition, and planes at ``far_depth_ratios`` of the wall's
+  inverse depth: 20 m and more at a 4 m standoff), it differs by ``far_margin`` grey levels less than on the
+  wall. Low-contrast scenery (haze, foliage in shade, a street in the distance) often stays within the
+  tolerance on the wall hypothesis alone; against its own motion it agrees to a few levels.
+
+A pixel is cut when it fails in most of the neighbours that see the same wall point. The neighbour's own mask
+does not matter: what it shows at that point is the evidence, and a neighbour whose mask already cut the region
+(the depth network was sure there) is the best witness. Wall pixels agree to a few levels on the wall (the pairs
+are registered to a fraction of a pixel) and a far plane does not explain them; parallax too small to measure
+(hover, the wall motion below a few RANSAC thresholds) decides nothing, and neither does a uniform region (sky,
+plain render) that every hypothesis explains equally.
 """
 
 from __future__ import annotations
@@ -39,6 +50,10 @@ class WallCheck:
 @dataclass(frozen=True)
 class WallCheckSettings:
     grey_tolerance: float = 25.0  # mean grey difference (after smoothing) above which a pixel is not the wall
+    wall_agreement: float = 10.0  # ... and below which it is; between the two a neighbour decides nothing
+    far_margin: float = 5.0  # a far plane must explain the pixel this many grey levels better than the wall
+    # far planes tried, as fractions of the wall's inverse depth (0: infinity; 0.2: five standoffs behind)
+    far_depth_ratios: tuple[float, ...] = (0.0, 0.05, 0.1, 0.2)
     min_motion_px: float = 8.0  # the wall must move this much between the two keyframes (parallax measurable)
     work_width: int = 960  # the check runs on copies this wide
     min_region_px: int = 5  # opening: specks smaller than this (work px) are noise
@@ -55,6 +70,7 @@ def check_wall(
         return WallCheck(inp, {})
     grey, masks, sizes, scale = _load(inp, involved, s.work_width)
     S = np.diag([scale, scale, 1.0])
+    K = S @ _intrinsics(inp, sizes[involved[0]])
     votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     for r in pairs:
@@ -64,7 +80,7 @@ def check_wall(
         for a, b, H, g, pts in ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j)):
             if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
                 continue
-            off, valid = _disagreement(grey[a], masks[a], grey[b], masks[b], H, g, s.grey_tolerance)
+            off, valid = _disagreement(grey[a], masks[a], grey[b], H, _far_homographies(H, K, s), g, s)
             votes[a] += off
             checks[a] += valid
     cache_dir.mkdir(parents=True, exist_ok=True)
@@ -106,18 +122,57 @@ def _motion(H: np.ndarray, pts: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(apply_h(H, pts) - pts, axis=1)))
 
 
-def _disagreement(ga, ma, gb, mb, H, gain: float, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-    """(pixels of a whose wall point in b shows something else, pixels of a checkable in b): b sampled at H(x),
-    both masks valid, away from b's frame edge."""
+def _intrinsics(inp: StitchInput, size: tuple[int, int]) -> np.ndarray:
+    """The keyframes' camera matrix in full-resolution pixels; without one (a spool with no camera), a 53 degree
+    lens: the far planes only need the pair's rotation roughly (a degree is a few pixels of a blurred image)."""
+    if inp.camera is not None:
+        return np.asarray(inp.camera.K, float)
+    w, h = size
+    return np.array([[float(w), 0.0, w / 2.0], [0.0, float(w), h / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings) -> list[np.ndarray]:
+    """Homographies (pixels of a -> pixels of b) of planes parallel to the wall, far behind it: the wall's
+    H = K (R - t n^T / d) K^-1 decomposed, the plane at inverse depth ``r / d`` is K (R - r t n^T / d) K^-1. The
+    decomposition's solution with the normal closest to the optical axis is the wall's (the camera faces it).
+    Empty where H does not decompose (a degenerate fit: no far test)."""
+    Kinv = np.linalg.inv(K)
+    G = Kinv @ H @ K
+    sv = np.linalg.svd(G, compute_uv=False)
+    if not np.all(np.isfinite(sv)) or sv[1] <= 1e-9:
+        return []
+    G = G / sv[1] * np.sign(np.linalg.det(G))  # the scale and sign at which G = R - t n^T / d
+    n, rotations, _, normals = cv2.decomposeHomographyMat(H, K)
+    if n == 0:
+        return []
+    R = rotations[max(range(n), key=lambda q: abs(float(normals[q][2, 0])))]
+    return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in s.far_depth_ratios]
+
+
+def _disagreement(ga, ma, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings):
+    """(pixels of a that b says are off the wall, pixels of a that b decides): b sampled at H(x), a's mask valid,
+    away from b's frame edge. Off: the wall point in b shows something else (beyond ``grey_tolerance``), or a far
+    plane explains the pixel better; on: it agrees with its wall point (within ``wall_agreement``) and no far
+    plane does better. In between (a middling difference that no far plane explains: the far plane's point in b
+    hidden behind the wall, say) b abstains."""
     h, w = ga.shape
-    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=flags) * gain
     nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
     inside = cv2.warpPerspective(np.full(gb.shape, 255, np.uint8), H, (w, h), flags=nearest)
-    mb_at = cv2.warpPerspective(mb, H, (w, h), flags=nearest)
-    valid = (cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0) & (ma > 0) & (mb_at > 0)
-    diff = cv2.GaussianBlur(np.abs(ga - gb_at), (0, 0), 3.0)
-    return (valid & (diff > tolerance)).astype(np.float32), valid.astype(np.float32)
+    valid = (cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0) & (ma > 0)
+    on_wall = _difference(ga, gb, H, gain)
+    off = on_wall > s.grey_tolerance
+    if far:
+        best_far = np.minimum.reduce([_difference(ga, gb, Hf, gain) for Hf in far])
+        off |= best_far + s.far_margin < on_wall
+    decided = off | (on_wall <= s.wall_agreement)
+    return (valid & off).astype(np.float32), (valid & decided).astype(np.float32)
+
+
+def _difference(ga, gb, H, gain: float) -> np.ndarray:
+    """|a - b carried by H| (b's grey times ``gain``), smoothed: a registration off by a pixel reads small."""
+    h, w = ga.shape
+    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP) * gain
+    return cv2.GaussianBlur(np.abs(ga - gb_at), (0, 0), 3.0)
 
 
 def _write_mask(cache_dir: Path, kf, mask: np.ndarray) -> Path:

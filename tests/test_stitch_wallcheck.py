@@ -30,7 +30,7 @@ def _texture(seed: int, width: int, contrast: float = 1.0) -> np.ndarray:
 
 
 def _spool(tmp: Path, n: int, *, far_contrast: float = 1.0, masks_cut_from: int | None = None,
-           gap: tuple[int, int] = GAP) -> tuple[StitchInput, list[PairResult], list[np.ndarray]]:
+           gap: tuple[int, int] = GAP, roof_rows: int = 0) -> tuple[StitchInput, list[PairResult], list[np.ndarray]]:
     """n keyframes of a textured wall moving STEP px left per keyframe, with a gap through which a far scene is
     seen (it does not move in the image); every mask is the whole frame (the mask kept the far scene), except
     that from keyframe ``masks_cut_from`` on the masks cut the far scene (the network was sure there). Returns
@@ -49,6 +49,7 @@ def _spool(tmp: Path, n: int, *, far_contrast: float = 1.0, masks_cut_from: int 
         roi = np.full((H, W), 255, np.uint8)
         if masks_cut_from is not None and k >= masks_cut_from:
             roi[:, through] = 0
+        roi[:roof_rows, :] = 0  # wall the network read as far (a roof): cut in every keyframe
         cv2.imwrite(str(mask), roi)
         kfs.append(KeyframeInput(k, path, mask, None))
     pairs = []
@@ -114,3 +115,31 @@ def test_neighbours_whose_mask_cut_the_background_still_testify(tmp_path):
     inp, pairs, far_px = _spool(tmp_path, 6, masks_cut_from=4)
     checked = check_wall(inp, pairs, tmp_path / "masks")
     assert _far_kept(checked, far_px, 4) < 0.15
+
+
+def test_wall_every_mask_cut_is_restored_and_the_far_scene_stays_cut(tmp_path):
+    """Every keyframe's mask cut the top 60 rows of the wall (a roof the network read as far) and the far scene
+    (right); the neighbours find the roof on its wall point and no far plane explains it: restored, so the map
+    has no hole there. The far scene, whether textured (the gap) or uniform (sky: every plane explains it
+    equally), stays cut. (The check before could only cut: the roof stayed a hole.) The wall behind the gap is
+    restored too where a neighbour sees it."""
+    inp, pairs, far_px = _spool(tmp_path, 6, masks_cut_from=0, roof_rows=60)
+    checked = check_wall(inp, pairs, tmp_path / "masks")
+    masks = [cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE) for kf in checked.input.keyframes]
+    roof_seen = np.zeros(STEP * 6 + W, bool)  # wall columns whose roof some keyframe draws
+    for k, m in enumerate(masks):
+        roof_seen[STEP * k + np.flatnonzero((m[:60] > 0).mean(axis=0) > 0.9)] = True
+    u = np.arange(STEP * 6 + W)
+    # wall columns two keyframes see (the first and the last keyframe's outer STEP px have no witness)
+    witnessed = (u >= STEP) & (u < STEP * 5 + W - STEP) & ((u < GAP[0]) | (u >= GAP[1]))
+    assert roof_seen[witnessed].mean() > 0.95
+    assert _far_kept(checked, far_px, 6) < 0.02
+    assert max(checked.restored_share.values()) > 0.5
+
+
+def test_uniform_sky_the_mask_cut_is_not_restored(tmp_path):
+    """A uniform far region (sky beyond the wall's end) agrees with its wall point in every neighbour, but a far
+    plane explains it as well: nothing confirms it is wall, so it stays cut."""
+    inp, pairs, far_px = _spool(tmp_path, 6, far_contrast=0.0, gap=(560, 10**6), masks_cut_from=0)
+    checked = check_wall(inp, pairs, tmp_path / "masks")
+    assert _far_kept(checked, far_px, 6) < 0.02

@@ -21,12 +21,19 @@ does not matter: what it shows at that point is the evidence, and a neighbour wh
 are registered to a fraction of a pixel) and a far plane does not explain them; parallax too small to measure
 (hover, the wall motion below a few RANSAC thresholds) decides nothing, and neither does a uniform region (sky,
 plain render) that every hypothesis explains equally.
+
+The same evidence gives back wall the mask cut (a roof or a dormer the network read as far, cut in every
+keyframe, would be a hole in the map): a cut pixel is restored when at least ``min_witnesses`` neighbours, and
+most of those that decide, find it on its wall point (within ``wall_agreement``) and no far plane near it
+(every far plane at least ``far_margin`` worse), and it has texture of its own (local contrast of at least
+``min_texture`` grey levels). A uniform region (sky) carries no evidence: beside the wall's edge a far plane
+lands on the wall that hides it, and that must not read as proof that the sky is wall.
 """
 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -41,10 +48,12 @@ from companion.stitch.pairs import PairResult
 
 @dataclass(frozen=True)
 class WallCheck:
-    """What the check cut: per keyframe position, the share of its mask found off the wall plane."""
+    """What the check changed: per keyframe position, the share of its mask found off the wall plane, and the
+    pixels it restored as a share of the mask's cut pixels."""
 
     input: StitchInput  # keyframes whose mask changed point at the checked mask
     cut_share: dict[int, float]
+    restored_share: dict[int, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -57,6 +66,9 @@ class WallCheckSettings:
     min_motion_px: float = 8.0  # the wall must move this much between the two keyframes (parallax measurable)
     work_width: int = 960  # the check runs on copies this wide
     min_region_px: int = 5  # opening: specks smaller than this (work px) are noise
+    restore: bool = True  # give back cut pixels the neighbours confirm as wall
+    min_witnesses: int = 1  # neighbours that must confirm a cut pixel as wall (and most of those that decide)
+    min_texture: float = 4.0  # grey levels of local contrast (std, 9 px) a pixel needs to be confirmed as wall
 
 
 def check_wall(
@@ -73,6 +85,7 @@ def check_wall(
     K = S @ _intrinsics(inp, sizes[involved[0]])
     votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+    confirms = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     for r in pairs:
         Hw = S @ r.H @ np.linalg.inv(S)
         gain = float(np.exp(r.lum_ratio)) if r.lum_ratio is not None else 1.0
@@ -80,25 +93,37 @@ def check_wall(
         for a, b, H, g, pts in ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j)):
             if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
                 continue
-            off, valid = _disagreement(grey[a], masks[a], grey[b], H, _far_homographies(H, K, s), g, s)
+            off, decided, wall = _witness(grey[a], grey[b], H, _far_homographies(H, K, s), g, s)
             votes[a] += off
-            checks[a] += valid
+            checks[a] += decided
+            confirms[a] += wall
     cache_dir.mkdir(parents=True, exist_ok=True)
     kfs = list(inp.keyframes)
-    cut_share = {}
+    cut_share, restored_share = {}, {}
+    opening = np.ones((s.min_region_px, s.min_region_px), np.uint8)
     for k in involved:
         share = np.where(checks[k] > 0, votes[k] / np.maximum(checks[k], 1.0), 0.0)
-        off = (share > 0.5).astype(np.uint8) * 255
-        off = cv2.morphologyEx(off, cv2.MORPH_OPEN, np.ones((s.min_region_px, s.min_region_px), np.uint8))
-        if not off.any():
+        kept = masks[k] > 0
+        off = ((share > 0.5) & kept).astype(np.uint8) * 255
+        off = cv2.morphologyEx(off, cv2.MORPH_OPEN, opening)
+        back = np.zeros_like(off)
+        if s.restore:
+            confirmed = (confirms[k] >= s.min_witnesses) & (confirms[k] > 0.5 * checks[k]) & ~kept
+            confirmed &= _local_contrast(grey[k]) >= s.min_texture
+            back = cv2.morphologyEx(confirmed.astype(np.uint8) * 255, cv2.MORPH_OPEN, opening)
+        if not off.any() and not back.any():
             continue
-        full_mask = load_mask(kfs[k], sizes[k])  # read again only where something is cut
+        full_mask = load_mask(kfs[k], sizes[k])  # read again only where something changes
         off_full = cv2.resize(off, sizes[k], interpolation=cv2.INTER_NEAREST)
-        checked = cv2.bitwise_and(full_mask, cv2.bitwise_not(off_full))
-        kept = int(np.count_nonzero(full_mask))
-        cut_share[k] = 1.0 - int(np.count_nonzero(checked)) / max(1, kept)
+        back_full = cv2.resize(back, sizes[k], interpolation=cv2.INTER_NEAREST)
+        checked = cv2.bitwise_or(cv2.bitwise_and(full_mask, cv2.bitwise_not(off_full)),
+                                 cv2.bitwise_and(back_full, cv2.bitwise_not(full_mask)))
+        n_kept = int(np.count_nonzero(full_mask))
+        cut_share[k] = int(np.count_nonzero(cv2.bitwise_and(full_mask, off_full))) / max(1, n_kept)
+        restored = int(np.count_nonzero(cv2.bitwise_and(back_full, cv2.bitwise_not(full_mask))))
+        restored_share[k] = restored / max(1, full_mask.size - n_kept)
         kfs[k] = replace(kfs[k], mask_path=_write_mask(cache_dir, kfs[k], checked))
-    return WallCheck(replace(inp, keyframes=kfs), cut_share)
+    return WallCheck(replace(inp, keyframes=kfs), cut_share, restored_share)
 
 
 def _load(inp: StitchInput, positions: list[int], work_width: int):
@@ -116,6 +141,12 @@ def _load(inp: StitchInput, positions: list[int], work_width: int):
         masks[k] = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) if scale < 1.0 else mask
         sizes[k] = (img.shape[1], img.shape[0])
     return grey, masks, sizes, scale
+
+
+def _local_contrast(grey: np.ndarray, size: int = 9) -> np.ndarray:
+    """Standard deviation of the grey levels in a ``size`` window around each pixel."""
+    mean = cv2.blur(grey, (size, size))
+    return np.sqrt(np.maximum(cv2.blur(grey * grey, (size, size)) - mean * mean, 0.0))
 
 
 def _motion(H: np.ndarray, pts: np.ndarray) -> float:
@@ -149,23 +180,27 @@ def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings) -> lis
     return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in s.far_depth_ratios]
 
 
-def _disagreement(ga, ma, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings):
-    """(pixels of a that b says are off the wall, pixels of a that b decides): b sampled at H(x), a's mask valid,
-    away from b's frame edge. Off: the wall point in b shows something else (beyond ``grey_tolerance``), or a far
-    plane explains the pixel better; on: it agrees with its wall point (within ``wall_agreement``) and no far
-    plane does better. In between (a middling difference that no far plane explains: the far plane's point in b
-    hidden behind the wall, say) b abstains."""
+def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings):
+    """What keyframe b says about each pixel of a (b sampled at H(x), away from b's frame edge), as three 0/1
+    maps: off the wall (its wall point in b shows something else, beyond ``grey_tolerance``, or a far plane
+    explains it better by ``far_margin``); decided (off, or on its wall point within ``wall_agreement``; in
+    between, a middling difference no far plane explains, such as the far plane's point in b hidden behind the
+    wall, b abstains); confirmed wall (on its wall point and every far plane worse by ``far_margin``)."""
     h, w = ga.shape
     nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
     inside = cv2.warpPerspective(np.full(gb.shape, 255, np.uint8), H, (w, h), flags=nearest)
-    valid = (cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0) & (ma > 0)
+    valid = cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0
     on_wall = _difference(ga, gb, H, gain)
     off = on_wall > s.grey_tolerance
+    agrees = on_wall <= s.wall_agreement
+    confirmed = np.zeros_like(agrees)
     if far:
         best_far = np.minimum.reduce([_difference(ga, gb, Hf, gain) for Hf in far])
         off |= best_far + s.far_margin < on_wall
-    decided = off | (on_wall <= s.wall_agreement)
-    return (valid & off).astype(np.float32), (valid & decided).astype(np.float32)
+        confirmed = agrees & (best_far > on_wall + s.far_margin)
+    decided = off | agrees
+    return ((valid & off).astype(np.float32), (valid & decided).astype(np.float32),
+            (valid & confirmed).astype(np.float32))
 
 
 def _difference(ga, gb, H, gain: float) -> np.ndarray:

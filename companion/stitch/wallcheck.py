@@ -25,8 +25,10 @@ plain render) that every hypothesis explains equally.
 The same evidence gives back wall the mask cut (a roof or a dormer the network read as far, cut in every
 keyframe, would be a hole in the map): a cut pixel is restored when at least ``min_witnesses`` neighbours, and
 most of those that decide, find it on its wall point (within ``wall_agreement``) and no far plane near it
-(every far plane at least ``far_margin`` worse), and it has texture of its own (local contrast of at least
-``min_texture`` grey levels). A uniform region (sky) carries no evidence: beside the wall's edge a far plane
+(every far plane at least ``far_margin`` worse), it has texture of its own (local contrast of at least
+``min_texture`` grey levels), it lies ``restore_edge_px`` clear of the kept mask (on an edge the smoothed
+comparison straddles both sides: a hole in the wall whose rim is on the wall plane would read as wall) and in
+a region, not a speck. A uniform region (sky) carries no evidence: beside the wall's edge a far plane
 lands on the wall that hides it, and that must not read as proof that the sky is wall.
 """
 
@@ -67,7 +69,11 @@ class WallCheckSettings:
     work_width: int = 960  # the check runs on copies this wide
     min_region_px: int = 5  # opening: specks smaller than this (work px) are noise
     restore: bool = True  # give back cut pixels the neighbours confirm as wall
-    min_witnesses: int = 1  # neighbours that must confirm a cut pixel as wall (and most of those that decide)
+    min_witnesses: int = 2  # neighbours that must confirm a cut pixel as wall (and most of those that decide)
+    # restored pixels keep this far (work px) from the kept mask: the smoothed comparison straddles the mask's edge,
+    # and where that edge lies on the wall (a window, a hole in the wall) its blur reads as wall
+    restore_edge_px: float = 8.0
+    restore_region_px: int = 15  # opening of the restored pixels: only regions (a roof), never specks
     min_texture: float = 4.0  # grey levels of local contrast (std, 9 px) a pixel needs to be confirmed as wall
 
 
@@ -110,7 +116,9 @@ def check_wall(
         if s.restore:
             confirmed = (confirms[k] >= s.min_witnesses) & (confirms[k] > 0.5 * checks[k]) & ~kept
             confirmed &= _local_contrast(grey[k]) >= s.min_texture
-            back = cv2.morphologyEx(confirmed.astype(np.uint8) * 255, cv2.MORPH_OPEN, opening)
+            confirmed &= cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, 5) >= s.restore_edge_px
+            region = np.ones((s.restore_region_px, s.restore_region_px), np.uint8)
+            back = cv2.morphologyEx(confirmed.astype(np.uint8) * 255, cv2.MORPH_OPEN, region)
         if not off.any() and not back.any():
             continue
         full_mask = load_mask(kfs[k], sizes[k])  # read again only where something changes

@@ -145,3 +145,16 @@ def test_uniform_sky_the_mask_cut_is_not_restored(tmp_path):
     inp, pairs, far_px = _spool(tmp_path, 6, far_contrast=0.0, gap=(560, 10**6), masks_cut_from=0)
     checked = check_wall(inp, pairs, tmp_path / "masks")
     assert _far_kept(checked, far_px, 6) < 0.02
+
+
+def test_far_scene_only_the_last_keyframe_shows_on_the_wall_is_cut(tmp_path):
+    """The last keyframe's outer side (the far scene beyond the wall's end) is seen on the wall by no other
+    keyframe, but the far scene itself is still in the neighbours' view (it does not move): there it agrees
+    with a far plane, so it is cut too. (Before, that part of the last keyframe had no witness and was drawn:
+    cmp-roofline-40m with the real-nc mask, the background at the strip's end.)"""
+    inp, pairs, far_px = _spool(tmp_path, 6, gap=(560, 10**6))
+    checked = check_wall(inp, pairs, tmp_path / "masks")
+    assert _far_kept(checked, far_px, 6) < 0.05
+    masks = [cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE) for kf in checked.input.keyframes]
+    wall_cut = sum(np.count_nonzero(m[:, ~f] == 0) for m, f in zip(masks, far_px, strict=True))
+    assert wall_cut < 0.01 * sum(H * np.count_nonzero(~f) for f in far_px)

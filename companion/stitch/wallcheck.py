@@ -193,21 +193,30 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
     maps: off the wall (its wall point in b shows something else, beyond ``grey_tolerance``, or a far plane
     explains it better by ``far_margin``); decided (off, or on its wall point within ``wall_agreement``; in
     between, a middling difference no far plane explains, such as the far plane's point in b hidden behind the
-    wall, b abstains); confirmed wall (on its wall point and every far plane worse by ``far_margin``)."""
+    wall, b abstains); confirmed wall (on its wall point and every far plane worse by ``far_margin``).
+
+    Past b's frame edge on the wall (the outer side of a strip's first or last keyframe, which no other keyframe
+    sees on the wall) a far scene is still in b's view: it moves a fraction of the wall's motion. There a
+    textured pixel that a far plane explains within ``wall_agreement`` is off (a wall pixel would land on wall
+    that moved on: a different point)."""
     h, w = ga.shape
     nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
-    inside = cv2.warpPerspective(np.full(gb.shape, 255, np.uint8), H, (w, h), flags=nearest)
-    valid = cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0
+    ones = np.full(gb.shape, 255, np.uint8)
+    edge = np.ones((9, 9), np.uint8)
+    valid = cv2.erode(cv2.warpPerspective(ones, H, (w, h), flags=nearest), edge) > 0
     on_wall = _difference(ga, gb, H, gain)
     off = on_wall > s.grey_tolerance
     agrees = on_wall <= s.wall_agreement
     confirmed = np.zeros_like(agrees)
+    far_only = np.zeros_like(agrees)
     if far:
         best_far = np.minimum.reduce([_difference(ga, gb, Hf, gain) for Hf in far])
         off |= best_far + s.far_margin < on_wall
         confirmed = agrees & (best_far > on_wall + s.far_margin)
+        far_seen = cv2.erode(cv2.warpPerspective(ones, far[0], (w, h), flags=nearest), edge) > 0
+        far_only = far_seen & ~valid & (best_far <= s.wall_agreement) & (_local_contrast(ga) >= s.min_texture)
     decided = off | agrees
-    return ((valid & off).astype(np.float32), (valid & decided).astype(np.float32),
+    return (((valid & off) | far_only).astype(np.float32), ((valid & decided) | far_only).astype(np.float32),
             (valid & confirmed).astype(np.float32))
 
 

@@ -99,7 +99,8 @@ def check_wall(
         for a, b, H, g, pts in ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j)):
             if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
                 continue
-            off, decided, wall = _witness(grey[a], grey[b], H, _far_homographies(H, K, s), g, s)
+            planes = _far_homographies(H, K, s, (*s.far_depth_ratios, 0.5))  # 0.5: twice the standoff
+            off, decided, wall = _witness(grey[a], grey[b], H, planes[:-1], g, s, midway=planes[-1:])
             votes[a] += off
             checks[a] += decided
             confirms[a] += wall
@@ -170,7 +171,8 @@ def _intrinsics(inp: StitchInput, size: tuple[int, int]) -> np.ndarray:
     return np.array([[float(w), 0.0, w / 2.0], [0.0, float(w), h / 2.0], [0.0, 0.0, 1.0]])
 
 
-def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings) -> list[np.ndarray]:
+def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings, ratios: tuple[float, ...] | None = None
+                      ) -> list[np.ndarray]:
     """Homographies (pixels of a -> pixels of b) of planes parallel to the wall, far behind it: the wall's
     H = K (R - t n^T / d) K^-1 decomposed, the plane at inverse depth ``r / d`` is K (R - r t n^T / d) K^-1. The
     decomposition's solution with the normal closest to the optical axis is the wall's (the camera faces it).
@@ -185,10 +187,10 @@ def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings) -> lis
     if n == 0:
         return []
     R = rotations[max(range(n), key=lambda q: abs(float(normals[q][2, 0])))]
-    return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in s.far_depth_ratios]
+    return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in (s.far_depth_ratios if ratios is None else ratios)]
 
 
-def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings):
+def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings, midway: list[np.ndarray] = ()):
     """What keyframe b says about each pixel of a (b sampled at H(x), away from b's frame edge), as three 0/1
     maps: off the wall (its wall point in b shows something else, beyond ``grey_tolerance``, or a far plane
     explains it better by ``far_margin``); decided (off, or on its wall point within ``wall_agreement``; in
@@ -197,8 +199,9 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
 
     Past b's frame edge on the wall (the outer side of a strip's first or last keyframe, which no other keyframe
     sees on the wall) a far scene is still in b's view: it moves a fraction of the wall's motion. There a
-    textured pixel that a far plane explains within ``wall_agreement`` is off (a wall pixel would land on wall
-    that moved on: a different point)."""
+    textured pixel that a far plane explains within ``wall_agreement`` is off, provided the explanation is
+    distinctive: the plane ``midway`` (twice the standoff) does worse by ``far_margin`` (a plain wall looks alike
+    under every shift and is never cut this way)."""
     h, w = ga.shape
     nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
     ones = np.full(gb.shape, 255, np.uint8)
@@ -214,7 +217,12 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
         off |= best_far + s.far_margin < on_wall
         confirmed = agrees & (best_far > on_wall + s.far_margin)
         far_seen = cv2.erode(cv2.warpPerspective(ones, far[0], (w, h), flags=nearest), edge) > 0
-        far_only = far_seen & ~valid & (best_far <= s.wall_agreement) & (_local_contrast(ga) >= s.min_texture)
+        # with no wall evidence to weigh it against, the far explanation must be twice as tight and as distinctive
+        far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & (_local_contrast(ga) >= 2 * s.min_texture)
+        if midway:
+            far_only &= _difference(ga, gb, midway[0], gain) > best_far + 2 * s.far_margin
+        else:
+            far_only[:] = False
     decided = off | agrees
     return (((valid & off) | far_only).astype(np.float32), ((valid & decided) | far_only).astype(np.float32),
             (valid & confirmed).astype(np.float32))

@@ -5,6 +5,7 @@ telemetry gate, with the truth mask, with no mask (``--no-mask`` onboard) and wi
 
     python bench/gate_photo_passes.py                       # every pass, masks truth,none,model, both gates
     python bench/gate_photo_passes.py --passes ornate-entry --masks none --frames 120
+    python bench/gate_photo_passes.py --masks sim,real-nc --gates telemetry   # the shipped masks, with parallax
 
 Truth, two definitions, both printed: "plane" = share of frame a's footprint on the wall PLANE that frame b's
 covers (what Eq. 2 measures, the simulator's ``true_overlap``; used for the minimum keyframe count), and
@@ -101,7 +102,9 @@ def main() -> None:
     ap.add_argument("--passes", nargs="*", default=None, help="pass names (default: every pass)")
     ap.add_argument("--frames", type=int, default=120, help="frames per pass (the mask bench uses 250)")
     ap.add_argument("--width", type=int, default=960, help="camera width in px (1920 in the mask bench)")
-    ap.add_argument("--masks", default="truth,none,model")
+    ap.add_argument("--masks", default="truth,none,model",
+                    help="truth, none, model (the default depth model, no parallax) or a shipped model by name "
+                         "(sim, real-nc: the onboard Masker with parallax, frames in capture order)")
     ap.add_argument("--gates", default="images,telemetry")
     ap.add_argument("--pose-noise", default=None, help="as in bench/gate_eval.py")
     ap.add_argument("--rth", type=float, default=0.80)
@@ -115,6 +118,7 @@ def main() -> None:
                              "merge the mask evaluation's real-texture passes (issue 13) first") from exc
     from gate_eval import model_masks as model_masks_of  # beside this script
     from gate_eval import parse_pose_noise
+    from stitch_photo_passes import shipped_masks
 
 
     noise: PoseNoise = parse_pose_noise(args.pose_noise)
@@ -132,12 +136,16 @@ def main() -> None:
         rows = []
         model_masks = None
         for mask in [m.strip() for m in args.masks.split(",") if m.strip()]:
-            if mask == "model" and model_masks is None:
-                model_masks = model_masks_of(rec)
+            mask_of = None
+            if mask == "model":
+                model_masks = model_masks or model_masks_of(rec)
+                mask_of = model_masks
+            elif mask not in ("truth", "none"):  # a shipped model by name, with parallax as the chain runs it
+                mask_of = shipped_masks(spec, rec.r, mask).get
             for gate in [g.strip() for g in args.gates.split(",") if g.strip()]:
                 pose = telemetry_poses(rec, SITE, noise) if gate == "telemetry" else None
                 ev = evaluate_gate(rec, cfg, use_masks=mask == "truth", predictor=rec.predictor if pose else None,
-                                   pose=pose, mask_of=model_masks if mask == "model" else None, curve_floor=101.0)
+                                   pose=pose, mask_of=mask_of, curve_floor=101.0)
                 rows.append((mask, gate, ev))
                 print(f"done: mask {mask}, gate {gate}: {len(ev.keyframes)} keyframes, lowest pair "
                       f"{min(ev.keyframe_pair_truth, default=float('nan')):.1f} %", flush=True)

@@ -103,27 +103,35 @@ def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, er
 
 
 def pass_masks(rp: RenderedPass, model: str, *, parallax: bool = True) -> dict[int, np.ndarray]:
+    """Every frame's mask from the onboard Masker (:func:`shipped_masks`); a frame the masker drops gets an empty
+    mask (the spool must hold one)."""
+    masks = shipped_masks(rp.spec, rp.renderer, model, parallax=parallax)
+    return {i: np.zeros(rp.renderer.render(i).roi_mask.shape, np.uint8) if m is None else m
+            for i, m in masks.items()}
+
+
+def shipped_masks(spec, renderer, model: str, *, parallax: bool = True) -> dict[int, np.ndarray | None]:
     """Every frame's mask from the onboard Masker with a shipped depth model (``sim``, the default, or
     ``real-nc``, the setting docs/DEPTH.md gives for real facades), frames shown in capture order with their
     telemetry (exact: the short baselines parallax uses are relative motion, not absolute GNSS), so ``parallax``
-    confirms or corrects the network as in the onboard chain. A frame the masker drops gets an empty mask."""
+    confirms or corrects the network as in the onboard chain. None where the masker drops the frame (the onboard
+    chain never passes it on)."""
     from companion.depth.masker import Masker
     from companion.depth.parallax import SequenceParallax
     from companion.records import Frame, Pose, TaggedFrame
 
-    spec = rp.spec
     wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
     frame = wall_frame(wall)
     rng = np.random.default_rng(0)
     seq = SequenceParallax(spec.camera.hfov_deg) if parallax else None
     masker = Masker(model, parallax=seq)
-    masks = {}
-    for i in range(len(rp.renderer)):
-        f = rp.renderer.render(i)
+    masks: dict[int, np.ndarray | None] = {}
+    for i in range(len(renderer)):
+        f = renderer.render(i)
         row = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
         pose = Pose.from_json({**row, "t_boot_s": i / 10.0})
         masked, _ = masker.mask(TaggedFrame(Frame(i, i / 10.0, f.image), pose))
-        masks[i] = np.zeros(f.roi_mask.shape, np.uint8) if masked is None else masked.mask
+        masks[i] = None if masked is None else masked.mask
     return masks
 
 

@@ -5,17 +5,37 @@ gap in the wall, beside its end, above the roof line), and raw input may have no
 rejects far scenery in the *matches* (a second, slower plane), but a region seen near the frame edge as the
 camera moves on is matched in no pair, and the map would draw it. What the images say about such a pixel: the
 wall's homography of an accepted pair carries it into the neighbouring keyframe, and there it lands on something
-else (the wall that hid it, or other background), because it is not on the wall plane. A pixel is cut when it
-disagrees with most of the neighbours that see the same wall point, by more than ``grey_tolerance`` grey levels
-after smoothing and the pair's exposure ratio. Wall pixels agree to a few levels (the pairs are registered to
-a fraction of a pixel); parallax too small to measure (hover, the wall motion below a few RANSAC thresholds)
-decides nothing.
+else (the wall that hid it, or other background), because it is not on the wall plane. Two tests, per pair:
+
+* the wall hypothesis fails: the pixel differs from its wall point in the neighbour by more than
+  ``grey_tolerance`` grey levels after smoothing and the pair's exposure ratio;
+* a far hypothesis explains it better: carried by the homography of a plane far behind the wall (the pair's
+  rotation alone, from the wall homography's decomposition, and planes at ``far_depth_ratios`` of the wall's
+  inverse depth: 20 m and more at a 4 m standoff), it differs by ``far_margin`` grey levels less than on the
+  wall. Low-contrast scenery (haze, foliage in shade, a street in the distance) often stays within the
+  tolerance on the wall hypothesis alone; against its own motion it agrees to a few levels.
+
+A pixel is cut when it fails in most of the neighbours that see the same wall point. The neighbour's own mask
+does not matter: what it shows at that point is the evidence, and a neighbour whose mask already cut the region
+(the depth network was sure there) is the best witness. Wall pixels agree to a few levels on the wall (the pairs
+are registered to a fraction of a pixel) and a far plane does not explain them; parallax too small to measure
+(hover, the wall motion below a few RANSAC thresholds) decides nothing, and neither does a uniform region (sky,
+plain render) that every hypothesis explains equally.
+
+The same evidence gives back wall the mask cut (a roof or a dormer the network read as far, cut in every
+keyframe, would be a hole in the map): a cut pixel is restored when at least ``min_witnesses`` neighbours, and
+most of those that decide, find it on its wall point (within ``wall_agreement``) and no far plane near it
+(every far plane at least ``far_margin`` worse), it has texture of its own (local contrast of at least
+``min_texture`` grey levels), it lies ``restore_edge_px`` clear of the kept mask (on an edge the smoothed
+comparison straddles both sides: a hole in the wall whose rim is on the wall plane would read as wall) and in
+a region, not a speck. A uniform region (sky) carries no evidence: beside the wall's edge a far plane
+lands on the wall that hides it, and that must not read as proof that the sky is wall.
 """
 
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -30,18 +50,31 @@ from companion.stitch.pairs import PairResult
 
 @dataclass(frozen=True)
 class WallCheck:
-    """What the check cut: per keyframe position, the share of its mask found off the wall plane."""
+    """What the check changed: per keyframe position, the share of its mask found off the wall plane, and the
+    pixels it restored as a share of the mask's cut pixels."""
 
     input: StitchInput  # keyframes whose mask changed point at the checked mask
     cut_share: dict[int, float]
+    restored_share: dict[int, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class WallCheckSettings:
     grey_tolerance: float = 25.0  # mean grey difference (after smoothing) above which a pixel is not the wall
+    wall_agreement: float = 10.0  # ... and below which it is; between the two a neighbour decides nothing
+    far_margin: float = 5.0  # a far plane must explain the pixel this many grey levels better than the wall
+    # far planes tried, as fractions of the wall's inverse depth (0: infinity; 0.2: five standoffs behind)
+    far_depth_ratios: tuple[float, ...] = (0.0, 0.05, 0.1, 0.2)
     min_motion_px: float = 8.0  # the wall must move this much between the two keyframes (parallax measurable)
     work_width: int = 960  # the check runs on copies this wide
     min_region_px: int = 5  # opening: specks smaller than this (work px) are noise
+    restore: bool = True  # give back cut pixels the neighbours confirm as wall
+    min_witnesses: int = 2  # neighbours that must confirm a cut pixel as wall (and most of those that decide)
+    # restored pixels keep this far (work px) from the kept mask: the smoothed comparison straddles the mask's edge,
+    # and where that edge lies on the wall (a window, a hole in the wall) its blur reads as wall
+    restore_edge_px: float = 8.0
+    restore_region_px: int = 15  # opening of the restored pixels: only regions (a roof), never specks
+    min_texture: float = 4.0  # grey levels of local contrast (std, 9 px) a pixel needs to be confirmed as wall
 
 
 def check_wall(
@@ -55,8 +88,10 @@ def check_wall(
         return WallCheck(inp, {})
     grey, masks, sizes, scale = _load(inp, involved, s.work_width)
     S = np.diag([scale, scale, 1.0])
+    K = S @ _intrinsics(inp, sizes[involved[0]])
     votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+    confirms = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     for r in pairs:
         Hw = S @ r.H @ np.linalg.inv(S)
         gain = float(np.exp(r.lum_ratio)) if r.lum_ratio is not None else 1.0
@@ -64,25 +99,40 @@ def check_wall(
         for a, b, H, g, pts in ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j)):
             if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
                 continue
-            off, valid = _disagreement(grey[a], masks[a], grey[b], masks[b], H, g, s.grey_tolerance)
+            planes = _far_homographies(H, K, s, (*s.far_depth_ratios, 0.5))  # 0.5: twice the standoff
+            off, decided, wall = _witness(grey[a], grey[b], H, planes[:-1], g, s, midway=planes[-1:])
             votes[a] += off
-            checks[a] += valid
+            checks[a] += decided
+            confirms[a] += wall
     cache_dir.mkdir(parents=True, exist_ok=True)
     kfs = list(inp.keyframes)
-    cut_share = {}
+    cut_share, restored_share = {}, {}
+    opening = np.ones((s.min_region_px, s.min_region_px), np.uint8)
     for k in involved:
         share = np.where(checks[k] > 0, votes[k] / np.maximum(checks[k], 1.0), 0.0)
-        off = (share > 0.5).astype(np.uint8) * 255
-        off = cv2.morphologyEx(off, cv2.MORPH_OPEN, np.ones((s.min_region_px, s.min_region_px), np.uint8))
-        if not off.any():
+        kept = masks[k] > 0
+        off = ((share > 0.5) & kept).astype(np.uint8) * 255
+        off = cv2.morphologyEx(off, cv2.MORPH_OPEN, opening)
+        back = np.zeros_like(off)
+        if s.restore:
+            confirmed = (confirms[k] >= s.min_witnesses) & (confirms[k] > 0.5 * checks[k]) & ~kept
+            confirmed &= _local_contrast(grey[k]) >= s.min_texture
+            confirmed &= cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, 5) >= s.restore_edge_px
+            region = np.ones((s.restore_region_px, s.restore_region_px), np.uint8)
+            back = cv2.morphologyEx(confirmed.astype(np.uint8) * 255, cv2.MORPH_OPEN, region)
+        if not off.any() and not back.any():
             continue
-        full_mask = load_mask(kfs[k], sizes[k])  # read again only where something is cut
+        full_mask = load_mask(kfs[k], sizes[k])  # read again only where something changes
         off_full = cv2.resize(off, sizes[k], interpolation=cv2.INTER_NEAREST)
-        checked = cv2.bitwise_and(full_mask, cv2.bitwise_not(off_full))
-        kept = int(np.count_nonzero(full_mask))
-        cut_share[k] = 1.0 - int(np.count_nonzero(checked)) / max(1, kept)
+        back_full = cv2.resize(back, sizes[k], interpolation=cv2.INTER_NEAREST)
+        checked = cv2.bitwise_or(cv2.bitwise_and(full_mask, cv2.bitwise_not(off_full)),
+                                 cv2.bitwise_and(back_full, cv2.bitwise_not(full_mask)))
+        n_kept = int(np.count_nonzero(full_mask))
+        cut_share[k] = int(np.count_nonzero(cv2.bitwise_and(full_mask, off_full))) / max(1, n_kept)
+        restored = int(np.count_nonzero(cv2.bitwise_and(back_full, cv2.bitwise_not(full_mask))))
+        restored_share[k] = restored / max(1, full_mask.size - n_kept)
         kfs[k] = replace(kfs[k], mask_path=_write_mask(cache_dir, kfs[k], checked))
-    return WallCheck(replace(inp, keyframes=kfs), cut_share)
+    return WallCheck(replace(inp, keyframes=kfs), cut_share, restored_share)
 
 
 def _load(inp: StitchInput, positions: list[int], work_width: int):
@@ -102,22 +152,87 @@ def _load(inp: StitchInput, positions: list[int], work_width: int):
     return grey, masks, sizes, scale
 
 
+def _local_contrast(grey: np.ndarray, size: int = 9) -> np.ndarray:
+    """Standard deviation of the grey levels in a ``size`` window around each pixel."""
+    mean = cv2.blur(grey, (size, size))
+    return np.sqrt(np.maximum(cv2.blur(grey * grey, (size, size)) - mean * mean, 0.0))
+
+
 def _motion(H: np.ndarray, pts: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(apply_h(H, pts) - pts, axis=1)))
 
 
-def _disagreement(ga, ma, gb, mb, H, gain: float, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-    """(pixels of a whose wall point in b shows something else, pixels of a checkable in b): b sampled at H(x),
-    both masks valid, away from b's frame edge."""
+def _intrinsics(inp: StitchInput, size: tuple[int, int]) -> np.ndarray:
+    """The keyframes' camera matrix in full-resolution pixels; without one (a spool with no camera), a 53 degree
+    lens: the far planes only need the pair's rotation roughly (a degree is a few pixels of a blurred image)."""
+    if inp.camera is not None:
+        return np.asarray(inp.camera.K, float)
+    w, h = size
+    return np.array([[float(w), 0.0, w / 2.0], [0.0, float(w), h / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings, ratios: tuple[float, ...] | None = None
+                      ) -> list[np.ndarray]:
+    """Homographies (pixels of a -> pixels of b) of planes parallel to the wall, far behind it: the wall's
+    H = K (R - t n^T / d) K^-1 decomposed, the plane at inverse depth ``r / d`` is K (R - r t n^T / d) K^-1. The
+    decomposition's solution with the normal closest to the optical axis is the wall's (the camera faces it).
+    Empty where H does not decompose (a degenerate fit: no far test)."""
+    Kinv = np.linalg.inv(K)
+    G = Kinv @ H @ K
+    sv = np.linalg.svd(G, compute_uv=False)
+    if not np.all(np.isfinite(sv)) or sv[1] <= 1e-9:
+        return []
+    G = G / sv[1] * np.sign(np.linalg.det(G))  # the scale and sign at which G = R - t n^T / d
+    n, rotations, _, normals = cv2.decomposeHomographyMat(H, K)
+    if n == 0:
+        return []
+    R = rotations[max(range(n), key=lambda q: abs(float(normals[q][2, 0])))]
+    return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in (s.far_depth_ratios if ratios is None else ratios)]
+
+
+def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings, midway: list[np.ndarray] = ()):
+    """What keyframe b says about each pixel of a (b sampled at H(x), away from b's frame edge), as three 0/1
+    maps: off the wall (its wall point in b shows something else, beyond ``grey_tolerance``, or a far plane
+    explains it better by ``far_margin``); decided (off, or on its wall point within ``wall_agreement``; in
+    between, a middling difference no far plane explains, such as the far plane's point in b hidden behind the
+    wall, b abstains); confirmed wall (on its wall point and every far plane worse by ``far_margin``).
+
+    Past b's frame edge on the wall (the outer side of a strip's first or last keyframe, which no other keyframe
+    sees on the wall) a far scene is still in b's view: it moves a fraction of the wall's motion. There a
+    textured pixel that a far plane explains within ``wall_agreement`` is off, provided the explanation is
+    distinctive: the plane ``midway`` (twice the standoff) does worse by ``far_margin`` (a plain wall looks alike
+    under every shift and is never cut this way)."""
     h, w = ga.shape
-    flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
-    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=flags) * gain
     nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
-    inside = cv2.warpPerspective(np.full(gb.shape, 255, np.uint8), H, (w, h), flags=nearest)
-    mb_at = cv2.warpPerspective(mb, H, (w, h), flags=nearest)
-    valid = (cv2.erode(inside, np.ones((9, 9), np.uint8)) > 0) & (ma > 0) & (mb_at > 0)
-    diff = cv2.GaussianBlur(np.abs(ga - gb_at), (0, 0), 3.0)
-    return (valid & (diff > tolerance)).astype(np.float32), valid.astype(np.float32)
+    ones = np.full(gb.shape, 255, np.uint8)
+    edge = np.ones((9, 9), np.uint8)
+    valid = cv2.erode(cv2.warpPerspective(ones, H, (w, h), flags=nearest), edge) > 0
+    on_wall = _difference(ga, gb, H, gain)
+    off = on_wall > s.grey_tolerance
+    agrees = on_wall <= s.wall_agreement
+    confirmed = np.zeros_like(agrees)
+    far_only = np.zeros_like(agrees)
+    if far:
+        best_far = np.minimum.reduce([_difference(ga, gb, Hf, gain) for Hf in far])
+        off |= best_far + s.far_margin < on_wall
+        confirmed = agrees & (best_far > on_wall + s.far_margin)
+        far_seen = cv2.erode(cv2.warpPerspective(ones, far[0], (w, h), flags=nearest), edge) > 0
+        # with no wall evidence to weigh it against, the far explanation must be twice as tight and as distinctive
+        far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & (_local_contrast(ga) >= 2 * s.min_texture)
+        if midway:
+            far_only &= _difference(ga, gb, midway[0], gain) > best_far + 2 * s.far_margin
+        else:
+            far_only[:] = False
+    decided = off | agrees
+    return (((valid & off) | far_only).astype(np.float32), ((valid & decided) | far_only).astype(np.float32),
+            (valid & confirmed).astype(np.float32))
+
+
+def _difference(ga, gb, H, gain: float) -> np.ndarray:
+    """|a - b carried by H| (b's grey times ``gain``), smoothed: a registration off by a pixel reads small."""
+    h, w = ga.shape
+    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP) * gain
+    return cv2.GaussianBlur(np.abs(ga - gb_at), (0, 0), 3.0)
 
 
 def _write_mask(cache_dir: Path, kf, mask: np.ndarray) -> Path:

@@ -28,7 +28,7 @@ import json
 import os
 import time
 from collections import defaultdict
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -125,8 +125,123 @@ def _small(a: np.ndarray, h: int, w: int) -> np.ndarray:
     return cv2.resize(a.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
 
 
-def main() -> None:
+@dataclass
+class _VariantTally:
+    """One parallax variant's running figures over a pass."""
+
+    counts: defaultdict = field(default_factory=lambda: defaultdict(float))
+    dropped_wall: list = field(default_factory=list)  # (frame, wall %) of frames with wall that were dropped
+    per_frame: list = field(default_factory=list)  # the drop rule's evidence per frame parallax judged
+    background_dropped: int = 0
+    kept: object = None  # the last kept frame's wall (KeptWall)
+
+
+def _mask_one_variant(pp: ParallaxParams, tally: _VariantTally, roi, par, net_depth, frame, standoff_m: float):
+    """The mask one variant gives a frame: (full-size mask, dropped, stage_map or None, rescued by the carried wall)."""
+    i, image, wall_share, (pos, R, fx) = frame
+    in_view = carried_wall(tally.kept, pos, R, fx, image.shape[1], pp)
+    if par is None:
+        full, dropped, stage_map = roi.mask, roi.empty, None
+    else:
+        full, dropped = fuse_with_network(roi.mask, par, net_depth)
+        h, w = _eval_size(image)
+        stage_map = (_small(par.near, h, w), _small(par.far, h, w), _small(par.trusted, h, w))
+        tally.per_frame.append(_drop_evidence(i, wall_share, roi.mask, par, dropped, net_depth))
+    rescued = dropped or not full.any()
+    full, dropped = keep_wall_in_view(full, dropped, in_view, par, pp)
+    rescued = rescued and not dropped
+    if rescued:
+        stage_map = None  # the carried strip decided this frame
+    if not dropped and full.any():
+        wall_m = tally.kept.wall_depth_m if rescued else wall_depth_of(par, standoff_m)
+        tally.kept = kept_wall(full, pos, wall_m, pp)
+    return full, dropped, stage_map, rescued
+
+
+def _wrong_by_stage(wrong, tr, net, dropped: bool, rescued: bool, stage_map) -> dict[str, np.ndarray]:
+    """The wrong pixels split by the stage that decided them (module docstring)."""
+    if stage_map is None:
+        return {"drop" if dropped else ("in view" if rescued else "network"): wrong}
+    near, far, trusted = stage_map
+    par_wrong = (near & ~tr) | (far & tr)
+    stages = {"drop": wrong if dropped else np.zeros_like(wrong)}
+    if not dropped:
+        stages["parallax"] = wrong & par_wrong
+        stages["untrusted"] = wrong & ~trusted & (net != tr)
+        stages["smoothing"] = wrong & ~par_wrong & ~(~trusted & (net != tr))
+    return stages
+
+
+def _eval_size(image: np.ndarray) -> tuple[int, int]:
+    return int(round(image.shape[0] * EVAL_WIDTH / image.shape[1])), EVAL_WIDTH
+
+
+def evaluate_pass(name: str, args, session: DepthSession, masker: Masker) -> tuple[dict[str, _VariantTally], int, int]:
+    """Mask every frame of one pass once per variant; returns the tallies, background-only frames and pixels."""
     from bench.depth_real_passes import photo_pass_frames
+
+    tallies = {v: _VariantTally() for v in args.variants}
+    bg_frames = n_px = 0
+    history: list[tuple[np.ndarray, np.ndarray]] = []
+    frames = validation_pass_frames(name, args) if name in VALIDATION else photo_pass_frames(name, args)
+    for i, image, truth, (pos, R, fx, standoff_m) in frames:
+        h, w = _eval_size(image)
+        tr = _small(truth > 127, h, w)
+        regions = {k: _small(m, h, w) for k, m in _region_masks(truth).items()}
+        n_px += tr.size
+        disp = session.disparity(image)
+        roi = masker.roi_from_disparity(disp, image.shape[:2])
+        net = _small(roi.mask > 127, h, w)
+        sure = network_is_sure(roi, session.info, standoff_m)
+        k = pick_reference([p for _, p in history], pos, ParallaxParams())
+        flow_pair = None if k is None else (history[k][0], camera_translation(R, history[k][1], R, pos))
+        history = (history + [(image, pos)])[-12:]
+        bg_frames += not tr.any()
+        flow = None
+        net_depth = session.info.depth_from_disparity(np.squeeze(disp))
+        for v, tally in tallies.items():
+            pp = VARIANTS[v]
+            par = None
+            if flow_pair is not None and not sure:
+                flow = dense_flow(flow_pair[0], image, pp) if flow is None else flow
+                par = depth_from_flow(flow, flow_pair[1], fx, pp)
+            full, dropped, stage_map, rescued = _mask_one_variant(
+                pp, tally, roi, par, net_depth, (i, image, float(tr.mean()), (pos, R, fx)), standoff_m)
+            final = np.zeros_like(tr) if dropped else _small(full > 127, h, w)
+            if dropped and tr.any():
+                tally.dropped_wall.append((i, round(100 * float(tr.mean()), 2)))
+            tally.background_dropped += (not tr.any()) and dropped
+            wrong = final != tr
+            for kind, sel in (("wall lost", tr), ("background kept", ~tr)):
+                for reg, rm in regions.items():
+                    for st, sm in _wrong_by_stage(wrong, tr, net, dropped, rescued, stage_map).items():
+                        c = float(np.count_nonzero(sm & sel & rm))
+                        if c:
+                            tally.counts[(kind, reg, st)] += c
+            tally.counts[("total", "", "")] += float(np.count_nonzero(wrong))
+    return tallies, bg_frames, n_px
+
+
+def report_pass(name: str, model: str, tallies: dict[str, _VariantTally], bg_frames: int, n_px: int) -> dict:
+    """Print one pass's figures per variant (shares of all pixels) and return them for the JSON report."""
+    out = {}
+    for v, t in tallies.items():
+        c = t.counts
+        total = 100 * c[("total", "", "")] / n_px
+        print(f"\n{name} / {model} / {v}: mean error {total:.2f} %; background-only frames dropped "
+              f"{t.background_dropped} of {bg_frames}; frames with wall dropped {len(t.dropped_wall)} "
+              f"(frame, wall %): {t.dropped_wall}")
+        rows = sorted(((100 * n / n_px, key) for key, n in c.items() if key[0] != "total"), reverse=True)
+        for share, (kind, reg, st) in rows:
+            if share >= 0.05:
+                print(f"   {share:5.2f} %  {kind:15s} {reg:8s} {st}")
+        out[v] = {"error_mean": total, "background_dropped": t.background_dropped, "background_frames": bg_frames,
+                  "dropped_with_wall": t.dropped_wall, "frames": t.per_frame,
+                  "breakdown": {" / ".join(k): 100 * n / n_px for k, n in c.items() if k[0] != "total"}}
+    return out
+
+
+def main() -> None:
     from sim.camera.photo_passes import DEFAULT_PASSES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -143,101 +258,9 @@ def main() -> None:
     session = DepthSession(args.model, threads=args.threads)
     masker = Masker(session=session)
     t0 = time.perf_counter()
-    report = {}
-    for name in args.passes:
-        counts = {v: defaultdict(float) for v in args.variants}
-        dropped_wall = {v: [] for v in args.variants}
-        per_frame = {v: [] for v in args.variants}
-        kept = {}  # per variant: the last kept frame's wall (KeptWall)
-        bg_frames = 0
-        bg_dropped = dict.fromkeys(args.variants, 0)
-        n_px = 0
-        history: list[tuple[np.ndarray, np.ndarray]] = []
-        frames = validation_pass_frames(name, args) if name in VALIDATION else photo_pass_frames(name, args)
-        for i, image, truth, (pos, R, fx, standoff_m) in frames:
-            h = int(round(image.shape[0] * EVAL_WIDTH / image.shape[1]))
-            w = EVAL_WIDTH
-            tr = _small(truth > 127, h, w)
-            regions = {k: _small(m, h, w) for k, m in _region_masks(truth).items()}
-            n_px += tr.size
-            disp = session.disparity(image)
-            roi = masker.roi_from_disparity(disp, image.shape[:2])
-            net = _small(roi.mask > 127, h, w)
-            sure = network_is_sure(roi, session.info, standoff_m)
-            base = ParallaxParams()
-            k = pick_reference([p for _, p in history], pos, base)
-            flow_pair = None
-            if k is not None:
-                flow_pair = (history[k][0], camera_translation(R, history[k][1], R, pos))
-            history = (history + [(image, pos)])[-12:]
-            if not tr.any():
-                bg_frames += 1
-            flows = {}
-            net_depth = session.info.depth_from_disparity(np.squeeze(disp))
-            for v in args.variants:
-                pp = VARIANTS[v]
-                par = None
-                if flow_pair is not None and not sure:
-                    if "flow" not in flows:
-                        flows["flow"] = dense_flow(flow_pair[0], image, pp)
-                    par = depth_from_flow(flows["flow"], flow_pair[1], fx, pp)
-                in_view = carried_wall(kept.get(v), pos, R, fx, image.shape[1], pp)
-                if par is None:
-                    full, dropped, stage_map = roi.mask, roi.empty, None
-                else:
-                    full, dropped = fuse_with_network(roi.mask, par, net_depth)
-                    stage_map = (_small(par.near, h, w), _small(par.far, h, w), _small(par.trusted, h, w))
-                    per_frame[v].append(_drop_evidence(i, float(tr.mean()), roi.mask, par, dropped, net_depth))
-                rescued = (dropped or not full.any())
-                full, dropped = keep_wall_in_view(full, dropped, in_view, par, pp)
-                rescued = rescued and not dropped
-                if rescued:
-                    stage_map = None  # the carried strip decided this frame
-                final = _small(full > 127, h, w)
-                if not dropped and full.any():
-                    wall_m = kept[v].wall_depth_m if rescued else wall_depth_of(par, standoff_m)
-                    kept[v] = kept_wall(full, pos, wall_m, pp)
-                if dropped:
-                    final = np.zeros_like(tr)
-                    if tr.any():
-                        dropped_wall[v].append((i, round(100 * float(tr.mean()), 2)))
-                if not tr.any() and dropped:
-                    bg_dropped[v] += 1
-                wrong = final != tr
-                if stage_map is None:
-                    stage = "drop" if dropped else ("in view" if rescued else "network")
-                    stages = {stage: wrong}
-                else:
-                    near, far, trusted = stage_map
-                    par_wrong = (near & ~tr) | (far & tr)
-                    stages = {"drop": wrong if dropped else np.zeros_like(wrong)}
-                    if not dropped:
-                        stages["parallax"] = wrong & par_wrong
-                        stages["untrusted"] = wrong & ~trusted & (net != tr)
-                        stages["smoothing"] = wrong & ~par_wrong & ~(~trusted & (net != tr))
-                for kind, sel in (("wall lost", tr), ("background kept", ~tr)):
-                    for reg, rm in regions.items():
-                        for st, sm in stages.items():
-                            c = float(np.count_nonzero(sm & sel & rm))
-                            if c:
-                                counts[v][(kind, reg, st)] += c
-                counts[v][("total", "", "")] += float(np.count_nonzero(wrong))
-        report[name] = {}
-        for v in args.variants:
-            c = counts[v]
-            total = 100 * c[("total", "", "")] / n_px
-            print(f"\n{name} / {args.model} / {v}: mean error {total:.2f} %; background-only frames dropped "
-                  f"{bg_dropped[v]} of {bg_frames}; frames with wall dropped {len(dropped_wall[v])} "
-                  f"(frame, wall %): {dropped_wall[v]}")
-            rows = sorted(((100 * n / n_px, key) for key, n in c.items() if key[0] != "total"), reverse=True)
-            for share, (kind, reg, st) in rows:
-                if share >= 0.05:
-                    print(f"   {share:5.2f} %  {kind:15s} {reg:8s} {st}")
-            report[name][v] = {"error_mean": total, "background_dropped": bg_dropped[v], "background_frames": bg_frames,
-                               "dropped_with_wall": dropped_wall[v], "frames": per_frame[v],
-                               "breakdown": {" / ".join(k): 100 * n / n_px for k, n in c.items() if k[0] != "total"}}
-    la = os.getloadavg()[0]
-    print(f"\n{time.perf_counter() - t0:.0f} s, load average {la:.1f}")
+    report = {name: report_pass(name, args.model, *evaluate_pass(name, args, session, masker))
+              for name in args.passes}
+    print(f"\n{time.perf_counter() - t0:.0f} s, load average {os.getloadavg()[0]:.1f}")
     if args.json:
         Path(args.json).write_text(json.dumps(report, indent=1))
 

@@ -74,6 +74,24 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
             n += 1
 
 
+def _parallax_per_label(params: dict, history: list, image: np.ndarray, pos, R, fx: float) -> dict:
+    """Each parallax label's depth-from-flow against its reference among the recent frames (None: no reference);
+    one flow per working width, shared by the labels that use it."""
+    from companion.depth.parallax import camera_translation, dense_flow, depth_from_flow, pick_reference
+
+    pars, flows = {}, {}
+    for w, pp in params.items():
+        k = pick_reference([h[1] for h in history], pos, pp)
+        if k is None:
+            pars[w] = None
+            continue
+        t = camera_translation(R, history[k][1], R, pos)
+        if pp.work_width not in flows:
+            flows[pp.work_width] = dense_flow(history[k][0], image, pp)
+        pars[w] = depth_from_flow(flows[pp.work_width], t, fx, pp)
+    return pars
+
+
 def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], save: Path | None,
                   parallax: dict | None = None):
     """Run every model once per frame and every ROI rule on its disparity; MaskEval per (model, rule).
@@ -85,15 +103,11 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
     as the onboard masker does; and parallax alone (model "-", untrusted pixels background).
     """
     from companion.depth.parallax import (
-        camera_translation,
         carried_wall,
-        dense_flow,
-        depth_from_flow,
         fuse_with_network,
         keep_wall_in_view,
         kept_wall,
         network_is_sure,
-        pick_reference,
         wall_depth_of,
     )
 
@@ -112,17 +126,7 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
     for i, image, truth, (pos, R, fx, standoff_m) in frames:
         pars = {}
         if params and fx:
-            flows = {}  # one flow per working width, shared by the rule sets
-            for w, pp in params.items():
-                k = pick_reference([h[1] for h in history], pos, pp)
-                t = camera_translation(R, history[k][1], R, pos) if k is not None else None
-                if t is None:
-                    pars[w] = None
-                    continue
-                key = pp.work_width
-                if key not in flows:
-                    flows[key] = dense_flow(history[k][0], image, pp)
-                pars[w] = depth_from_flow(flows[key], t, fx, pp)
+            pars = _parallax_per_label(params, history, image, pos, R, fx)
             history = (history + [(image, pos)])[-12:]
         if params:
             zero = np.zeros(image.shape[:2], np.uint8)

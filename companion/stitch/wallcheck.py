@@ -92,6 +92,7 @@ def check_wall(
     votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
     confirms = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+    contrast = {k: _local_contrast(grey[k]) for k in involved}  # once per keyframe, not per pair direction
     for r in pairs:
         Hw = S @ r.H @ np.linalg.inv(S)
         gain = float(np.exp(r.lum_ratio)) if r.lum_ratio is not None else 1.0
@@ -100,7 +101,8 @@ def check_wall(
             if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
                 continue
             planes = _far_homographies(H, K, s, (*s.far_depth_ratios, 0.5))  # 0.5: twice the standoff
-            off, decided, wall = _witness(grey[a], grey[b], H, planes[:-1], g, s, midway=planes[-1:])
+            off, decided, wall = _witness(grey[a], grey[b], H, planes[:-1], g, s, midway=planes[-1:],
+                                          contrast_a=contrast[a])
             votes[a] += off
             checks[a] += decided
             confirms[a] += wall
@@ -116,7 +118,7 @@ def check_wall(
         back = np.zeros_like(off)
         if s.restore:
             confirmed = (confirms[k] >= s.min_witnesses) & (confirms[k] > 0.5 * checks[k]) & ~kept
-            confirmed &= _local_contrast(grey[k]) >= s.min_texture
+            confirmed &= contrast[k] >= s.min_texture
             confirmed &= cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, 5) >= s.restore_edge_px
             region = np.ones((s.restore_region_px, s.restore_region_px), np.uint8)
             back = cv2.morphologyEx(confirmed.astype(np.uint8) * 255, cv2.MORPH_OPEN, region)
@@ -190,7 +192,8 @@ def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings, ratios
     return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in (s.far_depth_ratios if ratios is None else ratios)]
 
 
-def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings, midway: list[np.ndarray] = ()):
+def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings, midway: list[np.ndarray] = (),
+             contrast_a: np.ndarray | None = None):
     """What keyframe b says about each pixel of a (b sampled at H(x), away from b's frame edge), as three 0/1
     maps: off the wall (its wall point in b shows something else, beyond ``grey_tolerance``, or a far plane
     explains it better by ``far_margin``); decided (off, or on its wall point within ``wall_agreement``; in
@@ -218,7 +221,9 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
         confirmed = agrees & (best_far > on_wall + s.far_margin)
         far_seen = cv2.erode(cv2.warpPerspective(ones, far[0], (w, h), flags=nearest), edge) > 0
         # with no wall evidence to weigh it against, the far explanation must be twice as tight and as distinctive
-        far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & (_local_contrast(ga) >= 2 * s.min_texture)
+        if contrast_a is None:
+            contrast_a = _local_contrast(ga)
+        far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & (contrast_a >= 2 * s.min_texture)
         if midway:
             far_only &= _difference(ga, gb, midway[0], gain) > best_far + 2 * s.far_margin
         else:
@@ -231,8 +236,10 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
 def _difference(ga, gb, H, gain: float) -> np.ndarray:
     """|a - b carried by H| (b's grey times ``gain``), smoothed: a registration off by a pixel reads small."""
     h, w = ga.shape
-    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP) * gain
-    return cv2.GaussianBlur(np.abs(ga - gb_at), (0, 0), 3.0)
+    gb_at = cv2.warpPerspective(gb, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
+    if gain != 1.0:
+        gb_at *= gain
+    return cv2.GaussianBlur(cv2.absdiff(ga, gb_at), (0, 0), 3.0)
 
 
 def _write_mask(cache_dir: Path, kf, mask: np.ndarray) -> Path:

@@ -37,7 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-STAGES = ("features", "priors", "pairs", "alignment", "mesh", "render", "report")
+STAGES = ("features", "priors", "pairs", "alignment", "wall_check", "mesh", "render", "report")  # timed where present
 
 
 def _cpu_s() -> float:
@@ -62,6 +62,8 @@ def run_one(args) -> dict:
     wall_s: dict[str, float] = {}
     cpu_s: dict[str, float] = {}
     for name in STAGES:
+        if not hasattr(stitcher, name):  # an older checkout without this stage (e.g. before the wall check)
+            continue
         stage = getattr(stitcher, name)
 
         def timed(*a, _stage=stage, _name=name, **k):

@@ -46,6 +46,7 @@ def test_stages_one_by_one_give_typed_frozen_records_and_the_same_map(spool, tmp
     priors = st.priors(found)
     pairs = st.pairs(found, priors, tmp_path)
     aligned = st.alignment(found, priors, pairs)
+    found = st.wall_check(found, aligned, tmp_path)  # every stage of Stitcher.stitch, in its order: none left out
     layout = st.mesh(found, priors, aligned)
     rendered = st.render(found, aligned, layout, tmp_path)
     records = (found, priors, pairs, aligned, layout, rendered)

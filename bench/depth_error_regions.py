@@ -75,8 +75,9 @@ VALIDATION = {
 
 def validation_pass_frames(name: str, args):
     """Frames of a validation pass, in the shape ``bench.depth_real_passes.photo_pass_frames`` yields."""
+    from bench.depth_real_passes import rendered_pass_frames
     from companion.depth.realdata import facade_mask, list_real_photos, load_image
-    from sim.camera.photo_scene import PhotoPass, PhotoPassRenderer, PhotoTexture
+    from sim.camera.photo_scene import PhotoPass, PhotoTexture
 
     wall_name, width_m, bg_name, distance_m, strips = VALIDATION[name]
     photos = {p.image.name: p for p in list_real_photos()}
@@ -90,12 +91,7 @@ def validation_pass_frames(name: str, args):
     spec = replace(spec, strips_up_m=tuple(f * wall.height_m for f in strips))
     print(f"pass {name} (validation, training photos): wall {wall_name} {width_m:.0f} m, background {bg_name} at "
           f"{distance_m:.0f} m, {spec.frames} frames")
-    renderer = PhotoPassRenderer(spec)
-    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])
-    for i in range(len(renderer)):
-        f = renderer.render(i)
-        yield i, f.image, f.roi_mask, (np.array([f.along_m, spec.standoff_m, f.up_m]), R, spec.camera.fx,
-                                       spec.standoff_m)
+    yield from rendered_pass_frames(spec)
 
 
 def _region_masks(truth: np.ndarray) -> dict[str, np.ndarray]:

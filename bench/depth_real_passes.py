@@ -38,7 +38,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def photo_pass_frames(name: str, args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     from sim.camera.photo_passes import RECIPES, build_pass, parse_recipe
-    from sim.camera.photo_scene import PhotoPassRenderer
 
     recipe = RECIPES[name] if name in RECIPES else parse_recipe(name)
     spec = build_pass(recipe, frames=args.frames, background_frames=args.background_frames,
@@ -46,6 +45,14 @@ def photo_pass_frames(name: str, args) -> Iterator[tuple[int, np.ndarray, np.nda
     print(f"pass {name}: wall {spec.wall.name} {spec.wall.width_m:.1f} x {spec.wall.height_m:.1f} m, background "
           f"{spec.background.name} at {spec.background_distance_m:.0f} m, {spec.frames} frames "
           f"{spec.camera.width}x{spec.camera.height} at {spec.standoff_m} m")
+    yield from rendered_pass_frames(spec)
+
+
+def rendered_pass_frames(spec):
+    """Each frame of a photo pass with its truth mask and pose: (index, image, truth, (position, R, fx, standoff))
+    in facade coordinates, the shape every pass of these benches yields."""
+    from sim.camera.photo_scene import PhotoPassRenderer
+
     renderer = PhotoPassRenderer(spec)
     # camera axes in facade coordinates (along, out, up): x along the wall, y down, z into the wall
     R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]])

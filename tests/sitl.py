@@ -8,9 +8,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from companion.mission import load_mission, plan_scan
 from sim.process import SimulatorProcess as SitlVehicle
 from sim.process import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
-__all__ = ["ROOT", "SitlVehicle", "free_port"]
+__all__ = ["ROOT", "SitlVehicle", "free_port", "small_demo_plan"]
+
+
+def small_demo_plan():
+    """The demo mission shrunk to an 8 m x 6 m wall (4 vertical strips, 18 items, ~80 s simulated): the flight
+    tests' short mission, one definition for all of them."""
+    m = load_mission(ROOT / "missions/demo-facade.yaml")
+    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
+    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
+    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))

@@ -14,7 +14,7 @@ from companion.errors import CompanionError
 from companion.flight import fly_mission_sync, read_telemetry_log
 from companion.mission import items as mi
 from companion.mission import load_mission, plan_scan
-from tests.sitl import ROOT, SitlVehicle, free_port
+from tests.sitl import ROOT, SitlVehicle, free_port, small_demo_plan
 
 pytestmark = pytest.mark.sitl
 
@@ -27,10 +27,7 @@ def plan():
 @pytest.fixture(scope="module")
 def small_plan():
     """The demo mission shrunk to an 8 m x 6 m wall (18 items, ~80 s simulated): for the slow lossy-link test."""
-    m = load_mission(ROOT / "missions/demo-facade.yaml")
-    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
-    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
-    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))
+    return small_demo_plan()
 
 
 def _fly(plan, url, **kw):

@@ -30,7 +30,7 @@ from companion.flight.connection import connect, request_rates, wait_healthy
 from companion.flight.parameters import read_parameter
 from companion.flight.start import arm_with_reason, select_arming_mode
 from companion.mission import load_mission, plan_scan
-from tests.sitl import ROOT, SitlVehicle
+from tests.sitl import ROOT, SitlVehicle, small_demo_plan
 
 pytestmark = pytest.mark.sitl
 DEMO = ROOT / "missions/demo-facade.yaml"
@@ -40,10 +40,7 @@ ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 @pytest.fixture(scope="module")
 def small_plan():
     """The demo mission shrunk to an 8 m x 6 m wall (18 items, ~80 s simulated)."""
-    m = load_mission(DEMO)
-    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
-    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
-    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))
+    return small_demo_plan()
 
 
 def _home(plan) -> str:

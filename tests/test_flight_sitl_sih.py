@@ -11,9 +11,8 @@ import pytest
 from companion.flight import fly_mission_sync
 from companion.flight.connection import connect
 from companion.flight.parameters import read_parameter
-from companion.mission import load_mission, plan_scan
 from companion.mission.firmware import PX4_SIH_ESTIMATOR_PARAMETERS
-from tests.sitl import ROOT, SitlVehicle
+from tests.sitl import ROOT, SitlVehicle, small_demo_plan
 
 pytestmark = pytest.mark.sitl
 DEMO = ROOT / "missions/demo-facade.yaml"
@@ -24,10 +23,7 @@ REAL_FMU = "CAL_ACC0_ID=2490378,CAL_GYRO0_ID=2490378,SYS_AUTOSTART=4001"  # ICM-
 @pytest.fixture(scope="module")
 def small_plan():
     """The demo mission shrunk to an 8 m x 6 m wall (~80 s simulated)."""
-    m = load_mission(DEMO)
-    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
-    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
-    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))
+    return small_demo_plan()
 
 
 def _fly_and_read_back(plan, params: str | None, tmp_path):

@@ -20,6 +20,7 @@ from sim.evaluate_scan import scan_leg_reports, worst
 from sim.vehicle import flavours as fl
 from sim.vehicle.autopilot import SimVehicle, VehicleConfig
 from sim.vehicle.mission_server import MissionServer
+from tests.sitl import small_demo_plan
 from tests.test_flight_verify_real import FIRMWARE, MISSIONS, REAL, recorded
 
 ROOT = fw.__file__.rsplit("/companion/", 1)[0]
@@ -120,10 +121,7 @@ def test_copter_nan_rule_per_command():
 @pytest.fixture(scope="module")
 def small_plan():
     """The demo mission shrunk to an 8 m x 6 m wall: 4 vertical strips."""
-    m = load_mission(f"{ROOT}/missions/demo-facade.yaml")
-    facade = m.facade.model_copy(update={"end": m.facade.end.model_copy(update={"lon": 126.97809}), "height_m": 6.0})
-    takeoff = m.takeoff.model_copy(update={"lon": 126.97805})
-    return plan_scan(m.model_copy(update={"facade": facade, "transit_alt_m": 10.0, "takeoff": takeoff}))
+    return small_demo_plan()
 
 
 def fly_in_process(plan, autopilot: str, items, params=None, home: GeoPoint | None = None, limit_s: float = 900.0):

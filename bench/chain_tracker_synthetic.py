@@ -46,19 +46,27 @@ from companion.onboard.chain import CullChain  # noqa: E402
 from companion.onboard.runner import LiveRunner  # noqa: E402
 from companion.onboard.tracked import MeasureSchedule  # noqa: E402
 from companion.onboard.working import WorkingCopy  # noqa: E402
-from companion.records import Frame  # noqa: E402
+from companion.records import EncodedFrame, Frame  # noqa: E402
 from companion.spool import KeyframeSpool  # noqa: E402
 
 STANDOFF_M, UP_M = 4.0, 5.0
 
 
-class PacedJpegSource(FrameSource):
-    """Frames released at their capture times on the wall clock (a real camera), decoded from JPEG as the
-    simulator camera's stream is."""
+def camera_frame(i: int, data: bytes, fps: float, width: int, decode: str) -> Frame | EncodedFrame:
+    """``decode`` "chain": still encoded, as the simulator camera's stream now delivers it (the chain decodes it at
+    its working size); "capture": decoded in full on arrival, as before."""
+    if decode == "chain":
+        return EncodedFrame(i, i / fps, data, width, round(width * 9 / 16))
+    return Frame(i, i / fps, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
 
-    def __init__(self, jpegs: list[bytes], fps: float, speedup: float = 1.0):
+
+class PacedJpegSource(FrameSource):
+    """Frames released at their capture times on the wall clock (a real camera), JPEG as the simulator camera's
+    stream delivers them."""
+
+    def __init__(self, jpegs: list[bytes], fps: float, speedup: float, width: int, decode: str):
         super().__init__()
-        self.jpegs, self.fps, self.speedup = jpegs, fps, speedup
+        self.jpegs, self.fps, self.speedup, self.width, self.decode = jpegs, fps, speedup, width, decode
 
     def __iter__(self):
         t0 = time.monotonic()
@@ -67,7 +75,7 @@ class PacedJpegSource(FrameSource):
             if delay > 0:
                 time.sleep(delay)
             self.stats.delivered += 1
-            yield Frame(i, i / self.fps, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+            yield camera_frame(i, data, self.fps, self.width, self.decode)
 
 
 def scene_and_path(args) -> tuple[WallScene, list[WallCamera]]:
@@ -79,19 +87,20 @@ def scene_and_path(args) -> tuple[WallScene, list[WallCamera]]:
     return scene, cams
 
 
-def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working: int) -> dict:
+def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working: int, decode: str) -> dict:
     buffer = TelemetryBuffer()
     for i, cam in enumerate(cams):
         buffer.add(scene.pose(cam, i / args.fps))
     predictor = WallMotionPredictor(scene.frame, scene.hfov_deg, standoff_m=STANDOFF_M)
     gate = KeyframeGate(GateConfig(), predictor)
-    spool = out / f"{name}-{working}"
+    spool = out / f"{name}-{working}-{decode}"
     parallax = SequenceParallax(scene.hfov_deg, standoff_m=STANDOFF_M) if args.parallax else None
     chain = CullChain(FrameTagger(buffer, ClockMap(fixed_offset_s=0.0)), Masker(parallax=parallax), gate,
                       KeyframeSpool(spool), track=MeasureSchedule() if name == "tracker" else None,
                       working=WorkingCopy(working))  # fmt: skip
-    source = PacedJpegSource(jpegs, args.fps, args.speedup or 1.0)
+    source = PacedJpegSource(jpegs, args.fps, args.speedup or 1.0, args.width, decode)
     tracked = name == "tracker"
+    capture_cpu_s = 0.0  # unpaced only: the decode on arrival, outside the chain (0 when the chain decodes)
     wall0 = time.monotonic()
     if args.speedup > 0:
         runner = LiveRunner(source, chain, queue_size=30 if tracked else 3, drop="thin" if tracked else "oldest")
@@ -99,7 +108,9 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
     else:  # unpaced: every frame through the chain, none dropped (the chain's CPU per frame, whatever the load)
         profile = cProfile.Profile(time.thread_time) if args.profile else None
         for i, data in enumerate(jpegs):
-            frame = Frame(i, i / args.fps, cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR))
+            cpu0 = time.thread_time()
+            frame = camera_frame(i, data, args.fps, args.width, decode)
+            capture_cpu_s += time.thread_time() - cpu0
             if profile is not None:
                 profile.enable()
             chain.process(frame)
@@ -107,7 +118,7 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
                 profile.disable()
         chain.finish()
         if profile is not None:
-            print_profile(profile, f"{name}, working copy {working or 'none'}")
+            print_profile(profile, f"{name}, working copy {working or 'none'}, decoded by the {decode}")
     wall = time.monotonic() - wall0
     st = chain.stats
     kept = [json.loads(x)["index"] for x in (spool / "manifest.jsonl").read_text().splitlines()]
@@ -116,6 +127,7 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
     return {
         "chain": name,
         "working_copy_px": working or "camera's frames",
+        "decoded_by": decode,
         "speedup": args.speedup,
         "frames_offered": len(cams),
         "frames_considered_per_s": round((st.frames_in - st.skipped_backlog) / span, 2),
@@ -123,6 +135,8 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
         "frames_measured": st.frames_measured,
         "chain_thread_cpu_share_of_one_core": round(st.cpu_s / wall, 3),
         "chain_cpu_s_per_simulated_s": round(st.cpu_s / span, 3),
+        "decode_on_arrival_plus_chain_cpu_s_per_simulated_s": (round((capture_cpu_s + st.cpu_s) / span, 3)
+                                                                if args.speedup == 0 else None),
         "keyframes": st.keyframes,
         "minimum_from_truth": minimum_keyframes(scene, cams, 100.0 * chain.gate.config.rth),
         "lowest_true_overlap_of_a_pair_percent": round(min(pairs), 1) if pairs else None,
@@ -166,6 +180,9 @@ def main() -> int:
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
     p.add_argument("--working", type=int, nargs="+", default=[640],
                    help="working copy long side(s), px (0: the camera's frames, as before the working copy)")
+    p.add_argument("--decode", nargs="+", default=["chain"], choices=["capture", "chain"],
+                   help="where frames are decoded: on arrival in full (capture, as before) or by the chain at its "
+                        "working size (chain, the simulator camera's stream today)")
     p.add_argument("--out", type=Path)
     args = p.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="chain-tracker-syn-"))
@@ -176,7 +193,9 @@ def main() -> int:
     with busy_core(args.busy_core):
         for name in args.chains:
             for working in args.working:
-                print(json.dumps(run_chain(name, scene, cams, jpegs, args, out, working), indent=1), flush=True)
+                for decode in args.decode:
+                    result = run_chain(name, scene, cams, jpegs, args, out, working, decode)
+                    print(json.dumps(result, indent=1), flush=True)
     return 0
 
 

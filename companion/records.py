@@ -119,6 +119,22 @@ class Frame:
 
 
 @dataclass(frozen=True)
+class EncodedFrame:
+    """A camera frame still as the camera compressed it (JPEG), with the size the camera declared.
+
+    Why not decode on arrival: at 30 fps most frames are only tracked on a small working copy, and under load some
+    are dropped from the backlog before the chain sees them. Decoding every 1280x720 JPEG in full costs about twice
+    what a DCT-scaled half-size decode does, so the chain decodes a frame only when it takes it, at the working
+    size, and decodes the full image only for the keyframes it spools (``companion.onboard.working``)."""
+
+    index: int
+    capture_time_s: float
+    data: bytes
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
 class TaggedFrame:
     """A frame with the telemetry pose at its capture time."""
 

@@ -13,6 +13,8 @@ import pytest
 from companion.capture.simcam import SimCameraSource
 from companion.errors import CompanionError
 from companion.mission import load_mission, plan_scan
+from companion.onboard.working import decode_full
+from companion.records import EncodedFrame
 from sim.camera.live import LiveCamera, LiveConfig, camera_pose, interpolate_pose
 from sim.camera.recording import load_recording
 from sim.process import free_port
@@ -94,7 +96,8 @@ def test_stream_and_recording_from_fake_vehicle(tmp_path):
     assert np.all(np.diff(times) > 0)
     assert np.allclose(times * 10.0, np.round(times * 10.0), atol=1e-6)  # capture instants k / fps
     assert all(f.index == round(f.capture_time_s * 10) for f in frames)
-    assert frames[0].image.shape == (90, 160, 3)
+    assert all(isinstance(f, EncodedFrame) and (f.width, f.height) == (160, 90) for f in frames)  # decoded by the chain
+    assert decode_full(frames[0]).image.shape == (90, 160, 3)
     rec = load_recording(tmp_path / "live")
     assert len(rec) >= 6
     # the recorded truth is the fake vehicle's pose at the capture instant

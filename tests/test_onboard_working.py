@@ -7,13 +7,14 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 from companion.onboard.setup import build_chain
-from companion.onboard.working import FullResolution, WorkingCopy
-from companion.records import Frame, GateDecision, Keyframe, Pose
+from companion.onboard.working import FullResolution, WorkingCopy, decode_full
+from companion.records import EncodedFrame, Frame, GateDecision, Keyframe, Pose
 from companion.spool.layout import MANIFEST
 
 
@@ -53,7 +54,44 @@ def test_restore_gives_a_keyframe_its_full_resolution_image_mask_and_pixel_shift
     assert len(held) == 0 and held.restore(kf) is kf  # released: nothing to restore
 
 
-def test_chain_on_1280_px_frames_spools_full_resolution_keyframes_at_the_overlap_target(tmp_path):
+def _jpeg(image: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    assert ok
+    return buf.tobytes()
+
+
+def test_an_encoded_frame_is_decoded_straight_to_the_working_size():
+    image = render(textured_wall(3200, 1000, seed=5), sweep(textured_wall(3200, 1000, seed=5), 1, 40, 1280, 720,
+                                                             y=500)[0])
+    enc = EncodedFrame(9, 0.9, _jpeg(image), 1280, 720)
+    full = decode_full(enc)
+    assert full.image.shape == (720, 1280, 3) and (full.index, full.capture_time_s) == (9, 0.9)
+    for long_side, shape in ((640, (360, 640, 3)), (480, (270, 480, 3)), (1000, (562, 1000, 3))):
+        copy = WorkingCopy(long_side).of(enc)
+        assert copy.image.shape == shape and (copy.index, copy.capture_time_s) == (9, 0.9)
+        ref = cv2.resize(full.image, shape[1::-1], interpolation=cv2.INTER_AREA)
+        # the decoder's DCT scaling (+ an area resize for the rest) against a full decode + area resize: the same
+        # picture within a grey level or so on this high-contrast synthetic texture (0.2 on simulator frames)
+        assert np.abs(copy.image.astype(float) - ref).mean() < 1.5
+    assert WorkingCopy(0).of(enc).image.shape == (720, 1280, 3)
+    assert WorkingCopy(640).of(EncodedFrame(10, 1.0, b"\xff\xd8 not a jpeg", 1280, 720)) is None
+
+
+def test_restore_decodes_an_encoded_keyframe_at_full_resolution():
+    image = np.zeros((720, 1280, 3), np.uint8)
+    image[:, 640:] = 200
+    enc = EncodedFrame(7, 0.7, _jpeg(image), 1280, 720)
+    work = WorkingCopy(640).of(enc)
+    kf = Keyframe(work, None, np.full((360, 640), 255, np.uint8), GateDecision(overlap_to_previous=81.0))
+    held = FullResolution()
+    held.keep(enc, work)
+    out = held.restore(kf)
+    assert out.image.shape == (720, 1280, 3) and out.mask.shape == (720, 1280)
+    assert abs(int(out.image[100, 1000, 0]) - 200) <= 3 and int(out.image[100, 100, 0]) <= 3
+
+
+@pytest.mark.parametrize("encoded", [False, True], ids=["decoded", "encoded"])
+def test_chain_on_1280_px_frames_spools_full_resolution_keyframes_at_the_overlap_target(tmp_path, encoded):
     tex = textured_wall(3200, 1000, seed=3)
     step = 40  # texture px per frame at zoom 1: the true full-resolution shift
     views = sweep(tex, 36, step, 1280, 720, y=500)
@@ -64,8 +102,12 @@ def test_chain_on_1280_px_frames_spools_full_resolution_keyframes_at_the_overlap
         setattr(chain.gate, name, lambda masked, method=method: seen.append(masked.image.shape) or method(masked))
     held = []
     for i, view in enumerate(views):
-        chain.process(Frame(i, i / 10.0, render(tex, view)))
+        image = render(tex, view)
+        chain.process(EncodedFrame(i, i / 10.0, _jpeg(image), 1280, 720) if encoded else Frame(i, i / 10.0, image))
         held.append(chain.full_resolution_held)
+    if encoded:  # a frame whose data is not an image is counted as corrupt, not processed, and stops nothing
+        chain.process(EncodedFrame(len(views), len(views) / 10.0, b"garbage", 1280, 720))
+        assert chain.stats.corrupt == 1 and chain.stats.frames_processed == len(views)
     chain.finish()
     assert seen and set(seen) == {(360, 640, 3)}  # the gate's cost is that of a 640 px frame
     assert max(held) <= chain.selection.schedule.max_held + 2  # full-resolution frames are let go once decided

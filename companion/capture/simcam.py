@@ -20,7 +20,7 @@ import numpy as np
 
 from companion.capture.sources import FrameSource
 from companion.errors import CompanionError
-from companion.records import Frame
+from companion.records import EncodedFrame, Frame
 
 log = logging.getLogger(__name__)
 DEFAULT_PORT = 14670
@@ -72,10 +72,13 @@ def read_message(sock: socket.socket) -> tuple[dict, bytes] | None:
 
 
 class SimCameraSource(FrameSource):
-    """Connects to the simulated camera's TCP stream and yields :class:`Frame` records as they arrive.
+    """Connects to the simulated camera's TCP stream and yields the frames as they arrive: :class:`EncodedFrame`
+    records (JPEG as sent, decoded by the chain only when it takes them), or decoded :class:`Frame` records when a
+    header does not declare the size.
 
-    Undecodable frames are skipped and counted (``stats.corrupt``); the iteration ends when the camera closes
-    the stream or, with ``idle_timeout_s``, when no frame arrived for that long (counted in ``stats.stalls``).
+    Empty frames, and undeclared ones that do not decode, are skipped and counted (``stats.corrupt``; the chain
+    counts declared ones that do not decode); the iteration ends when the camera closes the stream or, with
+    ``idle_timeout_s``, when no frame arrived for that long (counted in ``stats.stalls``).
     Until the first frame the wait is ``first_frame_timeout_s`` (when longer): the camera builds its scene textures
     before it renders, which takes a loaded companion computer well over the idle timeout.
     """
@@ -105,7 +108,7 @@ class SimCameraSource(FrameSource):
             )
         self.sock.settimeout(first)
 
-    def __iter__(self) -> Iterator[Frame]:
+    def __iter__(self) -> Iterator[Frame | EncodedFrame]:
         while self.sock is not None:
             try:
                 msg = read_message(self.sock)
@@ -120,14 +123,29 @@ class SimCameraSource(FrameSource):
             if msg is None:
                 return
             header, payload = msg
-            image = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR)
-            if image is None or image.ndim != 3:
+            frame = self._frame(header, payload)
+            if frame is None:
                 self.stats.corrupt += 1
                 continue
             if self.stats.delivered == 0 and self.sock is not None:
                 self.sock.settimeout(self.idle_timeout_s)  # warmed up: from now on a silence this long is a stall
             self.stats.delivered += 1
-            yield Frame(index=int(header["index"]), capture_time_s=float(header["capture_time_s"]), image=image)
+            yield frame
+
+    @staticmethod
+    def _frame(header: dict, payload: bytes) -> Frame | EncodedFrame | None:
+        """The frame as it came: still encoded when the header declares its size (the chain decodes it at its working
+        size, ``companion.onboard.working``), else decoded here; None when it is not an image."""
+        index, capture_time_s = int(header["index"]), float(header["capture_time_s"])
+        width, height = header.get("width"), header.get("height")
+        if not payload:
+            return None
+        if isinstance(width, int) and isinstance(height, int) and width > 0 and height > 0:
+            return EncodedFrame(index, capture_time_s, payload, width, height)
+        image = cv2.imdecode(np.frombuffer(payload, np.uint8), cv2.IMREAD_COLOR)
+        if image is None or image.ndim != 3:
+            return None
+        return Frame(index=index, capture_time_s=capture_time_s, image=image)
 
     def close(self) -> None:
         if self.sock is not None:

@@ -1,6 +1,6 @@
 """Frame sources behind one interface: video files, V4L2 devices, RTSP/HTTP streams, image folders.
 
-(The simulator's live camera client lives in ``simcam.py`` and yields the same ``Frame`` records.)
+(The simulator's live camera client lives in ``simcam.py``; it yields frames still JPEG-encoded, ``EncodedFrame``.)
 Every frame carries its capture time in seconds; corrupt or missing frames are skipped and counted, never fatal.
 """
 
@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
-from companion.records import Frame
+from companion.records import EncodedFrame, Frame
 
 log = logging.getLogger(__name__)
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp"}
@@ -48,7 +48,7 @@ class FrameSource(abc.ABC):
         self.stats = SourceStats()
 
     @abc.abstractmethod
-    def __iter__(self) -> Iterator[Frame]: ...
+    def __iter__(self) -> Iterator[Frame | EncodedFrame]: ...
 
     def time_span(self) -> tuple[float, float] | None:
         """First and last capture time of a recorded source (None when unknown or live)."""

@@ -21,7 +21,7 @@ from companion.keyframes.gate_scope import ScanScope
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
 from companion.onboard.working import FullResolution, WorkingCopy
-from companion.records import Frame, Keyframe, MaskedFrame, TaggedFrame
+from companion.records import EncodedFrame, Frame, Keyframe, MaskedFrame, TaggedFrame
 from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 
 log = logging.getLogger(__name__)
@@ -60,6 +60,7 @@ class ChainStats:
     telemetry_vetoes: int = 0  # frames the poses put below Rth - 3 points although the image said >= Rth
     telemetry_overlap_keyframes: int = 0  # keyframes whose overlap the poses gave (too little wall to measure)
     spool_errors: int = 0
+    undecodable: int = 0  # frames that reached the chain still encoded and did not decode (part of ``corrupt``)
     busy_s: float = 0.0
     cpu_s: float = 0.0  # CPU time of the thread running the chain (the depth model's own threads not included)
     first_frame_wall_s: float | None = None
@@ -72,7 +73,7 @@ class ChainStats:
 
     @property
     def corrupt(self) -> int:
-        return self.capture.corrupt
+        return self.capture.corrupt + self.undecodable
 
     @property
     def frames_in(self) -> int:
@@ -81,7 +82,7 @@ class ChainStats:
 
     def as_dict(self) -> dict:
         d = {"frames_in": self.frames_in, "skipped_backlog": self.skipped_backlog, "corrupt": self.corrupt}
-        d.update({k: v for k, v in self.__dict__.items() if k not in ("warnings", "capture")})
+        d.update({k: v for k, v in self.__dict__.items() if k not in ("warnings", "capture", "undecodable")})
         span = (self.last_frame_wall_s or 0) - (self.first_frame_wall_s or 0)
         d["processed_fps"] = round(self.frames_processed / span, 3) if span > 0 else None
         d["warnings"] = self.warnings[-20:]
@@ -153,13 +154,18 @@ class CullChain:
         self.stats.warnings.append(message)
         self.on_warning(message)
 
-    def process(self, frame: Frame) -> list[SpoolEntry]:
+    def process(self, frame: Frame | EncodedFrame) -> list[SpoolEntry]:
+        """One camera frame, decoded or still encoded as the camera sent it (decoded here at the working size)."""
         now, cpu0 = time.monotonic(), time.thread_time()
         st = self.stats
+        work = self.working.of(frame)
+        if work is None:  # an encoded frame that is not an image: counted with the camera's corrupt frames
+            st.undecodable += 1
+            st.cpu_s += time.thread_time() - cpu0
+            return []
         st.first_frame_wall_s = st.first_frame_wall_s or now
         st.last_frame_wall_s = now
         st.frames_processed += 1
-        work = self.working.of(frame)
         self._full.keep(frame, work)
         tagged = self.tagger.tag(work)
         if tagged.pose is None and not self._seen_pose and self.require_telemetry:

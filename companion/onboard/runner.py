@@ -16,7 +16,7 @@ from collections import deque
 
 from companion.capture.sources import FrameSource
 from companion.onboard.chain import CullChain, one_line
-from companion.records import Frame
+from companion.records import EncodedFrame, Frame
 
 log = logging.getLogger(__name__)
 _END = object()
@@ -35,7 +35,7 @@ class FrameBuffer:
     def __len__(self) -> int:
         return len(self._items)
 
-    def put(self, frame: Frame) -> Frame | None:
+    def put(self, frame: Frame | EncodedFrame) -> Frame | EncodedFrame | None:
         with self._ready:
             self._items.append(frame)
             dropped = self._victim() if len(self._items) > self.size else None
@@ -54,7 +54,7 @@ class FrameBuffer:
                 self._ready.wait()
             return self._items.popleft()
 
-    def _victim(self) -> Frame:
+    def _victim(self) -> Frame | EncodedFrame:
         items = self._items
         if self.drop == "oldest" or len(items) < 3 or any(i is _END for i in items):
             return items.popleft()
@@ -89,7 +89,7 @@ class LiveRunner:
         self._worker.join(timeout)
         return not self._worker.is_alive()
 
-    def _put(self, frame: Frame) -> None:
+    def _put(self, frame: Frame | EncodedFrame) -> None:
         if self.queue.put(frame) is not None:  # counted by this (capture) thread only
             self.chain.stats.capture.skipped_backlog += 1
 
@@ -124,7 +124,7 @@ class LiveRunner:
                 item = self.queue.get()
                 if item is _END:
                     break
-                assert isinstance(item, Frame)
+                assert isinstance(item, Frame | EncodedFrame)
                 self.chain.process(item)
             self.chain.finish()
         except BaseException as exc:

@@ -15,12 +15,26 @@ scaled up to it, and its displacements in full-resolution pixels.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 
 import cv2
+import numpy as np
 
 from companion.errors import CompanionError
-from companion.records import Frame, Keyframe
+from companion.records import EncodedFrame, Frame, Keyframe
+
+log = logging.getLogger(__name__)
+# libjpeg's DCT scaling: the decoder itself delivers 1/2, 1/4 or 1/8 of the size, skipping most of the inverse DCT
+_REDUCED_COLOR = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
+
+
+def decode_full(frame: EncodedFrame) -> Frame | None:
+    """The frame at the camera's resolution (None: the data is not an image)."""
+    image = cv2.imdecode(np.frombuffer(frame.data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None or image.ndim != 3:
+        return None
+    return Frame(frame.index, frame.capture_time_s, image)
 
 
 @dataclass(frozen=True)
@@ -41,14 +55,46 @@ class WorkingCopy:
             return 1.0
         return self.long_side_px / long_side
 
-    def of(self, frame: Frame) -> Frame:
-        """The frame the chain decides on: the same record when no copy is needed, else a resized copy."""
+    def of(self, frame: Frame | EncodedFrame) -> Frame | None:
+        """The frame the chain decides on: the same record when no copy is needed, else a resized copy (None: an
+        encoded frame whose data is not an image)."""
+        if isinstance(frame, EncodedFrame):
+            return self._decode(frame)
         h, w = frame.image.shape[:2]
         s = self.scale_for(w, h)
         if s == 1.0:
             return frame
-        size = (max(1, round(w * s)), max(1, round(h * s)))
-        return Frame(frame.index, frame.capture_time_s, cv2.resize(frame.image, size, interpolation=cv2.INTER_AREA))
+        return Frame(frame.index, frame.capture_time_s, self._shrink(frame.image, self._size(w, h, s)))
+
+    @staticmethod
+    def _size(width: int, height: int, scale: float) -> tuple[int, int]:
+        return max(1, round(width * scale)), max(1, round(height * scale))
+
+    @staticmethod
+    def _shrink(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        if (image.shape[1], image.shape[0]) == size:
+            return image
+        return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+
+    def _decode(self, frame: EncodedFrame) -> Frame | None:
+        """Decode straight to (about) the working size: the largest DCT reduction whose output is still at least the
+        working copy, then an area resize for the rest. A 1280x720 JPEG to its 640 px copy costs half of a full
+        decode plus resize, and differs from it by 0.2 grey levels on average (docs/BENCHMARKS.md)."""
+        s = self.scale_for(frame.width, frame.height)
+        if s == 1.0:
+            full = decode_full(frame)
+            if full is not None and full.image.shape[:2] != (frame.height, frame.width):
+                log.warning("frame %d is %dx%d, not the %dx%d the camera declared", frame.index,
+                            full.image.shape[1], full.image.shape[0], frame.width, frame.height)
+            return full
+        size = self._size(frame.width, frame.height, s)
+        factor = max((f for f in _REDUCED_COLOR if frame.width / f >= size[0] and frame.height / f >= size[1]),
+                     default=1)
+        flag = _REDUCED_COLOR.get(factor, cv2.IMREAD_COLOR)
+        image = cv2.imdecode(np.frombuffer(frame.data, np.uint8), flag)
+        if image is None or image.ndim != 3:
+            return None
+        return Frame(frame.index, frame.capture_time_s, self._shrink(image, size))
 
 
 class FullResolution:
@@ -61,7 +107,11 @@ class FullResolution:
     def __len__(self) -> int:
         return len(self._frames)
 
-    def keep(self, full: Frame, working: Frame) -> None:
+    def keep(self, full: Frame | EncodedFrame, working: Frame) -> None:
+        """Hold the camera's frame as it came: an encoded frame stays encoded until it is spooled (unless its
+        working copy is already the full image)."""
+        if isinstance(full, EncodedFrame) and working.image.shape[:2] == (full.height, full.width):
+            full = working
         if full is not working:
             self._frames[full.index] = full
 
@@ -71,6 +121,13 @@ class FullResolution:
 
     def restore(self, kf: Keyframe) -> Keyframe:
         full = self._frames.get(kf.index)
+        if isinstance(full, EncodedFrame):
+            decoded = decode_full(full)
+            if decoded is None:  # its working copy decoded, so this is not expected; spool what we have
+                log.warning("keyframe %d: the full-resolution image does not decode; spooled at the working size",
+                            kf.index)
+                return kf
+            full = decoded
         if full is None or full is kf.frame:
             return kf
         fh, fw = full.image.shape[:2]

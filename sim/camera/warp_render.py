@@ -119,7 +119,7 @@ class WarpRenderer(Renderer):
         self._tri_std = math.sqrt(2 * (16**2 - 1) / 12.0)
         self._noise_pos: np.ndarray | None = None  # the noise table's positive and negative parts (uint8)
         self._noise_neg: np.ndarray | None = None
-        self._zb_min: float | None = None  # smallest inverse depth drawn in the frame so far (None: unknown)
+        self._zb_min: float | None = None  # least inverse depth in the frame (0: nothing drawn; None: unknown)
         self._median_dn2: float | None = None
         self._dnorm32 = self._dnorm.astype(np.float32)
         self._horizon_img: np.ndarray | None = None
@@ -553,10 +553,14 @@ class WarpRenderer(Renderer):
             return True
         w_max = float(np.max(g[0] * (uv[:, 0] + 0.5 - self._cx) / self._fx + g[1] * (uv[:, 1] + 0.5 - self._cy)
                              / self._fy + g[2]))
-        if self._zb_min is None:  # the nearest-so-far bound of the whole frame, once per face drawn
-            self._zb_min = float(zb.min())
-        if self._zb_min > w_max * 1.001:  # the frame is covered by nearer surfaces (the wall filling the view)
+        if self._zb_min is not None and self._zb_min > w_max * 1.001:  # the frame is covered by nearer surfaces
             return True
+        # a small box (a far building's) reads only its own pixels; a large one the whole frame, whose bound then
+        # serves the faces after it until the next face is drawn (the wall filling the view hides them all)
+        if self._zb_min is None and 4 * (x1 - x0) * (y1 - y0) >= W * H:
+            self._zb_min = float(zb.min())
+            if self._zb_min > w_max * 1.001:
+                return True
         return float(zb[y0:y1, x0:x1].min()) > w_max * 1.001
 
     def _face_extent(self, f: Face, A, orig, uv) -> tuple[float, float, float, float]:

@@ -119,7 +119,12 @@ class WarpRenderer(Renderer):
         self._tri_std = math.sqrt(2 * (16**2 - 1) / 12.0)
         self._noise_pos: np.ndarray | None = None  # the noise table's positive and negative parts (uint8)
         self._noise_neg: np.ndarray | None = None
-        self._zb_min: float | None = None  # least inverse depth in the frame (0: nothing drawn; None: unknown)
+        # the depth buffer only grows while a frame is drawn (nearer surfaces overwrite), so a lower bound of its
+        # least value stays one: faces and crowns nearer than nothing of what covers the frame are skipped on it
+        self._zb_low = 0.0  # lower bound of the frame's least inverse depth (0: something may still be empty)
+        self._zb_exact = True  # _zb_low is the least value itself (nothing drawn since it was read)
+        self._drawn = False  # anything drawn in this frame yet
+        self._dnorm_max = float(self._dnorm.max())  # a surface at distance d has inverse z-depth <= this / d
         self._median_dn2: float | None = None
         self._dnorm32 = self._dnorm.astype(np.float32)
         self._horizon_img: np.ndarray | None = None
@@ -415,21 +420,25 @@ class WarpRenderer(Renderer):
         zb = np.zeros((H, W), np.float32)  # inverse z-depth: 0 = nothing (sky)
         sid = np.zeros((H, W), np.uint8)
         faces = self._faces + self._ground_faces(orig)
-        cams, order = self._candidates(faces, A, orig)
-        self._zb_min = 0.0  # nothing drawn yet
+        cams, order, dist = self._candidates(faces, A, orig)
+        self._zb_low, self._zb_exact, self._drawn = 0.0, True, False
         for i in order:
+            if self._zb_low * float(dist[i]) > self._dnorm_max * 1.001:  # behind what covers the whole frame
+                continue
             self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
         rects, near = self._object_rects(orig, A)  # boxes (far buildings, trunks), then tree crowns
         self._draw_trunks(A, orig, img, zb, sid, rects, near)
         self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
-        self._draw_sky(A, img, zb)
+        if self._zb_low == 0.0:  # else every pixel is drawn: no sky in view
+            self._draw_sky(A, img, zb)
         with np.errstate(divide="ignore"):
             depth = np.float32(1.0) / zb
         return img, depth, sid
 
-    def _candidates(self, faces: list[Face], A, orig) -> tuple[np.ndarray, list[int]]:
-        """Camera-frame corners of all faces, and the faces turned towards the camera that may be in view,
-        nearest first (fewer pixels drawn twice; the far ground last). One vectorised pass over all faces."""
+    def _candidates(self, faces: list[Face], A, orig) -> tuple[np.ndarray, list[int], np.ndarray]:
+        """Camera-frame corners of all faces, the faces turned towards the camera that may be in view, nearest
+        first (fewer pixels drawn twice; the far ground last), and each face's distance from the camera (its
+        nearest point). One vectorised pass over all faces."""
         if self._arrays is None or len(self._arrays[0]) != len(faces):
             self._arrays = tuple(np.array(v) for v in zip(*[(f.origin, f.e1, f.e2, f.normal, f.size, f.corners())
                                                              for f in faces], strict=True))
@@ -455,8 +464,9 @@ class WarpRenderer(Renderer):
         # the ground faces (the last two) go after everything else: everything stands on the ground and the
         # camera is above it, so the ground never hides anything, while drawn first (low over the ground, it is
         # the nearest face) it would be warped and hazed only to be covered by the wall
-        dist[-2], dist[-1] = np.finfo(np.float64).max / 2, np.inf  # near ground, then far ground
-        return cams, [int(i) for i in keep[np.argsort(dist[keep], kind="stable")]]
+        rank = dist.copy()
+        rank[-2], rank[-1] = np.finfo(np.float64).max / 2, np.inf  # near ground, then far ground
+        return cams, [int(i) for i in keep[np.argsort(rank[keep], kind="stable")]], dist
 
     def _draw_face(self, f: Face, key: int, cam, A, orig, img, zb, sid):
         uv = self._polygon(cam)
@@ -472,7 +482,7 @@ class WarpRenderer(Renderer):
         (x0, y0, x1, y1), mask = got
         w_row = np.float32(g[0]) * self._rx_row[x0:x1]
         w_col = np.float32(g[1]) * self._ry_col[y0:y1] + np.float32(g[2])
-        if self._zb_min == 0.0 and mask is None and not zb[y0:y1, x0:x1].any():
+        if not self._drawn and mask is None and not zb[y0:y1, x0:x1].any():
             # the first face drawn there and its polygon covers the rectangle (the wall filling the view): every
             # pixel is visible; its inverse depth goes straight into the depth buffer
             X0, Y0, bw, bh = x0, y0, x1 - x0, y1 - y0
@@ -493,7 +503,9 @@ class WarpRenderer(Renderer):
             X0, Y0 = x0 + bx, y0 + by
             out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
             full = cv2.countNonZero(vis) == bw * bh  # the nearest face where nothing was drawn yet
-        self._zb_min = None
+        self._drawn, self._zb_exact = True, False
+        if full and bw * bh == zb.size:  # the face covers the frame: its least inverse depth is at a corner (affine)
+            self._zb_low, self._zb_exact = float(min(w[0, 0], w[0, -1], w[-1, 0], w[-1, -1])), True
         if full:
             if vis is not None:
                 zb[out] = w
@@ -553,13 +565,13 @@ class WarpRenderer(Renderer):
             return True
         w_max = float(np.max(g[0] * (uv[:, 0] + 0.5 - self._cx) / self._fx + g[1] * (uv[:, 1] + 0.5 - self._cy)
                              / self._fy + g[2]))
-        if self._zb_min is not None and self._zb_min > w_max * 1.001:  # the frame is covered by nearer surfaces
+        if self._zb_low > w_max * 1.001:  # the frame is covered by nearer surfaces
             return True
-        # a small box (a far building's) reads only its own pixels; a large one the whole frame, whose bound then
-        # serves the faces after it until the next face is drawn (the wall filling the view hides them all)
-        if self._zb_min is None and 4 * (x1 - x0) * (y1 - y0) >= W * H:
-            self._zb_min = float(zb.min())
-            if self._zb_min > w_max * 1.001:
+        # a small box (a far building's) reads only its own pixels; a large one the whole frame, whose least value
+        # then serves the faces after it (the wall filling the view hides them all)
+        if not self._zb_exact and 4 * (x1 - x0) * (y1 - y0) >= W * H:
+            self._zb_low, self._zb_exact = float(zb.min()), True
+            if self._zb_low > w_max * 1.001:
                 return True
         return float(zb[y0:y1, x0:x1].min()) > w_max * 1.001
 
@@ -607,8 +619,8 @@ class WarpRenderer(Renderer):
         col = np.clip(np.array([0.1, 0.15, 0.2]) * self._lambert(_vec(0, 1, 0)) * 255 + 0.5, 0, 255).astype(np.uint8)
         for j, b in enumerate(self.scene.boxes):
             rect = rects[j]
-            if b.kind != "trunk" or rect is None:
-                continue
+            if b.kind != "trunk" or rect is None or self._zb_low * float(nears[j]) > self._dnorm_max * 1.001:
+                continue  # (the last: behind what covers the whole frame)
             lo, hi = np.array(b.lo), np.array(b.hi)
             zr = zb[rect]
             near = float(nears[j])
@@ -627,8 +639,8 @@ class WarpRenderer(Renderer):
         sc = self.scene
         for ti, tr in enumerate(sc.trees):
             rect = rects[ti]
-            if rect is None:
-                continue
+            if rect is None or self._zb_low * float(nears[ti]) > self._dnorm_max * 1.001:
+                continue  # (the last: behind what covers the whole frame)
             rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
             c = np.array(tr.centre)
             rect = self._ellipse_rect(c, rad, orig, A, rect)

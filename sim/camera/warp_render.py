@@ -50,6 +50,7 @@ _NEAR = 0.05  # near clipping plane (m); the ray caster's surfaces start at 1 mm
 _GROUND_FAR_M = 1.0e5  # the ground plane's half extent: the ray caster's ground is infinite
 _GROUND_NEAR_M = 40.0  # ground within this distance of the camera is drawn at the footprint's texture level
 _FAR_PATCH_M = 2000.0  # the coarse far ground texture covers this far around the camera (hazed beyond)
+_SPAN_FILL_PX = 20000  # polygon masks larger than this are filled row by row (cheaper than a per-pixel compare)
 _FIXED = 6  # fixed-point bits of the noise level (noise = table x level / 2**_FIXED)
 RENDERERS = ("warp", "raycast")
 
@@ -261,7 +262,7 @@ class WarpRenderer(Renderer):
 
     def _rect_mask(self, uv: np.ndarray):
         """Bounding rectangle (x0, y0, x1, y1) of an image polygon and the pixels whose centres lie inside it
-        there (the ray caster's rule, so boundaries agree to the pixel): a bool mask, or None when the polygon
+        there (the ray caster's rule, so boundaries agree to the pixel): a uint8 0/1 mask, or None when the polygon
         covers the whole rectangle, or None for the whole answer when no pixel centre is inside."""
         W, H = self.camera.width, self.camera.height
         y0, y1 = max(int(math.ceil(uv[:, 1].min())), 0), min(int(math.floor(uv[:, 1].max())) + 1, H)
@@ -296,9 +297,13 @@ class WarpRenderer(Renderer):
         x0, x1 = int(xl.min()), int(xr.max())
         if (xl == x0).all() and (xr == x1).all():
             mask = None
-        else:
+        elif (r1 - r0) * (x1 - x0) < _SPAN_FILL_PX:
             cols = np.arange(x0, x1)
-            mask = (cols[None, :] >= xl[:, None]) & (cols[None, :] < xr[:, None])
+            mask = ((cols[None, :] >= xl[:, None]) & (cols[None, :] < xr[:, None])).view(np.uint8)
+        else:  # a large polygon (the ground, a sky face): its rows' spans filled one by one, not compared per pixel
+            mask = np.zeros((r1 - r0, x1 - x0), np.uint8)
+            for k, (a, b) in enumerate(zip((xl - x0).tolist(), (xr - x0).tolist(), strict=True)):
+                mask[k, a:b] = 1
         return (x0, y0 + r0, x1, y0 + r1), mask
 
     def _kidx(self, x0: int, y0: int) -> np.ndarray:
@@ -494,7 +499,7 @@ class WarpRenderer(Renderer):
             w = w_row[None, :] + w_col[:, None]
             vis = cv2.compare(w, zb[y0:y1, x0:x1], cv2.CMP_GT)
             if mask is not None:
-                vis = cv2.bitwise_and(vis, mask.view(np.uint8))
+                vis = cv2.bitwise_and(vis, mask)
             bx, by, bw, bh = cv2.boundingRect(vis)
             if bw == 0 or bh == 0:
                 return
@@ -774,8 +779,7 @@ class WarpRenderer(Renderer):
                 continue
             sel = empty[y0:y1, x0:x1]
             if mask is not None:
-                sel = cv2.bitwise_and(sel, mask[y0 - got[0][1]:y1 - got[0][1], x0 - got[0][0]:x1 - got[0][0]]
-                                      .view(np.uint8))
+                sel = cv2.bitwise_and(sel, mask[y0 - got[0][1]:y1 - got[0][1], x0 - got[0][0]:x1 - got[0][0]])
             if not cv2.countNonZero(sel):
                 continue
             tex = self._cube_face(k, n, e1, e2)

@@ -50,7 +50,8 @@ _NEAR = 0.05  # near clipping plane (m); the ray caster's surfaces start at 1 mm
 _GROUND_FAR_M = 1.0e5  # the ground plane's half extent: the ray caster's ground is infinite
 _GROUND_NEAR_M = 40.0  # ground within this distance of the camera is drawn at the footprint's texture level
 _FAR_PATCH_M = 2000.0  # the coarse far ground texture covers this far around the camera (hazed beyond)
-_FIXED = 6  # fixed-point bits of the int16 noise arithmetic
+_SPAN_FILL_PX = 20000  # polygon masks larger than this are filled row by row (cheaper than a per-pixel compare)
+_FIXED = 6  # fixed-point bits of the noise level (noise = table x level / 2**_FIXED)
 RENDERERS = ("warp", "raycast")
 
 
@@ -117,8 +118,14 @@ class WarpRenderer(Renderer):
         self._horizon_u8 = tuple(float(c) * 255.0 for c in sc.sky_horizon)
         self._tri = (np.arange(256) % 16 + np.arange(256) // 16 - 15).astype(np.int16)  # sum of two nibbles
         self._tri_std = math.sqrt(2 * (16**2 - 1) / 12.0)
-        self._noise_table: np.ndarray | None = None
-        self._zb_min: float | None = None  # smallest inverse depth drawn in the frame so far (None: unknown)
+        self._noise_pos: np.ndarray | None = None  # the noise table's positive and negative parts (uint8)
+        self._noise_neg: np.ndarray | None = None
+        # the depth buffer only grows while a frame is drawn (nearer surfaces overwrite), so a lower bound of its
+        # least value stays one: faces and crowns nearer than nothing of what covers the frame are skipped on it
+        self._zb_low = 0.0  # lower bound of the frame's least inverse depth (0: something may still be empty)
+        self._zb_exact = True  # _zb_low is the least value itself (nothing drawn since it was read)
+        self._drawn = False  # anything drawn in this frame yet
+        self._dnorm_max = float(self._dnorm.max())  # a surface at distance d has inverse z-depth <= this / d
         self._median_dn2: float | None = None
         self._dnorm32 = self._dnorm.astype(np.float32)
         self._horizon_img: np.ndarray | None = None
@@ -255,7 +262,7 @@ class WarpRenderer(Renderer):
 
     def _rect_mask(self, uv: np.ndarray):
         """Bounding rectangle (x0, y0, x1, y1) of an image polygon and the pixels whose centres lie inside it
-        there (the ray caster's rule, so boundaries agree to the pixel): a bool mask, or None when the polygon
+        there (the ray caster's rule, so boundaries agree to the pixel): a uint8 0/1 mask, or None when the polygon
         covers the whole rectangle, or None for the whole answer when no pixel centre is inside."""
         W, H = self.camera.width, self.camera.height
         y0, y1 = max(int(math.ceil(uv[:, 1].min())), 0), min(int(math.floor(uv[:, 1].max())) + 1, H)
@@ -290,9 +297,13 @@ class WarpRenderer(Renderer):
         x0, x1 = int(xl.min()), int(xr.max())
         if (xl == x0).all() and (xr == x1).all():
             mask = None
-        else:
+        elif (r1 - r0) * (x1 - x0) < _SPAN_FILL_PX:
             cols = np.arange(x0, x1)
-            mask = (cols[None, :] >= xl[:, None]) & (cols[None, :] < xr[:, None])
+            mask = ((cols[None, :] >= xl[:, None]) & (cols[None, :] < xr[:, None])).view(np.uint8)
+        else:  # a large polygon (the ground, a sky face): its rows' spans filled one by one, not compared per pixel
+            mask = np.zeros((r1 - r0, x1 - x0), np.uint8)
+            for k, (a, b) in enumerate(zip((xl - x0).tolist(), (xr - x0).tolist(), strict=True)):
+                mask[k, a:b] = 1
         return (x0, y0 + r0, x1, y0 + r1), mask
 
     def _kidx(self, x0: int, y0: int) -> np.ndarray:
@@ -414,21 +425,25 @@ class WarpRenderer(Renderer):
         zb = np.zeros((H, W), np.float32)  # inverse z-depth: 0 = nothing (sky)
         sid = np.zeros((H, W), np.uint8)
         faces = self._faces + self._ground_faces(orig)
-        cams, order = self._candidates(faces, A, orig)
-        self._zb_min = 0.0  # nothing drawn yet
+        cams, order, dist = self._candidates(faces, A, orig)
+        self._zb_low, self._zb_exact, self._drawn = 0.0, True, False
         for i in order:
+            if self._zb_low * float(dist[i]) > self._dnorm_max * 1.001:  # behind what covers the whole frame
+                continue
             self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
         rects, near = self._object_rects(orig, A)  # boxes (far buildings, trunks), then tree crowns
         self._draw_trunks(A, orig, img, zb, sid, rects, near)
         self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
-        self._draw_sky(A, img, zb)
+        if self._zb_low == 0.0:  # else every pixel is drawn: no sky in view
+            self._draw_sky(A, img, zb)
         with np.errstate(divide="ignore"):
             depth = np.float32(1.0) / zb
         return img, depth, sid
 
-    def _candidates(self, faces: list[Face], A, orig) -> tuple[np.ndarray, list[int]]:
-        """Camera-frame corners of all faces, and the faces turned towards the camera that may be in view,
-        nearest first (fewer pixels drawn twice; the far ground last). One vectorised pass over all faces."""
+    def _candidates(self, faces: list[Face], A, orig) -> tuple[np.ndarray, list[int], np.ndarray]:
+        """Camera-frame corners of all faces, the faces turned towards the camera that may be in view, nearest
+        first (fewer pixels drawn twice; the far ground last), and each face's distance from the camera (its
+        nearest point). One vectorised pass over all faces."""
         if self._arrays is None or len(self._arrays[0]) != len(faces):
             self._arrays = tuple(np.array(v) for v in zip(*[(f.origin, f.e1, f.e2, f.normal, f.size, f.corners())
                                                              for f in faces], strict=True))
@@ -454,8 +469,9 @@ class WarpRenderer(Renderer):
         # the ground faces (the last two) go after everything else: everything stands on the ground and the
         # camera is above it, so the ground never hides anything, while drawn first (low over the ground, it is
         # the nearest face) it would be warped and hazed only to be covered by the wall
-        dist[-2], dist[-1] = np.finfo(np.float64).max / 2, np.inf  # near ground, then far ground
-        return cams, [int(i) for i in keep[np.argsort(dist[keep], kind="stable")]]
+        rank = dist.copy()
+        rank[-2], rank[-1] = np.finfo(np.float64).max / 2, np.inf  # near ground, then far ground
+        return cams, [int(i) for i in keep[np.argsort(rank[keep], kind="stable")]], dist
 
     def _draw_face(self, f: Face, key: int, cam, A, orig, img, zb, sid):
         uv = self._polygon(cam)
@@ -471,7 +487,7 @@ class WarpRenderer(Renderer):
         (x0, y0, x1, y1), mask = got
         w_row = np.float32(g[0]) * self._rx_row[x0:x1]
         w_col = np.float32(g[1]) * self._ry_col[y0:y1] + np.float32(g[2])
-        if self._zb_min == 0.0 and mask is None and not zb[y0:y1, x0:x1].any():
+        if not self._drawn and mask is None and not zb[y0:y1, x0:x1].any():
             # the first face drawn there and its polygon covers the rectangle (the wall filling the view): every
             # pixel is visible; its inverse depth goes straight into the depth buffer
             X0, Y0, bw, bh = x0, y0, x1 - x0, y1 - y0
@@ -483,7 +499,7 @@ class WarpRenderer(Renderer):
             w = w_row[None, :] + w_col[:, None]
             vis = cv2.compare(w, zb[y0:y1, x0:x1], cv2.CMP_GT)
             if mask is not None:
-                vis = cv2.bitwise_and(vis, mask.view(np.uint8))
+                vis = cv2.bitwise_and(vis, mask)
             bx, by, bw, bh = cv2.boundingRect(vis)
             if bw == 0 or bh == 0:
                 return
@@ -492,7 +508,9 @@ class WarpRenderer(Renderer):
             X0, Y0 = x0 + bx, y0 + by
             out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
             full = cv2.countNonZero(vis) == bw * bh  # the nearest face where nothing was drawn yet
-        self._zb_min = None
+        self._drawn, self._zb_exact = True, False
+        if full and bw * bh == zb.size:  # the face covers the frame: its least inverse depth is at a corner (affine)
+            self._zb_low, self._zb_exact = float(min(w[0, 0], w[0, -1], w[-1, 0], w[-1, -1])), True
         if full:
             if vis is not None:
                 zb[out] = w
@@ -552,10 +570,14 @@ class WarpRenderer(Renderer):
             return True
         w_max = float(np.max(g[0] * (uv[:, 0] + 0.5 - self._cx) / self._fx + g[1] * (uv[:, 1] + 0.5 - self._cy)
                              / self._fy + g[2]))
-        if self._zb_min is None:  # the nearest-so-far bound of the whole frame, once per face drawn
-            self._zb_min = float(zb.min())
-        if self._zb_min > w_max * 1.001:  # the frame is covered by nearer surfaces (the wall filling the view)
+        if self._zb_low > w_max * 1.001:  # the frame is covered by nearer surfaces
             return True
+        # a small box (a far building's) reads only its own pixels; a large one the whole frame, whose least value
+        # then serves the faces after it (the wall filling the view hides them all)
+        if not self._zb_exact and 4 * (x1 - x0) * (y1 - y0) >= W * H:
+            self._zb_low, self._zb_exact = float(zb.min()), True
+            if self._zb_low > w_max * 1.001:
+                return True
         return float(zb[y0:y1, x0:x1].min()) > w_max * 1.001
 
     def _face_extent(self, f: Face, A, orig, uv) -> tuple[float, float, float, float]:
@@ -602,8 +624,8 @@ class WarpRenderer(Renderer):
         col = np.clip(np.array([0.1, 0.15, 0.2]) * self._lambert(_vec(0, 1, 0)) * 255 + 0.5, 0, 255).astype(np.uint8)
         for j, b in enumerate(self.scene.boxes):
             rect = rects[j]
-            if b.kind != "trunk" or rect is None:
-                continue
+            if b.kind != "trunk" or rect is None or self._zb_low * float(nears[j]) > self._dnorm_max * 1.001:
+                continue  # (the last: behind what covers the whole frame)
             lo, hi = np.array(b.lo), np.array(b.hi)
             zr = zb[rect]
             near = float(nears[j])
@@ -622,8 +644,8 @@ class WarpRenderer(Renderer):
         sc = self.scene
         for ti, tr in enumerate(sc.trees):
             rect = rects[ti]
-            if rect is None:
-                continue
+            if rect is None or self._zb_low * float(nears[ti]) > self._dnorm_max * 1.001:
+                continue  # (the last: behind what covers the whole frame)
             rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
             c = np.array(tr.centre)
             rect = self._ellipse_rect(c, rad, orig, A, rect)
@@ -757,8 +779,7 @@ class WarpRenderer(Renderer):
                 continue
             sel = empty[y0:y1, x0:x1]
             if mask is not None:
-                sel = cv2.bitwise_and(sel, mask[y0 - got[0][1]:y1 - got[0][1], x0 - got[0][0]:x1 - got[0][0]]
-                                      .view(np.uint8))
+                sel = cv2.bitwise_and(sel, mask[y0 - got[0][1]:y1 - got[0][1], x0 - got[0][0]:x1 - got[0][0]])
             if not cv2.countNonZero(sel):
                 continue
             tex = self._cube_face(k, n, e1, e2)
@@ -785,28 +806,38 @@ class WarpRenderer(Renderer):
 
     def _expose(self, img: np.ndarray, gain: float, index: int) -> np.ndarray:
         """Gain, then the ray caster's noise model (read noise 1.5 DN, shot noise 0.06 DN per DN of signal) with
-        unit-variance triangular noise, rounded to whole DN: two table lookups, a multiply and a saturating add
-        on the uint8 image. The noise values are a window of a table drawn once (twice the frame's size) at a
-        per-frame random offset, so no random numbers are drawn per frame; two frames' noise is uncorrelated
-        pixel for pixel unless their offsets coincide (1 in frame size)."""
-        if not self.noise:
-            return cv2.convertScaleAbs(img, alpha=gain)
-        v = np.minimum(np.arange(256) * gain, 255.0)
-        level = np.round(v).astype(np.uint8)
-        sig = np.round(np.sqrt(1.5**2 + 0.06 * v) / self._tri_std * 2**_FIXED).astype(np.int16)
-        flat = img.reshape(img.shape[0], -1)
-        table = self._noise_window(flat.size, index).reshape(flat.shape)
-        noise = cv2.multiply(table, cv2.LUT(flat, sig), scale=1.0 / 2**_FIXED)  # int16, DN
-        return cv2.add(cv2.LUT(flat, level), noise, dtype=cv2.CV_8U).reshape(img.shape)
+        unit-variance triangular noise, rounded to whole DN. The noise values are a window of a table drawn once
+        (twice the frame's size) at a per-frame random offset, so no random numbers are drawn per frame; two
+        frames' noise is uncorrelated pixel for pixel unless their offsets coincide (1 in frame size).
 
-    def _noise_window(self, n: int, index: int) -> np.ndarray:
-        """n unit triangular noise values (int16, std ``_tri_std``): frame ``index``'s window of the table."""
-        if self._noise_table is None or len(self._noise_table) < 2 * n:
+        All in uint8 with OpenCV's vectorised saturating arithmetic: the table is kept as its positive and its
+        negative part, each scaled per pixel by the noise level (one table lookup of the signal), then added to
+        and subtracted from the gained image. A pixel has only one non-zero part, so this is the signed sum
+        rounded and saturated once, the same values as int16 arithmetic at about half its cost."""
+        flat = img.reshape(img.shape[0], -1)
+        level = cv2.convertScaleAbs(flat, alpha=gain)  # round(v x gain), saturated
+        if not self.noise:
+            return level.reshape(img.shape)
+        v = np.minimum(np.arange(256) * gain, 255.0)
+        sig = np.round(np.sqrt(1.5**2 + 0.06 * v) / self._tri_std * 2**_FIXED).astype(np.uint8)
+        pos, neg = self._noise_window(flat.size, index)
+        s = cv2.LUT(flat, sig)
+        scale = 1.0 / 2**_FIXED
+        cv2.add(level, cv2.multiply(pos.reshape(flat.shape), s, scale=scale), dst=level)
+        cv2.subtract(level, cv2.multiply(neg.reshape(flat.shape), s, scale=scale), dst=level)
+        return level.reshape(img.shape)
+
+    def _noise_window(self, n: int, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``index``'s window of n unit triangular noise values (std ``_tri_std``) as its positive and
+        negative parts (uint8, at most 15 each)."""
+        if self._noise_pos is None or len(self._noise_pos) < 2 * n:
             rng = np.random.default_rng([self.seed, 17])
             b = np.frombuffer(rng.bytes(2 * n), dtype=np.uint8)
-            self._noise_table = cv2.LUT(b, self._tri).ravel()
-        offset = int(np.random.default_rng([self.seed, index, 17]).integers(len(self._noise_table) - n + 1))
-        return self._noise_table[offset:offset + n]
+            table = cv2.LUT(b, self._tri).ravel()
+            self._noise_pos = np.maximum(table, 0).astype(np.uint8)
+            self._noise_neg = np.maximum(-table, 0).astype(np.uint8)
+        offset = int(np.random.default_rng([self.seed, index, 17]).integers(len(self._noise_pos) - n + 1))
+        return self._noise_pos[offset:offset + n], self._noise_neg[offset:offset + n]
 
 
 def make_renderer(kind: str, scene: Scene, frame: FacadeFrame, camera: CameraModel, **kw) -> Renderer:

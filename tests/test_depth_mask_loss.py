@@ -130,3 +130,14 @@ def test_training_loss_adds_the_hinge_only_with_a_weight(tmp_path):
     assert float(total_loss(outputs, x, depth, on, None)) == pytest.approx(base)
     assert float(total_loss(outputs, x, depth, on, facade)) > base + 0.5
     assert np.isfinite(base)
+
+
+@pytest.mark.parametrize("flags", [["--mask-loss-weight", "-1"], ["--mask-margin", "0.8"]])
+def test_train_command_refuses_a_bad_mask_loss_setting(tmp_path, capsys, flags):
+    from companion.cli import main
+
+    rc = main(["depth", "train", "--out", str(tmp_path / "run"), "--view-seeds", "0", *flags])
+    assert rc != 0
+    err = capsys.readouterr().err
+    assert "out of range" in err and "margin >= 1" in err
+    assert not (tmp_path / "run").exists()  # refused before anything was written or rendered

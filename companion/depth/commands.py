@@ -76,6 +76,11 @@ def cmd_train(args) -> int:
         recs += ensure_recordings(args.mission, args.seeds, out / "data", width_px=args.width_px, stride=args.stride)
     if args.eval_seeds:
         evals += ensure_recordings(args.mission, args.eval_seeds, out / "data", width_px=args.width_px, stride=4)
+    if args.mask_loss_weight < 0 or args.mask_margin < 1.0:
+        raise CompanionError(
+            f"--mask-loss-weight {args.mask_loss_weight} / --mask-margin {args.mask_margin} out of range",
+            "use a weight >= 0 (0 turns the mask loss off) and a margin >= 1 (e.g. 1.25)",
+        )
     h, w = args.size
     cfg = TrainConfig(
         out=out, recordings=recs, eval_recordings=evals, height=h, width=w, crop=args.crop, batch=args.batch,

@@ -279,6 +279,8 @@ def finish(model: Monodepth2, cfg: TrainConfig, step: int, elapsed_s: float, hel
         f"{len(cfg.recordings)} simulator recordings + {len(cfg.view_seeds)} random-view scenes"
         + (f" + real-photo composites ({cfg.real_fraction:.0%} of each batch, train split of {cfg.real_photos})"
            if cfg.real_photos is not None else "")
+        + (f", near/far mask loss weight {cfg.mask_loss_weight:g} (margin {cfg.mask_margin:g})"
+           if cfg.mask_loss_weight > 0 else "")
         + (f", fine-tuned from {Path(cfg.init_from).name}" if cfg.init_from is not None else "")
         + f", {step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
     )

@@ -139,11 +139,12 @@ def test_real_photo_training_step_exports_a_non_commercial_model(tmp_path):
     root = _tiny_root(tmp_path / "data", per_kind=1)
     cfg = TrainConfig(out=tmp_path / "run", recordings=[], view_seeds=[300], views_per_seed=3, batch=2,
                       crop=(64, 160), max_steps=2, max_minutes=10, init_from=SIM_MODEL, real_photos=root,
-                      real_fraction=0.5, head_warmup_steps=1, threads=1)
+                      real_fraction=0.5, head_warmup_steps=1, threads=1, mask_loss_weight=2.0)
     torch.manual_seed(0)
     path = train(cfg)
     meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
     assert "non-commercial" in meta["licence"] and "real-photo composites" in meta["source"]
+    assert "near/far mask loss weight 2" in meta["source"]  # the steps ran with the mask loss
     assert meta["train_steps"] == "2"
     # the run started from the shipped weights and moved away from them
     from companion.depth.training.onnx_weights import model_from_onnx

@@ -69,7 +69,7 @@ def test_sample_batch_uses_truth_masks_and_keeps_depth(seed):
         np.repeat(depth[None], 4, axis=0),
         np.repeat((facade * 255).astype(np.uint8)[None], 4, axis=0),
     )
-    x, d = sample_batch(frames, 5, (64, 128), np.random.default_rng(seed), max_depth=100.0)
+    x, d, f = sample_batch(frames, 5, (64, 128), np.random.default_rng(seed), max_depth=100.0)
     assert x.shape == (5, 3, 64, 128) and d.shape == (5, 1, 64, 128)
     assert x.dtype == np.float32 and x.min() >= 0.0 and x.max() <= 1.0
     assert set(np.unique(d)) <= {6.0, 100.0}  # randomisation never touches the depth

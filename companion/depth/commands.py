@@ -76,6 +76,11 @@ def cmd_train(args) -> int:
         recs += ensure_recordings(args.mission, args.seeds, out / "data", width_px=args.width_px, stride=args.stride)
     if args.eval_seeds:
         evals += ensure_recordings(args.mission, args.eval_seeds, out / "data", width_px=args.width_px, stride=4)
+    if args.mask_loss_weight < 0 or args.mask_margin < 1.0:
+        raise CompanionError(
+            f"--mask-loss-weight {args.mask_loss_weight} / --mask-margin {args.mask_margin} out of range",
+            "use a weight >= 0 (0 turns the mask loss off) and a margin >= 1 (e.g. 1.25)",
+        )
     h, w = args.size
     cfg = TrainConfig(
         out=out, recordings=recs, eval_recordings=evals, height=h, width=w, crop=args.crop, batch=args.batch,
@@ -83,6 +88,7 @@ def cmd_train(args) -> int:
         threads=args.threads, view_seeds=args.view_seeds or [], eval_view_seeds=args.eval_view_seeds or [],
         views_per_seed=args.views_per_seed, init_from=Path(args.init_from) if args.init_from else None,
         real_photos=Path(args.real_photos) if args.real_photos else None, real_fraction=args.real_fraction,
+        mask_loss_weight=args.mask_loss_weight, mask_margin=args.mask_margin,
     )
     path = train(cfg)
     print(f"model: {path}")
@@ -180,6 +186,11 @@ def register(subparsers) -> None:
                         "(makes the model research / non-commercial)")
     p.add_argument("--real-fraction", type=float, default=TrainConfig.real_fraction,
                    help="share of each batch from real photos")
+    p.add_argument("--mask-loss-weight", type=float, default=TrainConfig.mask_loss_weight,
+                   help="weight of the near/far mask hinge on samples with a facade mask, beside the depth loss "
+                        "(0: depth loss only)")
+    p.add_argument("--mask-margin", type=float, default=TrainConfig.mask_margin,
+                   help="the hinge's margin: a factor (> 1) on disparity around the ROI rules' keep/cut threshold")
     p.set_defaults(func=cmd_train)
 
     p = dsub.add_parser("average", help="uniform weight average of training runs (a model soup) -> verified ONNX")

@@ -38,3 +38,5 @@ class TrainConfig:
     real_photos: Path | None = None  # ../shared/data: mix in real-photo composites (train split only)
     real_fraction: float = 0.5  # share of each batch that is real-photo composites
     head_warmup_steps: int = 60  # from a .onnx: steps that fit only the coarse disparity heads first
+    mask_loss_weight: float = 0.0  # weight of the near/far mask hinge (training.maskloss); 0 = depth loss only
+    mask_margin: float = 1.25  # the hinge's margin, a factor on disparity around the ROI keep/cut threshold

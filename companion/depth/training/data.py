@@ -146,35 +146,40 @@ def to_input(image_bgr: np.ndarray) -> np.ndarray:
 def augment_crop(
     image: np.ndarray, depth: np.ndarray, facade: np.ndarray, sky: np.ndarray, rng: np.random.Generator,
     crop: tuple[int, int] | None, augment: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One training sample from a frame at model input size: a random crop, randomised and maybe flipped.
 
-    Returns (3 x h x w RGB float input, 1 x h x w float32 depth)."""
+    Returns (3 x h x w RGB float input, 1 x h x w float32 depth, 1 x h x w bool facade) (the facade crop feeds the
+    near/far mask loss)."""
     h, w = depth.shape
     ch, cw = crop or (h, w)
     y0 = int(rng.integers(0, h - ch + 1))
     x0 = int(rng.integers(0, w - cw + 1))
     img = image[y0 : y0 + ch, x0 : x0 + cw]
     dep = depth[y0 : y0 + ch, x0 : x0 + cw]
+    fac = facade[y0 : y0 + ch, x0 : x0 + cw] > 0
     if augment:
-        img = randomise(img, rng, facade=facade[y0 : y0 + ch, x0 : x0 + cw] > 0, sky=sky[y0 : y0 + ch, x0 : x0 + cw])
+        img = randomise(img, rng, facade=fac, sky=sky[y0 : y0 + ch, x0 : x0 + cw])
         if rng.random() < 0.5:
-            img, dep = img[:, ::-1], dep[:, ::-1]
-    return to_input(np.ascontiguousarray(img)), np.ascontiguousarray(dep, dtype=np.float32)[None]
+            img, dep, fac = img[:, ::-1], dep[:, ::-1], fac[:, ::-1]
+    return (to_input(np.ascontiguousarray(img)), np.ascontiguousarray(dep, dtype=np.float32)[None],
+            np.ascontiguousarray(fac)[None])
 
 
 def sample_batch(
     frames: FrameSet, batch: int, crop: tuple[int, int] | None, rng: np.random.Generator, augment: bool = True,
     max_depth: float = 100.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """A random batch: (B x 3 x h x w inputs, B x 1 x h x w true depth), cropped and randomised.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A random batch: (B x 3 x h x w inputs, B x 1 x h x w true depth, B x 1 x h x w bool facade from the truth
+    masks), cropped and randomised.
 
     ``max_depth`` is the clip depth of ``frames`` (sky is stored at it)."""
-    xs, ds = [], []
+    xs, ds, fs = [], [], []
     for idx in rng.integers(0, len(frames), batch):
         dep = np.asarray(frames.depths[idx], dtype=np.float32)
-        x, d = augment_crop(frames.images[idx], dep, frames.roi_masks[idx], dep >= SKY_DEPTH_FRACTION * max_depth,
-                            rng, crop, augment)
+        x, d, f = augment_crop(frames.images[idx], dep, frames.roi_masks[idx], dep >= SKY_DEPTH_FRACTION * max_depth,
+                               rng, crop, augment)
         xs.append(x)
         ds.append(d)
-    return np.stack(xs), np.stack(ds).astype(np.float32)
+        fs.append(f)
+    return np.stack(xs), np.stack(ds).astype(np.float32), np.stack(fs)

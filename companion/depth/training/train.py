@@ -23,6 +23,7 @@ import torch.nn.functional as F
 
 from companion.depth.training.config import TrainConfig
 from companion.depth.training.data import FrameSet, augment_crop, load_frames, sample_batch
+from companion.depth.training.maskloss import MaskLossParams, mask_hinge_loss
 from companion.depth.training.networks import Monodepth2, disp_to_depth, encoder_state_dict
 from companion.errors import CompanionError
 from companion.files import atomic_path
@@ -56,13 +57,21 @@ def smooth_loss(disp: torch.Tensor, img: torch.Tensor) -> torch.Tensor:
     return (gdx * torch.exp(-gix)).mean() + (gdy * torch.exp(-giy)).mean()
 
 
-def total_loss(outputs: dict, x: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+def total_loss(
+    outputs: dict, x: torch.Tensor, depth_gt: torch.Tensor, cfg: TrainConfig, facade: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Scale-invariant depth loss + smoothness at the 4 scales, plus ``cfg.mask_loss_weight`` x the near/far mask
+    hinge (companion.depth.training.maskloss) where the facade mask is given."""
+    use_mask = facade is not None and cfg.mask_loss_weight > 0
+    params = MaskLossParams(margin=cfg.mask_margin, min_depth=cfg.min_depth, max_depth=cfg.max_depth)
     loss = x.new_zeros(())
     for s in range(4):
         disp = outputs[("disp", s)]
         up = F.interpolate(disp, size=depth_gt.shape[-2:], mode="bilinear", align_corners=False)
         img_s = F.interpolate(x, size=disp.shape[-2:], mode="area") if s else x
         loss = loss + silog_loss(up, depth_gt, cfg) + cfg.smoothness * smooth_loss(disp, img_s) / (2**s)
+        if use_mask:
+            loss = loss + cfg.mask_loss_weight * mask_hinge_loss(up, depth_gt, facade, params)
     return loss / 4.0
 
 
@@ -107,8 +116,9 @@ def evaluate_torch(model: Monodepth2, frames: FrameSet, cfg: TrainConfig, batch:
             np.stack([f[..., ::-1].transpose(2, 0, 1) for f in frames.images[i : i + batch]]).astype(np.float32) / 255
         )
         d = torch.from_numpy(frames.depths[i : i + batch][:, None].astype(np.float32))
+        f = torch.from_numpy(frames.roi_masks[i : i + batch][:, None] > 0)
         out = model.forward_all(x)
-        losses.append(float(total_loss(out, x, d, cfg)))
+        losses.append(float(total_loss(out, x, d, cfg, f)))
         _, depth = disp_to_depth(out[("disp", 0)], cfg.min_depth, cfg.max_depth)
         valid = d < cfg.max_depth * 0.99
         absrel.append(float(((depth - d).abs() / d)[valid].mean()))
@@ -134,22 +144,25 @@ def training_frames(
     )
 
 
-def mixed_batch(frames: FrameSet, bank, cfg: TrainConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """A training batch: simulator frames, and with a photo bank ``cfg.real_fraction`` of real-photo composites."""
+def mixed_batch(
+    frames: FrameSet, bank, cfg: TrainConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A training batch (inputs, true depth, facade masks): simulator frames, and with a photo bank
+    ``cfg.real_fraction`` of real-photo composites."""
     n_real = 0 if bank is None else int(round(cfg.batch * cfg.real_fraction))
-    xs, ds = [], []
+    xs, ds, fs = [], [], []
     if cfg.batch - n_real:
-        xs, ds = sample_batch(frames, cfg.batch - n_real, cfg.crop, rng, max_depth=cfg.max_depth)
-        xs, ds = list(xs), list(ds)
+        xs, ds, fs = (list(a) for a in sample_batch(frames, cfg.batch - n_real, cfg.crop, rng, max_depth=cfg.max_depth))
     if n_real:
         from companion.depth.training.composite import compose
 
         for _ in range(n_real):
             c = compose(bank, rng, cfg.height, cfg.width, cfg.max_depth)
-            x, d = augment_crop(c.image, c.depth, c.facade, c.sky, rng, cfg.crop)
+            x, d, f = augment_crop(c.image, c.depth, c.facade, c.sky, rng, cfg.crop)
             xs.append(x)
             ds.append(d)
-    return np.stack(xs), np.stack(ds).astype(np.float32)
+            fs.append(f)
+    return np.stack(xs), np.stack(ds).astype(np.float32), np.stack(fs)
 
 
 def start_from_onnx(path: Path, cfg: TrainConfig, frames: FrameSet, bank) -> Monodepth2:
@@ -167,7 +180,7 @@ def start_from_onnx(path: Path, cfg: TrainConfig, frames: FrameSet, bank) -> Mon
 
     def batches():
         while True:
-            xb, db = mixed_batch(frames, bank, cfg, rng)
+            xb, db, _ = mixed_batch(frames, bank, cfg, rng)
             yield torch.from_numpy(xb), torch.from_numpy(db)
 
     last = fit_missing_heads(model, batches(), lambda out, x, d: total_loss(out, x, d, cfg), cfg.head_warmup_steps)
@@ -231,9 +244,9 @@ def train(cfg: TrainConfig) -> Path:
         lr = cfg.lr if progress < 1.0 - cfg.final_fraction else cfg.lr_final
         for group in opt.param_groups:
             group["lr"] = lr
-        xb, db = mixed_batch(frames, bank, cfg, rng)
+        xb, db, fb = mixed_batch(frames, bank, cfg, rng)
         x, d = torch.from_numpy(xb), torch.from_numpy(db)
-        loss = total_loss(model.forward_all(x), x, d, cfg)
+        loss = total_loss(model.forward_all(x), x, d, cfg, torch.from_numpy(fb))
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -266,6 +279,8 @@ def finish(model: Monodepth2, cfg: TrainConfig, step: int, elapsed_s: float, hel
         f"{len(cfg.recordings)} simulator recordings + {len(cfg.view_seeds)} random-view scenes"
         + (f" + real-photo composites ({cfg.real_fraction:.0%} of each batch, train split of {cfg.real_photos})"
            if cfg.real_photos is not None else "")
+        + (f", near/far mask loss weight {cfg.mask_loss_weight:g} (margin {cfg.mask_margin:g})"
+           if cfg.mask_loss_weight > 0 else "")
         + (f", fine-tuned from {Path(cfg.init_from).name}" if cfg.init_from is not None else "")
         + f", {step} steps of batch {cfg.batch}, {elapsed_s / 60:.0f} min CPU"
     )

@@ -431,9 +431,13 @@ class WarpRenderer(Renderer):
             if self._zb_low * float(dist[i]) > self._dnorm_max * 1.001:  # behind what covers the whole frame
                 continue
             self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
-        rects, near = self._object_rects(orig, A)  # boxes (far buildings, trunks), then tree crowns
-        self._draw_trunks(A, orig, img, zb, sid, rects, near)
-        self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
+        # trunks and crowns (boxes, then crowns, as _object_rects lists them), unless all are behind what covers
+        # the frame (the wall face-on): their tests below would skip every one on the same bound
+        near = np.linalg.norm(np.maximum(np.maximum(self._obj_lo - orig, 0.0), orig - self._obj_hi), axis=1)
+        if not (self._zb_low * near > self._dnorm_max * 1.001).all():
+            rects, near = self._object_rects(orig, A)
+            self._draw_trunks(A, orig, img, zb, sid, rects, near)
+            self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
         if self._zb_low == 0.0:  # else every pixel is drawn: no sky in view
             self._draw_sky(A, img, zb)
         with np.errstate(divide="ignore"):

@@ -360,9 +360,11 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     """The network's mask (uint8 0/255 at frame size) corrected by parallax where parallax is trusted.
 
     Returns (mask, dropped). A frame whose trusted pixels are (almost) all far is dropped unless the network
-    keeps 10 % of the frame where parallax cannot see; elsewhere trusted near pixels are kept and trusted far
-    pixels cut, smoothed over 5 work pixels so single mistracked pixels do not punch holes; untrusted pixels
-    (plain wall, sky) keep the network's answer.
+    keeps 10 % of the frame where parallax cannot see (with the wall-plane check: and unless the wall's motion
+    fits more than a sliver of it); elsewhere trusted near pixels are kept and trusted far pixels cut, smoothed
+    over 5 work pixels so single mistracked pixels do not punch holes; untrusted pixels (plain wall, sky) keep the
+    network's answer as ``plain_rule`` corrects it, and with ``image`` (the frame) those the watershed gives to the
+    far side are cut (``ParallaxParams.plain_watershed_cut``).
     """
     h, w = network_mask.shape[:2]
     # all background: the trusted pixels say so, and what the network keeps is not hiding in untrusted (plain)

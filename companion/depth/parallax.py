@@ -93,6 +93,12 @@ class ParallaxParams:
     plane_box: int = 7
     plane_far_fractions: tuple[float, ...] = (0.0, 0.2)
     plane_drop_max_near_share: float = 0.015
+    # "fit": the drop evidence is the share of the frame that moves like the wall AND fits the wall's motion
+    # within ``plane_fit_max`` grey levels (a real wall matches up to JPEG noise; a background patch the wall's
+    # motion happens to fit better than the far ones rarely fits it closely); "near": the near share above
+    plane_drop_rule: str = "fit"
+    plane_fit_max: float = 4.0
+    plane_drop_max_fit_share: float = 0.0007
     # True: a pixel DIS calls far stays far only where the far motion fits clearly better; False: unless the wall's
     # motion fits clearly better
     plane_far_verified: bool = True
@@ -116,6 +122,8 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     "no-plane-check": ParallaxParams(plane_check=False, plain_watershed_cut=False),
     # the wall-plane check without the watershed cut of plain background
     "no-watershed": ParallaxParams(plain_watershed_cut=False),
+    # the wall-plane check's first drop rule: at most 1.5 % of the frame near after the check
+    "near-drop": ParallaxParams(plane_drop_rule="near"),
 }
 
 
@@ -130,6 +138,7 @@ class ParallaxResult:
     params: ParallaxParams
     plane_checked: bool = False  # near and far were decided with the wall-plane check
     before_plane: ParallaxResult | None = None  # the same flow without the wall-plane check (for the drop rule)
+    wall_fit_share: float = float("nan")  # share of the frame that moves like the wall and fits it closely
 
     @property
     def trusted_share(self) -> float:
@@ -215,10 +224,10 @@ def _patch_residual(ref: np.ndarray, cur: np.ndarray, dx: float, dy: float, box:
 
 
 def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float,
-                     params: ParallaxParams) -> tuple[np.ndarray, np.ndarray]:
-    """(moves like the wall, moves like the far background): textured pixels whose patch fits the wall plane's
-    motion (``wall_flow_px`` along ``direction``) ``plane_margin`` better than every far motion, and the reverse.
-    See ``ParallaxParams.plane_check``."""
+                     params: ParallaxParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(moves like the wall, moves like the far background, moves like the wall and fits it closely): textured
+    pixels whose patch fits the wall plane's motion (``wall_flow_px`` along ``direction``) ``plane_margin`` better
+    than every far motion, the reverse, and the first within ``plane_fit_max``. See ``ParallaxParams.plane_check``."""
     p = params
     ref, cur = flow.ref, flow.cur
     e_wall, inside = _patch_residual(ref, cur, wall_flow_px * direction[0], wall_flow_px * direction[1], p.plane_box)
@@ -232,7 +241,7 @@ def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float
         like_wall = cv2.morphologyEx(like_wall.astype(np.uint8), cv2.MORPH_OPEN,
                                      np.ones((p.plane_open, p.plane_open), np.uint8)).astype(bool)
     like_far = textured & (e_far + p.plane_margin < e_wall)
-    return like_wall, like_far
+    return like_wall, like_far, like_wall & (e_wall < p.plane_fit_max)
 
 
 def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float,
@@ -264,12 +273,13 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     far = flow.trusted & ~near
     if p.plane_check and flow.ref is not None and flow.cur is not None and wall_depth_m is not None \
             and np.isfinite(wall_depth_m) and wall_depth_m > 0:
-        like_wall, like_far = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
+        like_wall, like_far, fits_wall = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
         near_flow, far_flow = near, far
         near = (near & ~like_far) | like_wall
         far = far & (like_far if p.plane_far_verified else ~like_wall)
         return ParallaxResult(depth, near | far, near, far, p, plane_checked=True,
-                              before_plane=ParallaxResult(depth, flow.trusted, near_flow, far_flow, p))
+                              before_plane=ParallaxResult(depth, flow.trusted, near_flow, far_flow, p),
+                              wall_fit_share=float(fits_wall.mean()))
     return ParallaxResult(depth, flow.trusted, near, far, p)
 
 
@@ -373,9 +383,10 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     # of wall the flow called far keeps the frame)
     dropped, net = _all_background(network_mask, parallax, network_depth_m)
     if parallax.before_plane is not None:
-        near_share = float(parallax.near.mean())
-        dropped = _all_background(network_mask, parallax.before_plane, network_depth_m)[0] \
-            and near_share <= parallax.params.plane_drop_max_near_share
+        pp = parallax.params
+        evidence = float(parallax.near.mean()) <= pp.plane_drop_max_near_share if pp.plane_drop_rule == "near" \
+            else parallax.wall_fit_share <= pp.plane_drop_max_fit_share
+        dropped = _all_background(network_mask, parallax.before_plane, network_depth_m)[0] and evidence
     if dropped:
         return np.zeros((h, w), np.uint8), True
     if image is not None and parallax.params.plain_watershed_cut:

@@ -139,7 +139,7 @@ def _mask_one_variant(pp: ParallaxParams, tally: _VariantTally, roi, par, net_de
     if par is None:
         full, dropped, stage_map = roi.mask, roi.empty, None
     else:
-        full, dropped = fuse_with_network(roi.mask, par, net_depth)
+        full, dropped = fuse_with_network(roi.mask, par, net_depth, image)
         h, w = _eval_size(image)
         stage_map = (_small(par.near, h, w), _small(par.far, h, w), _small(par.trusted, h, w))
         tally.per_frame.append(_drop_evidence(i, wall_share, roi.mask, par, dropped, net_depth))
@@ -200,7 +200,7 @@ def evaluate_pass(name: str, args, session: DepthSession, masker: Masker) -> tup
             par = None
             if flow_pair is not None and not sure:
                 flow = dense_flow(flow_pair[0], image, pp) if flow is None else flow
-                par = depth_from_flow(flow, flow_pair[1], fx, pp)
+                par = depth_from_flow(flow, flow_pair[1], fx, pp, standoff_m)
             full, dropped, stage_map, rescued = _mask_one_variant(
                 pp, tally, roi, par, net_depth, (i, image, float(tr.mean()), (pos, R, fx)), standoff_m)
             final = np.zeros_like(tr) if dropped else _small(full > 127, h, w)

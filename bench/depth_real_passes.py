@@ -81,7 +81,8 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
             n += 1
 
 
-def _parallax_per_label(params: dict, history: list, image: np.ndarray, pos, R, fx: float) -> dict:
+def _parallax_per_label(params: dict, history: list, image: np.ndarray, pos, R, fx: float,
+                        standoff_m: float | None = None) -> dict:
     """Each parallax label's depth-from-flow against its reference among the recent frames (None: no reference);
     one flow per working width, shared by the labels that use it."""
     from companion.depth.parallax import camera_translation, dense_flow, depth_from_flow, pick_reference
@@ -95,7 +96,7 @@ def _parallax_per_label(params: dict, history: list, image: np.ndarray, pos, R, 
         t = camera_translation(R, history[k][1], R, pos)
         if pp.work_width not in flows:
             flows[pp.work_width] = dense_flow(history[k][0], image, pp)
-        pars[w] = depth_from_flow(flows[pp.work_width], t, fx, pp)
+        pars[w] = depth_from_flow(flows[pp.work_width], t, fx, pp, standoff_m)
     return pars
 
 
@@ -133,7 +134,7 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
     for i, image, truth, (pos, R, fx, standoff_m) in frames:
         pars = {}
         if params and fx:
-            pars = _parallax_per_label(params, history, image, pos, R, fx)
+            pars = _parallax_per_label(params, history, image, pos, R, fx, standoff_m)
             history = (history + [(image, pos)])[-12:]
         if params:
             zero = np.zeros(image.shape[:2], np.uint8)
@@ -159,7 +160,7 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                         key = (model, f"{rule}+parallax@{w}{tag}")
                         judged = par if not (tag and sure) else None
                         if judged is not None:
-                            fused, dropped = fuse_with_network(roi.mask, judged, net_depth)
+                            fused, dropped = fuse_with_network(roi.mask, judged, net_depth, image)
                         else:
                             fused, dropped = roi.mask, roi.empty
                         in_view = carried_wall(kept.get(key), pos, R, fx, image.shape[1], pp) if fx else None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -314,3 +316,85 @@ def test_the_masker_carries_the_wall_only_with_the_rule_on():
     truth = cv2.resize(g.roi_mask, carried.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     assert 0.02 < truth.mean() < (f.roi_mask > 0).mean()
     assert (carried & truth).sum() / (carried | truth).sum() > 0.9  # where the wall's end is now
+
+
+def _training_photo_pass(camera: CameraModel):
+    """Validation pass ``val-b0169-40`` of bench/depth_error_regions.py (training-split photos: a CMP facade whose
+    upper strip ends in a plain white balustrade, a Boston street 40 m behind) at a smaller camera."""
+    from companion.depth.realdata import facade_mask, list_real_photos, load_image
+
+    photos = {p.image.name: p for p in list_real_photos()}
+    wall_p, bg_p = photos["cmp_b0169.jpg"], photos["static_boston_street_april__p1010115.jpg"]
+    assert wall_p.split == "train" and bg_p.split == "train"  # never a held-out photo in a test of a rule
+    wall = PhotoTexture(wall_p.image.name, load_image(wall_p), 14.0, facade_mask(wall_p))
+    bg = PhotoTexture(bg_p.image.name, load_image(bg_p), 1.0)
+    spec = PhotoPass("val-b0169-40", wall, bg, background_distance_m=40.0, camera=camera, frames=100,
+                     background_frames=12, strips_up_m=(0.55 * wall.height_m, 0.88 * wall.height_m))
+    return PhotoPassRenderer(spec)
+
+
+@pytest.mark.skipif(not (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real-facades").is_dir(),
+                    reason="needs ../shared/data/real-facades beside the clone")
+def test_a_strip_of_wall_the_flow_calls_far_is_kept_by_the_wall_plane_check():
+    """At the end of a strip a balustrade (thin balusters, plain white) fills the bottom of the frame beside a
+    street 40 m behind. DIS smooths the street's small motion into it and calls it far with a consistent
+    forward-backward flow, so the frame, 10-17 % wall, was dropped as all background (the old rule, kept as
+    ``no-plane-check``). Under the wall plane's own motion (f x baseline / standoff) its patches fit and under a
+    far motion they do not: it is near and the frame is kept. The background-only frames after it are still
+    dropped."""
+    import cv2
+
+    from companion.depth.parallax import PARALLAX_RULES, dense_flow, depth_from_flow
+
+    cam = CameraModel(width=1920, height=1080, hfov_deg=69.0)  # the pass as the bench renders it
+    r = _training_photo_pass(cam)
+    for i, has_wall in ((82, True), (97, False)):
+        a, b = r.render(i - 1), r.render(i)
+        assert (b.wall_fraction > 0.09) is has_wall and (b.wall_fraction == 0.0) is not has_wall
+        t = camera_translation(R, np.array([a.along_m, 4.0, a.up_m]), R, np.array([b.along_m, 4.0, b.up_m]))
+        no_network = np.zeros_like(b.roi_mask)  # the network reads the balustrade as far too (both models)
+        results = {}
+        for rule in ("no-plane-check", "default"):
+            pp = PARALLAX_RULES[rule]
+            par = depth_from_flow(dense_flow(a.image, b.image, pp), t, cam.fx, pp, wall_depth_m=4.0)
+            results[rule] = (par, *fuse_with_network(no_network, par))
+        old_dropped, (par, mask, dropped) = results["no-plane-check"][2], results["default"]
+        if has_wall:
+            assert old_dropped  # the rule before: the frame with wall was dropped
+            assert not dropped
+            truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+            assert par.near[truth].mean() > 0.5  # the balustrade moves like the wall
+            assert (mask[b.roi_mask > 0] > 0).mean() > 0.5
+        else:
+            assert old_dropped and dropped
+
+
+def test_plain_sky_above_the_roof_line_joins_the_far_background_it_touches():
+    """Plain sky above a wall's top edge has nothing to track. It touches the wall below (near) and a textured
+    hillside beside it (far), so the continuity rule leaves it to the network, which keeps it. Grown from the
+    trusted pixels over the frame's colours, the far side reaches it across a faint edge (hills in haze) and the
+    wall's side stops at the roof line, a strong one: it is cut. A plain patch inside the wall stays wall."""
+    from companion.depth.parallax import ParallaxParams, ParallaxResult
+
+    rng = np.random.default_rng(3)
+    h, w = 90, 160
+    image = np.zeros((h, w, 3), np.uint8)
+    image[40:] = np.clip(rng.normal(90, 25, (h - 40, w, 3)), 0, 255).astype(np.uint8)  # textured wall
+    image[60:75, 20:50] = (90, 90, 90)  # a plain patch of the wall
+    image[:40, :100] = (235, 200, 160)  # plain sky (BGR light blue)
+    # distant hills in haze: textured, but their colour runs on into the sky's
+    image[:40, 100:] = np.clip(rng.normal((205, 185, 150), 12, (40, w - 100, 3)), 0, 255).astype(np.uint8)
+    plain = np.zeros((h, w), bool)
+    plain[:40, :100] = True
+    plain[60:75, 20:50] = True
+    wall = np.zeros((h, w), bool)
+    wall[40:] = True
+    near, far = wall & ~plain, ~wall & ~plain
+    for rule, sky_cut in ((ParallaxParams(), True), (ParallaxParams(plain_watershed_cut=False), False)):
+        par = ParallaxResult(np.where(near, 4.0, 100.0).astype(np.float32), near | far, near, far, rule)
+        network = np.full((h, w), 255, np.uint8)  # the network keeps everything but the hills
+        network[:40, 100:] = 0
+        fused, dropped = fuse_with_network(network, par, image=image)
+        assert not dropped
+        assert bool((fused[:35, :95] == 0).mean() > 0.95) is sky_cut
+        assert (fused[62:73, 22:48] > 0).all() and (fused[45:, :] > 0).mean() > 0.97

@@ -113,7 +113,7 @@ class Masker:
         else:
             self.stats.parallax_frames += 1
             depth = info.depth_from_disparity(np.squeeze(disparity))  # its ordering is all the split needs
-            mask, dropped = fuse_with_network(network, par, depth)
+            mask, dropped = fuse_with_network(network, par, depth, image)
         carried = keep_wall_in_view(mask, dropped, in_view, par, self.parallax.params)
         wall_m = wall_depth_of(par, fallback_m) if carried[0] is mask else self.parallax.kept_wall_depth_m()
         mask, dropped = carried

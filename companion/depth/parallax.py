@@ -77,6 +77,38 @@ class ParallaxParams:
     # the network needs no second opinion on a frame it reads as facade everywhere (no depth boundary) no farther
     # than this many standoffs: the flow is skipped there (the bulk of a scan's frames). None: judge every frame.
     sure_wall_standoffs: float | None = 1.5
+    # The wall-plane check (issue 13, frames with wall dropped). DIS's coarse-to-fine flow smooths the large
+    # background's small motion into a narrow strip of wall (a balustrade at the end of a strip, a plain wall edge)
+    # and calls it far with a consistent forward-backward flow, and the frame is dropped. The wall is a plane at
+    # the standoff, so its motion is known: f x baseline / standoff. Each textured pixel's patch (``plane_box``
+    # work pixels) is compared under that motion and under a far motion (``plane_far_fractions`` of it: 0 is
+    # infinitely far, 0.2 five standoffs); the hypothesis that fits ``plane_margin`` grey levels (mean absolute
+    # difference) better wins: a pixel that moves like the wall is near, one that moves like the far background
+    # stays far only when the wall's motion does not fit it, and a pixel neither fits clearly is left untrusted.
+    # A frame is all background only when at most ``plane_drop_max_near_share`` of it is near (the wall plane's
+    # evidence spreads over the patch size at a wall's outline, so a sliver of wall shows as 2-8 % of the frame).
+    # Chosen on the validation passes of training-split photos (docs/DEPTH.md). False: DIS alone.
+    plane_check: bool = True
+    plane_margin: float = 2.0
+    plane_box: int = 7
+    plane_far_fractions: tuple[float, ...] = (0.0, 0.2)
+    plane_drop_max_near_share: float = 0.015
+    # "fit": the drop evidence is the share of the frame that moves like the wall AND fits the wall's motion
+    # within ``plane_fit_max`` grey levels (a real wall matches up to JPEG noise; a background patch the wall's
+    # motion happens to fit better than the far ones rarely fits it closely); "near": the near share above
+    plane_drop_rule: str = "fit"
+    plane_fit_max: float = 4.0
+    plane_drop_max_fit_share: float = 0.0007
+    # True: a pixel DIS calls far stays far only where the far motion fits clearly better; False: unless the wall's
+    # motion fits clearly better
+    plane_far_verified: bool = True
+    plane_open: int = 3  # morphological opening (work pixels) of the pixels that move like the wall; 1: none
+    # Plain pixels the network keeps, cut where a watershed of the frame's colours grown from the trusted near and
+    # far pixels gives them to the far side: plain sky or a plain hillside joins the textured background it
+    # touches across no edge, while the wall's outline (the roof line) is an edge that stops the far side. Only
+    # cuts (a plain strip of wall with only background beside it would be flooded from the far side). Needs the
+    # frame (``fuse_with_network(..., image=...)``).
+    plain_watershed_cut: bool = True
 
 
 # Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
@@ -84,7 +116,14 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     "default": ParallaxParams(),
     # the rules before issue 13's diagnosis: trusted pixels nearer than 15 m are near, plain pixels keep the
     # network's answer
-    "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network"),
+    "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network", plane_check=False,
+                                plain_watershed_cut=False),
+    # the rules before the wall-plane check (DIS alone decides which textured pixels are near and far)
+    "no-plane-check": ParallaxParams(plane_check=False, plain_watershed_cut=False),
+    # the wall-plane check without the watershed cut of plain background
+    "no-watershed": ParallaxParams(plain_watershed_cut=False),
+    # the wall-plane check's first drop rule: at most 1.5 % of the frame near after the check
+    "near-drop": ParallaxParams(plane_drop_rule="near"),
 }
 
 
@@ -97,6 +136,9 @@ class ParallaxResult:
     near: np.ndarray
     far: np.ndarray
     params: ParallaxParams
+    plane_checked: bool = False  # near and far were decided with the wall-plane check
+    before_plane: ParallaxResult | None = None  # the same flow without the wall-plane check (for the drop rule)
+    wall_fit_share: float = float("nan")  # share of the frame that moves like the wall and fits it closely
 
     @property
     def trusted_share(self) -> float:
@@ -106,7 +148,8 @@ class ParallaxResult:
     def all_background(self) -> bool:
         """Enough trusted pixels and (almost) none of them near: the frame shows no near surface."""
         p = self.params
-        return self.trusted_share >= p.min_confident_share and float(self.near.mean()) <= p.drop_max_near_share
+        limit = p.plane_drop_max_near_share if self.plane_checked else p.drop_max_near_share
+        return self.trusted_share >= p.min_confident_share and float(self.near.mean()) <= limit
 
 
 def camera_translation(R_world_from_cam_ref: np.ndarray, pos_ref: np.ndarray, R_world_from_cam_cur: np.ndarray,
@@ -133,6 +176,8 @@ class DenseFlow:
     trusted: np.ndarray  # H x W bool
     work_width: int  # pixels
     frame_width: int  # pixels of the frames the flow was computed from
+    ref: np.ndarray | None = None  # the grey working copies the flow was computed from (for the wall-plane check)
+    cur: np.ndarray | None = None
 
 
 def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxParams | None = None) -> DenseFlow:
@@ -161,13 +206,49 @@ def dense_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int,
     tx, ty = xx + fwd[..., 0], yy + fwd[..., 1]
     inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # tracked to a point inside the reference
     trusted = (texture >= p.min_texture) & (fb_err <= p.max_fb_error_px) & inside
-    return DenseFlow(fwd, trusted, p.work_width, frame_width)
+    return DenseFlow(fwd, trusted, p.work_width, frame_width, ref, cur)
+
+
+def _patch_residual(ref: np.ndarray, cur: np.ndarray, dx: float, dy: float, box: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean absolute grey difference over ``box`` x ``box`` patches between ``cur`` and ``ref`` moved by (dx, dy)
+    (``cur(x) ~ ref(x + d)``), and where the moved point lies inside ``ref``."""
+    moved = cv2.warpAffine(ref, np.float32([[1, 0, dx], [0, 1, dy]]), (cur.shape[1], cur.shape[0]),
+                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    diff = cv2.absdiff(cur, moved).astype(np.float32)
+    h, w = cur.shape
+    inside = np.zeros((h, w), bool)
+    x0, x1 = max(0, int(np.ceil(-dx))), min(w, int(np.floor(w - 1 - dx)) + 1)
+    y0, y1 = max(0, int(np.ceil(-dy))), min(h, int(np.floor(h - 1 - dy)) + 1)
+    inside[y0:y1, x0:x1] = True
+    return cv2.boxFilter(diff, -1, (box, box)), inside
+
+
+def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float,
+                     params: ParallaxParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(moves like the wall, moves like the far background, moves like the wall and fits it closely): textured
+    pixels whose patch fits the wall plane's motion (``wall_flow_px`` along ``direction``) ``plane_margin`` better
+    than every far motion, the reverse, and the first within ``plane_fit_max``. See ``ParallaxParams.plane_check``."""
+    p = params
+    ref, cur = flow.ref, flow.cur
+    e_wall, inside = _patch_residual(ref, cur, wall_flow_px * direction[0], wall_flow_px * direction[1], p.plane_box)
+    e_far = np.min([_patch_residual(ref, cur, a * wall_flow_px * direction[0], a * wall_flow_px * direction[1],
+                                    p.plane_box)[0] for a in p.plane_far_fractions], axis=0)
+    gx = cv2.Sobel(cur, cv2.CV_32F, 1, 0, ksize=3) / 4.0
+    gy = cv2.Sobel(cur, cv2.CV_32F, 0, 1, ksize=3) / 4.0
+    textured = cv2.boxFilter(np.hypot(gx, gy), -1, (7, 7)) >= p.min_texture
+    like_wall = textured & inside & (e_wall + p.plane_margin < e_far)
+    if p.plane_open > 1:  # a wall is a coherent region: single patches a repeated background texture fits go
+        like_wall = cv2.morphologyEx(like_wall.astype(np.uint8), cv2.MORPH_OPEN,
+                                     np.ones((p.plane_open, p.plane_open), np.uint8)).astype(bool)
+    like_far = textured & (e_far + p.plane_margin < e_wall)
+    return like_wall, like_far, like_wall & (e_wall < p.plane_fit_max)
 
 
 def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float,
-                    params: ParallaxParams | None = None) -> ParallaxResult:
+                    params: ParallaxParams | None = None, wall_depth_m: float | None = None) -> ParallaxResult:
     """Depth = f x baseline / (flow along the baseline's image direction); near and far where the flow is trusted.
-    ``fx_px`` is the focal length at full frame width."""
+    ``fx_px`` is the focal length at full frame width. ``wall_depth_m`` (the standoff) enables the wall-plane
+    check (``ParallaxParams.plane_check``); without it the wall depth this flow measured is used, if any."""
     p = params or ParallaxParams()
     t = np.asarray(translation_cam_m, float)
     base = float(np.hypot(t[0], t[1]))
@@ -186,9 +267,19 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
         # the wall: the nearest trusted pixels covering min_wall_share of the frame (their median depth), so a
         # background that fills most of the frame does not set the scale, and a few mistracked pixels do not
         near_depths = depth[near]
-        wall_depth_m = float(np.partition(near_depths, k // 2)[k // 2])
-        near &= depth < p.wall_ratio * wall_depth_m
+        measured_wall_m = float(np.partition(near_depths, k // 2)[k // 2])
+        near &= depth < p.wall_ratio * measured_wall_m
+        wall_depth_m = wall_depth_m if wall_depth_m is not None else measured_wall_m
     far = flow.trusted & ~near
+    if p.plane_check and flow.ref is not None and flow.cur is not None and wall_depth_m is not None \
+            and np.isfinite(wall_depth_m) and wall_depth_m > 0:
+        like_wall, like_far, fits_wall = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
+        near_flow, far_flow = near, far
+        near = (near & ~like_far) | like_wall
+        far = far & (like_far if p.plane_far_verified else ~like_wall)
+        return ParallaxResult(depth, near | far, near, far, p, plane_checked=True,
+                              before_plane=ParallaxResult(depth, flow.trusted, near_flow, far_flow, p),
+                              wall_fit_share=float(fits_wall.mean()))
     return ParallaxResult(depth, flow.trusted, near, far, p)
 
 
@@ -265,26 +356,60 @@ def keep_wall_in_view(mask: np.ndarray, dropped: bool, in_view: np.ndarray | Non
     return np.where(full > 0, 255, 0).astype(np.uint8), False
 
 
+def _all_background(network_mask: np.ndarray, parallax: ParallaxResult,
+                    network_depth_m: np.ndarray | None) -> tuple[bool, np.ndarray]:
+    """The drop rule of one parallax result, and the network's plain-pixel vote it used."""
+    net = plain_vote(network_mask, parallax, network_depth_m)
+    untrusted_kept = float((net[~parallax.trusted] >= 0.5).sum()) / net.size
+    return parallax.all_background and untrusted_kept <= parallax.params.drop_max_untrusted_kept, net
+
+
 def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
-                      network_depth_m: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+                      network_depth_m: np.ndarray | None = None,
+                      image: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """The network's mask (uint8 0/255 at frame size) corrected by parallax where parallax is trusted.
 
     Returns (mask, dropped). A frame whose trusted pixels are (almost) all far is dropped unless the network
-    keeps 10 % of the frame where parallax cannot see; elsewhere trusted near pixels are kept and trusted far
-    pixels cut, smoothed over 5 work pixels so single mistracked pixels do not punch holes; untrusted pixels
-    (plain wall, sky) keep the network's answer.
+    keeps 10 % of the frame where parallax cannot see (with the wall-plane check: and unless the wall's motion
+    fits more than a sliver of it); elsewhere trusted near pixels are kept and trusted far pixels cut, smoothed
+    over 5 work pixels so single mistracked pixels do not punch holes; untrusted pixels (plain wall, sky) keep the
+    network's answer as ``plain_rule`` corrects it, and with ``image`` (the frame) those the watershed gives to the
+    far side are cut (``ParallaxParams.plain_watershed_cut``).
     """
     h, w = network_mask.shape[:2]
-    net = plain_vote(network_mask, parallax, network_depth_m)
     # all background: the trusted pixels say so, and what the network keeps is not hiding in untrusted (plain)
-    # parts of the frame, such as a plain strip of wall parallax cannot track
-    untrusted_kept = float((net[~parallax.trusted] >= 0.5).sum()) / net.size
-    if parallax.all_background and untrusted_kept <= parallax.params.drop_max_untrusted_kept:
+    # parts of the frame, such as a plain strip of wall parallax cannot track. With the wall-plane check: the flow
+    # alone says so (as before the check) and the wall plane's motion fits at most a sliver of the frame (a strip
+    # of wall the flow called far keeps the frame)
+    dropped, net = _all_background(network_mask, parallax, network_depth_m)
+    if parallax.before_plane is not None:
+        pp = parallax.params
+        evidence = float(parallax.near.mean()) <= pp.plane_drop_max_near_share if pp.plane_drop_rule == "near" \
+            else parallax.wall_fit_share <= pp.plane_drop_max_fit_share
+        dropped = _all_background(network_mask, parallax.before_plane, network_depth_m)[0] and evidence
+    if dropped:
         return np.zeros((h, w), np.uint8), True
+    if image is not None and parallax.params.plain_watershed_cut:
+        net = watershed_cut(net, parallax, image)
     vote = np.where(parallax.near, 1.0, np.where(parallax.far, 0.0, net)).astype(np.float32)
     vote = cv2.medianBlur(vote, 5)
     fused = cv2.resize(vote, (w, h), interpolation=cv2.INTER_LINEAR)
     return np.where(fused >= 0.5, 255, 0).astype(np.uint8), False
+
+
+def watershed_cut(net: np.ndarray, parallax: ParallaxResult, image: np.ndarray) -> np.ndarray:
+    """The 0..1 plain-pixel vote (work resolution) with the untrusted pixels that a watershed of the frame grown
+    from the trusted near and far pixels gives to the far side cut (``ParallaxParams.plain_watershed_cut``)."""
+    if not parallax.near.any() or not parallax.far.any():
+        return net
+    ph, pw = parallax.near.shape
+    colour = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    small = cv2.resize(colour, (pw, ph), interpolation=cv2.INTER_AREA)
+    markers = np.zeros((ph, pw), np.int32)
+    markers[parallax.near] = 1
+    markers[parallax.far] = 2
+    cv2.watershed(small, markers)  # every pixel joins the seed it reaches across the weakest edges (-1: ridges)
+    return np.where(~parallax.trusted & (markers == 2), 0.0, net).astype(np.float32)
 
 
 def plain_vote(network_mask: np.ndarray, parallax: ParallaxResult,
@@ -474,6 +599,6 @@ class SequenceParallax:
             if np.hypot(t[0], t[1]) > 1e-6:
                 fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
                 flow = dense_flow_grey(self._history[k][0], grey, image.shape[1], self.params)
-                result = depth_from_flow(flow, t, fx, self.params)
+                result = depth_from_flow(flow, t, fx, self.params, self.standoff_m)
         self._push(grey, pos, image.shape)
         return result

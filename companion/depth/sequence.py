@@ -163,7 +163,7 @@ class SequenceMasker:
         fx = float(image.shape[1])  # any focal length: the scale was measured in the same units, so it cancels
         baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)
         translation = np.array([*(sign * baseline_m * motion.direction), 0.0])
-        mask, dropped = fuse_with_network(net_mask, depth_from_flow(flow, translation, fx, self.params))
+        mask, dropped = fuse_with_network(net_mask, depth_from_flow(flow, translation, fx, self.params), image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)
 
 

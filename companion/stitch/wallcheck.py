@@ -153,7 +153,9 @@ def _restored(confirmed: np.ndarray, consistent: np.ndarray, kept: np.ndarray, c
     if not evidence.any():
         return np.zeros(kept.shape, np.uint8)
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s.fill_px + 1,) * 2)
-    closed = cv2.morphologyEx(((evidence > 0) | kept).astype(np.uint8), cv2.MORPH_CLOSE, disk)
+    # the frame's edge bounds a gap as the kept mask does (a band between the kept wall and the frame's bottom)
+    closed = cv2.morphologyEx(((evidence > 0) | kept).astype(np.uint8), cv2.MORPH_CLOSE, disk,
+                              borderType=cv2.BORDER_CONSTANT, borderValue=1)
     filled = ((closed > 0) & (consistent | confirmed)) | (evidence > 0)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
     holds = np.zeros(n, bool)

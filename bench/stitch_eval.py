@@ -129,6 +129,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--masks", default="truth,real-nc",
                     help="--passes: ROI masks: truth, none, or a shipped depth model (sim, real-nc) through the "
                          "onboard Masker with parallax")
+    ap.add_argument("--image-only-passes", default=None,
+                    help="--passes: the image-only variant on these passes only (default: every pass)")
     ap.add_argument("--jump-m", type=float, default=1.5, help="--passes: the GNSS jump (along the wall)")
     ap.add_argument("--baseline-ref", default=None, help="--passes: also stitch with this git ref's code")
     return ap.parse_args(argv)
@@ -268,7 +270,16 @@ def run_photo_passes(args) -> int:
     """Every pass x variant x mask: our stitcher, the baseline ref's, cv2.Stitcher on the keyframes; one JSON
     line each and a markdown table at the end. Variants: exact telemetry, 0.5 m / 2 deg noise, the noise plus a
     jump, raw frames (every rendered frame) with the noise, and image-only (``--no-poses``) on the keyframes."""
-    from stitch_photo_passes import jump_errors, mask_error, pass_masks, render_pass, write_spool
+    from stitch_photo_passes import (
+        gate_pass,
+        gate_summary,
+        jump_errors,
+        mask_error,
+        pass_masks,
+        render_pass,
+        shipped_masks,
+        write_spool,
+    )
 
     from companion.stitch.synthetic import TelemetryErrors
 
@@ -284,18 +295,27 @@ def run_photo_passes(args) -> int:
         print(f"pass {name}: {len(rp.renderer)} frames {args.width_px} px -> {len(rp.keyframes)} keyframes "
               f"(minimum {len(rp.minimum)}); keyframe pairs' true overlap min {min(rp.pair_overlap):.1f} %, "
               f"all {[round(v, 1) for v in rp.pair_overlap]} ({time.process_time() - t0:.0f} s CPU)", flush=True)
-        model_masks = {}
+        model_masks, gated = {}, {"truth": rp, "none": rp}
+        rows.append({"pass": name, "gate": "truth", **gate_summary(rp)})
         for m in masks:
             if m not in ("truth", "none"):
                 t0 = time.process_time()
-                model_masks[m] = pass_masks(rp, m)
-                err_k = mask_error(rp, rp.keyframes, model_masks[m])
+                chain_masks = shipped_masks(rp.spec, rp.renderer, m)  # None: the masker dropped the frame
+                model_masks[m] = pass_masks(rp, m, masks=chain_masks)
+                gated[m] = gate_pass(rp, chain_masks)  # the keyframes the chain keeps with this mask
+                gate = gate_summary(gated[m])
+                rows.append({"pass": name, "gate": m, **gate})
+                err_k = mask_error(rp, gated[m].keyframes, model_masks[m])
                 err_all = mask_error(rp, list(range(len(rp.renderer))), model_masks[m])
-                print(f"  mask {m} + parallax: keyframes {json.dumps(err_k)}, all frames {json.dumps(err_all)} "
-                      f"({time.process_time() - t0:.0f} s CPU)", flush=True)
+                print(f"  mask {m} + parallax: gate {json.dumps(gate)}; mask error on the keyframes "
+                      f"{json.dumps(err_k)}, all frames {json.dumps(err_all)} ({time.process_time() - t0:.0f} s CPU)",
+                      flush=True)
         for variant, mask in photo_inputs(args.variants.split(","), masks):
+            if variant == "image-only" and args.image_only_passes and name not in args.image_only_passes.split(","):
+                continue
             raw = variant == "raw"
-            frames = list(range(len(rp.renderer))) if raw else rp.keyframes
+            rp_mask = gated[mask]
+            frames = list(range(len(rp.renderer))) if raw else rp_mask.keyframes
             errors = {"exact": TelemetryErrors(), "image-only": TelemetryErrors()}.get(variant) or (
                 jump_errors(rp, frames, 0.5, 2.0, (args.jump_m, 0.0)) if variant == "jump"
                 else TelemetryErrors(0.5, 2.0))
@@ -304,8 +324,9 @@ def run_photo_passes(args) -> int:
             rows += _stitch_and_score(rp, name, variant, mask, frames, spool, out, tree)
             if "scans" in peers and variant == "exact":
                 rows.append(_cv2_scans_row(rp, name, mask, frames, model_masks))
-    (out / "photo_results.json").write_text(json.dumps(rows, indent=1, default=float))
-    print(photo_table(rows))
+            (out / "photo_results.json").write_text(json.dumps(rows, indent=1, default=float))
+    print(gate_table([r for r in rows if "gate" in r]))
+    print(photo_table([r for r in rows if "gate" not in r]))
     return 0
 
 
@@ -368,6 +389,17 @@ def truth_grid_for_pass(rp):
 
     cam = rp.spec.camera
     return truth_grid_for(rp, rp.spec.standoff_m / cam.K[0, 0])
+
+
+def gate_table(rows: list[dict]) -> str:
+    """The judge's gate figures per pass and mask (keyframes <= minimum + 10 %, no pair on a strip < 77 %)."""
+    lines = ["| pass | gate's mask | keyframes | minimum | vs minimum | lowest pair on a strip | pairs < 77 % |",
+             "|" + "---|" * 7]
+    for r in rows:
+        low = "-" if r["lowest_pair"] is None else f"{r['lowest_pair']:.1f} %"
+        lines.append(f"| {r['pass']} | {r['gate']} | {r['keyframes']} | {r['minimum']} | {100 * r['excess']:+.0f} % | "
+                     f"{low} | {r['pairs_below_77']} of {r['pairs']} |")
+    return "\n".join(lines)
 
 
 def photo_table(rows: list[dict]) -> str:

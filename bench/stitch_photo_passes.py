@@ -39,12 +39,6 @@ class RenderedPass:
 
 def render_pass(name: str, frames: int, width: int) -> RenderedPass:
     """Renders the pass and runs our gate on it (truth masks, exact telemetry) for the keyframes."""
-    from gate_photo_passes import PhotoPassRecording  # beside this script
-
-    from companion.keyframes.evaluate import evaluate_gate, telemetry_poses
-    from companion.keyframes.features import FeatureConfig
-    from companion.keyframes.gate import GateConfig
-    from companion.keyframes.synthetic import SITE
     from sim.camera.model import CameraModel
     from sim.camera.photo_passes import RECIPES, build_pass
     from sim.camera.photo_scene import PhotoPassRenderer
@@ -53,14 +47,40 @@ def render_pass(name: str, frames: int, width: int) -> RenderedPass:
     cam = spec.camera
     spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
     renderer = PhotoPassRenderer(spec)
-    rec = PhotoPassRecording(renderer)
-    cfg = GateConfig(rth=0.80, features=FeatureConfig(long_side_px=max(640, width)))
-    ev = evaluate_gate(rec, cfg, use_masks=True, predictor=rec.predictor, pose=telemetry_poses(rec, SITE),
-                       curve_floor=101.0)
     ups = [p[1] for p in renderer.positions]
     strips = sorted(set(ups))
-    return RenderedPass(name, spec, renderer, list(ev.keyframes), list(ev.minimum_keyframes),
-                        [float(v) for v in ev.keyframe_pair_truth], [strips.index(u) for u in ups])
+    rp = RenderedPass(name, spec, renderer, [], [], [], [strips.index(u) for u in ups])
+    return gate_pass(rp, None)
+
+
+def gate_pass(rp: RenderedPass, masks: dict[int, np.ndarray | None] | None) -> RenderedPass:
+    """The pass with the keyframes our gate keeps (exact relative telemetry, as the onboard chain) with the truth
+    mask (``masks`` None) or with a depth model's (:func:`shipped_masks`: None where the masker drops a frame), so
+    the spools of a shipped mask hold the keyframes the chain keeps with that mask."""
+    from gate_photo_passes import PhotoPassRecording  # beside this script
+
+    from companion.keyframes.evaluate import evaluate_gate, telemetry_poses
+    from companion.keyframes.features import FeatureConfig
+    from companion.keyframes.gate import GateConfig
+    from companion.keyframes.synthetic import SITE
+
+    rec = PhotoPassRecording(rp.renderer)
+    cfg = GateConfig(rth=0.80, features=FeatureConfig(long_side_px=max(640, rp.spec.camera.width)))
+    ev = evaluate_gate(rec, cfg, use_masks=masks is None, predictor=rec.predictor, pose=telemetry_poses(rec, SITE),
+                       curve_floor=101.0, mask_of=None if masks is None else masks.get)
+    return replace(rp, keyframes=list(ev.keyframes), minimum=list(ev.minimum_keyframes),
+                   pair_overlap=[float(v) for v in ev.keyframe_pair_truth])
+
+
+def gate_summary(rp: RenderedPass) -> dict:
+    """The judge's gate figures: keyframes against the minimum, and the true plane overlap of keyframe pairs on
+    one strip (a pass's strips are flown apart by design: the pair across a strip change shares no view)."""
+    same_strip = [v for a, b, v in zip(rp.keyframes, rp.keyframes[1:], rp.pair_overlap, strict=False)
+                  if rp.strip_of[a] == rp.strip_of[b]]
+    return {"keyframes": len(rp.keyframes), "minimum": len(rp.minimum),
+            "excess": len(rp.keyframes) / max(1, len(rp.minimum)) - 1.0,
+            "lowest_pair": min(same_strip, default=None), "pairs_below_77": sum(v < 77.0 for v in same_strip),
+            "pairs": len(same_strip)}
 
 
 def jump_errors(rp: RenderedPass, frames: list[int], noise_m: float, noise_deg: float,
@@ -102,10 +122,11 @@ def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, er
     return out
 
 
-def pass_masks(rp: RenderedPass, model: str, *, parallax: bool = True) -> dict[int, np.ndarray]:
-    """Every frame's mask from the onboard Masker (:func:`shipped_masks`); a frame the masker drops gets an empty
-    mask (the spool must hold one)."""
-    masks = shipped_masks(rp.spec, rp.renderer, model, parallax=parallax)
+def pass_masks(rp: RenderedPass, model: str, *, parallax: bool = True,
+               masks: dict[int, np.ndarray | None] | None = None) -> dict[int, np.ndarray]:
+    """Every frame's mask from the onboard Masker (:func:`shipped_masks`, or ``masks`` already made by it); a frame
+    the masker drops gets an empty mask (the spool must hold one)."""
+    masks = masks if masks is not None else shipped_masks(rp.spec, rp.renderer, model, parallax=parallax)
     return {i: np.zeros(rp.renderer.render(i).roi_mask.shape, np.uint8) if m is None else m
             for i, m in masks.items()}
 

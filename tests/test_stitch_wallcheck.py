@@ -29,14 +29,26 @@ def _texture(seed: int, width: int, contrast: float = 1.0) -> np.ndarray:
     return np.clip(128.0 + contrast * (tex - 128.0), 0, 255).astype(np.uint8)
 
 
+def _plain_with_spots(tex: np.ndarray, seed: int, spot: int = 8, share: float = 0.3) -> np.ndarray:
+    """``tex`` made plain grey except on random ``spot`` px squares (about ``share`` of the area): a wall whose
+    features are sparse (ornaments on flat render), plain patches between them."""
+    rng = np.random.default_rng(seed)
+    cells = rng.random((tex.shape[0] // spot + 1, tex.shape[1] // spot + 1)) < share
+    spots = np.kron(cells, np.ones((spot, spot), bool))[: tex.shape[0], : tex.shape[1]]
+    return np.where(spots, tex, 128).astype(np.uint8)
+
+
 def _spool(tmp: Path, n: int, *, far_contrast: float = 1.0, masks_cut_from: int | None = None,
-           gap: tuple[int, int] = GAP, roof_rows: int = 0) -> tuple[StitchInput, list[PairResult], list[np.ndarray]]:
+           gap: tuple[int, int] = GAP, roof_rows: int = 0, plain_roof: bool = False
+           ) -> tuple[StitchInput, list[PairResult], list[np.ndarray]]:
     """n keyframes of a textured wall moving STEP px left per keyframe, with a gap through which a far scene is
     seen (it does not move in the image); every mask is the whole frame (the mask kept the far scene), except
     that from keyframe ``masks_cut_from`` on the masks cut the far scene (the network was sure there). Returns
     the input, the neighbours' pairs (the wall's homographies) and where each frame shows the far scene (through
     ``gap``: wall px along; open at the right, it is the scene beyond the wall's end)."""
     wall, far = _texture(1, STEP * n + W), _texture(2, W, far_contrast)
+    if plain_roof:
+        wall[:roof_rows] = _plain_with_spots(wall[:roof_rows], 3)
     kfs, far_px = [], []
     for k in range(n):
         img = wall[:, STEP * k : STEP * k + W].copy()
@@ -137,6 +149,25 @@ def test_wall_every_mask_cut_is_restored_and_the_far_scene_stays_cut(tmp_path):
     assert roof_seen[witnessed].mean() > 0.95
     assert _far_kept(checked, far_px, 6) < 0.02
     assert max(checked.restored_share.values()) > 0.5
+
+
+def test_plain_wall_between_features_every_mask_cut_is_restored(tmp_path):
+    """Every keyframe's mask cut the top 60 rows of a wall that is plain render with sparse ornaments (the sim
+    depth model on cmp-balconies: 19 % of the wall cut, flat bands and balconies, docs/BENCHMARKS.md). The
+    ornaments are confirmed wall; the plain render between them and the band along the kept wall agree with
+    their wall points and no neighbour finds them off: given back as well, so the map has no hole there. (The
+    restore before gave back only textured pixels 8 px clear of the kept mask, in 15 px squares: the plain
+    patches and the band stayed holes.) The far scene through the gap stays cut."""
+    inp, pairs, far_px = _spool(tmp_path, 6, masks_cut_from=0, roof_rows=60, plain_roof=True)
+    checked = check_wall(inp, pairs, tmp_path / "masks")
+    masks = [cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE) for kf in checked.input.keyframes]
+    u = np.arange(STEP * 6 + W)
+    witnessed = (u >= 2 * STEP) & (u < STEP * 5 + W - 2 * STEP) & ((u < GAP[0] - 10) | (u >= GAP[1] + 10))
+    drawn = np.zeros((60, STEP * 6 + W), bool)  # roof pixels (wall px) some keyframe's mask keeps
+    for k, m in enumerate(masks):
+        drawn[:, STEP * k : STEP * k + W] |= m[:60] > 0
+    assert drawn[:, witnessed].mean() > 0.97
+    assert _far_kept(checked, far_px, 6) < 0.02
 
 
 def test_uniform_sky_the_mask_cut_is_not_restored(tmp_path):

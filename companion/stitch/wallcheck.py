@@ -75,6 +75,7 @@ class WallCheckSettings:
     restore_edge_px: float = 8.0
     restore_region_px: int = 15  # opening of the restored pixels: only regions (a roof), never specks
     min_texture: float = 4.0  # grey levels of local contrast (std, 9 px) a pixel needs to be confirmed as wall
+    fill_px: int = 12  # gaps (work px) between confirmed textured wall and the kept mask that plain wall fills
 
 
 def check_wall(
@@ -118,10 +119,10 @@ def check_wall(
         back = np.zeros_like(off)
         if s.restore:
             confirmed = (confirms[k] >= s.min_witnesses) & (confirms[k] > 0.5 * checks[k]) & ~kept
-            confirmed &= contrast[k] >= s.min_texture
-            confirmed &= cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, 5) >= s.restore_edge_px
-            region = np.ones((s.restore_region_px, s.restore_region_px), np.uint8)
-            back = cv2.morphologyEx(confirmed.astype(np.uint8) * 255, cv2.MORPH_OPEN, region)
+            # on its wall point in enough neighbours and off in none of most: consistent with the wall, though
+            # a plain patch proves nothing by itself (every plane explains it)
+            consistent = (checks[k] - votes[k] >= s.min_witnesses) & (share <= 0.5) & ~kept
+            back = _restored(confirmed, consistent, kept, contrast[k], s)
         if not off.any() and not back.any():
             continue
         full_mask = load_mask(kfs[k], sizes[k])  # read again only where something changes
@@ -135,6 +136,33 @@ def check_wall(
         restored_share[k] = restored / max(1, full_mask.size - n_kept)
         kfs[k] = replace(kfs[k], mask_path=_write_mask(cache_dir, kfs[k], checked))
     return WallCheck(replace(inp, keyframes=kfs), cut_share, restored_share)
+
+
+def _restored(confirmed: np.ndarray, consistent: np.ndarray, kept: np.ndarray, contrast: np.ndarray,
+              s: WallCheckSettings) -> np.ndarray:
+    """The cut pixels given back (0/255). The neighbours' confirmation is evidence where the pixel has texture
+    of its own (``min_texture``) and lies clear of the kept mask's edge. A wall's plain patches between its
+    features (render between window frames, a cornice's flat band) and the band along the kept mask's edge carry
+    no evidence themselves: there a pixel ``consistent`` with the wall is given back when it lies in a gap between
+    the evidence and the kept mask (a closing of ``fill_px``) and its region holds evidence. The restore fills
+    in; it never grows out past the evidence (sky beyond a roof's edge) nor into a hole that only the kept mask
+    surrounds (a window onto the sky)."""
+    textured = confirmed & (contrast >= s.min_texture)
+    textured &= cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, 5) >= s.restore_edge_px
+    evidence = cv2.morphologyEx(textured.astype(np.uint8), cv2.MORPH_OPEN, np.ones((s.min_region_px,) * 2, np.uint8))
+    if not evidence.any():
+        return np.zeros(kept.shape, np.uint8)
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * s.fill_px + 1,) * 2)
+    # the frame's edge bounds a gap as the kept mask does (a band between the kept wall and the frame's bottom)
+    closed = cv2.morphologyEx(((evidence > 0) | kept).astype(np.uint8), cv2.MORPH_CLOSE, disk,
+                              borderType=cv2.BORDER_CONSTANT, borderValue=1)
+    filled = ((closed > 0) & (consistent | confirmed)) | (evidence > 0)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(filled.astype(np.uint8), connectivity=8)
+    holds = np.zeros(n, bool)
+    holds[np.unique(labels[evidence > 0])] = True
+    holds &= stats[:, cv2.CC_STAT_AREA] >= s.restore_region_px**2
+    holds[0] = False
+    return holds[labels].astype(np.uint8) * 255
 
 
 def _load(inp: StitchInput, positions: list[int], work_width: int):

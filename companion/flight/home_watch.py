@@ -10,6 +10,20 @@ way when its GPS and barometer disagree.
 The reference is home's altitude at arming (the last HOME_POSITION before the vehicle was seen in the air): the
 ground the vehicle took off from. Each move of more than ``HOME_MOVE_REPORT_M`` is said once; a move that brings the
 lowest waypoint still ahead closer than ``MIN_GROUND_CLEARANCE_M`` to that ground ends the scan.
+
+Waiting for home to settle: the PX4 plan holds above the wall until its correction window is over
+(``planner.home_settle_hold_s``). While the autopilot may still move home and the vehicle has not left that hold
+(``settling``), a move is said but ends nothing: the vehicle is high above the ground and home's last position
+is the one the strips will be flown from. Once the window is over:
+
+* on PX4's SIH simulator (``restore``) home is put back where it was at arming (``restore_due``): SIH's GPS
+  altitude is the truth plus 0.5 m of white noise per sample (``sensor_gps_sim``) and PX4's correction takes one
+  raw sample, so there the move is noise, not drift (the estimator averages the samples; the re-fly with home 1.51 m
+  low flew its strip bottom 0.04 m above SIH's true ground). SITL only, like the estimator noise
+  (``simulator.py``): on a real vehicle the correction follows the receiver's real, slowly varying altitude error,
+  which the estimator follows too, so home is never moved back there;
+* anywhere else, a move that leaves a waypoint ahead too near the ground ends the flight there, at the hold, high
+  above the ground.
 """
 
 from __future__ import annotations
@@ -29,9 +43,25 @@ HOME_MOVE_REPORT_M = 0.3
 # planned 1.55 m above home; PX4 SIH's home ended up to 1.51 m low (ground contact at 0.04 m). 1 m keeps the rotor
 # wash, the altitude estimate's wander (PX4 SIH: 0.5 m white GPS altitude noise) and a landing-gear height clear.
 MIN_GROUND_CLEARANCE_M = 1.0
+# PX4 stamps its take-off when its land detector sees it (about as mavsdk's in-air flag does); a home update
+# streams at 0.5 Hz: the window counts as over this long after it should be.
+SETTLE_SLACK_S = 3.0
+# Smaller moves are not worth a command (the autopilot's own altitude estimate wanders more).
+RESTORE_MIN_M = 0.05
 # Items whose altitude is above home and that the vehicle flies to (take-off, land and return are not scan heights).
 _RELATIVE_FRAMES = {mi.MAV_FRAME_GLOBAL_RELATIVE_ALT, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 _FLOWN_TO = {mi.MAV_CMD_NAV_WAYPOINT}
+
+
+_NAV_ITEMS = {mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_LAND, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+
+
+def settle_item_seq(items: Sequence[mi.MissionItem], waypoint_index: int) -> int:
+    """The seq of the plan's waypoint ``waypoint_index`` among the items (one NAV item per waypoint, from the
+    take-off; ArduPilot's home placeholder at seq 0 is not a waypoint); -1 when there is no such item."""
+    nav = [it for it in items if it.command in _NAV_ITEMS
+           and not (it.seq == 0 and it.frame == mi.MAV_FRAME_GLOBAL and it.command == mi.MAV_CMD_NAV_WAYPOINT)]
+    return int(nav[waypoint_index].seq) if 0 <= waypoint_index < len(nav) else -1
 
 
 @dataclass(frozen=True)
@@ -55,10 +85,18 @@ class HomeWatch:
     """Fed HOME_POSITION altitudes and the flight state; says each move once and checks the waypoints ahead."""
 
     def __init__(self, items: Sequence[mi.MissionItem], *, report_m: float = HOME_MOVE_REPORT_M,
-                 min_clearance_m: float = MIN_GROUND_CLEARANCE_M):
+                 min_clearance_m: float = MIN_GROUND_CLEARANCE_M, window_s: float = 0.0, settle_seq: int = -1,
+                 restore: bool = False):
+        """``window_s``: how long after take-off the autopilot may move home (PX4 120 s, ArduPilot 0);
+        ``settle_seq``: the item the plan holds at until then (-1: none); ``restore``: put home back once the window
+        is over (PX4 SIH only)."""
         self.items = list(items)
         self.report_m = report_m
         self.min_clearance_m = min_clearance_m
+        self.window_s = window_s
+        self.settle_seq = settle_seq
+        self.restore = restore
+        self.restored = False  # a restore was sent (accepted or not: it is tried once)
         self.home_at_arming_m: float | None = None
         self.home_now_m: float | None = None
         self.airborne = False
@@ -89,6 +127,30 @@ class HomeWatch:
         if self.home_at_arming_m is None or self.home_now_m is None:
             return None
         return self.home_now_m - self.home_at_arming_m
+
+    def window_open(self, since_takeoff_s: float | None) -> bool:
+        """Whether the autopilot may still move home (None: take-off time not known yet)."""
+        if self.window_s <= 0:
+            return False
+        return since_takeoff_s is None or since_takeoff_s < self.window_s + SETTLE_SLACK_S
+
+    def settling(self, current_seq: int, since_takeoff_s: float | None) -> bool:
+        """Home may still move and the vehicle has not left the hold before the scan: nothing ends yet."""
+        return self.window_open(since_takeoff_s) and 0 <= current_seq <= self.settle_seq
+
+    def restore_due(self, since_takeoff_s: float | None) -> float | None:
+        """Home's altitude at arming, to set again now (PX4 SIH, once, after the window), or None."""
+        offset = self.offset_m
+        if (not self.restore or self.restored or not self.airborne or offset is None
+                or self.window_open(since_takeoff_s) or since_takeoff_s is None or abs(offset) < RESTORE_MIN_M):
+            return None
+        return self.home_at_arming_m
+
+    def on_restored(self, alt_amsl_m: float) -> None:
+        """The autopilot accepted home at ``alt_amsl_m`` again (its next HOME_POSITION will say so too)."""
+        self.restored = True
+        self.home_now_m = alt_amsl_m
+        self._reported_offset_m = self.offset_m or 0.0
 
     def too_low(self, current_seq: int) -> HomeTooLow | None:
         """The lowest waypoint from ``current_seq`` on, when home's move puts it under the minimum clearance."""

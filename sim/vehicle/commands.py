@@ -149,6 +149,9 @@ class CommandHandler:
             if p[1] > 0:
                 self.cruise_m_s = min(float(p[1]), self.limits.max_speed_h_m_s)
             return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_SET_HOME:
+            accepted = self.set_home(p[0] >= 0.5, p[6])
+            return self._ack(msg, cmd, ok if accepted else mavlink.MAV_RESULT_DENIED)
         if cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
             return self._ack(msg, cmd, ok if self._set_current(_int(p[0], -1)) else mavlink.MAV_RESULT_DENIED)
         if cmd == mavlink.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:

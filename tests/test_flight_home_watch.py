@@ -111,6 +111,49 @@ def _true_heights_by_item(tmp_path) -> dict[int, list[float]]:
     return by_item
 
 
+def _settle_watch(items, *, restore: bool) -> HomeWatch:
+    watch = HomeWatch(items, window_s=120.0, settle_seq=4, restore=restore)
+    watch.on_home(30.0)
+    watch.on_airborne()
+    return watch
+
+
+def test_a_move_while_holding_for_home_to_settle_ends_nothing_until_the_window_is_over(demo_items):
+    watch = _settle_watch(demo_items, restore=False)
+    watch.on_home(28.49)  # -1.51 m at 40 s, the vehicle holding at item 4 above the wall
+    assert watch.settling(4, 40.0) and watch.too_low(4) is not None  # the supervisor asks settling() first
+    assert not watch.settling(4, 124.0)  # window over (+3 s slack): now the move counts
+    assert not watch.settling(6, 40.0)  # the vehicle left the hold early: it counts at once
+    assert watch.restore_step(130.0) is None  # a real vehicle's home is never put back
+
+
+def test_px4_sih_home_is_put_back_after_the_window_confirmed_by_home_position(demo_items, caplog):
+    watch = _settle_watch(demo_items, restore=True)
+    watch.on_home(31.69)  # +1.69 m, as real PX4 SIH moved it
+    assert watch.restore_step(100.0) is None  # the window is still open
+    assert watch.restore_step(123.5) == 30.0 and watch.restore_sends == 1
+    assert watch.settling(4, 125.0)  # still at the hold until it is confirmed
+    assert watch.restore_step(125.0) is None  # asked 1.5 s ago: wait for HOME_POSITION
+    assert watch.restore_step(128.6) == 30.0 and watch.restore_sends == 2  # no answer: asked again
+    with caplog.at_level(logging.WARNING, logger="companion.flight.home_watch"):
+        watch.on_home(30.01)
+        assert watch.restore_step(129.0) is None
+    assert watch.put_back and watch.restore_done and not watch.settling(4, 129.0)
+    said = [r.getMessage() for r in caplog.records]
+    back = [m for m in said if "home is back" in m]
+    assert len(back) == 1 and "at 30.00 m AMSL" in back[0] and "moved it by +1.69 m" in back[0]
+    assert not any("by +0.01 m" in m for m in said)  # the put-back is not reported as another move
+    assert watch.too_low(4) is None and watch.restore_step(200.0) is None
+
+
+def test_a_put_back_the_vehicle_ignores_is_given_up_and_the_watch_decides(demo_items):
+    watch = _settle_watch(demo_items, restore=True)
+    watch.on_home(28.8)  # -1.2 m
+    sent = [t for t in (123.1, 124.0, 128.2, 133.3, 138.4, 150.0) if watch.restore_step(t) is not None]
+    assert sent == [123.1, 128.2, 133.3] and watch.restore_done and not watch.put_back
+    assert not watch.settling(4, 150.0) and watch.too_low(4) is not None  # ends the flight at the hold
+
+
 @pytest.mark.sitl
 def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_planned(demo_items, tmp_path):
     """PX4 SIH (the simulator's PX4 flavour boots with SIH's markers): the vehicle holds above the wall until PX4's
@@ -119,7 +162,7 @@ def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_p
     proc, out = _fly_demo_with_home_moved(tmp_path)
     assert proc.returncode == 0, out[-4000:]
     assert "moved home's altitude by -1.20 m during the flight" in out, out[-4000:]
-    assert "PX4 SIH: home put back at 30.00 m AMSL" in out and "home handed back to the vehicle" in out, out[-4000:]
+    assert "PX4 SIH: home is back at 30.00 m AMSL" in out and "home handed back to the vehicle" in out, out[-4000:]
     assert "mission complete" in out, out[-4000:]
     heights = _true_heights_by_item(tmp_path)
     bottoms = [it.seq for it in demo_items if it.command == mi.MAV_CMD_NAV_WAYPOINT and it.z < 2.0]
@@ -138,7 +181,7 @@ def test_a_real_px4_home_moved_too_low_ends_the_flight_at_the_hold_above_the_wal
     assert "moved home's altitude by -1.20 m during the flight" in out, out[-4000:]
     assert "0.35 m above the take-off ground" in out and "raise the strip bottoms" in out, out[-4000:]
     assert "stopped by home" in out and "mission NOT complete" in out, out[-4000:]
-    assert "landed and disarmed after RTL" in out and "home put back" not in out, out[-4000:]
+    assert "landed and disarmed after RTL" in out and "put home back" not in out, out[-4000:]
     assert "parameter MPC_Z_V_AUTO_DN restored to 1.5" in out, out[-4000:]  # what it set for the flight is restored
     settle = settle_item_seq(demo_items, plan_scan(load_mission(DEMO)).settle_waypoint_index)
     flown = [r["mission_item"] for r in read_telemetry_log(tmp_path / "t.jsonl") if r["in_air"]]

@@ -56,7 +56,6 @@ log = logging.getLogger(__name__)
 
 _ENDS_ON_GROUND = {mi.MAV_CMD_NAV_LAND, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH}
 MAV_CMD_DO_SET_HOME = 179
-MAV_RESULT_ACCEPTED = 0
 # STATUSTEXT severities that, before take-off, mean the vehicle refuses to fly the mission (real PX4: "Geofence
 # violation for waypoint N", "Switching to Mission is currently not available" are CRITICAL)
 _REFUSAL_SEVERITIES = {"EMERGENCY", "ALERT", "CRITICAL", "ERROR"}
@@ -149,7 +148,6 @@ class _Supervisor:
         self._rerequested_at = 0.0
         self.home = home_watch if home_watch is not None else HomeWatch(items)
         self.takeoff_boot_s: float | None = None  # the autopilot's time since boot when it was first seen flying
-        self.home_put_back = False  # home was set by the companion (PX4 SIH): hand it back after the landing
         self.home_latlon_before_arming: tuple[float, float] | None = None
 
     def on_signal(self) -> None:
@@ -296,9 +294,9 @@ class _Supervisor:
         if self.home.airborne and alt is not None and alt != self.home.home_now_m:
             self.home.on_home(alt)
         since = self._since_takeoff_s(airborne)
-        restore_to = self.home.restore_due(since)
+        restore_to = self.home.restore_step(since)
         if restore_to is not None:
-            await self._put_home_back(restore_to)
+            await self._send_home(restore_to)
         if self.home.settling(current_seq, since):
             return False  # high above the wall, waiting for home to settle: its last position is what counts
         low = self.home.too_low(current_seq)
@@ -317,48 +315,39 @@ class _Supervisor:
             return None
         return now - self.takeoff_boot_s
 
-    async def _put_home_back(self, alt_amsl_m: float) -> None:
-        """PX4 SIH only, once: home back at its altitude at arming (DO_SET_HOME as COMMAND_INT, AMSL), after PX4's
-        correction window. Refused or unanswered: said, and the home watch decides with the moved home."""
-        offset = self.home.offset_m or 0.0
+    async def _send_home(self, alt_amsl_m: float) -> None:
+        """PX4 SIH only: ask for home at ``alt_amsl_m`` where it was at arming (DO_SET_HOME as COMMAND_INT, AMSL:
+        COMMAND_LONG's float32 would move home's longitude by up to 0.7 m). Fire and forget: the home watch confirms
+        it by HOME_POSITION and asks again if it does not come."""
         latlon = self.rec.home_before_air_latlon or self.home_latlon_before_arming
-        self.home.restored = True
         if latlon is None:
+            self.home.restore_done = True
             log.error("cannot put home back: where it was at arming is not known; the home watch decides")
             return
         yaw = self.rec.state.get("yaw_deg")
         params = (0.0, 0.0, 0.0, float(yaw) if yaw is not None else 0.0)  # param1 0: the position given
+        log.info("asking the vehicle to put home back at %.2f m AMSL (try %d)", alt_amsl_m, self.home.restore_sends)
         try:
-            result = await self.v.command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL, params, latlon[0], latlon[1],
-                                              alt_amsl_m)
-        except Exception as exc:
-            result = f"{type(exc).__name__}: {exc}"
-        if result != MAV_RESULT_ACCEPTED:
-            log.error("the vehicle did not take home back at %.2f m AMSL (DO_SET_HOME result %s); the home watch "
-                      "decides with home %+.2f m off", alt_amsl_m, result, offset)
-            return
-        self.home.on_restored(alt_amsl_m)
-        self.home_put_back = True
-        log.warning("PX4 SIH: home put back at %.2f m AMSL, where it was at arming (PX4 had moved it by %+.2f m in "
-                    "its %g s correction window; SIH's GPS altitude noise is white, so the move was noise; SITL "
-                    "only: a real vehicle's home is never moved back)", alt_amsl_m, offset, self.home.window_s)
+            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL, params, latlon[0], latlon[1],
+                                          alt_amsl_m)
+        except Exception as exc:  # said; the next try or the watch follows
+            log.warning("could not send DO_SET_HOME: %s", exc)
 
     async def hand_home_back(self) -> None:
-        """After a flight in which the companion set home (PX4 SIH): landed and disarmed, home is set at the
+        """After a flight in which the companion put home back (PX4 SIH): landed and disarmed, home is set at the
         vehicle's position again (DO_SET_HOME param1 1), which also clears PX4's manual-home flag; PX4 would otherwise
-        keep the companion's home at the next arming."""
+        keep the companion's home at the next arming. Sent without waiting for its ACK (see ``_send_home``)."""
         st = self.rec.state
-        if not self.home_put_back or st["armed"] is not False or st["in_air"] is not False:
+        if not self.home.put_back or st["armed"] is not False or st["in_air"] is not False:
             return
+        latlon = self.rec.home_before_air_latlon or self.home_latlon_before_arming or (0.0, 0.0)
         try:
-            result = await self.v.command_long(MAV_CMD_DO_SET_HOME, 1.0)
+            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL, (1.0, 0.0, 0.0, 0.0), *latlon,
+                                          0.0)
+            log.info("home handed back to the vehicle (DO_SET_HOME 1: at its position, as PX4 sets it at arming)")
         except Exception as exc:
-            result = f"{type(exc).__name__}: {exc}"
-        if result == MAV_RESULT_ACCEPTED:
-            log.info("home handed back to the vehicle (set at its position, as PX4 does at arming)")
-        else:
-            log.warning("the vehicle kept the home the companion set (DO_SET_HOME 1: result %s): set home again "
-                        "from the ground station or restart it before the next flight", result)
+            log.warning("could not hand home back (%s): the vehicle keeps the home the companion set; set home "
+                        "again from the ground station or restart it before the next flight", exc)
 
     async def read_home_before_arming(self, timeout_s: float = 5.0) -> None:
         """The home altitude before arming, so the watch has its reference even if the vehicle is in the air

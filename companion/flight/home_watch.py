@@ -48,6 +48,12 @@ MIN_GROUND_CLEARANCE_M = 1.0
 SETTLE_SLACK_S = 3.0
 # Smaller moves are not worth a command (the autopilot's own altitude estimate wanders more).
 RESTORE_MIN_M = 0.05
+# Putting home back is confirmed by HOME_POSITION, not by the command's ACK: sent without waiting for one (mavsdk
+# 4.1 aborted the whole process, "std::future_error: Promise already satisfied", after an ACK it had given up on,
+# on a loaded machine with real PX4 SIH), and sent again every RESTORE_WAIT_S of autopilot time, RESTORE_TRIES times.
+RESTORE_MATCH_M = 0.05
+RESTORE_WAIT_S = 5.0
+RESTORE_TRIES = 3
 # Items whose altitude is above home and that the vehicle flies to (take-off, land and return are not scan heights).
 _RELATIVE_FRAMES = {mi.MAV_FRAME_GLOBAL_RELATIVE_ALT, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 _FLOWN_TO = {mi.MAV_CMD_NAV_WAYPOINT}
@@ -96,7 +102,12 @@ class HomeWatch:
         self.window_s = window_s
         self.settle_seq = settle_seq
         self.restore = restore
-        self.restored = False  # a restore was sent (accepted or not: it is tried once)
+        self.restore_target_m: float | None = None  # where home is being put back (once the window is over)
+        self.restore_sends = 0
+        self._restore_sent_s: float | None = None
+        self._moved_by_m = 0.0  # the move that was put back
+        self.put_back = False  # the autopilot's home is where it was at arming again (confirmed by HOME_POSITION)
+        self.restore_done = False  # put back, or given up after RESTORE_TRIES
         self.home_at_arming_m: float | None = None
         self.home_now_m: float | None = None
         self.airborne = False
@@ -112,6 +123,9 @@ class HomeWatch:
             self.home_at_arming_m = alt_amsl_m
             return
         offset = self.offset_m
+        target = self.restore_target_m
+        if target is not None and abs(alt_amsl_m - target) < RESTORE_MATCH_M:
+            return  # the put-back, said by restore_step
         if offset is not None and abs(offset - self._reported_offset_m) > self.report_m:
             self._reported_offset_m = offset
             self.moves.append(offset)
@@ -135,22 +149,42 @@ class HomeWatch:
         return since_takeoff_s is None or since_takeoff_s < self.window_s + SETTLE_SLACK_S
 
     def settling(self, current_seq: int, since_takeoff_s: float | None) -> bool:
-        """Home may still move and the vehicle has not left the hold before the scan: nothing ends yet."""
-        return self.window_open(since_takeoff_s) and 0 <= current_seq <= self.settle_seq
+        """Home may still move (or is being put back) and the vehicle has not left the hold before the scan:
+        nothing ends yet."""
+        pending = self.restore_target_m is not None and not self.restore_done
+        return (self.window_open(since_takeoff_s) or pending) and 0 <= current_seq <= self.settle_seq
 
-    def restore_due(self, since_takeoff_s: float | None) -> float | None:
-        """Home's altitude at arming, to set again now (PX4 SIH, once, after the window), or None."""
-        offset = self.offset_m
-        if (not self.restore or self.restored or not self.airborne or offset is None
-                or self.window_open(since_takeoff_s) or since_takeoff_s is None or abs(offset) < RESTORE_MIN_M):
+    def restore_step(self, since_takeoff_s: float | None) -> float | None:
+        """PX4 SIH, after the window: the altitude to send home to now (home at arming), or None (not due, sent
+        recently, confirmed, or given up). Confirmation and giving up are said here."""
+        if not self.restore or self.restore_done or not self.airborne or since_takeoff_s is None:
             return None
-        return self.home_at_arming_m
-
-    def on_restored(self, alt_amsl_m: float) -> None:
-        """The autopilot accepted home at ``alt_amsl_m`` again (its next HOME_POSITION will say so too)."""
-        self.restored = True
-        self.home_now_m = alt_amsl_m
-        self._reported_offset_m = self.offset_m or 0.0
+        offset = self.offset_m
+        if self.restore_target_m is None:
+            if offset is None or self.window_open(since_takeoff_s) or abs(offset) < RESTORE_MIN_M:
+                return None
+            self.restore_target_m = self.home_at_arming_m
+            self._moved_by_m = offset
+        target = self.restore_target_m
+        if self.home_now_m is not None and abs(self.home_now_m - target) < RESTORE_MATCH_M:
+            self.restore_done = self.put_back = True
+            self._reported_offset_m = self.offset_m or 0.0
+            log.warning("PX4 SIH: home is back at %.2f m AMSL, where it was at arming (PX4 had moved it by %+.2f m "
+                        "in its %g s correction window; SIH's GPS altitude noise is white, so the move was noise; "
+                        "SITL only: a real vehicle's home is never moved back)", target, self._moved_by_m,
+                        self.window_s)
+            return None
+        waited = self._restore_sent_s is None or since_takeoff_s - self._restore_sent_s >= RESTORE_WAIT_S
+        if not waited:
+            return None
+        if self.restore_sends >= RESTORE_TRIES:
+            self.restore_done = True
+            log.error("the vehicle did not put home back at %.2f m AMSL (asked %d times; home is %+.2f m off): the "
+                      "home watch decides with the moved home", target, self.restore_sends, offset or 0.0)
+            return None
+        self.restore_sends += 1
+        self._restore_sent_s = since_takeoff_s
+        return target
 
     def too_low(self, current_seq: int) -> HomeTooLow | None:
         """The lowest waypoint from ``current_seq`` on, when home's move puts it under the minimum clearance."""

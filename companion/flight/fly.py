@@ -328,7 +328,7 @@ class _Supervisor:
         params = (0.0, 0.0, 0.0, float(yaw) if yaw is not None else 0.0)  # param1 0: the position given
         log.info("asking the vehicle to put home back at %.2f m AMSL (try %d)", alt_amsl_m, self.home.restore_sends)
         try:
-            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL, params, latlon[0], latlon[1],
+            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL_INT, params, latlon[0], latlon[1],
                                           alt_amsl_m)
         except Exception as exc:  # said; the next try or the watch follows
             log.warning("could not send DO_SET_HOME: %s", exc)
@@ -342,7 +342,7 @@ class _Supervisor:
             return
         latlon = self.rec.home_before_air_latlon or self.home_latlon_before_arming or (0.0, 0.0)
         try:
-            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL, (1.0, 0.0, 0.0, 0.0), *latlon,
+            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL_INT, (1.0, 0.0, 0.0, 0.0), *latlon,
                                           0.0)
             log.info("home handed back to the vehicle (DO_SET_HOME 1: at its position, as PX4 sets it at arming)")
         except Exception as exc:

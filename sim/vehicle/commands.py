@@ -17,7 +17,7 @@ from sim.vehicle import flavours as fl
 log = logging.getLogger(__name__)
 
 FORCE_MAGIC = 21196
-MAV_RESULT_UNSUPPORTED_MAV_FRAME = 9  # MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME (newer than this pymavlink; PX4 sends 9)
+MAV_RESULT_UNSUPPORTED_MAV_FRAME = 9  # MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME (PX4 sends 9; newer than pymavlink)
 
 
 def _int(x: float, default: int = 0) -> int:

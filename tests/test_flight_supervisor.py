@@ -38,6 +38,8 @@ class _Recorder:
         self.status_texts: list[str] = []
         self.status_events: list[tuple[float, str, str]] = []
         self.home_before_air_m: float | None = None
+        self.home_before_air_latlon: tuple[float, float] | None = None
+        self.boot_time_s: float | None = None  # the autopilot's clock (the home watch's settle window)
 
     def say(self, severity: str, text: str) -> None:
         self.status_texts.append(f"{severity}: {text}")

@@ -172,3 +172,38 @@ def test_onboard_processing_rate_limits_the_scan_speed():
     assert slow.estimates.scan_speed_m_s == pytest.approx(3.0 * slow.estimates.keyframe_spacing_m / 10)
     fast = plan_scan(m.model_copy(update={"onboard_fps": 60.0}))  # above the camera's 30 fps: the camera limits
     assert fast.estimates.scan_speed_m_s == pytest.approx(plan_scan(m).estimates.scan_speed_m_s)
+
+
+def test_px4_holds_above_the_wall_until_its_home_has_settled():
+    """PX4 moves home's altitude (and every strip with it) for 120 s after take-off: the PX4 mission holds at the
+    transit point above the first strip so that, flown as fast as PX4 can, the scan starts no earlier than
+    margins.home_settle_s after take-off. The bottom strip stays where the camera still sees the wall's base (a
+    1.5 m higher strip bottom would leave the wall's bottom 1.5 m unseen). ArduCopter keeps home where it armed."""
+    from companion.mission.commands import format_estimates
+    from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S, PX4_MAX_CLIMB_M_S
+    from companion.mission.planner import without_home_settle
+
+    m = load_mission(DEMO)
+    plan = plan_scan(m)
+    wps, k = plan.waypoints, plan.settle_waypoint_index
+    assert wps[k].kind == "transit" and wps[k + 1].kind == "scan"
+    assert wps[k].rel_alt_m > m.facade.height_m + m.margins.roof_m  # held above the roof line, not near the ground
+    fastest = wps[0].rel_alt_m / PX4_MAX_CLIMB_M_S + sum(
+        math.dist((a.along_m, a.out_m, a.up_m), (b.along_m, b.out_m, b.up_m)) / b.speed_m_s
+        for a, b in zip(wps[:k], wps[1:k + 1], strict=True))
+    hold = plan.estimates.px4_home_settle_hold_s
+    assert m.margins.home_settle_s == PX4_HOME_CORRECTION_WINDOW_S
+    assert fastest + hold >= PX4_HOME_CORRECTION_WINDOW_S and hold == pytest.approx(115.9, abs=0.1)
+    nav = [it for it in plan.mavlink_items("px4") if it.command in (mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_WAYPOINT)]
+    assert nav[k].param1 == hold and nav[k].z == pytest.approx(wps[k].rel_alt_m)
+    assert all(it.param1 < 1.0 for it in nav[k + 1:])  # nowhere else
+    ap = [it for it in plan.mavlink_items("ardupilot") if it.command == mi.MAV_CMD_NAV_WAYPOINT][1:]
+    assert max(it.param1 for it in ap) == 1.0  # Copter: only the settle holds at the strip starts
+    # the wall's base is still imaged: the lowest strip's frame reaches the ground
+    lowest = min(w.up_m for w in wps if w.kind == "scan")
+    assert lowest - plan.footprint.height_m / 2.0 <= 1e-6 and plan.estimates.uncovered_bottom_m == 0.0
+    said = format_estimates(plan)
+    assert "px4: holds 116 s above the wall before the scan" in said and "120 s after take-off" in said
+    at_once = plan_scan(without_home_settle(m))  # e.g. our simulator, which keeps home where it armed
+    assert at_once.estimates.px4_home_settle_hold_s == 0.0 and "holds" not in format_estimates(at_once)
+    assert max(it.param1 for it in at_once.mavlink_items("px4") if it.command == mi.MAV_CMD_NAV_WAYPOINT) == 0.5

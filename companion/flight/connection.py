@@ -55,14 +55,30 @@ class Vehicle:
         padded = list(params) + [0.0] * (7 - len(params))
         fields.update({f"param{i + 1}": float(v) for i, v in enumerate(padded)})
         msg = MavlinkMessage("COMMAND_LONG", 0, 0, self.system_id, 1, json.dumps(fields))
-        ack = await self.direct.send_command(msg)
-        try:
-            return int(json.loads(ack.fields_json).get("result", 0))
-        except (AttributeError, ValueError, TypeError):
-            return 0
+        return _ack_result(await self.direct.send_command(msg))
+
+    async def send_command_int(self, command: int, frame: int, params: tuple[float, float, float, float],
+                               lat: float, lon: float, alt_m: float) -> None:
+        """Send one COMMAND_INT (a position as lat/lon * 1e7 integers: COMMAND_LONG's float32 params round a
+        longitude near 127 degrees to 0.7 m) without waiting for its ACK: the caller confirms by telemetry. (mavsdk
+        4.1's send_command aborted the process after an ACK it had already given up on, real PX4 SIH, loaded machine.)
+        """
+        fields = {"target_system": self.system_id, "target_component": 1, "frame": frame, "command": command,
+                  "current": 0, "autocontinue": 0, "x": int(round(lat * 1e7)), "y": int(round(lon * 1e7)),
+                  "z": float(alt_m)}
+        fields.update({f"param{i + 1}": float(v) for i, v in enumerate(params)})
+        await self.direct.send_message(MavlinkMessage("COMMAND_INT", 0, 0, self.system_id, 1, json.dumps(fields)))
 
     def close(self) -> None:
         self.mavsdk.destroy()
+
+
+def _ack_result(ack) -> int:
+    """MAV_RESULT of a COMMAND_ACK as mavlink_direct returns it (0, ACCEPTED, when it carries none)."""
+    try:
+        return int(json.loads(ack.fields_json).get("result", 0))
+    except (AttributeError, ValueError, TypeError):
+        return 0
 
 
 async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto") -> Vehicle:

@@ -11,7 +11,9 @@ Supervision rules (why they look like this; docs/FLIGHT.md "Supervision"):
     silent for ``link_dead_s`` ends supervision as failed; a timeout commands RTL; a failed RTL is reported;
   * the autopilot's home altitude is watched (mission altitudes are relative to it and PX4 moves it in flight):
     each move of more than 0.3 m is said; one that brings a waypoint still ahead under 1 m above the take-off
-    ground ends the scan (pause, RTL) as failed (``home_watch.py``);
+    ground ends the scan (pause, RTL) as failed (``home_watch.py``), once home has settled when the plan holds
+    above the wall for it (PX4); on PX4 SIH only, home is put back where it was at arming after PX4's 120 s
+    correction window (SIH's GPS altitude noise is white: the moves are noise) and handed back after landing;
   * SIGINT/SIGTERM: pause (hold), then RTL, then wait at most ``stop_wait_s`` for landed + disarmed (said, with the
     time left); a second signal stops waiting.
 """
@@ -37,7 +39,7 @@ from companion.flight.connection import (
     wait_initialised,
 )
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
-from companion.flight.home_watch import HomeWatch
+from companion.flight.home_watch import HomeWatch, settle_item_seq
 from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
@@ -47,11 +49,13 @@ from companion.flight.status_texts import StatusTexts
 from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
+from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S
 from companion.mission.firmware import flight_parameters as firmware_flight_parameters
 
 log = logging.getLogger(__name__)
 
 _ENDS_ON_GROUND = {mi.MAV_CMD_NAV_LAND, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+MAV_CMD_DO_SET_HOME = 179
 # STATUSTEXT severities that, before take-off, mean the vehicle refuses to fly the mission (real PX4: "Geofence
 # violation for waypoint N", "Switching to Mission is currently not available" are CRITICAL)
 _REFUSAL_SEVERITIES = {"EMERGENCY", "ALERT", "CRITICAL", "ERROR"}
@@ -121,7 +125,7 @@ class _Supervisor:
     def __init__(self, vehicle: Vehicle, items: Sequence[mi.MissionItem], rec: TelemetryRecorder, *,
                  link_loss_s: float, flight_timeout_s: float, end_action: str, progress: bool,
                  link_dead_s: float = 60.0, stop_wait_s: float = 180.0, first_seq: int = 0,
-                 telemetry_rate_hz: float | None = None):
+                 telemetry_rate_hz: float | None = None, home_watch: HomeWatch | None = None):
         self.v = vehicle
         self.items = items
         self.rec = rec
@@ -142,7 +146,9 @@ class _Supervisor:
         self.telemetry_rate_hz = telemetry_rate_hz
         self._rerequest: asyncio.Task | None = None
         self._rerequested_at = 0.0
-        self.home = HomeWatch(items)
+        self.home = home_watch if home_watch is not None else HomeWatch(items)
+        self.takeoff_boot_s: float | None = None  # the autopilot's time since boot when it was first seen flying
+        self.home_latlon_before_arming: tuple[float, float] | None = None
 
     def on_signal(self) -> None:
         self.signal_count += 1
@@ -287,12 +293,61 @@ class _Supervisor:
         alt = self.rec.state.get("home_alt_m")
         if self.home.airborne and alt is not None and alt != self.home.home_now_m:
             self.home.on_home(alt)
+        since = self._since_takeoff_s(airborne)
+        restore_to = self.home.restore_step(since)
+        if restore_to is not None:
+            await self._send_home(restore_to)
+        if self.home.settling(current_seq, since):
+            return False  # high above the wall, waiting for home to settle: its last position is what counts
         low = self.home.too_low(current_seq)
         if low is None:
             return False
         self._fail(low.problem(self.home.min_clearance_m))
         await self._rtl_and_wait(timeout_s=self.stop_wait_s)
         return True
+
+    def _since_takeoff_s(self, airborne: bool) -> float | None:
+        """Seconds of the autopilot's clock since it was first seen flying (None before, or without its clock)."""
+        now = self.rec.boot_time_s
+        if airborne and self.takeoff_boot_s is None:
+            self.takeoff_boot_s = now
+        if now is None or self.takeoff_boot_s is None:
+            return None
+        return now - self.takeoff_boot_s
+
+    async def _send_home(self, alt_amsl_m: float) -> None:
+        """PX4 SIH only: ask for home at ``alt_amsl_m`` where it was at arming (DO_SET_HOME as COMMAND_INT, AMSL:
+        COMMAND_LONG's float32 would move home's longitude by up to 0.7 m). Fire and forget: the home watch confirms
+        it by HOME_POSITION and asks again if it does not come."""
+        latlon = self.rec.home_before_air_latlon or self.home_latlon_before_arming
+        if latlon is None:
+            self.home.restore_done = True
+            log.error("cannot put home back: where it was at arming is not known; the home watch decides")
+            return
+        yaw = self.rec.state.get("yaw_deg")
+        params = (0.0, 0.0, 0.0, float(yaw) if yaw is not None else 0.0)  # param1 0: the position given
+        log.info("asking the vehicle to put home back at %.2f m AMSL (try %d)", alt_amsl_m, self.home.restore_sends)
+        try:
+            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL_INT, params, latlon[0], latlon[1],
+                                          alt_amsl_m)
+        except Exception as exc:  # said; the next try or the watch follows
+            log.warning("could not send DO_SET_HOME: %s", exc)
+
+    async def hand_home_back(self) -> None:
+        """After a flight in which the companion put home back (PX4 SIH): landed and disarmed, home is set at the
+        vehicle's position again (DO_SET_HOME param1 1), which also clears PX4's manual-home flag; PX4 would otherwise
+        keep the companion's home at the next arming. Sent without waiting for its ACK (see ``_send_home``)."""
+        st = self.rec.state
+        if not self.home.put_back or st["armed"] is not False or st["in_air"] is not False:
+            return
+        latlon = self.rec.home_before_air_latlon or self.home_latlon_before_arming or (0.0, 0.0)
+        try:
+            await self.v.send_command_int(MAV_CMD_DO_SET_HOME, mi.MAV_FRAME_GLOBAL_INT, (1.0, 0.0, 0.0, 0.0), *latlon,
+                                          0.0)
+            log.info("home handed back to the vehicle (DO_SET_HOME 1: at its position, as PX4 sets it at arming)")
+        except Exception as exc:
+            log.warning("could not hand home back (%s): the vehicle keeps the home the companion set; set home "
+                        "again from the ground station or restart it before the next flight", exc)
 
     async def read_home_before_arming(self, timeout_s: float = 5.0) -> None:
         """The home altitude before arming, so the watch has its reference even if the vehicle is in the air
@@ -304,6 +359,7 @@ class _Supervisor:
                         "home received before take-off", exc)
             return
         self.home.on_home(home.absolute_altitude_m)
+        self.home_latlon_before_arming = (home.latitude_deg, home.longitude_deg)
 
     def _start_refused(self, refusal_seen: float | None, now: float) -> str | None:
         """Before take-off: the vehicle disarmed again (PX4 refuses the takeoff of an infeasible mission and
@@ -407,10 +463,11 @@ def _check_flight_options(end_action: str, link_loss_s: float, link_dead_s: floa
 
 async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: float,
                            flight_parameters: Mapping[str, float] | None, lost_link_action: str | None,
-                           return_alt: str | float | None) -> tuple[dict[str, float], list[str], int]:
+                           return_alt: str | float | None) -> tuple[dict[str, float], list[str], int, bool]:
     """Everything before arming: upload + verify, arming mode, health, home, failsafe, parameters, first item.
 
-    Returns the parameters to set for the flight, the failsafe warnings and the item the mission starts from.
+    Returns the parameters to set for the flight, the failsafe warnings, the item the mission starts from, and
+    whether the vehicle is PX4's SIH simulator.
     """
     # upload before the health wait, once the vehicle is up: a mission it refuses is an error at once, not
     # after its EKF converged (real ArduCopter SITL: about 40 s after boot)
@@ -425,11 +482,23 @@ async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: f
     overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
                                                 return_alt=return_alt)
     wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
-    wanted.update(await simulator_parameters(vehicle))  # PX4 SIH only: EKF2 told the simulator's sensor noise
+    simulated = await simulator_parameters(vehicle)  # PX4 SIH only: EKF2 told the simulator's sensor noise
+    wanted.update(simulated)
     wanted.update(flight_parameters or {})
     wanted.update(overrides)
     first_seq = await start_from_first_item(vehicle)
-    return wanted, warnings, first_seq
+    return wanted, warnings, first_seq, bool(simulated)
+
+
+def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str, is_sih: bool) -> HomeWatch:
+    """The flight's home watch: PX4 moves home for 120 s after take-off (ArduPilot keeps it where it armed); a
+    ScanPlan holds above the wall until then at its settle waypoint; PX4 SIH gets home put back after it."""
+    px4 = autopilot == "px4"
+    settle = -1
+    if px4 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
+        settle = settle_item_seq(items, plan.settle_waypoint_index)
+    return HomeWatch(items, window_s=PX4_HOME_CORRECTION_WINDOW_S if px4 else 0.0, settle_seq=settle,
+                     restore=px4 and is_sih)
 
 
 async def _arm_and_start(vehicle: Vehicle, rec: TelemetryRecorder, first_seq: int) -> None:
@@ -519,7 +588,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     try:
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
-        wanted, warnings, first_seq = await _prepare_vehicle(
+        wanted, warnings, first_seq, is_sih = await _prepare_vehicle(
             vehicle, plan, items, health_timeout_s=health_timeout_s, flight_parameters=flight_parameters,
             lost_link_action=lost_link_action, return_alt=return_alt)
         async with FlightParameters(vehicle.param, wanted) as params, \
@@ -527,7 +596,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                                   planned_gimbal=PlannedGimbal.from_items(items)) as rec:
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,
                               end_action=end_action, progress=progress, link_dead_s=link_dead_s,
-                              stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz)
+                              stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz,
+                              home_watch=home_watch_for(plan, items, vehicle.autopilot, is_sih))
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
@@ -538,6 +608,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
             sup.t0 = time.monotonic()
             reason = await sup.run()
             await _handle_ending(vehicle, sup, rec, params, reason, stop_wait_s)
+            await sup.hand_home_back()
             duration_s = time.monotonic() - sup.t0
         return _flight_result(vehicle, sup, rec, params, items, reason, duration_s, telemetry_log, warnings)
     finally:

@@ -10,6 +10,20 @@ way when its GPS and barometer disagree.
 The reference is home's altitude at arming (the last HOME_POSITION before the vehicle was seen in the air): the
 ground the vehicle took off from. Each move of more than ``HOME_MOVE_REPORT_M`` is said once; a move that brings the
 lowest waypoint still ahead closer than ``MIN_GROUND_CLEARANCE_M`` to that ground ends the scan.
+
+Waiting for home to settle: the PX4 plan holds above the wall until its correction window is over
+(``planner.home_settle_hold_s``). While the autopilot may still move home and the vehicle has not left that hold
+(``settling``), a move is said but ends nothing: the vehicle is high above the ground and home's last position
+is the one the strips will be flown from. Once the window is over:
+
+* on PX4's SIH simulator (``restore``) home is put back where it was at arming (``restore_due``): SIH's GPS
+  altitude is the truth plus 0.5 m of white noise per sample (``sensor_gps_sim``) and PX4's correction takes one
+  raw sample, so there the move is noise, not drift (the estimator averages the samples; the re-fly with home 1.51 m
+  low flew its strip bottom 0.04 m above SIH's true ground). SITL only, like the estimator noise
+  (``simulator.py``): on a real vehicle the correction follows the receiver's real, slowly varying altitude error,
+  which the estimator follows too, so home is never moved back there;
+* anywhere else, a move that leaves a waypoint ahead too near the ground ends the flight there, at the hold, high
+  above the ground.
 """
 
 from __future__ import annotations
@@ -29,9 +43,31 @@ HOME_MOVE_REPORT_M = 0.3
 # planned 1.55 m above home; PX4 SIH's home ended up to 1.51 m low (ground contact at 0.04 m). 1 m keeps the rotor
 # wash, the altitude estimate's wander (PX4 SIH: 0.5 m white GPS altitude noise) and a landing-gear height clear.
 MIN_GROUND_CLEARANCE_M = 1.0
+# PX4 stamps its take-off when its land detector sees it (about as mavsdk's in-air flag does); a home update
+# streams at 0.5 Hz: the window counts as over this long after it should be.
+SETTLE_SLACK_S = 3.0
+# Smaller moves are not worth a command (the autopilot's own altitude estimate wanders more).
+RESTORE_MIN_M = 0.05
+# Putting home back is confirmed by HOME_POSITION, not by the command's ACK: sent without waiting for one (mavsdk
+# 4.1 aborted the whole process, "std::future_error: Promise already satisfied", after an ACK it had given up on,
+# on a loaded machine with real PX4 SIH), and sent again every RESTORE_WAIT_S of autopilot time, RESTORE_TRIES times.
+RESTORE_MATCH_M = 0.05
+RESTORE_WAIT_S = 5.0
+RESTORE_TRIES = 3
 # Items whose altitude is above home and that the vehicle flies to (take-off, land and return are not scan heights).
 _RELATIVE_FRAMES = {mi.MAV_FRAME_GLOBAL_RELATIVE_ALT, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 _FLOWN_TO = {mi.MAV_CMD_NAV_WAYPOINT}
+
+
+_NAV_ITEMS = {mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_LAND, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+
+
+def settle_item_seq(items: Sequence[mi.MissionItem], waypoint_index: int) -> int:
+    """The seq of the plan's waypoint ``waypoint_index`` among the items (one NAV item per waypoint, from the
+    take-off; ArduPilot's home placeholder at seq 0 is not a waypoint); -1 when there is no such item."""
+    nav = [it for it in items if it.command in _NAV_ITEMS
+           and not (it.seq == 0 and it.frame == mi.MAV_FRAME_GLOBAL and it.command == mi.MAV_CMD_NAV_WAYPOINT)]
+    return int(nav[waypoint_index].seq) if 0 <= waypoint_index < len(nav) else -1
 
 
 @dataclass(frozen=True)
@@ -55,10 +91,23 @@ class HomeWatch:
     """Fed HOME_POSITION altitudes and the flight state; says each move once and checks the waypoints ahead."""
 
     def __init__(self, items: Sequence[mi.MissionItem], *, report_m: float = HOME_MOVE_REPORT_M,
-                 min_clearance_m: float = MIN_GROUND_CLEARANCE_M):
+                 min_clearance_m: float = MIN_GROUND_CLEARANCE_M, window_s: float = 0.0, settle_seq: int = -1,
+                 restore: bool = False):
+        """``window_s``: how long after take-off the autopilot may move home (PX4 120 s, ArduPilot 0);
+        ``settle_seq``: the item the plan holds at until then (-1: none); ``restore``: put home back once the window
+        is over (PX4 SIH only)."""
         self.items = list(items)
         self.report_m = report_m
         self.min_clearance_m = min_clearance_m
+        self.window_s = window_s
+        self.settle_seq = settle_seq
+        self.restore = restore
+        self.restore_target_m: float | None = None  # where home is being put back (once the window is over)
+        self.restore_sends = 0
+        self._restore_sent_s: float | None = None
+        self._moved_by_m = 0.0  # the move that was put back
+        self.put_back = False  # the autopilot's home is where it was at arming again (confirmed by HOME_POSITION)
+        self.restore_done = False  # put back, or given up after RESTORE_TRIES
         self.home_at_arming_m: float | None = None
         self.home_now_m: float | None = None
         self.airborne = False
@@ -74,6 +123,9 @@ class HomeWatch:
             self.home_at_arming_m = alt_amsl_m
             return
         offset = self.offset_m
+        target = self.restore_target_m
+        if target is not None and abs(alt_amsl_m - target) < RESTORE_MATCH_M:
+            return  # the put-back, said by restore_step
         if offset is not None and abs(offset - self._reported_offset_m) > self.report_m:
             self._reported_offset_m = offset
             self.moves.append(offset)
@@ -89,6 +141,50 @@ class HomeWatch:
         if self.home_at_arming_m is None or self.home_now_m is None:
             return None
         return self.home_now_m - self.home_at_arming_m
+
+    def window_open(self, since_takeoff_s: float | None) -> bool:
+        """Whether the autopilot may still move home (None: take-off time not known yet)."""
+        if self.window_s <= 0:
+            return False
+        return since_takeoff_s is None or since_takeoff_s < self.window_s + SETTLE_SLACK_S
+
+    def settling(self, current_seq: int, since_takeoff_s: float | None) -> bool:
+        """Home may still move (or is being put back) and the vehicle has not left the hold before the scan:
+        nothing ends yet."""
+        pending = self.restore_target_m is not None and not self.restore_done
+        return (self.window_open(since_takeoff_s) or pending) and 0 <= current_seq <= self.settle_seq
+
+    def restore_step(self, since_takeoff_s: float | None) -> float | None:
+        """PX4 SIH, after the window: the altitude to send home to now (home at arming), or None (not due, sent
+        recently, confirmed, or given up). Confirmation and giving up are said here."""
+        if not self.restore or self.restore_done or not self.airborne or since_takeoff_s is None:
+            return None
+        offset = self.offset_m
+        if self.restore_target_m is None:
+            if offset is None or self.window_open(since_takeoff_s) or abs(offset) < RESTORE_MIN_M:
+                return None
+            self.restore_target_m = self.home_at_arming_m
+            self._moved_by_m = offset
+        target = self.restore_target_m
+        if self.home_now_m is not None and abs(self.home_now_m - target) < RESTORE_MATCH_M:
+            self.restore_done = self.put_back = True
+            self._reported_offset_m = self.offset_m or 0.0
+            log.warning("PX4 SIH: home is back at %.2f m AMSL, where it was at arming (PX4 had moved it by %+.2f m "
+                        "in its %g s correction window; SIH's GPS altitude noise is white, so the move was noise; "
+                        "SITL only: a real vehicle's home is never moved back)", target, self._moved_by_m,
+                        self.window_s)
+            return None
+        waited = self._restore_sent_s is None or since_takeoff_s - self._restore_sent_s >= RESTORE_WAIT_S
+        if not waited:
+            return None
+        if self.restore_sends >= RESTORE_TRIES:
+            self.restore_done = True
+            log.error("the vehicle did not put home back at %.2f m AMSL (asked %d times; home is %+.2f m off): the "
+                      "home watch decides with the moved home", target, self.restore_sends, offset or 0.0)
+            return None
+        self.restore_sends += 1
+        self._restore_sent_s = since_takeoff_s
+        return target
 
     def too_low(self, current_seq: int) -> HomeTooLow | None:
         """The lowest waypoint from ``current_seq`` on, when home's move puts it under the minimum clearance."""

@@ -114,6 +114,7 @@ class TelemetryRecorder:
         self.was_in_air = False
         self.was_armed = False  # latched likewise: armed at some point while recording
         self.home_before_air_m: float | None = None  # the last home altitude received before the vehicle flew
+        self.home_before_air_latlon: tuple[float, float] | None = None  # ... and where it was
         self.reboot: str | None = None
         self._boot_time_max: dict[str, float] = {}  # per message stream
         self.status_events: list[tuple[float, str, str]] = []  # (monotonic time, severity name, text)
@@ -181,6 +182,8 @@ class TelemetryRecorder:
         self.state["home_alt_m"] = alt
         if alt is not None and not self.was_in_air:
             self.home_before_air_m = alt  # home at arming: the ground the vehicle takes off from
+            lat, lon = _num(h.latitude_deg), _num(h.longitude_deg)
+            self.home_before_air_latlon = (lat, lon) if lat is not None and lon is not None else None
 
     def _on_progress(self, p) -> None:
         self.state.update(mission_item=p.current, mission_total=p.total)
@@ -192,6 +195,11 @@ class TelemetryRecorder:
         self.status_texts.append(text)
         self.status_events.append((time.monotonic(), s.type.name, said))
         log.info("vehicle says %s", text)
+
+    @property
+    def boot_time_s(self) -> float | None:
+        """The autopilot's latest time since boot on any stream (None before the first one)."""
+        return max(self._boot_time_max.values()) if self._boot_time_max else self.state.get("t_boot_s")
 
     def _on_boot_time(self, t_boot_s: float, stream: str = "") -> None:
         """Notice an autopilot restart: its clock since boot runs backwards within one message stream.

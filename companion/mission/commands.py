@@ -56,6 +56,10 @@ def format_estimates(plan: ScanPlan) -> str:
         elif params:
             listed = ", ".join(f"{k}={v:g}" for k, v in params.items())
             lines.append(f"  {autopilot} flight parameters: {listed} (see docs/FLIGHT.md)")
+    if e.px4_home_settle_hold_s > 0:
+        lines.append(f"  px4: holds {e.px4_home_settle_hold_s:.0f} s above the wall before the scan, which starts "
+                     f"{plan.mission.margins.home_settle_s:g} s after take-off or later: PX4 moves home's altitude, "
+                     f"and every strip with it, for 120 s after take-off (margins.home_settle_s; docs/FLIGHT.md)")
     lines += [f"  warning: {w}" for w in plan.warnings]
     return "\n".join(lines)
 

@@ -49,6 +49,12 @@ PX4_Z_V_AUTO_DN_RANGE = (0.5, 4.0)
 PX4_Z_VEL_MAX_UP_DEFAULT = 3.0  # multicopter_position_control_limits_params.c (range 0.5..8)
 PX4_Z_VEL_MAX_DN_DEFAULT = 1.5  # (range 0.5..4)
 PX4_MC_ALT_RAD_RANGE = (0.05, 200.0)  # NAV_MC_ALT_RAD (navigator_params.c; default 0.8 m)
+# PX4 moves home's altitude in flight for this long after take-off (commander HomePosition.hpp
+# kHomePositionCorrectionTimeWindow, COM_HOME_EN 1 the default): whenever the barometer and one raw GPS altitude
+# sample disagree by more than 1 m, home is shifted by the difference, and every later mission altitude (relative to
+# home) with it. Over 11 PX4 SIH flights home ended -1.51 .. +1.50 m off the ground (docs/FLIGHT.md).
+PX4_HOME_CORRECTION_WINDOW_S = 120.0
+PX4_MAX_CLIMB_M_S = 3.0  # MPC_Z_VEL_MAX_UP default: no take-off climbs faster
 
 COMMAND_NAMES = {
     mi.MAV_CMD_NAV_WAYPOINT: "NAV_WAYPOINT", mi.MAV_CMD_NAV_RETURN_TO_LAUNCH: "NAV_RETURN_TO_LAUNCH",

@@ -79,6 +79,9 @@ class PlanEstimates:
     strip_spacing_m: float
     side_overlap_achieved: float
     uncovered_bottom_m: float
+    # PX4 only: how long the vehicle holds above the wall before the scan, so that the scan starts no earlier than
+    # ``margins.home_settle_s`` after take-off (PX4 moves home's altitude for 120 s after take-off)
+    px4_home_settle_hold_s: float = 0.0
 
     def as_dict(self) -> dict:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
@@ -101,6 +104,11 @@ class ScanPlan:
 
     def mavlink_items(self, flavour: str = "px4") -> list[mi.MissionItem]:
         return build_mission_items(self, flavour)
+
+    @property
+    def settle_waypoint_index(self) -> int:
+        """The waypoint a PX4 flight holds at until its home has settled (``home_settle_hold_s``)."""
+        return settle_waypoint_index(self.waypoints)
 
 
 def camera_footprint(mission: Mission) -> Footprint:
@@ -373,8 +381,45 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
         strip_spacing_m=float(abs(strip_step)),
         side_overlap_achieved=float(side_achieved),
         uncovered_bottom_m=max(0.0, extent.up_min_m),
+        px4_home_settle_hold_s=home_settle_hold_s(m, wps),
     )
     return ScanPlan(m, frame, takeoff.home, wps, scan_legs, fp, est, warnings)
+
+
+HOME_SETTLE_SLACK_S = 5.0  # PX4 detects take-off about 1 s after lift-off; HOME_POSITION streams at 0.5 Hz
+
+
+def settle_waypoint_index(wps: Sequence[Waypoint]) -> int:
+    """The waypoint the vehicle holds at while PX4's home settles: the last one before the first scan waypoint
+    (the transit above the first strip, above the roof line), or the take-off when the scan follows it."""
+    first_scan = next(k for k, w in enumerate(wps) if w.kind == "scan")
+    return max(0, first_scan - 1)
+
+
+def without_home_settle(mission: Mission) -> Mission:
+    """The mission with no settle hold, for a vehicle known to keep home where it armed: our simulator's PX4 unless
+    told to move it (``--home-shift-after-takeoff``), where the 2-minute hover would only cost time and frames."""
+    return mission.model_copy(update={"margins": mission.margins.model_copy(update={"home_settle_s": 0.0})})
+
+
+def home_settle_hold_s(m: Mission, wps: Sequence[Waypoint]) -> float:
+    """How long to hold above the wall so the scan starts no earlier than ``margins.home_settle_s`` after take-off.
+
+    Why: PX4 moves home's altitude for 120 s after take-off (``firmware.PX4_HOME_CORRECTION_WINDOW_S``) and every
+    mission altitude moves with it; on PX4 SIH home ended up to 1.51 m low, and strip bottoms planned 1.55 m above
+    home flew into the ground. Raising the strip bottoms by that much would leave the wall's bottom 1.5 m unseen
+    (the demo's frames are 3.1 m high and the bottom strip's frame already reaches the ground), so the scan waits
+    instead, high above the ground, until home has stopped moving; the flight's home watch then sees the final home
+    before any low waypoint. The hold is the settle time less the fastest the vehicle can reach the hold point
+    (climbing at PX4's MPC_Z_VEL_MAX_UP, each transit leg at its speed without acceleration), plus a few seconds.
+    """
+    if m.margins.home_settle_s <= 0:
+        return 0.0
+    k = settle_waypoint_index(wps)
+    fastest = wps[0].rel_alt_m / fw.PX4_MAX_CLIMB_M_S
+    for prev, wp in zip(wps[: k], wps[1: k + 1], strict=True):
+        fastest += math.dist((prev.along_m, prev.out_m, prev.up_m), (wp.along_m, wp.out_m, wp.up_m)) / wp.speed_m_s
+    return max(0.0, round(m.margins.home_settle_s + HOME_SETTLE_SLACK_S - fastest, 1))
 
 
 def _path_estimates(wps: list[Waypoint]) -> tuple[float, float]:
@@ -435,7 +480,8 @@ def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.Mission
 
     * ``px4``: NAV_WAYPOINT param4 holds the wall-facing yaw (PX4 honours it); NaN marks "no change" where MAVLink
       allows it; DO_CHANGE_SPEED type 1 only (PX4 reads any type as horizontal speed: climb/descent speed is a
-      parameter, see ``firmware.flight_parameters``).
+      parameter, see ``firmware.flight_parameters``); the waypoint before the scan holds until PX4's home has
+      settled (``home_settle_hold_s``; ArduCopter keeps home where it armed).
     * ``ardupilot``: a home placeholder at seq 0 (ArduPilot keeps home there); no NaN outside the params ArduPilot
       allows (the gimbal's rates become 0); holds in whole seconds, rounded up; a CONDITION_YAW facing the wall
       before every waypoint (Copter ignores NAV_WAYPOINT param4, so params 2-4 are sent as the 0 it stores);
@@ -450,6 +496,7 @@ def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.Mission
         rows.append((mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, h.lat, h.lon, h.alt_amsl_m))
     pitch = plan.mission.gimbal_pitch_deg
     rate = 0.0 if ardupilot else nan  # gimbal rates: NaN = "not used" (PX4); ArduPilot refuses NaN here
+    settle_k = settle_waypoint_index(plan.waypoints)
     wps = plan.waypoints
     speed = None
     for k, wp in enumerate(wps):
@@ -482,7 +529,8 @@ def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.Mission
             rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, fw.whole_seconds(wp.hold_s),
                          0, 0, 0, wp.lat, wp.lon, wp.rel_alt_m))
         else:
-            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, wp.hold_s, wp.acceptance_m, 0,
+            hold = max(wp.hold_s, plan.estimates.px4_home_settle_hold_s) if k == settle_k else wp.hold_s
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, hold, wp.acceptance_m, 0,
                          wp.yaw_deg, wp.lat, wp.lon, wp.rel_alt_m))
     items = []
     for seq, (frm, cmd, p1, p2, p3, p4, lat, lon, z) in enumerate(rows):

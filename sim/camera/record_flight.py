@@ -32,8 +32,11 @@ def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 
     """Fly ``mission_path`` in SITL and record the camera; returns the recording directory."""
     from companion.flight.fly import fly_mission_sync
     from companion.mission import plan_scan
+    from companion.mission.planner import without_home_settle
 
     mission = resolve_mission(mission_path)
+    if "home_shift_after_takeoff" not in (sim_options or {}):  # the simulator keeps home where it armed: no hold
+        mission = without_home_settle(mission)
     plan = plan_scan(mission)
     out = Path(out_dir)
     if (out / "meta.json").exists():

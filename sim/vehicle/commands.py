@@ -17,6 +17,7 @@ from sim.vehicle import flavours as fl
 log = logging.getLogger(__name__)
 
 FORCE_MAGIC = 21196
+MAV_RESULT_UNSUPPORTED_MAV_FRAME = 9  # MAV_RESULT_COMMAND_UNSUPPORTED_MAV_FRAME (PX4 sends 9; newer than pymavlink)
 
 
 def _int(x: float, default: int = 0) -> int:
@@ -46,6 +47,10 @@ class CommandHandler:
             self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5,
                                                 msg.param6, msg.param7])
         elif t == "COMMAND_INT":
+            if self.flavour.name == "px4" and msg.frame != mavlink.MAV_FRAME_GLOBAL_INT:
+                # PX4 takes COMMAND_INT in MAV_FRAME_GLOBAL_INT only (mavlink_receiver.cpp
+                # handle_message_command_int: "frame invalid for command"): its DO_SET_HOME in frame 0 went unheard
+                return self._ack(msg, msg.command, MAV_RESULT_UNSUPPORTED_MAV_FRAME)
             self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.x / 1e7,
                                                 msg.y / 1e7, msg.z])
         elif t == "MISSION_SET_CURRENT":
@@ -149,6 +154,9 @@ class CommandHandler:
             if p[1] > 0:
                 self.cruise_m_s = min(float(p[1]), self.limits.max_speed_h_m_s)
             return self._ack(msg, cmd, ok)
+        if cmd == mavlink.MAV_CMD_DO_SET_HOME:
+            accepted = self.set_home(p[0] >= 0.5, p[6])
+            return self._ack(msg, cmd, ok if accepted else mavlink.MAV_RESULT_DENIED)
         if cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
             return self._ack(msg, cmd, ok if self._set_current(_int(p[0], -1)) else mavlink.MAV_RESULT_DENIED)
         if cmd == mavlink.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW:

@@ -103,6 +103,7 @@ class FirmwareRules:
         self._init_until_wall: float | None = None
         self._mission_capacity = self.missions.max_items
         self.home_alt_shift_m = 0.0  # how far PX4 has moved home's altitude from the take-off ground (up positive)
+        self._home_shift_done = False  # the scheduled move happened (a later DO_SET_HOME does not undo the schedule)
         self._load_storage()
 
     # --- start-up after each boot (ArduCopter: about 1 s of wall time) ---------------------------------------
@@ -239,14 +240,30 @@ class FirmwareRules:
         """``--home-shift-after-takeoff S --home-shift-m M``: S simulated seconds after take-off PX4 moves home's
         altitude by M metres (once; the last of its corrections is the one that stays)."""
         cfg = self.cfg
-        if cfg.home_shift_after_takeoff_s is None or self.home_alt_shift_m == cfg.home_shift_m:
+        if cfg.home_shift_after_takeoff_s is None or self._home_shift_done:
             return
         since = self.seconds_since_takeoff()
         if since is None or since < cfg.home_shift_after_takeoff_s:
             return
+        self._home_shift_done = True
         self.home_alt_shift_m = float(cfg.home_shift_m)
         log.warning("home altitude moved by %+.2f m %.1f s after take-off (PX4's baro/GPS home correction)",
                     self.home_alt_shift_m, since)
+
+    def set_home(self, use_current: bool, alt_amsl_m: float) -> bool:
+        """MAV_CMD_DO_SET_HOME: home's altitude at the vehicle's (param1 1) or at ``alt_amsl_m`` (param1 0; PX4's
+        ``HomePosition::setManually``). The simulator keeps home's horizontal place (the take-off point): only the
+        altitude moves, which is what relative mission altitudes follow. False for a non-finite altitude (PX4:
+        DENIED)."""
+        if use_current:
+            self.home_alt_shift_m = -float(self.nav[2])
+        elif math.isfinite(alt_amsl_m):
+            self.home_alt_shift_m = float(alt_amsl_m) - self.cfg.home.alt_amsl_m
+        else:
+            return False
+        log.info("home set at %.2f m AMSL (%+.2f m from the take-off ground)",
+                 self.cfg.home.alt_amsl_m + self.home_alt_shift_m, self.home_alt_shift_m)
+        return True
 
     # --- reboot mid-flight ----------------------------------------------------------------------------
     def update_reboot(self) -> bool:

@@ -116,6 +116,9 @@ def test_candidate_pairs_follow_the_path_and_its_revisits_not_every_keyframe_in_
     for i, j in across:  # the leg back passes the same place: matched where the footprints overlap
         assert abs(centres[i][1] - centres[j][1]) < 3.3
     assert {i for i, _ in across} == set(range(21)) and len(pairs) < 41 * 8
+    # each keyframe tied to the leg back by its two nearest keyframes there (the demo matched 6: half its pairs)
+    assert all((i, 41 - i) in pairs for i in range(18))  # (the last ones are sequence neighbours of the turn)
+    assert max(sum(1 for a, _ in across if a == i) for i in range(21)) == 2
     # without telemetry: the path alone
     assert candidate_pairs(4, [None] * 4, corners) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
 

@@ -67,10 +67,6 @@ class WallCheckSettings:
     far_depth_ratios: tuple[float, ...] = (0.0, 0.05, 0.1, 0.2)
     min_motion_px: float = 8.0  # the wall must move this much between the two keyframes (parallax measurable)
     work_width: int = 960  # the check runs on copies this wide
-    # the far planes' differences are smoothed at this fraction of the working size: a far plane must win or lose
-    # by ``far_margin`` grey levels of a difference smoothed over ~10 px, which the smaller copy resolves; five of
-    # the six comparisons of a pair direction (the 4K map's check cost 15.5 s of CPU all at full size)
-    far_scale: float = 0.5
     min_region_px: int = 5  # opening: specks smaller than this (work px) are noise
     restore: bool = True  # give back cut pixels the neighbours confirm as wall
     min_witnesses: int = 2  # neighbours that must confirm a cut pixel as wall (and most of those that decide)
@@ -208,9 +204,7 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
     sees on the wall) a far scene is still in b's view: it moves a fraction of the wall's motion. There a
     textured pixel that a far plane explains within ``wall_agreement`` is off, provided the explanation is
     distinctive: the plane ``midway`` (twice the standoff) does worse by ``far_margin`` (a plain wall looks alike
-    under every shift and is never cut this way).
-
-    The far planes' differences are smoothed at ``far_scale`` of the working size (the wall's own at full size)."""
+    under every shift and is never cut this way)."""
     h, w = ga.shape
     nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
     ones = np.full(gb.shape, 255, np.uint8)
@@ -222,7 +216,7 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
     confirmed = np.zeros_like(agrees)
     far_only = np.zeros_like(agrees)
     if far:
-        best_far = _far_difference(ga, gb, far, gain, s.far_scale)
+        best_far = np.minimum.reduce([_difference(ga, gb, Hf, gain) for Hf in far])
         off |= best_far + s.far_margin < on_wall
         confirmed = agrees & (best_far > on_wall + s.far_margin)
         far_seen = cv2.erode(cv2.warpPerspective(ones, far[0], (w, h), flags=nearest), edge) > 0
@@ -231,7 +225,7 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
             contrast_a = _local_contrast(ga)
         far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & (contrast_a >= 2 * s.min_texture)
         if midway:
-            far_only &= _far_difference(ga, gb, midway, gain, s.far_scale) > best_far + 2 * s.far_margin
+            far_only &= _difference(ga, gb, midway[0], gain) > best_far + 2 * s.far_margin
         else:
             far_only[:] = False
     decided = off | agrees
@@ -239,33 +233,13 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
             (valid & confirmed).astype(np.float32))
 
 
-def _difference(ga, gb, H, gain: float, sigma: float = 3.0) -> np.ndarray:
+def _difference(ga, gb, H, gain: float) -> np.ndarray:
     """|a - b carried by H| (b's grey times ``gain``), smoothed: a registration off by a pixel reads small."""
     h, w = ga.shape
     gb_at = cv2.warpPerspective(gb, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
     if gain != 1.0:
         gb_at *= gain
-    return cv2.GaussianBlur(cv2.absdiff(ga, gb_at), (0, 0), sigma)
-
-
-def _far_difference(ga, gb, planes: list[np.ndarray], gain: float, coarse: float = 1.0) -> np.ndarray:
-    """The smallest :func:`_difference` over ``planes`` (homographies in working pixels). With ``coarse`` < 1
-    each difference is smoothed on a copy that much smaller and the smallest brought back to the working size:
-    the warp and the absolute difference stay at full size (shrinking the images first would blur two textures
-    that do not match into agreement), the smoothing, most of the cost, runs on a quarter of the pixels."""
-    if coarse >= 1.0:
-        return np.minimum.reduce([_difference(ga, gb, Hp, gain) for Hp in planes])
-    h, w = ga.shape
-    size = (max(1, round(w * coarse)), max(1, round(h * coarse)))
-    best = None
-    for Hp in planes:
-        gb_at = cv2.warpPerspective(gb, Hp, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
-        if gain != 1.0:
-            gb_at *= gain
-        small = cv2.resize(cv2.absdiff(ga, gb_at), size, interpolation=cv2.INTER_AREA)
-        d = cv2.GaussianBlur(small, (0, 0), 3.0 * coarse)
-        best = d if best is None else np.minimum(best, d)
-    return cv2.resize(best, (w, h), interpolation=cv2.INTER_LINEAR)
+    return cv2.GaussianBlur(cv2.absdiff(ga, gb_at), (0, 0), 3.0)
 
 
 def _write_mask(cache_dir: Path, kf, mask: np.ndarray) -> Path:

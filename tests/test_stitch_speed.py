@@ -116,6 +116,9 @@ def test_candidate_pairs_follow_the_path_and_its_revisits_not_every_keyframe_in_
     for i, j in across:  # the leg back passes the same place: matched where the footprints overlap
         assert abs(centres[i][1] - centres[j][1]) < 3.3
     assert {i for i, _ in across} == set(range(21)) and len(pairs) < 41 * 8
+    # each keyframe tied to the leg back by its two nearest keyframes there (the demo matched 6: half its pairs)
+    assert all((i, 41 - i) in pairs for i in range(18))  # (the last ones are sequence neighbours of the turn)
+    assert max(sum(1 for a, _ in across if a == i) for i in range(21)) == 2
     # without telemetry: the path alone
     assert candidate_pairs(4, [None] * 4, corners) == [(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
 
@@ -132,3 +135,26 @@ def test_block_bounds_in_two_passes_are_the_max_and_min_of_every_block():
         padded[: shape[0], : shape[1]] = weight
         blocks = padded.reshape(ph // block, block, pw // block, block)
         assert np.array_equal(hi, blocks.max(axis=(1, 3))) and np.array_equal(lo, blocks.min(axis=(1, 3)))
+
+
+def test_alignment_jacobian_is_the_derivative_of_the_transfer():
+    """The alignment's analytic Jacobian (it replaced 16 numerical transfers per pair direction) is the
+    derivative of the transfer it linearises, for both keyframes' parameters."""
+    from companion.stitch.align import _Problem, _to_params
+
+    rng = np.random.default_rng(7)
+    problem = _Problem(col={0: 0, 1: 1}, obs=[], anchors=[], sigma_match=0.004)
+    for _ in range(5):
+        Gs, Gt = (np.eye(3) + rng.normal(0, 0.05, (3, 3)) for _ in range(2))
+        ps, pt = _to_params(Gs), _to_params(Gt)
+        xs = rng.uniform(-0.5, 0.5, (40, 2))
+        u, J = problem._pair_terms(ps, pt, xs, True)
+        assert np.allclose(u, problem._pair_terms(ps, pt, xs, False)[0])
+        for q in range(16):
+            e = 1e-6
+            plus, minus = np.concatenate((ps, pt)), np.concatenate((ps, pt))
+            plus[q] += e
+            minus[q] -= e
+            numeric = (problem._pair_terms(plus[:8], plus[8:], xs, False)[0]
+                       - problem._pair_terms(minus[:8], minus[8:], xs, False)[0]) / (2 * e)
+            assert np.allclose(J[:, :, q], numeric, rtol=1e-5, atol=1e-4 * np.abs(numeric).max())

@@ -148,6 +148,18 @@ def test_px4_sih_home_is_put_back_after_the_window_confirmed_by_home_position(de
     assert watch.too_low(4) is None and watch.restore_step(200.0) is None
 
 
+def test_a_put_back_asked_after_the_vehicle_left_the_hold_ends_nothing_until_it_is_confirmed(demo_items):
+    """CI (speed-up 20, loaded machine): the companion saw the window's end one poll late, the vehicle had already
+    left the hold for the first strip, and the flight ended with the put-back on its way (exit 1, no scan)."""
+    watch = _settle_watch(demo_items, restore=True)
+    watch.on_home(28.8)  # -1.2 m: the strip bottoms would be 0.35 m above the ground
+    assert watch.restore_step(126.0) == 30.0  # first seen after the window, the vehicle at item 6, past the hold
+    assert watch.settling(6, 126.0) and watch.too_low(6) is not None  # pending: the watch waits for HOME_POSITION
+    watch.on_home(30.0)
+    assert watch.restore_step(127.0) is None and watch.put_back
+    assert not watch.settling(6, 127.0) and watch.too_low(6) is None  # back where it was: the strips fly as planned
+
+
 def test_a_put_back_the_vehicle_ignores_is_given_up_and_the_watch_decides(demo_items):
     watch = _settle_watch(demo_items, restore=True)
     watch.on_home(28.8)  # -1.2 m

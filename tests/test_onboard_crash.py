@@ -2,6 +2,10 @@
 
 The simulated vehicle and camera keep running (as a real autopilot and camera would); only the companion dies.
 Afterwards the spool is consistent and every keyframe the first run had reported is still there.
+
+Kept short for the suite's time: tests/data/small-wall.yaml without PX4's 121 s home-settle hold (our simulator keeps
+home where it armed, as for `companion fly --sitl`), a 320 px camera at 3 fps and a speed-up of 2 (what is checked
+is the spool across a kill, not the gate's accuracy: tests/test_onboard_sitl.py judges that at 640 px).
 """
 
 from __future__ import annotations
@@ -18,25 +22,26 @@ import pytest
 
 from companion.spool.layout import MANIFEST
 from sim.rig import SitlRig
+from tests.small_wall import small_wall_scan_at_once
 
 pytestmark = pytest.mark.sitl
 ROOT = Path(__file__).resolve().parents[1]
-SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
 
-def _companion(mission, rig, out, log):
+def _companion(mission, rig, out, telemetry, log):
     cmd = [sys.executable, "-m", "companion.cli", "-v", "fly", str(mission), "--connect", rig.url, "--capture",
-           rig.capture, "--out", str(out), "--no-mask", "--no-progress", "--end-action", "rtl"]  # fmt: skip
+           rig.capture, "--out", str(out), "--telemetry-log", str(telemetry), "--no-mask", "--no-progress",
+           "--end-action", "rtl"]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     return subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=env)
 
 
 def test_kill_9_mid_flight_then_restart_loses_nothing(tmp_path):
-    mission = SMALL_WALL
-    out = tmp_path / "spool"
-    with SitlRig(mission, log_dir=tmp_path / "logs", speedup=1.5, fps=3) as rig:
+    mission = small_wall_scan_at_once(tmp_path)
+    out, telemetry = tmp_path / "spool", tmp_path / "telemetry.jsonl"
+    with SitlRig(mission, log_dir=tmp_path / "logs", speedup=2, fps=3, width_px=320) as rig:
         with open(tmp_path / "run1.log", "w") as log:
-            first = _companion(mission, rig, out, log)
+            first = _companion(mission, rig, out, telemetry, log)
             deadline = time.monotonic() + 120
             manifest = out / MANIFEST
             while time.monotonic() < deadline:  # kill once a few keyframes are reported
@@ -46,10 +51,12 @@ def test_kill_9_mid_flight_then_restart_loses_nothing(tmp_path):
                 time.sleep(0.1)
             os.kill(first.pid, signal.SIGKILL)
             first.wait()
+        last_seen = json.loads([x for x in telemetry.read_text().splitlines() if x.endswith("}")][-1])
+        assert last_seen["in_air"] and last_seen["armed"], f"killed after the flight, not during it: {last_seen}"
         reported = [json.loads(x)["index"] for x in manifest.read_text().splitlines() if x.endswith("}")]
         assert len(reported) >= 4
         with open(tmp_path / "run2.log", "w") as log:
-            second = _companion(mission, rig, out, log)
+            second = _companion(mission, rig, out, telemetry, log)
             assert second.wait(timeout=300) == 0, (tmp_path / "run2.log").read_text()[-3000:]
     lines = [json.loads(x) for x in manifest.read_text().splitlines()]
     indices = [x["index"] for x in lines]

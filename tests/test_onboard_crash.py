@@ -37,9 +37,10 @@ def _companion(mission, rig, out, telemetry, log):
 
 
 def test_kill_9_mid_flight_then_restart_loses_nothing(tmp_path):
-    mission = small_wall_scan_at_once(tmp_path)
+    mission, still_home = small_wall_scan_at_once(tmp_path)
     out, telemetry = tmp_path / "spool", tmp_path / "telemetry.jsonl"
-    with SitlRig(mission, log_dir=tmp_path / "logs", speedup=2, fps=3, width_px=320) as rig:
+    with SitlRig(mission, log_dir=tmp_path / "logs", speedup=2, fps=3, width_px=320,
+                 sim_options=still_home) as rig:
         with open(tmp_path / "run1.log", "w") as log:
             first = _companion(mission, rig, out, telemetry, log)
             deadline = time.monotonic() + 120

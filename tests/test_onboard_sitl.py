@@ -40,12 +40,12 @@ def _exiftool_each(paths: list[Path]) -> list[dict]:
 
 
 def test_live_culling_in_sitl_meets_overlap_and_tagging_accuracy(tmp_path):
-    mission = small_wall_scan_at_once(tmp_path)
+    mission, still_home = small_wall_scan_at_once(tmp_path)
     rec_dir, truth_log, spool = tmp_path / "rec", tmp_path / "truth.jsonl", tmp_path / "spool"
     # Ground truth is recorded for the scan (frames within 4.5 m of the wall): the overlap guarantee is about the
     # scan legs at the standoff, not the approach, whose frames differ in scale.
     rig = SitlRig(mission, log_dir=tmp_path / "logs", speedup=2, fps=3, record_dir=rec_dir, truth_log=truth_log,
-                  record_max_out_m=4.5)  # fmt: skip
+                  record_max_out_m=4.5, sim_options=still_home)  # fmt: skip
     with rig:
         res = run_live_scan(rig.plan, rig.url, rig.capture, spool, progress=False, handle_signals=False,
                             end_action="land", flight_timeout_s=600)  # fmt: skip

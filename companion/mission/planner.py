@@ -396,12 +396,6 @@ def settle_waypoint_index(wps: Sequence[Waypoint]) -> int:
     return max(0, first_scan - 1)
 
 
-def without_home_settle(mission: Mission) -> Mission:
-    """The mission with no settle hold, for a vehicle known to keep home where it armed: our simulator's PX4 unless
-    told to move it (``--home-shift-after-takeoff``), where the 2-minute hover would only cost time and frames."""
-    return mission.model_copy(update={"margins": mission.margins.model_copy(update={"home_settle_s": 0.0})})
-
-
 def home_settle_hold_s(m: Mission, wps: Sequence[Waypoint]) -> float:
     """How long to hold above the wall so the scan starts no earlier than ``margins.home_settle_s`` after take-off.
 

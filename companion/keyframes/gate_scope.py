@@ -16,12 +16,26 @@ scan only when its camera is more than ``max_distance_factor`` times the standof
 planned GSD and more; at the demo's 4 m, beyond 8 m: a position error that large would have flown the vehicle
 into the wall), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
 ``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
+
+Those loose rules keep a scan going; they are too loose to START one (issue 17's judged run at 30 fps): a frame of
+the transit 7.9 m out at the 18 m transit height, pitched down while braking, had its footprint 0.3 m inside the
+1 m tolerance above the roof margin. It became the first keyframe; the frames after it showed no facade, and the
+first wall keyframe overlapped it by 0 % (a pair below target). So a scan segment OPENS only on a frame that is a
+frame of the planned scan (``ScanPhase``, ``opens_scan``): the camera near the standoff (within ``open_band`` x
+the standoff of it) and its footprint meeting the scan extent itself (the wall plus the mission's margins, no
+tolerance). That is exactly the planner's definition of the frames it counts (``companion.mission.keyframe_count``:
+on the standoff, footprint meeting the wall plus margins, the roof margin on the way in included), so no frame of
+the planned scan is put off it; the wall itself is not required, because the planner counts the roof margin on
+the way down to the first strip. Once open, the loose rules above hold the scan; the first frame off them ends the
+segment (the gate keeps its last view, as at the end of a stream) and a later opening starts a new segment that is
+not judged against the keyframes before the gap.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -47,6 +61,7 @@ class ScanScope:
     hfov_deg: float = 69.0
     aspect: float = 9.0 / 16.0
     extent_tolerance_m: float = 1.0
+    open_band: float = 0.5  # a scan segment opens only within this share of the standoff from the standoff
 
     def __post_init__(self) -> None:
         if not (self.standoff_m > 0.0 and math.isfinite(self.standoff_m)):
@@ -58,6 +73,9 @@ class ScanScope:
         if not self.max_distance_factor > 1.0:
             raise CompanionError(f"max_distance_factor={self.max_distance_factor} would drop frames of the scan",
                                  "use a factor above 1 (e.g. 2: frames beyond twice the standoff are off the scan)")
+        if not 0.0 < self.open_band < self.max_distance_factor - 1.0:
+            raise CompanionError(f"open_band={self.open_band} is not a band around the standoff inside the scan",
+                                 f"use a share of the standoff in (0, {self.max_distance_factor - 1.0:g}), e.g. 0.5")
 
     @property
     def max_distance_m(self) -> float:
@@ -87,15 +105,16 @@ class ScanScope:
         K = np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
         return corner_footprint(K, w, h, centre, rotation)
 
-    def misses_extent(self, pose: Pose | None) -> bool:
-        """True when the frame's footprint lies wholly outside the scan extent grown by the tolerance."""
+    def misses_extent(self, pose: Pose | None, tolerance_m: float | None = None) -> bool:
+        """True when the frame's footprint lies wholly outside the scan extent grown by ``tolerance_m`` (default:
+        ``extent_tolerance_m``)."""
         if self.extent is None:
             return False
         corners = self.footprint(pose)
         if corners is None:
             return False
         a0, a1, u0, u1 = self.extent
-        tol = self.extent_tolerance_m
+        tol = self.extent_tolerance_m if tolerance_m is None else tolerance_m
         along, up = corners[:, 0], corners[:, 1]
         return bool(along.max() < a0 - tol or along.min() > a1 + tol or up.max() < u0 - tol or up.min() > u1 + tol)
 
@@ -108,3 +127,51 @@ class ScanScope:
         if distance is not None and abs(distance) > self.max_distance_m:
             return True
         return self.misses_extent(pose)
+
+    def opens_scan(self, pose: Pose | None, stale: bool = False) -> bool:
+        """True when the frame may open a scan segment: a frame of the planned scan, its camera within
+        ``open_band`` x the standoff of the standoff and its footprint on the scan extent itself (no tolerance).
+        Frames without a usable pose open it (the images decide, as before)."""
+        if stale:
+            return True
+        distance = self.distance_m(pose)
+        if distance is None:
+            return True
+        if abs(distance - self.standoff_m) > self.open_band * self.standoff_m:
+            return False
+        return not self.misses_extent(pose, tolerance_m=0.0)
+
+
+class ScopeStep(StrEnum):
+    """What ``ScanPhase.step`` made of a frame."""
+
+    OPENS = "opens"  # the first frame of a scan segment: judged
+    SCAN = "scan"  # a frame of an open segment: judged
+    LEAVES = "leaves"  # the first frame off the scan after a segment: not judged, the segment ends here
+    OFF = "off"  # not a frame of the scan (take-off, transit, landing, before the scan opens): not judged
+
+    @property
+    def judged(self) -> bool:
+        return self in (ScopeStep.OPENS, ScopeStep.SCAN)
+
+
+class ScanPhase:
+    """The scope over a stream of frames: a segment opens on a frame of the planned scan (``opens_scan``) and
+    stays open while frames are within the loose rules (``off_scan``); see the module docstring."""
+
+    def __init__(self, scope: ScanScope):
+        self.scope = scope
+        self.is_open = False
+        self.openings = 0  # scan segments opened so far
+
+    def step(self, pose: Pose | None, stale: bool = False) -> ScopeStep:
+        if self.is_open:
+            if self.scope.off_scan(pose, stale):
+                self.is_open = False
+                return ScopeStep.LEAVES
+            return ScopeStep.SCAN
+        if self.scope.off_scan(pose, stale) or not self.scope.opens_scan(pose, stale):
+            return ScopeStep.OFF
+        self.is_open = True
+        self.openings += 1
+        return ScopeStep.OPENS

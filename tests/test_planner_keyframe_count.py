@@ -87,3 +87,23 @@ def test_the_demo_plan_counts_what_its_camera_rate_makes_the_rule_keep():
     # at 10 fps the planner slows to 10 frames per spacing, and the rule steps 9: more keyframes than at 30 fps
     ten = plan_for_camera(DEMO, 10.0).estimates
     assert ten.expected_keyframes > e.expected_keyframes
+
+
+def test_a_segment_opens_on_the_wall_itself_as_the_chain_s_scope_opens_it():
+    """Issue 17: the chain's scan scope opens a segment only on a frame showing the wall (the descent over the roof
+    margin showed the depth mask no facade, so the gate could not keep keyframes there); the count walks the same
+    rule. Down from 9 m over a 6 m wall with a 1.5 m roof margin (frames 1.5 m either side): counted from the first
+    frame reaching the wall top (centre 7.5 m), not from the first reaching the margin (9 m). The climb back out
+    over the margin stays counted: the segment is open."""
+    wall = (-5.0, 5.0, 0.0, 6.0)
+    extent = (-7.0, 7.0, 0.0, 7.5)
+    down = [PathPoint(0.0, 4.0, 9.0, 0.6), PathPoint(0.0, 4.0, 1.5, 0.6)]
+    margin_only = ScanView(W, H, 10.0, 4.0, 0.05, extent=extent)
+    on_wall = ScanView(W, H, 10.0, 4.0, 0.05, extent=extent, wall=wall)
+    first = next(c for c in frame_centres(down, on_wall) if c is not None)
+    assert 7.4 < first[1] <= 7.5 and next(c for c in frame_centres(down, margin_only) if c is not None)[1] > 8.9
+    # 1.5 m of margin-only descent at 0.54 m per keyframe: two or three keyframes the gate could not keep
+    assert 2 <= expected_keyframes(down, margin_only, RTH) - expected_keyframes(down, on_wall, RTH) <= 3
+    out = down + [PathPoint(0.0, 4.0, 9.0, 0.6)]  # back up the strip and over the margin
+    centres = frame_centres(out, on_wall)
+    assert max(c[1] for c in centres if c is not None) > 8.9

@@ -18,17 +18,20 @@ into the wall), or when its footprint misses the scan extent (the wall plus the 
 ``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
 
 Those loose rules keep a scan going; they are too loose to START one (issue 17's judged run at 30 fps): a frame of
-the transit 7.9 m out at the 18 m transit height, pitched down while braking, had its footprint 0.3 m inside the
-1 m tolerance above the roof margin. It became the first keyframe; the frames after it showed no facade, and the
-first wall keyframe overlapped it by 0 % (a pair below target). So a scan segment OPENS only on a frame that is a
-frame of the planned scan (``ScanPhase``, ``opens_scan``): the camera near the standoff (within ``open_band`` x
-the standoff of it) and its footprint meeting the scan extent itself (the wall plus the mission's margins, no
-tolerance). That is exactly the planner's definition of the frames it counts (``companion.mission.keyframe_count``:
-on the standoff, footprint meeting the wall plus margins, the roof margin on the way in included), so no frame of
-the planned scan is put off it; the wall itself is not required, because the planner counts the roof margin on
-the way down to the first strip. Once open, the loose rules above hold the scan; the first frame off them ends the
-segment (the gate keeps its last view, as at the end of a stream) and a later opening starts a new segment that is
-not judged against the keyframes before the gap.
+the transit 7.8 m out at the 18 m transit height (the camera looking level, its footprint's bottom edge at 15.0 m:
+inside the 1 m tolerance above the 14 m roof margin) became the first keyframe; the frames after it showed no
+facade, and the first wall keyframe overlapped it by 0 % (a pair below target). Replayed (bench/flight_replay.py),
+opening on the first frame of the roof margin instead moved the problem, not removed it: the depth mask kept that
+frame (roof edge) and dropped the next 2.8 s of the descent (sky and roof: no facade), so the first wall keyframe
+was again kept below target (35 %). So a scan segment OPENS only on a frame that shows the wall itself from near
+the standoff (``ScanPhase``, ``opens_scan``): the camera within ``open_band`` x the standoff of the standoff and
+its footprint meeting the wall rectangle (``wall``; no tolerance). The planner's expected count walks its path by
+the same rule (``companion.mission.keyframe_count``: a segment opens on the wall), so no frame it counts is put
+off the scan; the roof-margin frames before the first wall view that it no longer counts add nothing to the scan
+extent, which the first strip's top frame covers up to the margin. Once open, the loose rules above hold the scan
+(the roof margin on the way out included); the first frame off them ends the segment (the gate keeps its last
+view, as at the end of a stream) and a later opening starts a new segment that is not judged against the
+keyframes before the gap.
 """
 
 from __future__ import annotations
@@ -62,6 +65,7 @@ class ScanScope:
     aspect: float = 9.0 / 16.0
     extent_tolerance_m: float = 1.0
     open_band: float = 0.5  # a scan segment opens only within this share of the standoff from the standoff
+    wall: tuple[float, float, float, float] | None = None  # the wall itself (along, up metres); None: the extent
 
     def __post_init__(self) -> None:
         if not (self.standoff_m > 0.0 and math.isfinite(self.standoff_m)):
@@ -105,15 +109,17 @@ class ScanScope:
         K = np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
         return corner_footprint(K, w, h, centre, rotation)
 
-    def misses_extent(self, pose: Pose | None, tolerance_m: float | None = None) -> bool:
-        """True when the frame's footprint lies wholly outside the scan extent grown by ``tolerance_m`` (default:
-        ``extent_tolerance_m``)."""
-        if self.extent is None:
+    def misses_extent(self, pose: Pose | None, tolerance_m: float | None = None,
+                      region: tuple[float, float, float, float] | None = None) -> bool:
+        """True when the frame's footprint lies wholly outside the scan extent (or ``region``) grown by
+        ``tolerance_m`` (default: ``extent_tolerance_m``)."""
+        region = region or self.extent
+        if region is None:
             return False
         corners = self.footprint(pose)
         if corners is None:
             return False
-        a0, a1, u0, u1 = self.extent
+        a0, a1, u0, u1 = region
         tol = self.extent_tolerance_m if tolerance_m is None else tolerance_m
         along, up = corners[:, 0], corners[:, 1]
         return bool(along.max() < a0 - tol or along.min() > a1 + tol or up.max() < u0 - tol or up.min() > u1 + tol)
@@ -129,9 +135,9 @@ class ScanScope:
         return self.misses_extent(pose)
 
     def opens_scan(self, pose: Pose | None, stale: bool = False) -> bool:
-        """True when the frame may open a scan segment: a frame of the planned scan, its camera within
-        ``open_band`` x the standoff of the standoff and its footprint on the scan extent itself (no tolerance).
-        Frames without a usable pose open it (the images decide, as before)."""
+        """True when the frame may open a scan segment: its camera within ``open_band`` x the standoff of the
+        standoff and its footprint on the wall itself (``wall``, else the scan extent; no tolerance). Frames
+        without a usable pose open it (the images decide, as before)."""
         if stale:
             return True
         distance = self.distance_m(pose)
@@ -139,7 +145,7 @@ class ScanScope:
             return True
         if abs(distance - self.standoff_m) > self.open_band * self.standoff_m:
             return False
-        return not self.misses_extent(pose, tolerance_m=0.0)
+        return not self.misses_extent(pose, tolerance_m=0.0, region=self.wall)
 
 
 class ScopeStep(StrEnum):

@@ -123,6 +123,23 @@ def test_a_transit_frame_inside_the_loose_scope_cannot_open_the_scan(scene):
         ScanScope(scene.frame, STANDOFF, open_band=1.5)
 
 
+def test_a_segment_stays_open_while_the_wall_is_in_view_within_the_loose_rules(scene):
+    """Open: a GNSS error of metres out does not end it; a frame over the roof margin (no wall: the climb off the
+    last strip, where the mask finds no facade) or far out does, and only a frame showing the wall reopens it."""
+    from companion.keyframes.gate_scope import ScanPhase, ScopeStep
+
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    hs = _half_height(scene, STANDOFF)
+    wall_view = scene.pose(WallCamera(6.0, STANDOFF, 3.0))
+    margin = scene.pose(WallCamera(6.0, STANDOFF, WALL[3] + 0.3 + hs))
+    phase = ScanPhase(scope)
+    steps = [phase.step(p) for p in (margin, wall_view, scene.pose(WallCamera(6.0, 7.5, 3.0)), wall_view, margin,
+                                     margin, wall_view, scene.pose(WallCamera(6.0, 13.0, 3.0)))]  # fmt: skip
+    assert steps == [ScopeStep.OFF, ScopeStep.OPENS, ScopeStep.SCAN, ScopeStep.SCAN, ScopeStep.LEAVES, ScopeStep.OFF,
+                     ScopeStep.OPENS, ScopeStep.LEAVES]  # fmt: skip
+    assert phase.openings == 2 and not phase.is_open
+
+
 def test_the_approach_opens_on_the_planned_scan_not_on_the_transit(scene, tmp_path):
     """The judged run's sequence: a transit frame 7.8 m out inside the loose scope, frames above the roof margin,
     then the descent onto the wall at the standoff. It used to open the scan on the transit frame, and the first

@@ -17,21 +17,21 @@ planned GSD and more; at the demo's 4 m, beyond 8 m: a position error that large
 into the wall), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
 ``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
 
-Those loose rules keep a scan going; they are too loose to START one (issue 17's judged run at 30 fps): a frame of
-the transit 7.8 m out at the 18 m transit height (the camera looking level, its footprint's bottom edge at 15.0 m:
-inside the 1 m tolerance above the 14 m roof margin) became the first keyframe; the frames after it showed no
-facade, and the first wall keyframe overlapped it by 0 % (a pair below target). Replayed (bench/flight_replay.py),
-opening on the first frame of the roof margin instead moved the problem, not removed it: the depth mask kept that
-frame (roof edge) and dropped the next 2.8 s of the descent (sky and roof: no facade), so the first wall keyframe
-was again kept below target (35 %). So a scan segment OPENS only on a frame that shows the wall itself from near
-the standoff (``ScanPhase``, ``opens_scan``): the camera within ``open_band`` x the standoff of the standoff and
-its footprint meeting the wall rectangle (``wall``; no tolerance). The planner's expected count walks its path by
-the same rule (``companion.mission.keyframe_count``: a segment opens on the wall), so no frame it counts is put
-off the scan; the roof-margin frames before the first wall view that it no longer counts add nothing to the scan
-extent, which the first strip's top frame covers up to the margin. Once open, the loose rules above hold the scan
-(the roof margin on the way out included); the first frame off them ends the segment (the gate keeps its last
-view, as at the end of a stream) and a later opening starts a new segment that is not judged against the
-keyframes before the gap.
+Those loose rules are too loose to say which frames the scan is made of (issue 17's judged run at 30 fps): a frame
+of the transit 7.8 m out at the 18 m transit height (the camera looking level, its footprint's bottom edge at
+15.0 m: inside the 1 m tolerance above the 14 m roof margin) became the first keyframe; the frames after it showed
+no facade, and the first wall keyframe overlapped it by 0 % (a pair below target). Replayed (bench/flight_replay.py),
+opening on the first frame of the roof margin instead only moved the problem: the depth mask kept that frame (roof
+edge) and dropped the next 2.8 s of the descent (sky and roof: no facade), so the first wall keyframe was again
+kept below target (35 %); on the climb off the last strip over the margin, two pairs were kept at 78-80 % from
+telemetry for the same reason. So the scan is the frames that SHOW THE WALL (``ScanPhase``): a segment opens on a
+frame whose camera is within ``open_band`` x the standoff of the standoff and whose footprint meets the wall
+rectangle (``wall``; no tolerance), stays open while frames show the wall within the loose distance rule, and the
+first frame that does not ends it (the gate keeps its last view, as at the end of a stream); a later opening
+starts a new segment, not judged against the keyframes before the gap. The planner's expected count judges the
+same frames (``companion.mission.keyframe_count``: frames on the standoff showing the wall), so no frame it counts
+is put off the scan; the roof-margin frames above the wall that it no longer counts add nothing to the scan
+extent, which the strips' top frames cover up to the margin. Without a ``wall`` the scope is the extent, as before.
 """
 
 from __future__ import annotations
@@ -134,6 +134,13 @@ class ScanScope:
             return True
         return self.misses_extent(pose)
 
+    def shows_wall(self, pose: Pose | None, stale: bool = False) -> bool:
+        """True when the frame's footprint meets the wall itself (no tolerance); True without a ``wall`` or a
+        usable pose (nothing to tell it by: the images decide)."""
+        if stale or self.wall is None:
+            return True
+        return not self.misses_extent(pose, tolerance_m=0.0, region=self.wall)
+
     def opens_scan(self, pose: Pose | None, stale: bool = False) -> bool:
         """True when the frame may open a scan segment: its camera within ``open_band`` x the standoff of the
         standoff and its footprint on the wall itself (``wall``, else the scan extent; no tolerance). Frames
@@ -162,8 +169,9 @@ class ScopeStep(StrEnum):
 
 
 class ScanPhase:
-    """The scope over a stream of frames: a segment opens on a frame of the planned scan (``opens_scan``) and
-    stays open while frames are within the loose rules (``off_scan``); see the module docstring."""
+    """The scope over a stream of frames: a segment opens on a frame showing the wall from near the standoff
+    (``opens_scan``) and stays open while frames show the wall within the loose rules (``off_scan``,
+    ``shows_wall``); see the module docstring."""
 
     def __init__(self, scope: ScanScope):
         self.scope = scope
@@ -172,7 +180,7 @@ class ScanPhase:
 
     def step(self, pose: Pose | None, stale: bool = False) -> ScopeStep:
         if self.is_open:
-            if self.scope.off_scan(pose, stale):
+            if self.scope.off_scan(pose, stale) or not self.scope.shows_wall(pose, stale):
                 self.is_open = False
                 return ScopeStep.LEAVES
             return ScopeStep.SCAN

@@ -54,15 +54,21 @@ class ScanView:
     standoff_m: float
     standoff_tolerance_m: float
     extent: tuple[float, float, float, float]  # along_min, along_max, up_min, up_max (wall plus margins)
-    # the wall itself (along_min, along_max, up_min, up_max): a segment opens only on a frame showing it, as the
-    # chain's scan scope opens (companion.keyframes.gate_scope); None: on any frame meeting the extent
+    # the wall itself (along_min, along_max, up_min, up_max): only frames showing it are judged, as the chain's scan
+    # scope judges them (companion.keyframes.gate_scope); None: every frame meeting the extent
     wall: tuple[float, float, float, float] | None = None
 
 
 def frame_centres(path: Sequence[PathPoint], view: ScanView) -> list[tuple[float, float] | None]:
     """Footprint centres (along, up) of the frames the camera takes along ``path``; None for a frame that is not a
-    scan frame (off the standoff, or its footprint misses the scan extent)."""
-    a0, a1, u0, u1 = view.extent
+    scan frame (off the standoff, or its footprint misses the wall: ``view.wall``, else the scan extent).
+
+    Why the wall and not the extent (issue 17): over the roof margin, on the descent onto the first strip and the
+    climb off the last one, the chain's depth mask finds no facade in most frames, so its gate could not keep
+    keyframes there at the rule's spacing (replayed on the judged 30 fps flight: pairs below target at both ends),
+    and its scan scope judges only frames showing the wall. Those frames add nothing to the scan extent: the
+    strips' top frames cover the roof margin."""
+    a0, a1, u0, u1 = view.wall if view.wall is not None else view.extent
     half_w, half_h = view.footprint_width_m / 2.0, view.footprint_height_m / 2.0
 
     def on_standoff(p: PathPoint) -> bool:
@@ -87,23 +93,6 @@ def frame_centres(path: Sequence[PathPoint], view: ScanView) -> list[tuple[float
         out.extend(judged(a, u) for a, u in zip(along, up, strict=True))
     last = path[-1]
     out.append(judged(last.along_m, last.up_m) if on_standoff(last) else None)
-    return out if view.wall is None else _opened_on_the_wall(out, view)
-
-
-def _opened_on_the_wall(centres: list[tuple[float, float] | None], view: ScanView) -> list[tuple[float, float] | None]:
-    """The frames before a segment's first view of the wall itself are not judged (the descent onto the first
-    strip over the roof margin: the strip's top frame covers that margin, and the chain's depth mask finds no
-    facade in most of those frames, so the gate could not keep them at the rule's spacing)."""
-    w0, w1, v0, v1 = view.wall
-    half_w, half_h = view.footprint_width_m / 2.0, view.footprint_height_m / 2.0
-    out: list[tuple[float, float] | None] = []
-    is_open = False
-    for c in centres:
-        if c is not None and not is_open:
-            is_open = c[0] - half_w < w1 and c[0] + half_w > w0 and c[1] - half_h < v1 and c[1] + half_h > v0
-        if c is None:
-            is_open = False
-        out.append(c if is_open else None)
     return out
 
 

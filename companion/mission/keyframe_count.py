@@ -11,16 +11,17 @@ count before issue 17) under-predicts what that rule needs, by three things a fl
 * **Strip-to-strip moves.** The side step between strips is set by the side overlap (62 % of the footprint's width
   on the demo), wider than the 20 % of the width the rule allows between keyframes, so the rule keeps keyframes
   on the move itself; and the last keyframe of a strip is rarely on its end.
-* **Roof margin on the way in and out.** The descent onto the first strip and the climb off the last one are flown
-  at the standoff with the camera on the wall plane's margins the mission asks for (``margins.roof_m``): the gate
-  keeps keyframes there too.
+* **The way in and out.** The descent onto the first strip and the climb off the last one are flown at the
+  standoff: the gate keeps keyframes there while the wall is in view (not over the roof margin above it, where the
+  depth mask finds no facade; issue 17, ``frame_centres``).
 
 So the count walks the planned path frame by frame at each leg's speed and the camera's rate and applies the rule
 to the footprints on the wall plane (a constant-standoff camera: the footprint translates; overlap = the shared
-share of its area). Only frames on the standoff whose footprint meets the scan extent (wall plus margins) are
-judged: take-off, transit and landing are flown off the standoff and are not frames of the scan (the chain does not
-judge them either, ``companion.keyframes.gate_scope``). A stretch with no judged frame ends a segment: its last
-candidate is kept (the gate's end of stream) and the next judged frame starts a new one.
+share of its area). Only frames on the standoff whose footprint shows the wall are judged (``ScanView.wall``; the
+scan extent, wall plus margins, without one): take-off, transit and landing are flown off the standoff and are not
+frames of the scan (the chain does not judge them either, ``companion.keyframes.gate_scope``). A stretch with no
+judged frame ends a segment: its last candidate is kept (the gate's end of stream) and the next judged frame starts
+a new one.
 """
 
 from __future__ import annotations

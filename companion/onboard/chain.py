@@ -104,7 +104,7 @@ class CullChain:
     the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped.
 
     ``scope`` (a ``ScanScope``): frames taken too far from the wall to belong to the scan are counted, not judged;
-    the scan opens only on a frame of the planned scan, and leaving it ends the gate's segment
+    the scan is the frames showing the wall from near the standoff, and leaving it ends the gate's segment
     (``companion.keyframes.gate_scope.ScanPhase``).
 
     ``track`` (a ``MeasureSchedule``): every frame is tracked cheaply and only the frames around each keyframe

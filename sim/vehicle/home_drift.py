@@ -9,7 +9,7 @@ its sample interval in microseconds against a 5 s time constant, so it passes th
 
 SIH feeds it (``sensor_gps_sim``, ``sensor_baro_sim``): GPS at 8 Hz with 0.5 m of white noise on the altitude and
 0.158 m/s on the vertical velocity, the barometer at 20 Hz with 1 Pa RMS (0.083 m). So single GPS samples move
-home, about once a second: real PX4 SIH moved it 90-169 times in the window over 18 flights, swung it up to
+home, about once a second: real PX4 SIH moved it 69-169 times (median 135) in the window over 18 flights, swung it up to
 -2.4 / +2.8 m off home at arming and left it wherever the last move put it (-0.81 .. +1.52 m), with no move after the
 window (``tests/data/real-px4-sih-home.json``, from the flights' own logs). This class runs the same rule on the same
 noise, seeded: a flight of the simulator's PX4 flavour moves home the way real SIH does, reproducibly.

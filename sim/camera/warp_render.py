@@ -294,24 +294,20 @@ class WarpRenderer(Renderer):
         if y0 >= y1:
             return None
         # a convex polygon covers one interval of each row: intersect the half-planes of its edges
+        # (all edges at once: the same operations per edge and row as one edge at a time, the same values)
         ys = np.arange(y0, y1, dtype=float)
-        lo = np.full(len(ys), -np.inf)
-        hi = np.full(len(ys), np.inf)
         p, q = uv, np.roll(uv, -1, axis=0)
         area = float(np.sum(p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]))
         sign = 1.0 if area > 0 else -1.0
-        for (px, py), (qx, qy) in zip(p, q, strict=True):
-            nx, ny = -(qy - py) * sign, (qx - px) * sign  # inward normal: n . (X - p) >= 0 inside
-            if abs(nx) < 1e-12:
-                if abs(ny) > 1e-12:
-                    out = ny * (ys - py) < 0
-                    lo[out], hi[out] = np.inf, -np.inf
-                continue
-            bound = px - ny * (ys - py) / nx
-            if nx > 0:
-                np.maximum(lo, bound, out=lo)
-            else:
-                np.minimum(hi, bound, out=hi)
+        nx, ny = -(q[:, 1] - p[:, 1]) * sign, (q[:, 0] - p[:, 0]) * sign  # inward normal: n . (X - p) >= 0 inside
+        flat = np.abs(nx) < 1e-12  # horizontal edges: a row is inside or outside as a whole
+        k = ~flat
+        bound = p[k, 0][:, None] - ny[k, None] * (ys[None, :] - p[k, 1][:, None]) / nx[k, None]
+        lo = np.max(bound[nx[k] > 0], axis=0, initial=-np.inf)
+        hi = np.min(bound[nx[k] < 0], axis=0, initial=np.inf)
+        for j in np.nonzero(flat & (np.abs(ny) > 1e-12))[0]:
+            out = ny[j] * (ys - p[j, 1]) < 0
+            lo[out], hi[out] = np.inf, -np.inf
         xl = np.maximum(np.ceil(lo), 0)
         xr = np.minimum(np.floor(hi) + 1, W)  # exclusive
         rows = np.nonzero(xr > xl)[0]
@@ -372,7 +368,8 @@ class WarpRenderer(Renderer):
         it: texel about 1.5 x the footprint, rounded down to a power of two."""
         if f.level is not None:
             return f.level
-        step = max(1, int(math.sqrt(w.size / 2000)))  # about 2000 samples
+        # about 2000 samples; 400 for the hazed faces (far buildings, ground), whose level matters less
+        step = max(1, int(math.sqrt(w.size / (400 if f.haze else 2000))))
         if vis is None:  # every pixel visible
             sub = np.ones(w[::step, ::step].shape, bool)
         else:
@@ -640,12 +637,16 @@ class WarpRenderer(Renderer):
         with np.errstate(divide="ignore", invalid="ignore"):
             r = np.sqrt(rx * rx + ry * ry + 1.0) / np.maximum(ws, 1e-9)
         keep = np.exp(-r / np.float32(900.0)).astype(np.float32)
-        if float(keep.min()) > 0.998:
+        lo, hi = float(keep.min()), float(keep.max())
+        if lo > 0.998:
             return col
-        keep = cv2.resize(keep, (wd, h), interpolation=cv2.INTER_LINEAR)
         if self._horizon_img is None:  # the horizon colour as an image, made once
             self._horizon_img = np.empty((self.camera.height, self.camera.width, 3), np.uint8)
             self._horizon_img[:] = np.round(self._horizon_u8).astype(np.uint8)
+        if hi - lo < 0.004:  # a small or far face: one blend weight, within 0.002 x 255 = 0.5 DN of the per-pixel one
+            k = 0.5 * (lo + hi)
+            return cv2.addWeighted(col, k, self._horizon_img[:h, :wd], 1.0 - k, 0.0)
+        keep = cv2.resize(keep, (wd, h), interpolation=cv2.INTER_LINEAR)
         return cv2.blendLinear(col, self._horizon_img[:h, :wd], keep, np.float32(1.0) - keep)
 
     def _rect_rays(self, rect, A):
@@ -798,8 +799,13 @@ class WarpRenderer(Renderer):
         if bw == 0 or bh == 0:
             return
         axes = [_vec(1, 0, 0), _vec(0, 1, 0), _vec(0, 0, 1)]
+        # the rays of the frame's corner pixels (facade axes): every pixel's ray is a positive combination of them,
+        # so a cube face none of them points into (ray . normal <= 0) holds no pixel and is not even projected
+        rays = np.array([[self._rx_row[i], self._ry_col[j], 1.0] for i in (0, -1) for j in (0, -1)]) @ A.T
         for k in range(6):
             n = axes[k // 2] * (1 if k % 2 == 0 else -1)
+            if (rays @ n <= 0.0).all():
+                continue
             e1, e2 = axes[(k // 2 + 1) % 3], axes[(k // 2 + 2) % 3]
             corners = np.array([n - e1 - e2, n + e1 - e2, n + e1 + e2, n - e1 + e2])
             uv = self._polygon(corners @ A)

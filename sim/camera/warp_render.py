@@ -99,11 +99,26 @@ class WarpFrame(RenderedFrame):
     recording reads both, and gets the same values as if they had been made with the frame)."""
 
     def __init__(self, image: np.ndarray, inverse_depth: np.ndarray, surface: np.ndarray, pose: TruePose,
-                 K: np.ndarray, gain: float):
+                 K: np.ndarray, gain: float, pending: _OuterSum | None = None):
         self.image, self.surface, self.pose, self.K, self.gain = image, surface, pose, K, gain
-        self.inverse_depth = inverse_depth  # float32 1 / z-depth, 0 for sky
+        self._inverse_depth = inverse_depth
+        self._pending = pending  # a face covering the frame whose inverse depth is not yet written into the buffer
         self._depth: np.ndarray | None = None
         self._roi: np.ndarray | None = None
+
+    @property
+    def inverse_depth(self) -> np.ndarray:
+        """float32 1 / z-depth, 0 for sky."""
+        if self._pending is not None:
+            self._pending.write(self._inverse_depth)
+            self._pending = None
+        return self._inverse_depth
+
+    def largest_inverse_depth(self) -> float:
+        """At least the largest value of ``inverse_depth`` (exactly it when a face covers the frame)."""
+        if self._pending is not None:
+            return self._pending.largest()
+        return float(self._inverse_depth.max())
 
     @property
     def depth(self) -> np.ndarray:
@@ -117,6 +132,29 @@ class WarpFrame(RenderedFrame):
         if self._roi is None:
             self._roi = cv2.compare(self.surface, TARGET, cv2.CMP_EQ)
         return self._roi
+
+
+class _OuterSum:
+    """The inverse depth of a plane over a pixel rectangle, ``row[None, :] + col[:, None]``, computed only where
+    read: a face covering the whole frame (the wall face-on) needs its depth buffer only when something else is
+    drawn or its truth is read, and most frames draw nothing else."""
+
+    def __init__(self, row: np.ndarray, col: np.ndarray):
+        self.row, self.col = row, col
+        self.shape = (len(col), len(row))
+        self.size = len(col) * len(row)
+
+    def __getitem__(self, key) -> np.ndarray:
+        return np.add.outer(self.col[key[0]], self.row[key[1]])
+
+    def write(self, out: np.ndarray) -> None:
+        np.add(self.row[None, :], self.col[:, None], out=out)
+
+    def largest(self) -> float:
+        return float(np.float32(self.row.max()) + np.float32(self.col.max()))
+
+    def least(self) -> float:
+        return float(np.float32(self.row.min()) + np.float32(self.col.min()))
 
 
 def _vec(*v) -> np.ndarray:
@@ -455,6 +493,7 @@ class WarpRenderer(Renderer):
         faces = self._faces + self._ground_faces(orig)
         cams, order, dist = self._candidates(faces, A, orig)
         self._zb_low, self._zb_exact, self._drawn = 0.0, True, False
+        self._zb_pending: _OuterSum | None = None
         for i in order:
             if self._zb_low * float(dist[i]) > self._dnorm_max * 1.001:  # behind what covers the whole frame
                 continue
@@ -463,12 +502,20 @@ class WarpRenderer(Renderer):
         # the frame (the wall face-on): their tests below would skip every one on the same bound
         near = np.linalg.norm(np.maximum(np.maximum(self._obj_lo - orig, 0.0), orig - self._obj_hi), axis=1)
         if not (self._zb_low * near > self._dnorm_max * 1.001).all():
+            self._settle(zb)
             rects, near = self._object_rects(orig, A)
             self._draw_trunks(A, orig, img, zb, sid, rects, near)
             self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
         if self._zb_low == 0.0:  # else every pixel is drawn: no sky in view
+            self._settle(zb)
             self._draw_sky(A, img, zb)
         return img, zb, sid
+
+    def _settle(self, zb: np.ndarray) -> None:
+        """Write a pending face's inverse depth into the depth buffer before anything reads it."""
+        if self._zb_pending is not None:
+            self._zb_pending.write(zb)
+            self._zb_pending = None
 
     def _candidates(self, faces: list[Face], A, orig) -> tuple[np.ndarray, list[int], np.ndarray]:
         """Camera-frame corners of all faces, the faces turned towards the camera that may be in view, nearest
@@ -522,7 +569,10 @@ class WarpRenderer(Renderer):
             # pixel is visible; its inverse depth goes straight into the depth buffer
             X0, Y0, bw, bh = x0, y0, x1 - x0, y1 - y0
             out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
-            w = np.add(w_row[None, :], w_col[:, None], out=zb[out])
+            if bw * bh == zb.size:  # the whole frame: written when read (_settle), maybe never
+                w = self._zb_pending = _OuterSum(w_row, w_col)
+            else:
+                w = np.add(w_row[None, :], w_col[:, None], out=zb[out])
             vis = None
             full = True
         else:  # the depth test as a uint8 mask (non-zero: visible), OpenCV masked copies below
@@ -540,7 +590,8 @@ class WarpRenderer(Renderer):
             full = cv2.countNonZero(vis) == bw * bh  # the nearest face where nothing was drawn yet
         self._drawn, self._zb_exact = True, False
         if full and bw * bh == zb.size:  # the face covers the frame: its least inverse depth is at a corner (affine)
-            self._zb_low, self._zb_exact = float(min(w[0, 0], w[0, -1], w[-1, 0], w[-1, -1])), True
+            least = w.least() if isinstance(w, _OuterSum) else float(min(w[0, 0], w[0, -1], w[-1, 0], w[-1, -1]))
+            self._zb_low, self._zb_exact = least, True
         if full:
             if vis is not None:
                 zb[out] = w
@@ -606,6 +657,7 @@ class WarpRenderer(Renderer):
             return w_max * 1.001 < 0.0
         # a small box (a far building's) reads only its own pixels; a large one the whole frame, whose least value
         # then serves the faces after it (the wall filling the view hides them all)
+        self._settle(zb)
         if not self._zb_exact and 4 * (x1 - x0) * (y1 - y0) >= W * H:
             self._zb_low, self._zb_exact = float(zb.min()), True
             if self._zb_low > w_max * 1.001:
@@ -839,7 +891,8 @@ class WarpRenderer(Renderer):
             gain = exposure.update(mean, time_s)
         else:
             gain = float(np.clip(0.42 / max(mean, 1e-3), 0.6, 1.7))
-        frame = WarpFrame(img, zb, sid, pose, self.K.copy(), gain)
+        frame = WarpFrame(img, zb, sid, pose, self.K.copy(), gain, pending=self._zb_pending)
+        self._zb_pending = None
         if self.blur and self.exposure_s > 0:
             img = self._blurred(img, frame)
         frame.image = self._expose(img, gain, index, mean)
@@ -848,16 +901,16 @@ class WarpRenderer(Renderer):
     def _blurred(self, img: np.ndarray, frame: WarpFrame) -> np.ndarray:
         """The ray caster's motion blur (``Renderer._motion_blur``), its blur vectors from a 1-in-16 sample of the
         depth (the same values): the full z-depth is converted only if the far layer needs a blur of its own."""
-        pose, inv = frame.pose, frame.inverse_depth[::4, ::4]
+        pose = frame.pose
         # a bound first: the median depth is at least 1 / the largest inverse depth, so the translation's blur is at
         # most |v| f t_exp x that; below half a pixel with the rotation's, neither layer is blurred (most frames)
         v = pose.R_world_from_cam.T @ np.asarray(pose.velocity_enu_m_s, dtype=float)
         w = np.asarray(pose.angular_rate_cam_rad_s, dtype=float)
         ft = float(self.K[0, 0]) * self.exposure_s
-        if float(np.hypot(w[0], w[1])) * ft + float(np.hypot(v[0], v[1])) * ft * float(inv.max()) < 0.49:
+        if float(np.hypot(w[0], w[1])) * ft + float(np.hypot(v[0], v[1])) * ft * frame.largest_inverse_depth() < 0.49:
             return img
         with np.errstate(divide="ignore"):
-            sub = np.float32(1.0) / inv
+            sub = np.float32(1.0) / frame.inverse_depth[::4, ::4]
         near, far = self.blur_vectors_sampled(sub, pose)
         if float(np.hypot(*near)) < 0.5 and float(np.hypot(*far)) < 0.5:
             return img  # nothing to blur (_line_blur returns its input below half a pixel)

@@ -190,6 +190,9 @@ class WarpRenderer(Renderer):
         self._drawn = False  # anything drawn in this frame yet
         self._dnorm_max = float(self._dnorm.max())  # a surface at distance d has inverse z-depth <= this / d
         self._median_dn2: float | None = None
+        W, H = camera.width, camera.height
+        self._clip_rays = np.array([[(u + 0.5 - self._cx) / self._fx, (v + 0.5 - self._cy) / self._fy, 1.0]
+                                    for u in (-1, W) for v in (-1, H)])  # _polygon's clipping rectangle's corners
         self._dnorm32 = self._dnorm.astype(np.float32)
         self._horizon_img: np.ndarray | None = None
 
@@ -551,11 +554,15 @@ class WarpRenderer(Renderer):
         return cams, [int(i) for i in keep[np.argsort(rank[keep], kind="stable")]], dist
 
     def _draw_face(self, f: Face, key: int, cam, A, orig, img, zb, sid):
+        # inverse depth of the plane n.X = n.O along the ray A (rx, ry, 1): affine in (rx, ry)
+        g = (A.T @ f.normal) / float(f.normal @ (f.origin - orig))
+        # behind what covers the frame everywhere in it (its largest value there is at a corner of the clipping
+        # rectangle, 1 px outside the frame, so _hidden would say so too): not even projected and clipped
+        if self._zb_low > float((self._clip_rays @ g).max()) * 1.001:
+            return
         uv = self._polygon(cam)
         if uv is None:
             return
-        # inverse depth of the plane n.X = n.O along the ray A (rx, ry, 1): affine in (rx, ry)
-        g = (A.T @ f.normal) / float(f.normal @ (f.origin - orig))
         if self._hidden(uv, g, zb):
             return
         got = self._rect_mask(uv)

@@ -14,7 +14,8 @@ Ground truth is the ray caster's: the same surfaces, z-depth from the same plane
 mask, up to polygon rasterisation on boundary pixels (``tests/test_camera_warp_render.py`` checks it on poses
 facing the wall, off its end, looking down and from above the roof). Colours agree closely but not texel for
 texel (textures are sampled from cached tiles, haze on the coarse grid). The camera effects are the ray caster's
-model (auto exposure, motion blur, read + shot noise) done on uint8 and int16 images with table lookups.
+model (auto exposure, motion blur, read + shot noise) done on uint8 images, except that the noise has one level per
+frame, the per-pixel model's root mean square (``_expose``).
 """
 
 from __future__ import annotations

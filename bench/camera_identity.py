@@ -1,11 +1,12 @@
 """Frames of two checkouts' warp renderers side by side: are images (sensor noise on), z-depth and surface ids
 identical bit for bit on poses along the demo mission's planned scan (kinematic flight, scene seed 0)?
 
-    python bench/camera_identity.py OTHER_CHECKOUT [--width 640] [--poses 16]
+    python bench/camera_identity.py OTHER_CHECKOUT [--width 640] [--poses 16] [--no-noise]
 
 A speed change that claims identical output is checked with this against the checkout before it (e.g.
 ``git -C /work/main archive HEAD | tar -x -C /tmp/main`` then ``python bench/camera_identity.py /tmp/main``).
-Prints each checkout's render CPU and, per differing pose, which of the three differ and by how much.
+Prints each checkout's render CPU and, per differing pose, which of the three differ and by how much. A change of
+the noise model alone shows as images differing with noise and identical with ``--no-noise``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parents[1]
 
 
-def _frames(root: Path, mission_path: Path, width: int, poses: int) -> tuple[list, float, str]:
+def _frames(root: Path, mission_path: Path, width: int, poses: int, noise: bool) -> tuple[list, float, str]:
     """Render the poses with the ``sim`` package of checkout ``root`` (imported afresh from there)."""
     for name in [k for k in sys.modules if k == "sim" or k.startswith("sim.")]:
         del sys.modules[name]
@@ -38,7 +39,7 @@ def _frames(root: Path, mission_path: Path, width: int, poses: int) -> tuple[lis
     plan = plan_scan(mission)
     cam = camera_from_mission(mission, width)
     scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=0)
-    r = WarpRenderer(scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=0)
+    r = WarpRenderer(scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=0, noise=noise)
     flight = KinematicFlight(plan.frame, scan_path(plan), seed=0)
     ae = AutoExposure(seed=0)
     out = []
@@ -55,10 +56,11 @@ def main() -> int:
     p.add_argument("--mission", type=Path, default=HERE / "missions/demo-facade.yaml")
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--poses", type=int, default=16, help="poses evenly spread over the scan's duration")
+    p.add_argument("--no-noise", action="store_true", help="render without sensor noise (the scene and exposure)")
     a = p.parse_args()
     got = {}
     for tag, root in (("other", a.other.resolve()), ("this", HERE)):
-        frames, cpu, path = _frames(root, a.mission, a.width, a.poses)
+        frames, cpu, path = _frames(root, a.mission, a.width, a.poses, not a.no_noise)
         got[tag] = frames
         print(f"{tag}: {path}, {cpu:.1f} s CPU for {a.poses} frames", flush=True)
     bad = 0
@@ -68,7 +70,8 @@ def main() -> int:
             bad += 1
             d = np.abs(x[0].astype(np.int16) - y[0])
             print(f"pose {i}: image / depth / surface identical: {same}; image differs by up to {int(d.max())} DN "
-                  f"on {int((d > 0).any(-1).sum())} pixels")
+                  f"on {int((d > 0).any(-1).sum())} pixels, mean {float(x[0].mean()):.2f} / {float(y[0].mean()):.2f} "
+                  f"DN, difference std {float((x[0].astype(np.float32) - y[0]).std()):.2f} DN")
     print(f"{a.width} px, {a.poses} poses: {a.poses - bad} identical, {bad} differ")
     return 1 if bad else 0
 

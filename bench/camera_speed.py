@@ -93,6 +93,8 @@ def bench_scan(mission, width: int, every_s: float, seed: int, renderer: str) ->
     plain = wall_frac > 0.99
     return {"frames": len(cpu), "duration_s": flight.duration_s, "p": np.percentile(cpu, [10, 50, 90]),
             "mean": float(cpu.mean()), "jpeg": float(np.median(jpg)), "plain": int(plain.sum()),
+            "with_jpeg": float((cpu + jpg).mean()), "plain_with_jpeg": float((cpu + jpg)[plain].mean()),
+            "edge_with_jpeg": float((cpu + jpg)[~plain].mean()),
             "plain_median": float(np.median(cpu[plain])) if plain.any() else float("nan"),
             "edge_median": float(np.median(cpu[~plain])) if (~plain).any() else float("nan"),
             "in_budget": float(np.mean(cpu + jpg <= dt))}
@@ -220,7 +222,9 @@ def main() -> int:
               f"frame p10/median/p90 {p10:.1f} / {p50:.1f} / {p90:.1f} ms, mean {1000 * r['mean']:.1f} ms; plain wall "
               f"({r['plain']} frames) median {1000 * r['plain_median']:.1f} ms, frames with an edge median "
               f"{1000 * r['edge_median']:.1f} ms; JPEG q88 {1000 * r['jpeg']:.1f} ms; render + JPEG within "
-              f"1/{mission.camera.fps:g} s: {100 * r['in_budget']:.0f} % of frames (load average "
+              f"1/{mission.camera.fps:g} s: {100 * r['in_budget']:.0f} % of frames; mean render + JPEG "
+              f"{1000 * r['with_jpeg']:.1f} ms (plain wall {1000 * r['plain_with_jpeg']:.1f}, with an edge "
+              f"{1000 * r['edge_with_jpeg']:.1f}) (load average "
               f"{os.getloadavg()[0]:.1f})", flush=True)
     for kind in a.renderers if a.live > 0 else []:
         r = bench_live(a.mission, a.live_width, a.live_fps, a.live, kind, a.live_path, a.live_lead)

@@ -5,8 +5,9 @@ frames and frames with an edge apart (the same frames as ``camera_speed.py --sca
 
 Each stage is a ``WarpRenderer`` method timed (process CPU) by a wrapper around it; nested stages are included in
 their callers (``_warp`` in ``_draw_face``, which is in ``radiance_u8``), and the wrappers add a little overhead, so
-read the figures against each other, not against ``camera_speed.py``'s totals. Run it in two checkouts at the
-same time to compare them under the same load.
+read the figures against each other, not against ``camera_speed.py``'s totals. ``_draw_face`` is also split by
+the face's surface (``face:far_building``, ``face:target_wall``, ...). Run it in two checkouts at the same time to
+compare them under the same load.
 """
 
 from __future__ import annotations
@@ -23,12 +24,14 @@ import numpy as np
 import sim.camera.warp_render as warp_render
 from companion.mission import load_mission
 
-STAGES = ("radiance_u8", "_draw_face", "_draw_trees", "_draw_trunks", "_draw_sky", "_expose", "_motion_blur",
-          "_object_rects", "_candidates", "_warp", "_hazed", "_patch", "_level", "_rect_mask", "_hidden", "_polygon",
-          "_face_extent")
+STAGES = ("_radiance", "radiance_u8", "_draw_face", "_blurred", "_draw_trees", "_draw_trunks", "_draw_sky", "_expose",
+          "_motion_blur", "_object_rects", "_candidates", "_warp", "_hazed", "_patch", "_level", "_rect_mask",
+          "_hidden", "_polygon", "_face_extent")
 
 
 def _instrument(acc: dict) -> None:
+    from sim.camera.render import SURFACE_NAMES
+
     cls = warp_render.WarpRenderer
     for name in STAGES:
         if not hasattr(cls, name):
@@ -42,6 +45,8 @@ def _instrument(acc: dict) -> None:
                 return _fn(*a, **k)
             finally:
                 acc[_name] += time.process_time() - c0
+                if _name == "_draw_face":  # (self, face, ...): by surface too
+                    acc["face:" + SURFACE_NAMES[a[1].surface]] += time.process_time() - c0
 
         setattr(cls, name, staticmethod(timed) if static else timed)
 

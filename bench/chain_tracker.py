@@ -38,6 +38,7 @@ from busy_core import busy_core  # noqa: E402
 
 from companion.attitude import camera_rotation_enu  # noqa: E402
 from companion.geo import FacadeFrame  # noqa: E402
+from companion.keyframes.gate_scope import ScanPhase  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.mission.geometry import wall_ends  # noqa: E402
 from companion.onboard.live import run_live_scan  # noqa: E402
@@ -100,8 +101,9 @@ class TrueOverlap:
         ``scope`` (a ``ScanScope``): times whose true pose is off the scan (take-off, transit, landing) count as
         out of view, as the chain does not judge them."""
         count, key, last_ok = 0, None, None
+        phase = None if scope is None else ScanPhase(scope)  # the chain's scope: opens on the planned scan only
         for t in np.arange(t0, t1 + 1e-9, step_s):
-            if scope is not None and scope.off_scan(self.pose(t)):
+            if phase is not None and not phase.step(self.pose(t)).judged:
                 count += int(key is not None and last_ok > key)  # the segment's last view (the gate's flush)
                 key = last_ok = None
                 continue

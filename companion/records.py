@@ -188,8 +188,9 @@ class GateDecision:
 
     overlap_to_previous: float | None = None  # None for the first keyframe or after a gap
     inliers: int = 0
-    gap_before: bool = False  # tracking was lost between the previous keyframe and this one
-    reason: str = "first"  # first | overlap | tracking_lost | low_overlap | end_of_stream
+    gap_before: bool = False  # tracking was lost, or the scan left and resumed, since the previous keyframe
+    # first | overlap | tracking_lost | low_overlap | end_of_stream | end_of_segment | new_segment
+    reason: str = "first"
     segment: int = 0  # tracking segment (a gap starts a new one)
     previous_index: int | None = None
     frames_since_previous: int = 0

@@ -49,9 +49,7 @@ def plan_for_camera(mission_path: Path, fps: float):
     """The scan planned for the frames the gate can get: the simulated camera delivers ``fps`` frames per second,
     so the planner's ``onboard_fps`` (frames processed per second) is at most that; its scan speed then keeps
     ``min_frames_per_keyframe`` of them between keyframes, as it would for a real camera at that rate."""
-    from companion.mission.planner import without_home_settle
-
-    mission = without_home_settle(load_mission(mission_path))  # the simulator keeps home where it armed: no hold
+    mission = load_mission(mission_path)
     if fps < (mission.onboard_fps or mission.camera.fps):
         mission = mission.model_copy(update={"onboard_fps": fps})
     return plan_scan(mission)

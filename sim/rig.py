@@ -20,6 +20,22 @@ from pathlib import Path
 from companion.errors import CompanionError
 from sim.process import SimulatorProcess, child_environment, free_port, terminate
 
+# The simulator told to keep home where the vehicle armed (by default its PX4 flavour moves home for 120 s after
+# take-off, as real PX4 SIH does: sim/vehicle/home_drift.py).
+STILL_HOME = {"home_shift_m": 0}
+
+
+def fly_at_once_with_still_home(mission, sim_options: dict | None = None):
+    """``(mission, sim_options)`` for a run about frames, not home (a recording, a test of something else): the
+    simulator keeps home still, so the mission starts its scan at once (``margins.home_settle_s`` 0, no 2-minute
+    hold). Both together, never one alone: the mission's hold is what keeps a PX4 whose home moves off the ground.
+    Options that already say how home moves are kept, and then the mission keeps its hold."""
+    options = dict(sim_options or {})
+    if "home_shift_m" in options or "home_shift_after_takeoff" in options:
+        return mission, options
+    margins = mission.margins.model_copy(update={"home_settle_s": 0.0})
+    return mission.model_copy(update={"margins": margins}), {**options, **STILL_HOME}
+
 
 class SitlRig:
     def __init__(

@@ -98,6 +98,24 @@ def test_noise_and_exposure_follow_the_camera_model():
     assert abs(float(np.corrcoef(d.ravel(), e.ravel())[0, 1])) < 0.05
 
 
+def test_noise_power_is_the_shot_noise_models():
+    """One noise level per frame (one cheap pass), the root mean square of the per-pixel model: the frame's noise
+    variance is 1.5^2 + 0.06 x its mean signal (plus 1/6 DN^2 of rounding), on a dark and a bright frame."""
+    scene = Scene.build(L, H, seed=1)
+    for pose in (POSES["facing the wall"], POSES["above the roof line"]):
+        for gain in (0.7, 1.5):
+            clean = WarpRenderer(scene, FRAME, CAM, noise=False, blur=False)._expose
+            noisy = WarpRenderer(scene, FRAME, CAM, blur=False, seed=5)
+            img, _, _ = noisy.radiance_u8(pose)
+            mean = float(img.mean()) / 255.0
+            ref = clean(img, gain, 0, mean).astype(np.float32)
+            d = noisy._expose(img, gain, 0, mean).astype(np.float32) - ref
+            ok = (ref > 20) & (ref < 235)  # away from saturation
+            want = 1.5**2 + 0.06 * mean * gain * 255.0 + 1.0 / 6.0
+            assert float(d[ok].var()) == pytest.approx(want, rel=0.08)
+            assert abs(float(d[ok].mean())) < 0.1
+
+
 def test_motion_blur_as_the_ray_caster():
     scene = Scene.build(L, H, seed=1)
     fast = pose_at(L / 2, 4.0, 6.0, velocity_enu_m_s=np.array([6.0, 0.0, 0.0]))

@@ -14,7 +14,7 @@ from companion.errors import CompanionError
 from companion.flight import fly_mission_sync, read_telemetry_log
 from companion.mission import items as mi
 from companion.mission import load_mission, plan_scan
-from tests.sitl import ROOT, SitlVehicle, free_port, small_demo_plan
+from tests.sitl import ROOT, STILL_HOME_ARGS, SitlVehicle, free_port, small_demo_plan, still_home_demo
 
 pytestmark = pytest.mark.sitl
 
@@ -138,7 +138,8 @@ def test_sigint_pauses_returns_home_and_exits_cleanly(tmp_path):
     import sys
 
     log = tmp_path / "telemetry.jsonl"
-    cmd = [sys.executable, "-m", "companion.cli", "fly", str(ROOT / "missions/demo-facade.yaml"), "--sitl",
+    # not about home: the simulator keeps it still and the demo starts its scan at once (no 2-minute hold)
+    cmd = [sys.executable, "-m", "companion.cli", "fly", str(still_home_demo(tmp_path)), "--sitl", *STILL_HOME_ARGS,
            "--speedup", "20", "--telemetry-log", str(log), "--no-progress",
            "--connect-timeout", "60"]  # a loaded machine can take 15 s to start the simulator process
     env = dict(os.environ, PYTHONPATH=str(ROOT))

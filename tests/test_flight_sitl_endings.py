@@ -30,7 +30,7 @@ from companion.flight.connection import connect, request_rates, wait_healthy
 from companion.flight.parameters import read_parameter
 from companion.flight.start import arm_with_reason, select_arming_mode
 from companion.mission import load_mission, plan_scan
-from tests.sitl import ROOT, SitlVehicle, small_demo_plan
+from tests.sitl import ROOT, STILL_HOME_ARGS, SitlVehicle, small_demo_plan, still_home_demo
 
 pytestmark = pytest.mark.sitl
 DEMO = ROOT / "missions/demo-facade.yaml"
@@ -65,8 +65,9 @@ def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
     Second flight of the same mission: identical upload, so the vehicle still holds item N; the companion must set
     and confirm item 0 and switch out of Return mode to arm."""
     first_log, second_log = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
+    demo = still_home_demo(tmp_path)  # not about home: home kept still (SitlVehicle), the scan starts at once
     with SitlVehicle(speedup=20, log_path=tmp_path / "sim.log") as v:
-        proc = subprocess.Popen(_cli(str(DEMO), "--connect", v.url, "--telemetry-log", str(first_log),
+        proc = subprocess.Popen(_cli(str(demo), "--connect", v.url, "--telemetry-log", str(first_log),
                                      "--no-progress"), cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 text=True, env=ENV)
         try:
@@ -84,7 +85,7 @@ def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
             if proc.poll() is None:
                 proc.kill()
         assert proc.returncode == 130, out
-        result = _fly(plan_scan(load_mission(DEMO)), v.url, telemetry_log=second_log)
+        result = _fly(plan_scan(load_mission(demo)), v.url, telemetry_log=second_log)
     sim_log = (tmp_path / "sim.log").read_text()
     kept = [line for line in sim_log.splitlines() if "current item" in line and "kept" in line]
     assert kept and not kept[-1].rstrip().endswith("item 0 kept"), sim_log[-3000:]  # the vehicle did keep it
@@ -98,8 +99,8 @@ def test_refly_after_an_interrupted_flight_starts_at_the_first_item(tmp_path):
 
 
 def test_autopilot_restart_mid_flight_exits_non_zero(tmp_path):
-    cmd = _cli(str(DEMO), "--sitl", "--speedup", "20", "--no-progress", "--sim-arg", "reboot-after-takeoff=60",
-               "--link-dead", "30")
+    cmd = _cli(str(still_home_demo(tmp_path)), "--sitl", "--speedup", "20", "--no-progress", *STILL_HOME_ARGS,
+               "--sim-arg", "reboot-after-takeoff=60", "--link-dead", "30")
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out
@@ -183,8 +184,9 @@ def test_a_start_the_vehicle_refuses_quotes_its_result_and_words(tmp_path):
 
 
 def test_dead_link_ends_supervision_at_the_configured_limit(tmp_path):
-    cmd = _cli(str(DEMO), "--sitl", "--speedup", "20", "--no-progress", "--sim-arg", "outage-after-takeoff=30",
-               "--sim-arg", "outage-s=100000", "--link-loss", "1", "--link-dead", "5")
+    cmd = _cli(str(still_home_demo(tmp_path)), "--sitl", "--speedup", "20", "--no-progress", *STILL_HOME_ARGS,
+               "--sim-arg", "outage-after-takeoff=30", "--sim-arg", "outage-s=100000", "--link-loss", "1",
+               "--link-dead", "5")
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=ENV, timeout=600)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 1, out

@@ -198,3 +198,83 @@ def test_one_feature_extraction_per_frame(tex):
     kfs = _run(gate, tex, views)
     assert len(kfs) >= 3  # promotions happened
     assert len(calls) == len(views)
+
+
+def _with_mask(mf, mask):
+    from companion.records import MaskedFrame
+
+    return MaskedFrame(mf.tagged, mask)
+
+
+def _block_mask(x0, y0, x1, y1):
+    mask = np.zeros((H, W), np.uint8)
+    mask[y0:y1, x0:x1] = 255
+    return mask
+
+
+def test_a_last_candidate_whose_roi_holds_next_to_no_wall_is_not_kept(tex):
+    """Issue 15, plain wall: at the end of the stream the camera has left the wall and the mask keeps a sliver
+    (1.5 % of the frame there). The image still matches it to the keyframe, so it is the candidate; the flush used
+    to make it the last keyframe, which the stitcher cannot place by images. Now it is dropped and said."""
+    views = [View(400 + 12 * i, 450, W, H) for i in range(4)]  # R stays >= 90 %: every frame a candidate
+    frames = [masked_frame(i, render(tex, v)) for i, v in enumerate(views)]
+    sliver = _block_mask(0, 150, 80, 210)  # 80 x 60 px: 2.8 % of the frame, textured enough to match
+    gate = _gate()
+    kfs = []
+    for i, mf in enumerate(frames):
+        kfs += gate.push(_with_mask(mf, sliver) if i == 3 else mf)
+    assert gate.candidate_index == 3 and gate.last_step.role == "candidate"  # the image did match it
+    kfs += gate.flush()
+    assert _indices(kfs) == [0]
+    assert gate.last_dropped == 1 and gate.keyframe_index is None
+    dropped = [e for e in gate.pop_events() if e.kind == GateEventKind.LAST_DROPPED]
+    assert len(dropped) == 1 and dropped[0].frame_index == 3 and "next to no wall" in dropped[0].message
+
+    control = _gate()  # the same stream with the frame's whole ROI: the last view is kept as before
+    assert _indices(_run(control, tex, views)) == [0, 3] and control.last_dropped == 0
+
+
+def test_a_last_candidate_that_adds_nothing_of_the_wall_is_not_kept(tex):
+    """Moving right, the last frame's ROI is only the part the keyframe already showed (the wall ended at its
+    left): the pair adds nothing of the wall, so no last keyframe. With its ROI reaching the new strip, it stays."""
+    views = [View(400 + 15 * i, 450, W, H) for i in range(5)]
+    seen = _block_mask(0, 0, W - 80, H)  # the 60 px it moved are outside its ROI
+    for mask, kept in ((seen, [0]), (None, [0, 4])):
+        gate = _gate()
+        kfs = []
+        for i, v in enumerate(views):
+            mf = masked_frame(i, render(tex, v))
+            kfs += gate.push(_with_mask(mf, mask) if i == 4 and mask is not None else mf)
+        kfs += gate.flush()
+        assert _indices(kfs) == kept
+        events = [e for e in gate.pop_events() if e.kind == GateEventKind.LAST_DROPPED]
+        assert len(events) == (mask is not None)
+        assert all("nothing of the wall" in e.message for e in events)
+
+
+def test_a_segment_ended_by_leaving_the_scan_restarts_fresh(tex):
+    """The chain ends a segment where the scan is left; the next frame opens a new one: not a pair below target,
+    not a lost track, and the old segment's last view is kept."""
+    first = [View(300 + 20 * i, 450, W, H) for i in range(6)]
+    later = [View(2200 + 20 * i, 300, W, H) for i in range(3)]  # elsewhere on the wall: 0 % with the old ones
+    gate = _gate()
+    kfs = []
+    for i, v in enumerate(first):
+        kfs += gate.push(masked_frame(i, render(tex, v)))
+    kfs += gate.end_segment()
+    assert _indices(kfs)[-1] == 5 and kfs[-1].decision.reason == "end_of_segment"
+    for i, v in enumerate(later, start=len(first)):
+        kfs += gate.push(masked_frame(i, render(tex, v)))
+    kfs += gate.flush()
+    opened = next(k for k in kfs if k.index == len(first))
+    assert opened.decision.reason == "new_segment" and opened.gap_before and opened.decision.segment == 1
+    assert opened.overlap_to_previous is None and opened.decision.previous_index is None
+    assert not any(k.decision.low_overlap for k in kfs)
+    kinds = [e.kind for e in gate.pop_events()]
+    assert GateEventKind.SEGMENT in kinds
+    assert GateEventKind.LOW_OVERLAP not in kinds and GateEventKind.GAP not in kinds
+
+
+def test_last_keyframe_thresholds_are_checked():
+    with pytest.raises(CompanionError, match="shares of the frame"):
+        GateConfig(min_last_roi=3.0)

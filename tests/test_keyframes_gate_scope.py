@@ -90,4 +90,106 @@ def test_the_chain_built_for_a_mission_knows_its_standoff(tmp_path):
     chain = build_chain(tmp_path, FrameTagger(TelemetryBuffer(), ClockMap(0.0)), mission=load_mission(DEMO),
                         mask=False)  # fmt: skip
     assert chain.scope is not None and chain.scope.max_distance_m == pytest.approx(8.0)
+    assert chain.scope.wall[3] == 12.0 and chain.scope.wall[1] == pytest.approx(26.5, abs=0.01)  # opens on it
     assert build_chain(tmp_path / "none", FrameTagger(TelemetryBuffer(), ClockMap(0.0)), mask=False).scope is None
+
+
+EXTENT = (-1.0, 13.0, 0.0, 7.0)  # the 12 m x 6 m wall, 1 m past each end and above the roof
+WALL = (0.0, 12.0, 0.0, 6.0)
+
+
+def _half_height(scene, out_m: float) -> float:
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W)
+    return float(np.ptp(scope.footprint(scene.pose(WallCamera(6.0, out_m, 3.0)))[:, 1])) / 2.0
+
+
+def test_a_transit_frame_inside_the_loose_scope_cannot_open_the_scan(scene):
+    """Issue 17's judged run: keyframe 358 was a transit frame 7.8 m out whose footprint reached into the 1 m
+    tolerance above the roof margin. The loose rules keep such a frame judged once a scan is open; it cannot open
+    one. Nor can a frame of the descent that shows only the roof margin (the depth mask finds no facade there); the
+    first one showing the wall top from the standoff does."""
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    top, wall_top, hs = EXTENT[3], WALL[3], _half_height(scene, STANDOFF)
+    transit = scene.pose(WallCamera(6.0, 7.8, top + 0.6 + _half_height(scene, 7.8)))
+    assert not scope.off_scan(transit) and not scope.opens_scan(transit)
+    margin = scene.pose(WallCamera(6.0, STANDOFF, top - 0.1 + hs))  # roof margin only
+    assert not scope.off_scan(margin) and not scope.opens_scan(margin)
+    assert scope.opens_scan(scene.pose(WallCamera(6.0, STANDOFF, wall_top - 0.1 + hs)))  # the wall's top in view
+    assert not scope.opens_scan(scene.pose(WallCamera(6.0, 6.5, wall_top - 0.1 + hs)))  # in view, but not near
+    without_wall = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W)
+    assert without_wall.opens_scan(margin) and not without_wall.opens_scan(transit)  # no wall given: the extent
+    assert scope.opens_scan(None) and scope.opens_scan(transit, stale=True)  # no trusted pose: images decide
+    with pytest.raises(CompanionError, match="open_band"):
+        ScanScope(scene.frame, STANDOFF, open_band=1.5)
+
+
+def test_a_segment_stays_open_while_the_wall_is_in_view_within_the_loose_rules(scene):
+    """Open: a GNSS error of metres out does not end it; a frame over the roof margin (no wall: the climb off the
+    last strip, where the mask finds no facade) or far out does, and only a frame showing the wall reopens it."""
+    from companion.keyframes.gate_scope import ScanPhase, ScopeStep
+
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    hs = _half_height(scene, STANDOFF)
+    wall_view = scene.pose(WallCamera(6.0, STANDOFF, 3.0))
+    margin = scene.pose(WallCamera(6.0, STANDOFF, WALL[3] + 0.3 + hs))
+    phase = ScanPhase(scope)
+    steps = [phase.step(p) for p in (margin, wall_view, scene.pose(WallCamera(6.0, 7.5, 3.0)), wall_view, margin,
+                                     margin, wall_view, scene.pose(WallCamera(6.0, 13.0, 3.0)))]  # fmt: skip
+    assert steps == [ScopeStep.OFF, ScopeStep.OPENS, ScopeStep.SCAN, ScopeStep.SCAN, ScopeStep.LEAVES, ScopeStep.OFF,
+                     ScopeStep.OPENS, ScopeStep.LEAVES]  # fmt: skip
+    assert phase.openings == 2 and not phase.is_open
+
+
+def test_the_approach_opens_on_the_planned_scan_not_on_the_transit(scene, tmp_path):
+    """The judged run's sequence: a transit frame 7.8 m out inside the loose scope, frames above the roof margin,
+    then the descent onto the wall at the standoff. It used to open the scan on the transit frame, and the first
+    descent frame was kept below the overlap target against it; now the scan opens where the wall comes in view."""
+    top, hs = EXTENT[3], _half_height(scene, STANDOFF)
+    transit = [WallCamera(5.0 + 0.5 * i, 7.8, top + 0.6 + _half_height(scene, 7.8)) for i in range(3)]
+    above = [WallCamera(6.0, STANDOFF, top + 1.3 + hs) for _ in range(2)]
+    descent = [WallCamera(6.0, STANDOFF, top + 0.5 + hs - 0.15 * i) for i in range(45)]
+    cams = transit + above + descent
+    buf = TelemetryBuffer()
+    for i, c in enumerate(cams):
+        buf.add(scene.pose(c, i / 3.0))
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    chain = _chain(scene, buf, tmp_path / "spool", scope)
+    for i, c in enumerate(cams):
+        chain.process(scene.masked_frame(i, c, t_s=i / 3.0, mask="none").frame)
+    chain.finish()
+    kept = [e.index for e in chain.spool.entries]
+    opening = next(i for i, c in enumerate(cams) if i >= len(transit) and c.up_m - hs < WALL[3])
+    assert kept[0] == opening  # the first frame showing the wall, not the transit nor the roof margin
+    assert chain.stats.low_overlap_keyframes == 0 and chain.stats.gaps == 0 and chain.stats.scan_segments == 1
+    assert chain.stats.off_scan == opening
+    pairs = [100.0 * scene.true_overlap(cams[a], cams[b]) for a, b in zip(kept, kept[1:], strict=False)]
+    assert len(pairs) >= 3 and min(pairs) >= 77.0
+
+
+def test_leaving_the_scan_ends_the_segment_and_the_return_starts_a_new_one(scene, tmp_path):
+    """A scan left mid-way (the vehicle pushed 10 m out) and resumed elsewhere: the last view before leaving is
+    kept, the first frame back opens a new segment, and no pair across the gap is called below target."""
+    from companion.onboard.tracked import MeasureSchedule
+
+    first = [WallCamera(2.0 + 0.3 * i, STANDOFF, 3.0) for i in range(12)]
+    away = [WallCamera(6.0, 10.0, 3.0) for _ in range(3)]
+    back = [WallCamera(8.0 + 0.3 * i, STANDOFF, 3.0) for i in range(8)]
+    cams = first + away + back
+    buf = TelemetryBuffer()
+    for i, c in enumerate(cams):
+        buf.add(scene.pose(c, i / 3.0))
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W)
+    check = OverlapCrossCheck(scene.frame, scene.hfov_deg, H / W, standoff_m=STANDOFF)
+    gate = KeyframeGate(GateConfig(features=FeatureConfig(long_side_px=W, max_features=1000)))
+    chain = CullChain(FrameTagger(buf, ClockMap(0.0)), None, gate, KeyframeSpool(tmp_path / "spool"),
+                      crosscheck=check, scope=scope, track=MeasureSchedule())  # fmt: skip
+    for i, c in enumerate(cams):
+        chain.process(scene.masked_frame(i, c, t_s=i / 3.0, mask="none").frame)
+    chain.finish()
+    kept = [e.index for e in chain.spool.entries]
+    assert len(first) - 1 in kept  # the last view before leaving
+    assert len(first) + len(away) in kept  # the first frame back opens the new segment
+    st = chain.stats
+    assert st.low_overlap_keyframes == 0 and st.gaps == 0
+    assert st.scan_segments == 2 and st.off_scan == len(away)
+    assert any("resumed" in w for w in st.warnings)

@@ -181,7 +181,6 @@ def test_px4_holds_above_the_wall_until_its_home_has_settled():
     1.5 m higher strip bottom would leave the wall's bottom 1.5 m unseen). ArduCopter keeps home where it armed."""
     from companion.mission.commands import format_estimates
     from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S, PX4_MAX_CLIMB_M_S
-    from companion.mission.planner import without_home_settle
 
     m = load_mission(DEMO)
     plan = plan_scan(m)
@@ -204,6 +203,7 @@ def test_px4_holds_above_the_wall_until_its_home_has_settled():
     assert lowest - plan.footprint.height_m / 2.0 <= 1e-6 and plan.estimates.uncovered_bottom_m == 0.0
     said = format_estimates(plan)
     assert "px4: holds 116 s above the wall before the scan" in said and "120 s after take-off" in said
-    at_once = plan_scan(without_home_settle(m))  # e.g. our simulator, which keeps home where it armed
+    # a mission that says home_settle_s: 0 (e.g. for a vehicle that keeps home where it armed)
+    at_once = plan_scan(m.model_copy(update={"margins": m.margins.model_copy(update={"home_settle_s": 0.0})}))
     assert at_once.estimates.px4_home_settle_hold_s == 0.0 and "holds" not in format_estimates(at_once)
     assert max(it.param1 for it in at_once.mavlink_items("px4") if it.command == mi.MAV_CMD_NAV_WAYPOINT) == 0.5

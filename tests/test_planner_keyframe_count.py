@@ -87,3 +87,20 @@ def test_the_demo_plan_counts_what_its_camera_rate_makes_the_rule_keep():
     # at 10 fps the planner slows to 10 frames per spacing, and the rule steps 9: more keyframes than at 30 fps
     ten = plan_for_camera(DEMO, 10.0).estimates
     assert ten.expected_keyframes > e.expected_keyframes
+
+
+def test_only_frames_showing_the_wall_are_judged_as_the_chain_s_scope_judges_them():
+    """Issue 17: the chain's scan scope judges only frames showing the wall (over the roof margin the depth mask
+    found no facade, so the gate could not keep keyframes there at the rule's spacing); the count walks the same
+    rule. Down from 9 m over a 6 m wall with a 1.5 m roof margin (frames 1.5 m either side) and back up: counted
+    from the first frame reaching the wall top (centre 7.5 m) to the last, not over the margin."""
+    wall = (-5.0, 5.0, 0.0, 6.0)
+    extent = (-7.0, 7.0, 0.0, 7.5)
+    down_up = [PathPoint(0.0, 4.0, 9.0, 0.6), PathPoint(0.0, 4.0, 1.5, 0.6), PathPoint(0.0, 4.0, 9.0, 0.6)]
+    margin_too = ScanView(W, H, 10.0, 4.0, 0.05, extent=extent)
+    on_wall = ScanView(W, H, 10.0, 4.0, 0.05, extent=extent, wall=wall)
+    judged = [c for c in frame_centres(down_up, on_wall) if c is not None]
+    assert 7.4 < judged[0][1] <= 7.5 and 7.4 < judged[-1][1] <= 7.5
+    assert max(c[1] for c in frame_centres(down_up, margin_too) if c is not None) > 8.9
+    # 1.5 m of margin-only travel each way at 0.54 m per keyframe: two or three keyframes each way
+    assert 4 <= expected_keyframes(down_up, margin_too, RTH) - expected_keyframes(down_up, on_wall, RTH) <= 6

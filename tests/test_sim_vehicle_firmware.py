@@ -125,9 +125,10 @@ def small_plan():
 
 
 def fly_in_process(plan, autopilot: str, items, params=None, home: GeoPoint | None = None, limit_s: float = 900.0):
-    """Fly ``items`` (stored as the flavour stores them) from the ground to disarm; returns the true poses."""
+    """Fly ``items`` (stored as the flavour stores them) from the ground to disarm; returns the true poses. Home stays
+    where it armed (``home_shift_m`` 0): the small plan starts its scan at once, with no hold for PX4's home."""
     v = SimVehicle(VehicleConfig(home=home or plan.home, autopilot=autopilot, pose_port=None,
-                                 target=("127.0.0.1", 9), params=params or {}))
+                                 target=("127.0.0.1", 9), params=params or {}, home_shift_m=0.0))
     try:
         v._on_new_mission(v.flavour.transform_upload(list(items), v.home_item))
         if autopilot == "ardupilot":

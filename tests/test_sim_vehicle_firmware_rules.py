@@ -25,7 +25,9 @@ def _mission(north_e7: int = 900) -> list[mi.MissionItem]:
 
 
 def _vehicle(**kw) -> SimVehicle:
-    return SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), **kw))
+    """Home kept where it armed (``home_shift_m`` 0): these rules are not about PX4's home correction, whose moves
+    would shift every relative altitude (tests/test_sim_vehicle_home.py)."""
+    return SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), **{"home_shift_m": 0.0, **kw}))
 
 
 def _run_until(v: SimVehicle, done, max_s: float = 120.0) -> None:

@@ -93,7 +93,8 @@ def test_clear_all():
 
 
 def test_vehicle_flies_a_small_mission_in_process():
-    v = SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9)))  # port 9: discard, nobody listens
+    # port 9: discard, nobody listens; home kept still (not about PX4's home correction)
+    v = SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), home_shift_m=0.0))
     try:
         north = 375663800 + 900  # ~10 m north of home
         items = [
@@ -127,7 +128,7 @@ def test_vehicle_flies_a_small_mission_in_process():
 
 
 def test_rtl_returns_home_and_disarms():
-    v = SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9)))
+    v = SimVehicle(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), home_shift_m=0.0))
     try:
         v.arm()
         v.set_mode(fl.TAKEOFF)
@@ -157,8 +158,8 @@ def _hovering(cfg: VehicleConfig) -> SimVehicle:
 
 
 def test_gps_glitch_moves_the_real_vehicle_and_flags_gps_unhealthy():
-    v = _hovering(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), gps_glitch_at_s=10.0, gps_glitch_m=5.0,
-                                gps_glitch_s=4.0))
+    v = _hovering(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), home_shift_m=0.0, gps_glitch_at_s=10.0,
+                                gps_glitch_m=5.0, gps_glitch_s=4.0))
     try:
         start = v.model.state.pos.copy()
         worst = 0.0
@@ -179,7 +180,7 @@ def test_gps_glitch_moves_the_real_vehicle_and_flags_gps_unhealthy():
 
 
 def test_low_battery_triggers_rtl():
-    v = _hovering(VehicleConfig(pose_port=None, target=("127.0.0.1", 9)))
+    v = _hovering(VehicleConfig(pose_port=None, target=("127.0.0.1", 9), home_shift_m=0.0))
     try:
         v.battery.consumed_mah = v.battery.capacity_mah * 0.86
         for _ in range(int(5 / 0.02)):
@@ -194,7 +195,7 @@ def test_ardupilot_refuses_more_than_650_items_and_says_so():
     items are supported"; 650 items fit. (The simulator used to take up to 500 on both flavours, silently.)"""
     gcs = mavlink.MAVLink(None, srcSystem=245, srcComponent=190)
     for autopilot, limit, text in (("ardupilot", 650, "Only 650 items are supported"), ("px4", 500, None)):
-        v = SimVehicle(VehicleConfig(autopilot=autopilot, pose_port=None, target=("127.0.0.1", 9)))
+        v = SimVehicle(VehicleConfig(autopilot=autopilot, pose_port=None, target=("127.0.0.1", 9), home_shift_m=0.0))
         try:
             sent = []
             v.mav.send = sent.append

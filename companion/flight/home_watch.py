@@ -30,7 +30,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from companion.mission import items as mi
@@ -54,6 +55,11 @@ RESTORE_MIN_M = 0.05
 RESTORE_MATCH_M = 0.05
 RESTORE_WAIT_S = 5.0
 RESTORE_TRIES = 3
+# ... and never sooner than this many wall seconds after the last try: a simulator at speed-up 20 runs 5 s of autopilot
+# time in 0.25 s of wall time, and on a loaded machine the HOME_POSITION that confirms the put-back can reach the
+# companion later than that (one slow poll is 2 s of autopilot time). On a real vehicle autopilot and wall time run
+# together, so this changes nothing there.
+RESTORE_WAIT_WALL_S = 3.0
 # Items whose altitude is above home and that the vehicle flies to (take-off, land and return are not scan heights).
 _RELATIVE_FRAMES = {mi.MAV_FRAME_GLOBAL_RELATIVE_ALT, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
 _FLOWN_TO = {mi.MAV_CMD_NAV_WAYPOINT}
@@ -92,10 +98,11 @@ class HomeWatch:
 
     def __init__(self, items: Sequence[mi.MissionItem], *, report_m: float = HOME_MOVE_REPORT_M,
                  min_clearance_m: float = MIN_GROUND_CLEARANCE_M, window_s: float = 0.0, settle_seq: int = -1,
-                 restore: bool = False):
+                 restore: bool = False, restore_wait_wall_s: float = RESTORE_WAIT_WALL_S,
+                 wall_clock: Callable[[], float] = time.monotonic):
         """``window_s``: how long after take-off the autopilot may move home (PX4 120 s, ArduPilot 0);
         ``settle_seq``: the item the plan holds at until then (-1: none); ``restore``: put home back once the window
-        is over (PX4 SIH only)."""
+        is over (PX4 SIH only); ``restore_wait_wall_s``: the least wall time between two tries of it."""
         self.items = list(items)
         self.report_m = report_m
         self.min_clearance_m = min_clearance_m
@@ -105,6 +112,9 @@ class HomeWatch:
         self.restore_target_m: float | None = None  # where home is being put back (once the window is over)
         self.restore_sends = 0
         self._restore_sent_s: float | None = None
+        self.restore_wait_wall_s = restore_wait_wall_s
+        self._wall_clock = wall_clock
+        self._restore_sent_wall: float | None = None
         self._moved_by_m = 0.0  # the move that was put back
         self.put_back = False  # the autopilot's home is where it was at arming again (confirmed by HOME_POSITION)
         self.restore_done = False  # put back, or given up after RESTORE_TRIES
@@ -154,7 +164,9 @@ class HomeWatch:
         the window's end one poll late, and at a simulator speed-up of 20 on a loaded machine (CI) one poll was enough
         for the vehicle to leave the 5 s slack of its hold and the flight ended with a put-back already on its way.
         The put-back is confirmed or given up within RESTORE_TRIES x RESTORE_WAIT_S (15 s) of autopilot time, less
-        than the descent from the hold to the first strip bottom takes (18 m at the 0.72 m/s the flight sets)."""
+        than the descent from the hold to the first strip bottom takes (18 m at the 0.72 m/s the flight sets); in a
+        simulator at a speed-up, within RESTORE_TRIES x RESTORE_WAIT_WALL_S of wall time (the simulator takes the
+        put-back at once: only its confirmation can be late)."""
         if self.restore_target_m is not None and not self.restore_done:
             return True
         return self.window_open(since_takeoff_s) and 0 <= current_seq <= self.settle_seq
@@ -179,7 +191,9 @@ class HomeWatch:
                         "SITL only: a real vehicle's home is never moved back)", target, self._moved_by_m,
                         self.window_s)
             return None
-        waited = self._restore_sent_s is None or since_takeoff_s - self._restore_sent_s >= RESTORE_WAIT_S
+        waited = self._restore_sent_s is None or (
+            since_takeoff_s - self._restore_sent_s >= RESTORE_WAIT_S
+            and self._wall_clock() - self._restore_sent_wall >= self.restore_wait_wall_s)
         if not waited:
             return None
         if self.restore_sends >= RESTORE_TRIES:
@@ -189,6 +203,7 @@ class HomeWatch:
             return None
         self.restore_sends += 1
         self._restore_sent_s = since_takeoff_s
+        self._restore_sent_wall = self._wall_clock()
         return target
 
     def too_low(self, current_seq: int) -> HomeTooLow | None:

@@ -18,6 +18,15 @@ decided by the image alone, as in the paper.
 ``measure`` gives R against the current keyframe without deciding anything, so a scheduler that holds frames back
 (``companion.onboard.tracked``) can find the last frame still >= Rth among them and push only that one and the
 next; the features and the estimate it computed are reused by the push.
+
+A segment ends at the end of the stream (``flush``) or where the scan is left (``end_segment``, the chain's scan
+scope): the held candidate is the wall's last view and becomes the last keyframe, unless it has nothing of the wall
+to give (issue 15, the plain-wall pass: at the end of the stream the camera had left the wall, the ROI held 1.5 %
+of the frame, 81 % of it background 120 m away, and the stitcher could not place it by images). A last candidate
+whose ROI is below ``min_last_roi`` of the frame, or whose ROI outside the previous keyframe's view (the pair's
+measured motion, or the poses' where the image could not measure it) is below ``min_last_new_roi`` of the frame,
+is dropped and said (``LAST_DROPPED``). After ``end_segment`` the next frame opens a new segment: it is judged
+against nothing before the gap, so it is neither a low-overlap pair nor a lost track (``SEGMENT``).
 """
 
 from __future__ import annotations
@@ -25,6 +34,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
+
+import cv2
+import numpy as np
 
 from companion.errors import CompanionError
 from companion.keyframes.features import FeatureConfig, FeatureExtractor, FeatureSet
@@ -42,6 +54,8 @@ class GateConfig:
     warn_margin: float = 0.10  # R dropping from >= Rth to below Rth - margin in one frame -> overlap warning
     blur_ratio: float = 0.6  # sharpness below this share of the running reference = blurred
     telemetry_margin: float = 0.03  # poses saying overlap < rth - this veto the pair, whatever the image says
+    min_last_roi: float = 0.03  # a segment's last candidate with less ROI (share of the frame) is not kept
+    min_last_new_roi: float = 0.001  # ... nor one adding less ROI (share of the frame) outside the previous keyframe
     features: FeatureConfig = field(default_factory=FeatureConfig)
     overlap: OverlapConfig = field(default_factory=OverlapConfig)
 
@@ -55,6 +69,9 @@ class GateConfig:
             raise CompanionError(f"blur_ratio={self.blur_ratio} must be in (0, 1]", "use e.g. 0.6")
         if not 0.0 <= self.telemetry_margin < self.rth:
             raise CompanionError(f"telemetry_margin={self.telemetry_margin} must be in [0, rth)", "use e.g. 0.03")
+        if not (0.0 <= self.min_last_roi < 1.0 and 0.0 <= self.min_last_new_roi < 1.0):
+            raise CompanionError(f"min_last_roi={self.min_last_roi} / min_last_new_roi={self.min_last_new_roi} are not "
+                                 "shares of the frame", "use fractions in [0, 1), e.g. 0.03 and 0.001 (0 keeps any)")
 
     @classmethod
     def for_mission(cls, mission, **overrides) -> GateConfig:
@@ -72,6 +89,8 @@ class GateEventKind(StrEnum):
     LOW_OVERLAP = "low_overlap"  # a keyframe had to be taken below Rth (no frame in between was >= Rth)
     GAP = "gap"  # tracking lost: a new segment starts, the map may have a hole here
     UNUSABLE_FRAME = "unusable_frame"  # no texture in the ROI, or blurred and unmatched: frame skipped
+    LAST_DROPPED = "last_dropped"  # a segment's last candidate had no wall to add: not kept
+    SEGMENT = "segment"  # the scan resumed after a stretch off it: a new segment, not judged against the old one
 
 
 @dataclass(frozen=True)
@@ -132,6 +151,8 @@ class KeyframeGate:
         self.predictor = predictor
         self.telemetry_vetoes = 0  # comparisons where the poses overruled an image R >= Rth
         self.telemetry_fallbacks = 0  # comparisons decided by the poses because the image could not measure the wall
+        self.last_dropped = 0  # segments' last candidates not kept: no wall to add (see the module docstring)
+        self._segment_ended = False  # end_segment() closed a segment with keyframes: the next keyframe opens one
         self._extractor = FeatureExtractor(self.config.features)
         self._estimator = OverlapEstimator(self.config.overlap)
         self._sharp_ref = SharpnessReference(self.config.blur_ratio)
@@ -222,23 +243,89 @@ class KeyframeGate:
         return _Held(masked, feats, sharp, self._sharp_ref.is_blurred(sharp))
 
     def flush(self) -> list[Keyframe]:
-        """End of stream: the held candidate becomes the last keyframe."""
+        """End of stream: the held candidate becomes the last keyframe (unless it has no wall to add)."""
+        return self.end_segment(end_of_stream=True)
+
+    def end_segment(self, end_of_stream: bool = False) -> list[Keyframe]:
+        """The scan was left (or the stream ended): the held candidate, the segment's last view, becomes its last
+        keyframe unless it has no wall to add; the next frame pushed opens a new segment."""
         step = GateStep(-1, "flush", 0.0, False)
         self.last_step = step
         self._out = []
+        where = "stream" if end_of_stream else "segment"
         if self._cand is not None:
-            self._promote(step, reason="end_of_stream")
+            why = self._no_wall_to_add(self._key, self._cand)
+            if why is None:
+                self._promote(step, reason="end_of_stream" if end_of_stream else "end_of_segment")
+            else:
+                cand, self._cand = self._cand, None
+                self.last_dropped += 1
+                step.events.append(GateEvent(GateEventKind.LAST_DROPPED, cand.index,
+                                             f"last candidate {cand.index} of the {where} not kept: {why}"))
         if self._unusable_since_key:
             step.events.append(
                 GateEvent(
                     GateEventKind.GAP,
                     -1,
-                    f"stream ended with {self._unusable_since_key} unusable frame(s) after the last keyframe",
+                    f"{where} ended with {self._unusable_since_key} unusable frame(s) after the last keyframe",
                 )
             )
+        self._segment_ended = self._segment_ended or self._key is not None
+        self._key = None
+        self._prev_R = 100.0
+        self._unusable_since_key = 0
+        self._looked, self._looked_est = {}, {}
         self._events.extend(step.events)
         out, self._out = self._out, []
         return out
+
+    def _no_wall_to_add(self, key: _Held | None, cand: _Held) -> str | None:
+        """Why the segment's last candidate is not worth a keyframe (None: keep it): its ROI holds next to no
+        wall, or it shows next to no ROI outside the previous keyframe's view."""
+        cfg = self.config
+        mask = cand.masked.mask
+        small = _small_mask(mask)
+        roi = small > 127
+        share = float(roi.mean()) if roi.size else 0.0
+        if share < cfg.min_last_roi:
+            return (f"its ROI is {100.0 * share:.1f} % of the frame (next to no wall; at least "
+                    f"{100 * cfg.min_last_roi:g} %)")
+        if key is None:
+            return None
+        H = self._key_to_frame(key, cand)
+        if H is None:
+            return None
+        h, w = mask.shape[:2]
+        rows, cols = np.nonzero(roi)
+        sy, sx = h / small.shape[0], w / small.shape[1]
+        pts = np.stack([(cols + 0.5) * sx, (rows + 0.5) * sy, np.ones(len(rows))], axis=1)
+        try:
+            back = pts @ np.linalg.inv(H).T  # the candidate's ROI pixels in the previous keyframe's frame
+        except np.linalg.LinAlgError:
+            return None
+        z = back[:, 2]
+        kw, kh = key.features.full_size
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = back[:, 0] / z, back[:, 1] / z
+        inside = (z > 0) & (x >= 0) & (x < kw) & (y >= 0) & (y < kh)
+        new = float(np.count_nonzero(~inside)) / roi.size
+        if new < cfg.min_last_new_roi:
+            return (f"it adds {100.0 * new:.2f} % of the frame of ROI to keyframe {key.index}'s view (at least "
+                    f"{100 * cfg.min_last_new_roi:g} %): nothing of the wall")
+        return None
+
+    def _key_to_frame(self, key: _Held, cand: _Held) -> np.ndarray | None:
+        """Homography from the keyframe's pixels to the candidate's: the image's where it measured the wall,
+        else the poses' prediction, else the measured shift (None: nothing known)."""
+        est = cand.estimate
+        if est is not None and est.source == "image" and est.H is not None:
+            return np.asarray(est.H, dtype=np.float64)
+        prior = self._predict(key, cand)
+        if prior is not None:
+            return np.asarray(prior.H, dtype=np.float64)
+        if est is not None and est.dx is not None and est.dy is not None:
+            return np.array([[1.0, 0.0, est.dx], [0.0, 1.0, est.dy], [0.0, 0.0, 1.0]])
+        return None
 
     def run(self, frames: Iterable[MaskedFrame]) -> Iterator[Keyframe]:
         """Convenience: push every frame, then flush."""
@@ -251,7 +338,14 @@ class KeyframeGate:
         rth = self.rth_percent
         if self._key is None:
             step.role = "keyframe"
-            self._emit(item, step, overlap=None, gap=False, reason="first")
+            if not self._segment_ended:
+                self._emit(item, step, overlap=None, gap=False, reason="first")
+                return
+            self._segment += 1
+            step.events.append(GateEvent(GateEventKind.SEGMENT, item.index,
+                                         f"scan resumed at frame {item.index}: new segment {self._segment}, not "
+                                         "judged against the keyframes before the frames off the scan"))
+            self._emit(item, step, overlap=None, gap=True, reason="new_segment")
             return
         if len(item.features) < self.config.overlap.min_matches:
             self._unusable(item, step, f"only {len(item.features)} features in the ROI")
@@ -424,3 +518,12 @@ class KeyframeGate:
         step.events.append(
             GateEvent(GateEventKind.KEYFRAME, item.index, f"keyframe {item.index} ({reason})", kf.overlap_to_previous)
         )
+
+
+def _small_mask(mask: np.ndarray, long_side_px: int = 320) -> np.ndarray:
+    """A small copy of a 0/255 mask (shares and positions to a few tenths of a percent, at a few microseconds)."""
+    h, w = mask.shape[:2]
+    s = min(1.0, long_side_px / max(h, w))
+    if s >= 1.0:
+        return mask
+    return cv2.resize(mask, (max(1, round(w * s)), max(1, round(h * s))), interpolation=cv2.INTER_AREA)

@@ -16,12 +16,29 @@ scan only when its camera is more than ``max_distance_factor`` times the standof
 planned GSD and more; at the demo's 4 m, beyond 8 m: a position error that large would have flown the vehicle
 into the wall), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
 ``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
+
+Those loose rules are too loose to say which frames the scan is made of (issue 17's judged run at 30 fps): a frame
+of the transit 7.8 m out at the 18 m transit height (the camera looking level, its footprint's bottom edge at
+15.0 m: inside the 1 m tolerance above the 14 m roof margin) became the first keyframe; the frames after it showed
+no facade, and the first wall keyframe overlapped it by 0 % (a pair below target). Replayed (bench/flight_replay.py),
+opening on the first frame of the roof margin instead only moved the problem: the depth mask kept that frame (roof
+edge) and dropped the next 2.8 s of the descent (sky and roof: no facade), so the first wall keyframe was again
+kept below target (35 %); on the climb off the last strip over the margin, two pairs were kept at 78-80 % from
+telemetry for the same reason. So the scan is the frames that SHOW THE WALL (``ScanPhase``): a segment opens on a
+frame whose camera is within ``open_band`` x the standoff of the standoff and whose footprint meets the wall
+rectangle (``wall``; no tolerance), stays open while frames show the wall within the loose distance rule, and the
+first frame that does not ends it (the gate keeps its last view, as at the end of a stream); a later opening
+starts a new segment, not judged against the keyframes before the gap. The planner's expected count judges the
+same frames (``companion.mission.keyframe_count``: frames on the standoff showing the wall), so no frame it counts
+is put off the scan; the roof-margin frames above the wall that it no longer counts add nothing to the scan
+extent, which the strips' top frames cover up to the margin. Without a ``wall`` the scope is the extent, as before.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 
@@ -47,6 +64,8 @@ class ScanScope:
     hfov_deg: float = 69.0
     aspect: float = 9.0 / 16.0
     extent_tolerance_m: float = 1.0
+    open_band: float = 0.5  # a scan segment opens only within this share of the standoff from the standoff
+    wall: tuple[float, float, float, float] | None = None  # the wall itself (along, up metres); None: the extent
 
     def __post_init__(self) -> None:
         if not (self.standoff_m > 0.0 and math.isfinite(self.standoff_m)):
@@ -58,6 +77,9 @@ class ScanScope:
         if not self.max_distance_factor > 1.0:
             raise CompanionError(f"max_distance_factor={self.max_distance_factor} would drop frames of the scan",
                                  "use a factor above 1 (e.g. 2: frames beyond twice the standoff are off the scan)")
+        if not 0.0 < self.open_band < self.max_distance_factor - 1.0:
+            raise CompanionError(f"open_band={self.open_band} is not a band around the standoff inside the scan",
+                                 f"use a share of the standoff in (0, {self.max_distance_factor - 1.0:g}), e.g. 0.5")
 
     @property
     def max_distance_m(self) -> float:
@@ -87,15 +109,18 @@ class ScanScope:
         K = np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
         return corner_footprint(K, w, h, centre, rotation)
 
-    def misses_extent(self, pose: Pose | None) -> bool:
-        """True when the frame's footprint lies wholly outside the scan extent grown by the tolerance."""
-        if self.extent is None:
+    def misses_extent(self, pose: Pose | None, tolerance_m: float | None = None,
+                      region: tuple[float, float, float, float] | None = None) -> bool:
+        """True when the frame's footprint lies wholly outside the scan extent (or ``region``) grown by
+        ``tolerance_m`` (default: ``extent_tolerance_m``)."""
+        region = region or self.extent
+        if region is None:
             return False
         corners = self.footprint(pose)
         if corners is None:
             return False
-        a0, a1, u0, u1 = self.extent
-        tol = self.extent_tolerance_m
+        a0, a1, u0, u1 = region
+        tol = self.extent_tolerance_m if tolerance_m is None else tolerance_m
         along, up = corners[:, 0], corners[:, 1]
         return bool(along.max() < a0 - tol or along.min() > a1 + tol or up.max() < u0 - tol or up.min() > u1 + tol)
 
@@ -108,3 +133,59 @@ class ScanScope:
         if distance is not None and abs(distance) > self.max_distance_m:
             return True
         return self.misses_extent(pose)
+
+    def shows_wall(self, pose: Pose | None, stale: bool = False) -> bool:
+        """True when the frame's footprint meets the wall itself (no tolerance); True without a ``wall`` or a
+        usable pose (nothing to tell it by: the images decide)."""
+        if stale or self.wall is None:
+            return True
+        return not self.misses_extent(pose, tolerance_m=0.0, region=self.wall)
+
+    def opens_scan(self, pose: Pose | None, stale: bool = False) -> bool:
+        """True when the frame may open a scan segment: its camera within ``open_band`` x the standoff of the
+        standoff and its footprint on the wall itself (``wall``, else the scan extent; no tolerance). Frames
+        without a usable pose open it (the images decide, as before)."""
+        if stale:
+            return True
+        distance = self.distance_m(pose)
+        if distance is None:
+            return True
+        if abs(distance - self.standoff_m) > self.open_band * self.standoff_m:
+            return False
+        return not self.misses_extent(pose, tolerance_m=0.0, region=self.wall)
+
+
+class ScopeStep(StrEnum):
+    """What ``ScanPhase.step`` made of a frame."""
+
+    OPENS = "opens"  # the first frame of a scan segment: judged
+    SCAN = "scan"  # a frame of an open segment: judged
+    LEAVES = "leaves"  # the first frame off the scan after a segment: not judged, the segment ends here
+    OFF = "off"  # not a frame of the scan (take-off, transit, landing, before the scan opens): not judged
+
+    @property
+    def judged(self) -> bool:
+        return self in (ScopeStep.OPENS, ScopeStep.SCAN)
+
+
+class ScanPhase:
+    """The scope over a stream of frames: a segment opens on a frame showing the wall from near the standoff
+    (``opens_scan``) and stays open while frames show the wall within the loose rules (``off_scan``,
+    ``shows_wall``); see the module docstring."""
+
+    def __init__(self, scope: ScanScope):
+        self.scope = scope
+        self.is_open = False
+        self.openings = 0  # scan segments opened so far
+
+    def step(self, pose: Pose | None, stale: bool = False) -> ScopeStep:
+        if self.is_open:
+            if self.scope.off_scan(pose, stale) or not self.scope.shows_wall(pose, stale):
+                self.is_open = False
+                return ScopeStep.LEAVES
+            return ScopeStep.SCAN
+        if self.scope.off_scan(pose, stale) or not self.scope.opens_scan(pose, stale):
+            return ScopeStep.OFF
+        self.is_open = True
+        self.openings += 1
+        return ScopeStep.OPENS

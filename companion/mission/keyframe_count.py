@@ -11,16 +11,17 @@ count before issue 17) under-predicts what that rule needs, by three things a fl
 * **Strip-to-strip moves.** The side step between strips is set by the side overlap (62 % of the footprint's width
   on the demo), wider than the 20 % of the width the rule allows between keyframes, so the rule keeps keyframes
   on the move itself; and the last keyframe of a strip is rarely on its end.
-* **Roof margin on the way in and out.** The descent onto the first strip and the climb off the last one are flown
-  at the standoff with the camera on the wall plane's margins the mission asks for (``margins.roof_m``): the gate
-  keeps keyframes there too.
+* **The way in and out.** The descent onto the first strip and the climb off the last one are flown at the
+  standoff: the gate keeps keyframes there while the wall is in view (not over the roof margin above it, where the
+  depth mask finds no facade; issue 17, ``frame_centres``).
 
 So the count walks the planned path frame by frame at each leg's speed and the camera's rate and applies the rule
 to the footprints on the wall plane (a constant-standoff camera: the footprint translates; overlap = the shared
-share of its area). Only frames on the standoff whose footprint meets the scan extent (wall plus margins) are
-judged: take-off, transit and landing are flown off the standoff and are not frames of the scan (the chain does not
-judge them either, ``companion.keyframes.gate_scope``). A stretch with no judged frame ends a segment: its last
-candidate is kept (the gate's end of stream) and the next judged frame starts a new one.
+share of its area). Only frames on the standoff whose footprint shows the wall are judged (``ScanView.wall``; the
+scan extent, wall plus margins, without one): take-off, transit and landing are flown off the standoff and are not
+frames of the scan (the chain does not judge them either, ``companion.keyframes.gate_scope``). A stretch with no
+judged frame ends a segment: its last candidate is kept (the gate's end of stream) and the next judged frame starts
+a new one.
 """
 
 from __future__ import annotations
@@ -54,12 +55,21 @@ class ScanView:
     standoff_m: float
     standoff_tolerance_m: float
     extent: tuple[float, float, float, float]  # along_min, along_max, up_min, up_max (wall plus margins)
+    # the wall itself (along_min, along_max, up_min, up_max): only frames showing it are judged, as the chain's scan
+    # scope judges them (companion.keyframes.gate_scope); None: every frame meeting the extent
+    wall: tuple[float, float, float, float] | None = None
 
 
 def frame_centres(path: Sequence[PathPoint], view: ScanView) -> list[tuple[float, float] | None]:
     """Footprint centres (along, up) of the frames the camera takes along ``path``; None for a frame that is not a
-    scan frame (off the standoff, or its footprint misses the scan extent)."""
-    a0, a1, u0, u1 = view.extent
+    scan frame (off the standoff, or its footprint misses the wall: ``view.wall``, else the scan extent).
+
+    Why the wall and not the extent (issue 17): over the roof margin, on the descent onto the first strip and the
+    climb off the last one, the chain's depth mask finds no facade in most frames, so its gate could not keep
+    keyframes there at the rule's spacing (replayed on the judged 30 fps flight: pairs below target at both ends),
+    and its scan scope judges only frames showing the wall. Those frames add nothing to the scan extent: the
+    strips' top frames cover the roof margin."""
+    a0, a1, u0, u1 = view.wall if view.wall is not None else view.extent
     half_w, half_h = view.footprint_width_m / 2.0, view.footprint_height_m / 2.0
 
     def on_standoff(p: PathPoint) -> bool:

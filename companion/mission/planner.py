@@ -329,8 +329,10 @@ def _expected_keyframes(m: Mission, wps: list[Waypoint], fp: Footprint, extent: 
     """Keyframes the paper's rule keeps on this path at the camera's frame rate (``keyframe_count``: whole frame
     steps, strip-to-strip moves, the roof margin on the way in and out; take-off, transit and landing excluded)."""
     path = [PathPoint(w.along_m, w.out_m, w.up_m, w.speed_m_s) for w in wps]
+    ends = m.margins.ends_m  # the wall itself: frames showing it are judged, as by the chain's scan scope
     view = ScanView(fp.width_m, fp.height_m, effective_fps(m), m.standoff_m, STANDOFF_TOLERANCE_M,
-                    (extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m))
+                    (extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m),
+                    wall=(extent.along_min_m + ends, extent.along_max_m - ends, 0.0, float(m.facade.height_m)))
     return expected_keyframes(path, view, m.overlap)
 
 
@@ -394,12 +396,6 @@ def settle_waypoint_index(wps: Sequence[Waypoint]) -> int:
     (the transit above the first strip, above the roof line), or the take-off when the scan follows it."""
     first_scan = next(k for k, w in enumerate(wps) if w.kind == "scan")
     return max(0, first_scan - 1)
-
-
-def without_home_settle(mission: Mission) -> Mission:
-    """The mission with no settle hold, for a vehicle known to keep home where it armed: our simulator's PX4 unless
-    told to move it (``--home-shift-after-takeoff``), where the 2-minute hover would only cost time and frames."""
-    return mission.model_copy(update={"margins": mission.margins.model_copy(update={"home_settle_s": 0.0})})
 
 
 def home_settle_hold_s(m: Mission, wps: Sequence[Waypoint]) -> float:

@@ -17,7 +17,7 @@ from companion.capture.tagging import FrameTagger
 from companion.depth.masker import Masker
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateEventKind, KeyframeGate
-from companion.keyframes.gate_scope import ScanScope
+from companion.keyframes.gate_scope import ScanPhase, ScanScope, ScopeStep
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
 from companion.onboard.working import FullResolution, WorkingCopy
@@ -46,6 +46,8 @@ class ChainStats:
     stale_pose: int = 0
     before_telemetry: int = 0  # frames from before the first telemetry sample: not placeable, not culled
     off_scan: int = 0  # frames not of the scan (take-off, transit, landing: keyframes/gate_scope.py): not judged
+    scan_segments: int = 0  # times the scan opened (1 on a planned flight; more: it was left and resumed)
+    last_candidates_dropped: int = 0  # segments' last candidates not kept as keyframes: no wall to add
     dropped_no_roi: int = 0
     parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
     parallax_skipped_sure: int = 0  # masked frames the network read as wall everywhere: no flow spent on them
@@ -66,6 +68,7 @@ class ChainStats:
     first_frame_wall_s: float | None = None
     last_frame_wall_s: float | None = None
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # decisions worth saying that need no action (dropped ends)
 
     @property
     def skipped_backlog(self) -> int:
@@ -82,10 +85,12 @@ class ChainStats:
 
     def as_dict(self) -> dict:
         d = {"frames_in": self.frames_in, "skipped_backlog": self.skipped_backlog, "corrupt": self.corrupt}
-        d.update({k: v for k, v in self.__dict__.items() if k not in ("warnings", "capture", "undecodable")})
+        d.update({k: v for k, v in self.__dict__.items()
+                  if k not in ("warnings", "notes", "capture", "undecodable")})
         span = (self.last_frame_wall_s or 0) - (self.first_frame_wall_s or 0)
         d["processed_fps"] = round(self.frames_processed / span, 3) if span > 0 else None
         d["warnings"] = self.warnings[-20:]
+        d["notes"] = self.notes[-20:]
         return d
 
 
@@ -98,7 +103,9 @@ class CullChain:
     """Frames before the first telemetry sample are not culled (``require_telemetry``): they cannot be placed on
     the map. After that, a frame whose pose is stale (telemetry gap) is kept and flagged, not dropped.
 
-    ``scope`` (a ``ScanScope``): frames taken too far from the wall to belong to the scan are counted, not judged.
+    ``scope`` (a ``ScanScope``): frames taken too far from the wall to belong to the scan are counted, not judged;
+    the scan is the frames showing the wall from near the standoff, and leaving it ends the gate's segment
+    (``companion.keyframes.gate_scope.ScanPhase``).
 
     ``track`` (a ``MeasureSchedule``): every frame is tracked cheaply and only the frames around each keyframe
     decision are masked and measured (``companion.onboard.tracked``); None masks and measures every frame.
@@ -145,6 +152,15 @@ class CullChain:
                                                                      observe=observe)
 
     @property
+    def scope(self) -> ScanScope | None:
+        return self._scope
+
+    @scope.setter
+    def scope(self, scope: ScanScope | None) -> None:
+        self._scope = scope
+        self.phase = None if scope is None else ScanPhase(scope)
+
+    @property
     def full_resolution_held(self) -> int:
         """Full-resolution frames kept because they may still become keyframes (the chain decides on copies)."""
         return len(self._full)
@@ -174,10 +190,15 @@ class CullChain:
             return []
         self._seen_pose = self._seen_pose or tagged.pose is not None
         st.stale_pose += int(tagged.pose_stale)
-        if self.scope is not None and self.scope.off_scan(tagged.pose, tagged.pose_stale):
+        where = None if self.phase is None else self.phase.step(tagged.pose, tagged.pose_stale)
+        if where is not None and not where.judged:
             st.off_scan += 1  # take-off, transit, landing: not a frame of the scan, so the gate never judges it
+            out = self._end_segment() if where == ScopeStep.LEAVES else []
             self._full.release_below(self._oldest_undecided(tagged.index + 1))  # this one is never a keyframe
-            return []
+            st.busy_s += time.monotonic() - now
+            st.cpu_s += time.thread_time() - cpu0
+            return out
+        st.scan_segments += int(where == ScopeStep.OPENS)
         if self.selection is not None:
             keyframes = self.selection.offer(tagged)
             st.frames_tracked = self.selection.counts.tracked
@@ -203,6 +224,14 @@ class CullChain:
                 self.spool.close()
             except OSError as exc:
                 self.warn(f"cannot mark the spool closed: {exc}")
+        return out
+
+    def _end_segment(self) -> list[SpoolEntry]:
+        """The scan was left: the held frames are decided and the gate's segment ends with its last view (the same
+        as the end of a stream); the next frame of the scan opens a new segment."""
+        out = [] if self.selection is None else self._spool(self.selection.finish())
+        out += self._spool(self.gate.end_segment())
+        self._events()
         return out
 
     def _oldest_undecided(self, newest: int) -> int:
@@ -253,6 +282,12 @@ class CullChain:
             elif ev.kind == GateEventKind.GAP:
                 self.stats.gaps += 1
                 self.warn(f"possible gap in coverage at frame {ev.frame_index}: {ev.message}")
+            elif ev.kind == GateEventKind.SEGMENT:
+                self.warn(f"the scan was left and resumed at frame {ev.frame_index}: {ev.message}")
+            elif ev.kind == GateEventKind.LAST_DROPPED:
+                self.stats.last_candidates_dropped += 1
+                self.stats.notes.append(one_line(ev.message))
+                log.info(ev.message)
 
     def _spool(self, keyframes: list[Keyframe]) -> list[SpoolEntry]:
         out = []

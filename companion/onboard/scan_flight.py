@@ -54,13 +54,9 @@ def fly_scan(request: ScanFlight) -> ScanFlightOutcome:
     """Plan ``request.mission_path``, start the simulator if asked, fly (culling live frames into the spool when a
     capture is given), and always stop what was started."""
     from companion.mission import load_mission, plan_scan
-    from companion.mission.planner import without_home_settle
 
     check_scan_flight(request)
-    mission = load_mission(request.mission_path)
-    if request.sitl is not None and "home_shift_after_takeoff" not in request.sitl.options:
-        mission = without_home_settle(mission)  # the simulator keeps home where it armed: no hold for it to settle
-    plan = plan_scan(mission)
+    plan = plan_scan(load_mission(request.mission_path))
     for warning in plan.warnings:
         log.warning("plan: %s", warning)
     simulator = None

@@ -46,7 +46,8 @@ def scan_scope(mission):
     extent = scan_extent(mission, wall.length_m)
     return ScanScope(wall, float(mission.standoff_m),
                      extent=(extent.along_min_m, extent.along_max_m, extent.up_min_m, extent.up_max_m),
-                     hfov_deg=cam.hfov_deg, aspect=cam.height_px / cam.width_px)
+                     hfov_deg=cam.hfov_deg, aspect=cam.height_px / cam.width_px,
+                     wall=(0.0, wall.length_m, 0.0, float(mission.facade.height_m)))
 
 
 def build_chain(

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from sim.camera.recording import resolve_mission
-from sim.rig import SitlRig
+from sim.rig import SitlRig, fly_at_once_with_still_home
 
 log = logging.getLogger(__name__)
 
@@ -32,11 +32,13 @@ def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 
     """Fly ``mission_path`` in SITL and record the camera; returns the recording directory."""
     from companion.flight.fly import fly_mission_sync
     from companion.mission import plan_scan
-    from companion.mission.planner import without_home_settle
 
-    mission = resolve_mission(mission_path)
-    if "home_shift_after_takeoff" not in (sim_options or {}):  # the simulator keeps home where it armed: no hold
-        mission = without_home_settle(mission)
+    # a recording is about frames: the simulator keeps home still and the scan starts at once, not after PX4's
+    # 120 s home correction (which the simulator's PX4 flavour otherwise reproduces, as real PX4 SIH does it)
+    mission, sim_options = fly_at_once_with_still_home(resolve_mission(mission_path), sim_options)
+    if sim_options.get("home_shift_m") == 0 and mission.margins.home_settle_s == 0:
+        log.info("recording flight: the simulator keeps home where it armed (home-shift-m 0), so the scan starts at "
+                 "once (margins.home_settle_s 0; a real PX4 moves home for 120 s after take-off)")
     plan = plan_scan(mission)
     out = Path(out_dir)
     if (out / "meta.json").exists():

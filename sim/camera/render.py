@@ -446,10 +446,14 @@ class Renderer:
 
     def blur_vectors(self, depth: np.ndarray, pose: TruePose) -> tuple[np.ndarray, np.ndarray]:
         """Image motion (pixels) during the exposure at the centre: (near layer, far layer)."""
+        return self.blur_vectors_sampled(depth[::4, ::4], pose)
+
+    def blur_vectors_sampled(self, sub: np.ndarray, pose: TruePose) -> tuple[np.ndarray, np.ndarray]:
+        """``blur_vectors`` from its 1-in-16 sample of the z-depth, ``depth[::4, ::4]`` (a renderer that keeps
+        inverse depth converts only these)."""
         v = pose.R_world_from_cam.T @ np.asarray(pose.velocity_enu_m_s, dtype=float)
         w = np.asarray(pose.angular_rate_cam_rad_s, dtype=float)
         f = self.K[0, 0]
-        sub = depth[::4, ::4]
         finite = sub[np.isfinite(sub) & (sub < 50)]
         z = float(np.median(finite)) if finite.size else math.inf
         rot = np.array([-w[1], w[0]]) * f * self.exposure_s

@@ -83,8 +83,10 @@ class VehicleConfig:
     gps_ready_after_s: float | None = None
     storage: Path | None = None
     init_s: float | None = None  # wall seconds of start-up after each boot (None: the flavour's, firmware.py)
-    home_shift_after_takeoff_s: float | None = None  # PX4 moves home's altitude this long (simulated) after take-off
-    home_shift_m: float = 0.0  # ... by this much (up positive)
+    # PX4's in-flight home correction: None (default) moves home as real PX4 SIH does (sim/vehicle/home_drift.py);
+    # a number moves it once by that much (up positive; 0: never) home_shift_after_takeoff_s (simulated) after take-off
+    home_shift_after_takeoff_s: float | None = None
+    home_shift_m: float | None = None
     limits: Limits = field(default_factory=Limits)
 
 
@@ -309,6 +311,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.armed = True
         self.armed_at = self.t
         self.took_off = False
+        self.on_arm_home()
         self.landed_since = None
         self.battery_failsafe = self.link_failsafe = False
         if self.mode in (fl.HOLD, fl.POSCTL, fl.GUIDED, fl.BRAKE):

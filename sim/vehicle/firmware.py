@@ -18,11 +18,14 @@ Each rule here was seen on real firmware in SITL (shared/notes/real-firmware.md;
   initialised, refuses any mission upload with NO_SPACE and "Only 0 items are supported"; then "ArduPilot Ready".
 * The failsafe parameters with the firmware defaults (FS_GCS_ENABLE 0 and RTL_ALT 1500 cm on ArduCopter,
   NAV_DLL_ACT 0 and RTL_RETURN_ALT 30 m on PX4) and the lost-link action each of them selects.
-* PX4 moves its home altitude in flight (``--home-shift-after-takeoff``, ``--home-shift-m``): for 120 s after
-  take-off (commander HomePosition.cpp, ``kHomePositionCorrectionTimeWindow``, COM_HOME_EN 1) it shifts home by the
-  barometer-vs-GPS altitude difference whenever that exceeds 1 m; real PX4 SIH ended 11 flights with home -1.51 to
-  +1.50 m off the true ground (docs/FLIGHT.md). HOME_POSITION and the relative altitude report the new home, and
-  every mission item activated later flies its altitude above the new home.
+* PX4 moves its home altitude in flight: for 120 s after take-off (commander HomePosition.cpp,
+  ``kHomePositionCorrectionTimeWindow``, COM_HOME_EN 1) it shifts home by the barometer-vs-GPS altitude difference
+  whenever that exceeds 1 m. The PX4 flavour does so by default, with SIH's sensor noise (``home_drift.py``: about
+  140 moves in the window, swinging about +-1.5 m, ending wherever the last one put it, as real PX4 SIH did);
+  ``--home-shift-m M [--home-shift-after-takeoff S]`` replaces that with one move of M metres S s after take-off
+  (``--home-shift-m 0``: home stays where the vehicle armed). The ArduCopter flavour keeps home where it armed, as
+  ArduCopter does. HOME_POSITION and the relative altitude report the new home, every mission item activated later
+  flies its altitude above it, and PX4 sets home at the vehicle again when it arms (unless home was set by hand).
 """
 
 from __future__ import annotations
@@ -33,12 +36,14 @@ import math
 import time
 from pathlib import Path
 
+import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from companion.mission import items as mi
 from sim.vehicle import flavours as fl
 from sim.vehicle.environment import Battery
+from sim.vehicle.home_drift import Px4HomeCorrection
 from sim.vehicle.model import Multirotor
 from sim.vehicle.tasks import Hold
 
@@ -50,8 +55,6 @@ FAILSAFE_DEFAULTS = {
             "GF_MAX_HOR_DIST": 0.0},
     "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500},
 }
-# PX4 corrects home's altitude only this long after take-off (HomePosition.cpp kHomePositionCorrectionTimeWindow).
-PX4_HOME_CORRECTION_WINDOW_S = 120.0
 # Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
 GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
 COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
@@ -104,6 +107,10 @@ class FirmwareRules:
         self._mission_capacity = self.missions.max_items
         self.home_alt_shift_m = 0.0  # how far PX4 has moved home's altitude from the take-off ground (up positive)
         self._home_shift_done = False  # the scheduled move happened (a later DO_SET_HOME does not undo the schedule)
+        self.manual_home = False  # home set by DO_SET_HOME at a given altitude: PX4 keeps it at the next arming
+        modelled = self.flavour.name == "px4" and self.cfg.home_shift_m is None
+        # its own random draws (seed + 5): the other faults keep their sequences
+        self.home_correction = Px4HomeCorrection(np.random.default_rng(self.cfg.seed + 5)) if modelled else None
         self._load_storage()
 
     # --- start-up after each boot (ArduCopter: about 1 s of wall time) ---------------------------------------
@@ -237,10 +244,13 @@ class FirmwareRules:
         self.link.down = down
 
     def update_home_shift(self) -> None:
-        """``--home-shift-after-takeoff S --home-shift-m M``: S simulated seconds after take-off PX4 moves home's
-        altitude by M metres (once; the last of its corrections is the one that stays)."""
+        """PX4's in-flight home correction: by default SIH's (``home_drift.py``), or the one move
+        ``--home-shift-m M --home-shift-after-takeoff S`` asks for (S simulated seconds after take-off)."""
+        if self.home_correction is not None:
+            self._update_modelled_home()
+            return
         cfg = self.cfg
-        if cfg.home_shift_after_takeoff_s is None or self._home_shift_done:
+        if cfg.home_shift_after_takeoff_s is None or self._home_shift_done or not cfg.home_shift_m:
             return
         since = self.seconds_since_takeoff()
         if since is None or since < cfg.home_shift_after_takeoff_s:
@@ -249,6 +259,30 @@ class FirmwareRules:
         self.home_alt_shift_m = float(cfg.home_shift_m)
         log.warning("home altitude moved by %+.2f m %.1f s after take-off (PX4's baro/GPS home correction)",
                     self.home_alt_shift_m, since)
+
+    def _update_modelled_home(self) -> None:
+        st = self.model.state
+        in_air = self.armed and self.took_off
+        before = self.home_correction.moves
+        move = self.home_correction.step(self.t, self.cfg.home.alt_amsl_m - float(st.pos[2]), float(st.vel[2]), in_air)
+        if move:
+            self.home_alt_shift_m += move
+            self.manual_home = False  # PX4's correction clears the manual flag (HomePosition::update)
+            if before == 0:
+                log.warning("PX4 home correction: home's altitude moves with SIH's GPS noise for %g s after "
+                            "take-off (first move %+.2f m)", self.home_correction.window_s, move)
+            log.debug("home altitude moved by %+.2f m, now %+.2f m from the take-off ground", move,
+                      self.home_alt_shift_m)
+
+    def on_arm_home(self) -> None:
+        """PX4 sets home at the vehicle when it arms, unless home was set by hand (Commander: ``manual_home``); its
+        correction window starts again at the next take-off."""
+        if self.flavour.name != "px4":
+            return
+        if not self.manual_home:
+            self.home_alt_shift_m = 0.0
+        if self.home_correction is not None:
+            self.home_correction.reset()
 
     def set_home(self, use_current: bool, alt_amsl_m: float) -> bool:
         """MAV_CMD_DO_SET_HOME: home's altitude at the vehicle's (param1 1) or at ``alt_amsl_m`` (param1 0; PX4's
@@ -261,6 +295,7 @@ class FirmwareRules:
             self.home_alt_shift_m = float(alt_amsl_m) - self.cfg.home.alt_amsl_m
         else:
             return False
+        self.manual_home = not use_current
         log.info("home set at %.2f m AMSL (%+.2f m from the take-off ground)",
                  self.cfg.home.alt_amsl_m + self.home_alt_shift_m, self.home_alt_shift_m)
         return True

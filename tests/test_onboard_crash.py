@@ -3,8 +3,8 @@
 The simulated vehicle and camera keep running (as a real autopilot and camera would); only the companion dies.
 Afterwards the spool is consistent and every keyframe the first run had reported is still there.
 
-Kept short for the suite's time: tests/data/small-wall.yaml without PX4's 121 s home-settle hold (our simulator keeps
-home where it armed, as for `companion fly --sitl`), a 320 px camera at 3 fps and a speed-up of 2 (what is checked
+Kept short for the suite's time: tests/data/small-wall.yaml without PX4's 121 s home-settle hold, on a simulated
+vehicle told to keep home still (tests/small_wall.py), a 320 px camera at 3 fps and a speed-up of 2 (what is checked
 is the spool across a kill, not the gate's accuracy: tests/test_onboard_sitl.py judges that at 640 px).
 """
 

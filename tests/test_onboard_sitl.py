@@ -4,8 +4,8 @@ Checks against the simulator's ground truth: every keyframe is tagged with a pos
 vehicle's true pose at its capture time, and consecutive keyframes overlap by at least Rth - 3 points unless the
 gate itself flagged the pair (low overlap / gap) during the flight.
 
-The flight is tests/data/small-wall.yaml without PX4's 121 s home-settle hold (our simulator keeps home where it
-armed, as for `companion fly --sitl`): the scan starts at once, about 55 s simulated, flown at a speed-up of 2.
+The flight is tests/data/small-wall.yaml without PX4's 121 s home-settle hold, on a simulated vehicle told to keep
+home still (tests/small_wall.py): the scan starts at once, about 55 s simulated, flown at a speed-up of 2.
 """
 
 from __future__ import annotations

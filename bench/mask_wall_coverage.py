@@ -45,13 +45,36 @@ def render(name: str, frames: int, width: int):
     from sim.camera.photo_passes import RECIPES, build_pass
     from sim.camera.photo_scene import PhotoPassRenderer
 
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=max(2, round(frames * 22 / 250)))
+    background_frames = max(2, round(frames * 22 / 250))
+    if name in RECIPES:
+        spec = build_pass(RECIPES[name], frames=frames, background_frames=background_frames)
+    else:  # a validation pass of training-split photos (bench/depth_error_regions.py): rules are chosen there
+        spec = validation_spec(name, frames, background_frames)
     cam = spec.camera
     spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
     r = PhotoPassRenderer(spec)
     ups = [p[1] for p in r.positions]
     strips = sorted(set(ups))
     return RenderedPass(name, spec, r, [], [], [], [strips.index(u) for u in ups])
+
+
+def validation_spec(name: str, frames: int, background_frames: int):
+    """The PhotoPass of one of bench/depth_error_regions.py's validation passes (training-split photos only)."""
+    from depth_error_regions import VALIDATION
+
+    from companion.depth.realdata import facade_mask, list_real_photos, load_image
+    from sim.camera.photo_scene import PhotoPass, PhotoTexture
+
+    wall_name, width_m, bg_name, distance_m, strips = VALIDATION[name]
+    photos = {p.image.name: p for p in list_real_photos()}
+    for n in (wall_name, bg_name):
+        if photos[n].split != "train":
+            raise SystemExit(f"{n} is held out: validation passes use training photos only")
+    wall = PhotoTexture(wall_name, load_image(photos[wall_name]), width_m, facade_mask(photos[wall_name]))
+    background = PhotoTexture(bg_name, load_image(photos[bg_name]), 1.0)
+    spec = PhotoPass(name, wall, background, background_distance_m=distance_m, frames=frames,
+                     background_frames=background_frames)
+    return replace(spec, strips_up_m=tuple(f * wall.height_m for f in strips))
 
 
 class _Recorder:
@@ -217,7 +240,10 @@ def main() -> None:
     from sim.camera.photo_passes import DEFAULT_PASSES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--passes", nargs="+", default=list(DEFAULT_PASSES))
+    ap.add_argument("--passes", nargs="+", default=list(DEFAULT_PASSES),
+                    help="held-out passes (sim/camera/photo_passes.py) or bench/depth_error_regions.py's validation "
+                         "passes of training-split photos (val-b0309-120, val-b0169-40, val-coruna-120, "
+                         "val-montana-40)")
     ap.add_argument("--model", default="sim")
     ap.add_argument("--rules", nargs="+", default=["before-borders", "default"], choices=sorted(PARALLAX_RULES))
     ap.add_argument("--frames", type=int, default=80)

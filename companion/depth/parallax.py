@@ -117,12 +117,14 @@ class ParallaxParams:
     plain_watershed_cut: bool = True
     # A frame parallax cannot judge (no reference yet: the first frame of a pass, the first after a gap) keeps the
     # network's mask with the ROI's far cut at this ratio instead of ``RoiParams.far_cut_ratio`` (None: unchanged).
-    # 0: only what a depth boundary separates is cut (the paper's rule). Why: the far cut is the network's least
-    # reliable answer on real walls (the shipped ``sim`` model reads the top 40 % of a real wall at 20-60 m, farther
-    # than the real background), nothing confirms it on such a frame, and the first keyframe of a strip is the only
-    # one that sees the wall's start: what it cuts is a hole in the map, while background it keeps is cut by the
-    # stitcher's wall check (the far scene past its neighbours' view, ``companion/stitch/wallcheck.py``).
-    unjudged_far_cut_ratio: float | None = 0.0
+    # 0: only what a depth boundary separates is cut (the paper's rule). The far cut is the network's least reliable
+    # answer on real walls (the shipped ``sim`` model reads the top 40 % of a real wall at 20-60 m, farther than the
+    # real background) and the first keyframe of a strip is the only one that sees the wall's start, so what it cuts
+    # is a hole in the map. Off by default (measured, docs/DEPTH.md "Where the sim mask loses wall"): with 0 the maps
+    # of the real-texture passes covered 97.6-99.6 % of the seen wall instead of 91.7-94.6 %, but the first frame of
+    # a strip also kept all of the background beside the wall's start (18-55 % of it before), and the map of the
+    # 40 m pass showed more of it (27 background inliers against 16): nothing on that frame tells the two apart.
+    unjudged_far_cut_ratio: float | None = None
 
 
 # Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
@@ -138,9 +140,11 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     "no-watershed": ParallaxParams(plain_watershed_cut=False),
     # the wall-plane check's first drop rule: at most 1.5 % of the frame near after the check
     "near-drop": ParallaxParams(plane_drop_rule="near"),
-    # the rules before the mask-wall change: a frame parallax cannot judge keeps the network's far cut, and a
-    # plain patch touching any frame border keeps the network's answer
-    "before-borders": ParallaxParams(unjudged_far_cut_ratio=None, continuity_wall_borders=""),
+    # the rules before the mask-wall change: a plain patch touching any frame border keeps the network's answer
+    "before-borders": ParallaxParams(continuity_wall_borders=""),
+    # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
+    # background beside the wall's start with it (docs/DEPTH.md)
+    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0),
 }
 
 

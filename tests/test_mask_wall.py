@@ -3,9 +3,10 @@
 Measured on the real-texture passes (docs/DEPTH.md "Where the sim mask loses wall"): the wall the shipped ``sim``
 mask cut in every keyframe was (1) the top 40 % of the first frame of each strip, which no earlier frame lets
 parallax judge and the network reads at 20-60 m, and (2) plain bands at the frame's bottom or sides (balcony bases,
-pilasters) and plain pilasters hanging from its top, that the network reads as far, parallax cannot track, and the
-plain-patch rule left to the network because they touch the frame's border. (2) is fixed by default; (1) is a
-named rule set (``unjudged-paper``), off by default because it keeps background beside the wall's start.
+plain stone) and plain pilasters hanging from its top, that the network reads as far, parallax cannot track, and
+the plain-patch rule left to the network because they touch the frame's border. The bottom and the sides of (2)
+are fixed by default; (1) and the top of (2) are named rule sets (``unjudged-paper``, ``borders-top-alone``), off by
+default because each kept background on a measured pass (docs/DEPTH.md).
 """
 
 from __future__ import annotations
@@ -47,15 +48,22 @@ def _vote(params: ParallaxParams, near, far, network) -> np.ndarray:
     return plain_vote(mask, par)
 
 
-def test_plain_bands_at_the_bottom_and_pilasters_under_the_top_are_wall_but_sky_spanning_the_top_is_not():
+def test_plain_bands_at_the_bottom_are_wall_but_patches_at_the_top_stay_the_networks():
     near, far, network, bottom_band, pilaster, corner_sky = _scene()
     vote = _vote(ParallaxParams(plain_rule="continuity"), near, far, network)
     assert (vote[bottom_band] >= 0.5).all(), "a plain band along the bottom edge with only wall around it is wall"
-    assert (vote[pilaster] >= 0.5).all(), "a plain pilaster hanging from the top edge between wall is wall"
+    assert (vote[pilaster] < 0.5).all(), "by default a patch touching the top edge is left to the network"
     assert (vote[corner_sky] < 0.5).all(), "a plain patch spanning the top and a side (sky) stays the network's"
     before = replace(PARALLAX_RULES["before-borders"], plain_rule="continuity")
     vote = _vote(before, near, far, network)
     assert (vote[bottom_band | pilaster] < 0.5).all(), "the rule before left every border patch to the network"
+
+
+def test_the_top_alone_rule_takes_a_pilaster_hanging_from_the_top_but_not_sky_spanning_it():
+    near, far, network, bottom_band, pilaster, corner_sky = _scene()
+    vote = _vote(replace(PARALLAX_RULES["borders-top-alone"], plain_rule="continuity"), near, far, network)
+    assert (vote[bottom_band | pilaster] >= 0.5).all()
+    assert (vote[corner_sky] < 0.5).all()
 
 
 def test_a_plain_border_patch_with_far_pixels_around_it_stays_cut():

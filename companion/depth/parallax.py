@@ -54,11 +54,14 @@ class ParallaxParams:
     plain_rule: str = "calibrated"
     continuity_max_dissent: float = 0.05
     # Which frame borders a plain patch the network cut may touch and still be judged wall by its trusted
-    # neighbours (all near). Only the top is left to the network: plain sky above a roof line touches it with the
-    # roof's near pixels below and nothing far. A plain band along the bottom or a side of the frame with only
-    # wall around it (balcony bases, a plinth, a plain pilaster at the frame's edge, which the network reads as
-    # far) is wall: a background beside the wall shows its own far texture there. "" (no border): the rule before.
-    continuity_wall_borders: str = "bottom,left,right,top-alone"
+    # neighbours (all near). The top is left to the network: plain sky above a roof line touches it with the roof's
+    # near pixels below and nothing far. A plain band along the bottom or a side of the frame with only wall around
+    # it (balcony bases, a plinth, plain stone at the frame's edge, which the network reads as far) is wall: a
+    # background beside the wall shows its own far texture there. "" (no border): the rule before. "top-alone"
+    # also takes a patch hanging from the top edge alone (a plain pilaster between windows; measured, docs/DEPTH.md:
+    # more wall on the held-out passes, but on a validation pass it kept background seen through a hole in the
+    # facade hanging from the frame's top, where the flow had called the background near).
+    continuity_wall_borders: str = "bottom,left,right"
     calibrate_min_share: float = 0.03
     calibrate_max_error: float = 0.15
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
@@ -145,6 +148,8 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
     # background beside the wall's start with it (docs/DEPTH.md)
     "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0),
+    # plain patches hanging from the frame's top edge alone judged by their neighbours too (docs/DEPTH.md)
+    "borders-top-alone": ParallaxParams(continuity_wall_borders="bottom,left,right,top-alone"),
 }
 
 

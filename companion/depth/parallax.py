@@ -146,8 +146,8 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     # the rules before the mask-wall change: a plain patch touching any frame border keeps the network's answer
     "before-borders": ParallaxParams(continuity_wall_borders=""),
     # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
-    # background beside the wall's start with it (docs/DEPTH.md)
-    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0),
+    # background beside the wall's start with it (docs/DEPTH.md; measured with the top-alone border rule)
+    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0, continuity_wall_borders="bottom,left,right,top-alone"),
     # plain patches hanging from the frame's top edge alone judged by their neighbours too (docs/DEPTH.md)
     "borders-top-alone": ParallaxParams(continuity_wall_borders="bottom,left,right,top-alone"),
 }

@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from companion.depth.evaluate import MaskEval, frame_eval, save_visual
-from companion.depth.masker import Masker
+from companion.depth.masker import Masker, unjudged_params
 from companion.depth.parallax import PARALLAX_RULES, ParallaxParams
-from companion.depth.roi import ROI_RULES
+from companion.depth.roi import ROI_RULES, extract_roi
 from companion.depth.session import DEFAULT_MODEL, DepthSession
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,6 +161,10 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                         judged = par if not (tag and sure) else None
                         if judged is not None:
                             fused, dropped = fuse_with_network(roi.mask, judged, net_depth, image)
+                        elif par is None:  # no reference: the masker's ROI for a frame parallax cannot judge
+                            own = extract_roi(disp, (image.shape[1], image.shape[0]),
+                                              unjudged_params(masker.params, pp))
+                            fused, dropped = own.mask, own.empty
                         else:
                             fused, dropped = roi.mask, roi.empty
                         in_view = carried_wall(kept.get(key), pos, R, fx, image.shape[1], pp) if fx else None

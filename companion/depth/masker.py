@@ -109,6 +109,8 @@ class Masker:
         par = self.parallax.update(image, pose)
         network = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
         if par is None:
+            roi = self._unjudged(roi, disparity, image.shape[:2])
+            network = roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)
             mask, dropped = network, roi.empty
         else:
             self.stats.parallax_frames += 1
@@ -124,6 +126,13 @@ class Masker:
             return roi
         return replace(roi, mask=mask, empty=dropped or share == 0.0, no_boundary=share == 1.0, roi_fraction=share)
 
+    def _unjudged(self, roi: RoiResult, disparity, frame_shape: tuple[int, int]) -> RoiResult:
+        """The network's ROI for a frame parallax cannot judge (``ParallaxParams.unjudged_far_cut_ratio``)."""
+        params = unjudged_params(self.params, self.parallax.params)
+        if params is self.params:
+            return roi
+        return extract_roi(disparity, out_size=(frame_shape[1], frame_shape[0]), params=params)
+
     def roi_from_disparity(self, disparity, frame_shape: tuple[int, int]) -> RoiResult:
         """The ROI of a disparity this masker's model produced, at the frame's (height, width); not counted.
 
@@ -133,3 +142,12 @@ class Masker:
 
     def __call__(self, tagged: TaggedFrame) -> MaskedFrame | None:
         return self.mask(tagged)[0]
+
+
+def unjudged_params(roi: RoiParams, parallax) -> RoiParams:
+    """The ROI rules for a frame parallax cannot judge: ``roi`` with the far cut of ``parallax``
+    (``ParallaxParams.unjudged_far_cut_ratio``; ``roi`` itself when that is None or the same)."""
+    ratio = parallax.unjudged_far_cut_ratio
+    if ratio is None or ratio == roi.far_cut_ratio:
+        return roi
+    return replace(roi, far_cut_ratio=ratio)

@@ -53,6 +53,15 @@ class ParallaxParams:
     # trusted pixels on the wrong side). Otherwise, or without the network's depth, "continuity".
     plain_rule: str = "calibrated"
     continuity_max_dissent: float = 0.05
+    # Which frame borders a plain patch the network cut may touch and still be judged wall by its trusted
+    # neighbours (all near). The top is left to the network: plain sky above a roof line touches it with the roof's
+    # near pixels below and nothing far. A plain band along the bottom or a side of the frame with only wall around
+    # it (balcony bases, a plinth, plain stone at the frame's edge, which the network reads as far) is wall: a
+    # background beside the wall shows its own far texture there. "" (no border): the rule before. "top-alone"
+    # also takes a patch hanging from the top edge alone (a plain pilaster between windows; measured, docs/DEPTH.md:
+    # more wall on the held-out passes, but on a validation pass it kept background seen through a hole in the
+    # facade hanging from the frame's top, where the flow had called the background near).
+    continuity_wall_borders: str = "bottom,left,right"
     calibrate_min_share: float = 0.03
     calibrate_max_error: float = 0.15
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
@@ -109,6 +118,16 @@ class ParallaxParams:
     # cuts (a plain strip of wall with only background beside it would be flooded from the far side). Needs the
     # frame (``fuse_with_network(..., image=...)``).
     plain_watershed_cut: bool = True
+    # A frame parallax cannot judge (no reference yet: the first frame of a pass, the first after a gap) keeps the
+    # network's mask with the ROI's far cut at this ratio instead of ``RoiParams.far_cut_ratio`` (None: unchanged).
+    # 0: only what a depth boundary separates is cut (the paper's rule). The far cut is the network's least reliable
+    # answer on real walls (the shipped ``sim`` model reads the top 40 % of a real wall at 20-60 m, farther than the
+    # real background) and the first keyframe of a strip is the only one that sees the wall's start, so what it cuts
+    # is a hole in the map. Off by default (measured, docs/DEPTH.md "Where the sim mask loses wall"): with 0 the maps
+    # of the real-texture passes covered 97.6-99.6 % of the seen wall instead of 91.7-94.6 %, but the first frame of
+    # a strip also kept all of the background beside the wall's start (18-55 % of it before), and the map of the
+    # 40 m pass showed more of it (27 background inliers against 16): nothing on that frame tells the two apart.
+    unjudged_far_cut_ratio: float | None = None
 
 
 # Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
@@ -124,6 +143,13 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     "no-watershed": ParallaxParams(plain_watershed_cut=False),
     # the wall-plane check's first drop rule: at most 1.5 % of the frame near after the check
     "near-drop": ParallaxParams(plane_drop_rule="near"),
+    # the rules before the mask-wall change: a plain patch touching any frame border keeps the network's answer
+    "before-borders": ParallaxParams(continuity_wall_borders=""),
+    # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
+    # background beside the wall's start with it (docs/DEPTH.md; measured with the top-alone border rule)
+    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0, continuity_wall_borders="bottom,left,right,top-alone"),
+    # plain patches hanging from the frame's top edge alone judged by their neighbours too (docs/DEPTH.md)
+    "borders-top-alone": ParallaxParams(continuity_wall_borders="bottom,left,right,top-alone"),
 }
 
 
@@ -457,9 +483,11 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     (a plain stretch of wall read as far, a patch of sky kept). A plain patch the network cut that is enclosed by
     trusted near pixels and touches no frame border is a piece of the wall; a plain patch the network kept whose
     trusted neighbours are (almost) all far is background, unless it runs from the top of the frame to the bottom
-    at one side (a plain strip of wall entering or leaving the view has only the background beside it). Patches
-    touching the border with near neighbours (sky above a roof line) are left to the network: nothing in the two
-    frames says which side of the roof line they belong to.
+    at one side (a plain strip of wall entering or leaving the view has only the background beside it). A cut
+    patch with only near neighbours may touch the frame's bottom or sides, or hang from its top edge alone
+    (``continuity_wall_borders``: balcony bases, a plinth, a pilaster under the frame's top); one spanning the top
+    and a side (sky above a roof line, near pixels below it and nothing far) is left to the network: nothing in
+    the two frames says which side of the roof line it belongs to.
     """
     p = parallax.params
     plain = ~parallax.trusted
@@ -474,7 +502,15 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     top, bottom, left, right = (np.zeros(n, bool) for _ in range(4))
     for flag, edge in ((top, labels[0]), (bottom, labels[-1]), (left, labels[:, 0]), (right, labels[:, -1])):
         flag[np.unique(edge)] = True
-    border = top | bottom | left | right
+    allowed = {b.strip() for b in p.continuity_wall_borders.split(",") if b.strip()}
+    closed_border = np.zeros(n, bool)  # borders a plain patch judged wall may not touch
+    for name, flag in (("bottom", bottom), ("left", left), ("right", right)):
+        if name not in allowed:
+            closed_border |= flag
+    if "top" not in allowed:
+        # "top-alone": a patch hanging from the top edge between near pixels (a plain pilaster under the frame's
+        # top) is judged too; one that also reaches a side (sky spanning the frame above a roof line) is not
+        closed_border |= top & (left | right) if "top-alone" in allowed else top
     # a full-height plain strip at one side of the frame: the wall's end entering or leaving the view (sky touches
     # the top, not the bottom; a background street the bottom, not the top; a plain background filling the frame's
     # height spans from side to side)
@@ -482,7 +518,7 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     kept = np.bincount(labels.ravel(), weights=(net >= 0.5).ravel(), minlength=n)
     size = np.bincount(labels.ravel(), minlength=n)
     votes = np.maximum(near_votes + far_votes, 1)
-    wall = (near_votes > 0) & (far_votes <= p.continuity_max_dissent * votes) & ~border & (kept < size)
+    wall = (near_votes > 0) & (far_votes <= p.continuity_max_dissent * votes) & ~closed_border & (kept < size)
     background = (far_votes > 0) & (near_votes <= p.continuity_max_dissent * votes) & (kept > 0) & ~side_strip
     wall[0] = background[0] = False  # label 0: the trusted pixels
     out = net.copy()

@@ -73,6 +73,20 @@ def test_threads_find_the_features_and_pairs_of_one_thread(spool, tmp_path):
             assert np.array_equal(a.H, b.H) and np.array_equal(a.pts_i, b.pts_i)
 
 
+def test_the_wall_check_in_threads_cuts_and_restores_what_one_thread_does(tmp_path):
+    """Pair directions witnessed side by side (their votes summed under a lock, in whatever order the threads
+    finish) give the masks of one thread, pixel for pixel: cut far scene and given-back roof alike."""
+    from companion.stitch.wallcheck import check_wall
+    from tests.test_stitch_wallcheck import _spool
+
+    inp, pairs, _ = _spool(tmp_path, 6, roof_rows=40)
+    runs = [check_wall(inp, pairs, tmp_path / f"masks{workers}", workers=workers) for workers in (1, 4)]
+    one, many = ([cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE) for kf in r.input.keyframes] for r in runs)
+    assert runs[0].cut_share == runs[1].cut_share and runs[0].restored_share == runs[1].restored_share
+    assert sum(runs[0].cut_share.values()) > 0 and sum(runs[0].restored_share.values()) > 0  # both at work
+    assert all(np.array_equal(a, b) for a, b in zip(one, many, strict=True))
+
+
 def test_the_cache_decodes_ahead_the_same_keyframes_in_the_same_order():
     from concurrent.futures import ThreadPoolExecutor
 

@@ -73,6 +73,26 @@ def test_threads_find_the_features_and_pairs_of_one_thread(spool, tmp_path):
             assert np.array_equal(a.H, b.H) and np.array_equal(a.pts_i, b.pts_i)
 
 
+def test_pairs_matched_against_a_shared_keyframe_index_are_those_of_their_own_index(spool, tmp_path):
+    """Every pair (i, j) queries keyframe j's index, built once (seeded by j): the same result as ``match_pair``
+    building its own, whichever pairs share it and whichever thread built it."""
+    from companion.stitch.pairs import PairSettings, keyframe_index, match_pair
+
+    found = Stitcher(StitchConfig(cells=(8, 4)), progress=False).features(load_input(spool), tmp_path)
+    f, settings = found.features, PairSettings()
+    shared = keyframe_index(3, f[3], settings)
+    for i in (0, 1, 2):
+        alone = match_pair(i, 3, f[i], f[3], settings=settings)
+        with_index = match_pair(i, 3, f[i], f[3], settings=settings, index_j=shared)
+        assert alone.accepted and with_index.accepted and alone.inliers == with_index.inliers
+        assert np.array_equal(alone.H, with_index.H) and np.array_equal(alone.pts_i, with_index.pts_i)
+    built = []
+    thread = threading.Thread(target=lambda: built.append(keyframe_index(3, f[3], settings)))
+    thread.start()
+    thread.join()
+    assert np.array_equal(built[0].ratio_test(f[0].descriptors, 0.75), shared.ratio_test(f[0].descriptors, 0.75))
+
+
 def test_the_wall_check_in_threads_cuts_and_restores_what_one_thread_does(tmp_path):
     """Pair directions witnessed side by side (their votes summed under a lock, in whatever order the threads
     finish) give the masks of one thread, pixel for pixel: cut far scene and given-back roof alike."""
@@ -172,3 +192,4 @@ def test_alignment_jacobian_is_the_derivative_of_the_transfer():
             numeric = (problem._pair_terms(plus[:8], plus[8:], xs, False)[0]
                        - problem._pair_terms(minus[:8], minus[8:], xs, False)[0]) / (2 * e)
             assert np.allclose(J[:, :, q], numeric, rtol=1e-5, atol=1e-4 * np.abs(numeric).max())
+

@@ -93,6 +93,34 @@ def test_pairs_matched_against_a_shared_keyframe_index_are_those_of_their_own_in
     assert np.array_equal(built[0].ratio_test(f[0].descriptors, 0.75), shared.ratio_test(f[0].descriptors, 0.75))
 
 
+def test_a_mask_read_again_is_the_decoded_mask_and_a_rewritten_one_is_decoded_anew(tmp_path):
+    """Masks decoded once are kept as bits: a second read gives the same 0/255 pixels without decoding the PNG;
+    a mask written again (the wall check's, a resumed spool's) is read from the file, and a wrong size is still
+    refused with its fix."""
+    from companion.errors import CompanionError
+    from companion.stitch.features import DecodedMasks, load_mask
+
+    rng = np.random.default_rng(2)
+    first = np.where(rng.random((37, 53)) < 0.6, 200, 30).astype(np.uint8)  # thresholded at 127 when read
+    cv2.imwrite(str(tmp_path / "m.png"), first)
+    kf = KeyframeInput(0, tmp_path / "k.jpg", tmp_path / "m.png", None)
+    a = load_mask(kf, (53, 37))
+    assert a.dtype == np.uint8 and set(np.unique(a)) == {0, 255} and np.array_equal(a > 0, first > 127)
+    b = load_mask(kf, (53, 37))
+    assert np.array_equal(a, b) and b is not a
+    b[:] = 0  # a caller's changes stay its own
+    assert np.array_equal(load_mask(kf, (53, 37)), a)
+    cv2.imwrite(str(tmp_path / "next.png"), 255 - first)
+    (tmp_path / "next.png").replace(tmp_path / "m.png")  # rewritten as the spool does: a new file in its place
+    assert np.array_equal(load_mask(kf, (53, 37)), np.where(first > 127, 0, 255))
+    with pytest.raises(CompanionError, match="full frame resolution"):
+        load_mask(kf, (54, 37))
+    small = DecodedMasks(max_bytes=600)  # bounded: 249 bytes a mask here, the least recently used dropped
+    for k in range(4):
+        small.put(("m", k), a)
+    assert small.get(("m", 0), a.shape) is None and np.array_equal(small.get(("m", 3), a.shape), a)
+
+
 def test_the_wall_check_in_threads_cuts_and_restores_what_one_thread_does(tmp_path):
     """Pair directions witnessed side by side (their votes summed under a lock, in whatever order the threads
     finish) give the masks of one thread, pixel for pixel: cut far scene and given-back roof alike."""

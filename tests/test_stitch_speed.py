@@ -221,3 +221,27 @@ def test_alignment_jacobian_is_the_derivative_of_the_transfer():
                        - problem._pair_terms(minus[:8], minus[8:], xs, False)[0]) / (2 * e)
             assert np.allclose(J[:, :, q], numeric, rtol=1e-5, atol=1e-4 * np.abs(numeric).max())
 
+
+@pytest.mark.parametrize("size", [(700, 450), (90, 60)])
+def test_the_pyramid_cut_in_blocks_is_the_pyramid_halved_level_by_level_from_disk(tmp_path, monkeypatch, size):
+    """Levels made in memory from each 4 x 4 tile block are the tiles that halving the level above, read back
+    from its PNGs, gives: every tile of every level, at the map's ragged right and bottom edges, in blank areas
+    and along the coverage's edge (the alpha-weighted halving)."""
+    from companion.viewer import tiles as pyramid
+
+    w, h = size
+    rng = np.random.default_rng(8)
+    bgra = np.dstack((rng.integers(0, 255, (h, w, 3), dtype=np.uint8), np.full((h, w), 255, np.uint8)))
+    bgra[: h // 3, : w // 2] = 0  # not covered
+    bgra[h // 2 :, w // 3 : w // 3 + 7, 3] = 128  # a partly covered band
+    written = {}
+    for levels in (0, pyramid.BLOCK_LEVELS):  # 0: every level below full resolution halved from disk
+        monkeypatch.setattr(pyramid, "BLOCK_LEVELS", levels)
+        out = tmp_path / f"levels{levels}"
+        info = pyramid.write_pyramid(pyramid.MapReader(w, h, image=bgra), out, url_prefix="", tile_px=32)
+        written[levels] = (info, {p.relative_to(out): cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+                                  for p in sorted(out.rglob("*.png"))})
+    (info_disk, disk), (info_blocks, blocks) = written[0], written[pyramid.BLOCK_LEVELS]
+    assert info_disk == info_blocks and info_blocks.tiles_written == len(blocks) == len(disk)
+    assert set(disk) == set(blocks) and all(np.array_equal(disk[k], blocks[k]) for k in disk)
+    assert info_blocks.max_zoom == (5 if w == 700 else 2)

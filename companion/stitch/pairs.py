@@ -67,8 +67,8 @@ class PairSettings:
     far_motion_ratio: float = 0.25  # a plane moving less than this fraction of another is far (background)
     max_points: int = 400  # inliers kept per pair for the global adjustment and the mesh
     min_inlier_area: float = 0.01  # inliers' convex hull / image area: below this the model is extrapolation
-    # FLANN leaves visited per query: 32 finds 98.7 % of the ratio-test matches 64 finds on 4K keyframes (and
-    # as many of brute force's: 98.9 % against 99.6 %) in 0.65x the search time (docs/BENCHMARKS.md)
+    # FLANN leaves visited per query: on 4K keyframes 32 finds 98.7 % of the ratio-test matches that 64 finds (and
+    # 98.9 % of exact brute force's, against 99.6 % for 64) in 0.65x the search time (docs/BENCHMARKS.md)
     flann_checks: int = 32
 
 

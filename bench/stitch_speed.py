@@ -12,12 +12,14 @@ accepted, the local residuals and the coverage are printed with the largest and 
 drew. The pullback reference starts from a copy of the first run's cache, so both align the same pairs.
 ``--cache-from DIR`` starts every run from a copy of DIR's feature and pair cache (a finished run's ``--out``),
 so two checkouts are compared on their render and report stages alone, from the same alignment.
+``--peers scans`` first runs cv2.Stitcher SCANS on the same keyframes and ROI masks, in its own process.
 
     python -c "from sim.camera.recording import generate_recording; generate_recording(
         'missions/demo-facade.yaml', '/tmp/rec4k', stride=20, width_px=3840, max_frames=35)"
     python bench/stitch_speed.py --recording /tmp/rec4k --out /tmp/stitch_speed
     mkdir /tmp/main && git archive main | tar -x -C /tmp/main
     python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --rounds 2
+    python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --peers scans
     python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --cache-from /tmp/stitch_speed/warp
 """
 
@@ -104,6 +106,33 @@ def run_one(args) -> dict:
     }
 
 
+def run_scans(args) -> dict:
+    """cv2.Stitcher SCANS (OpenCV's affine scan stitcher, default settings: features and seams at reduced
+    resolution, the panorama composited at full resolution) on the same keyframes and ROI masks, in this process."""
+    from sim.camera.recording import load_recording
+
+    rec = load_recording(args.recording)
+    frames = range(len(rec))
+    cpu0, t0 = _cpu_s(), time.perf_counter()
+    images = [rec.image(i) for i in frames]
+    masks = [rec.roi_mask(i) for i in frames]
+    stitcher = cv2.Stitcher_create(cv2.Stitcher_SCANS)
+    status, pano = stitcher.stitch(images, masks)
+    return {
+        "method": "cv2.Stitcher SCANS",
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, cv2 {cv2.__version__}",
+        "load_average_start": round(args.load0, 1),
+        "load_average_end": round(os.getloadavg()[0], 1),
+        "keyframes": len(images),
+        "status": int(status),
+        "ok": status == cv2.Stitcher_OK,
+        "pano_px": None if pano is None or status != cv2.Stitcher_OK else [pano.shape[1], pano.shape[0]],
+        "total_wall_s": round(time.perf_counter() - t0, 1),
+        "total_cpu_s": round(_cpu_s() - cpu0, 1),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+    }
+
+
 def _map_tiles(out: Path) -> dict[str, np.ndarray]:
     if (out / "map.png").exists():
         img = cv2.imread(str(out / "map.png"))
@@ -173,6 +202,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=1, help="with --compare-with: how many alternations")
     ap.add_argument("--cache-from", type=Path, default=None, help="start every run from this run folder's cache")
     ap.add_argument("--renderer", default=None, help=argparse.SUPPRESS)  # one run in this process
+    ap.add_argument("--peers", default="", help="also run these on the same keyframes, each in its own process: scans")
+    ap.add_argument("--peer-run", default=None, help=argparse.SUPPRESS)  # one peer in this process
     ap.add_argument("--load0", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.cache_from and not (args.cache_from / "cache").is_dir():
@@ -180,8 +211,22 @@ def main(argv=None) -> int:
     if args.renderer:
         print(json.dumps(run_one(args), default=float))
         return 0
+    if args.peer_run:
+        print(json.dumps(run_scans(args), default=float))
+        return 0
     out = Path(args.out)
     shutil.rmtree(out, ignore_errors=True)
+    for peer in filter(None, args.peers.split(",")):
+        if peer != "scans":
+            ap.error(f"--peers {peer}: the only peer is scans (cv2.Stitcher SCANS)")
+        cmd = [sys.executable, __file__, "--recording", args.recording, "--peer-run", peer]
+        cmd += ["--load0", str(os.getloadavg()[0])]
+        done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+        peer_run = json.loads(done.stdout.strip().splitlines()[-1])
+        print(json.dumps(peer_run, indent=1, default=float), flush=True)
+        print(f"{peer_run['method']}: wall {peer_run['total_wall_s']:.1f} s, CPU {peer_run['total_cpu_s']:.1f} s (load "
+              f"{peer_run['load_average_start']}-{peer_run['load_average_end']}), status {peer_run['status']}, "
+              f"panorama {peer_run['pano_px']} px, peak RSS {peer_run['peak_rss_mb']} MB", flush=True)
     if args.compare_with:
         for k in range(args.rounds):
             runs = {}
@@ -195,7 +240,7 @@ def main(argv=None) -> int:
             print(f"round {k}: maps {diff}", flush=True)
         return 0
     runs = []
-    names = args.renderers.split(",")
+    names = [n for n in args.renderers.split(",") if n]  # --renderers "" with --peers: the peers alone
     for k, renderer in enumerate(names):
         run_out = out / renderer
         if k > 0:  # the same features and pairs as the first run: the maps differ only by the renderer

@@ -141,12 +141,68 @@ def _map_tiles(out: Path) -> dict[str, np.ndarray]:
     return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((out / "tiles").glob("*.png"))}
 
 
+def _grey_and_alpha(out: Path) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """A stitch output's whole map as grey and alpha (from map.png or its tiles) and its geotransform."""
+    geo = json.loads((out / "map_georef.json").read_text())
+    w, h = geo["size_px"]
+    grey, alpha = np.zeros((h, w), np.uint8), np.zeros((h, w), np.uint8)
+    for name, t in _map_tiles(out).items():
+        y0, x0 = (0, 0) if name == "map" else (int(name[6:13]), int(name[15:22]))  # tile_y0000000_x0000000.png
+        grey[y0 : y0 + t.shape[0], x0 : x0 + t.shape[1]] = cv2.cvtColor(t[..., :3], cv2.COLOR_BGR2GRAY)
+        alpha[y0 : y0 + t.shape[0], x0 : x0 + t.shape[1]] = t[..., 3]
+    return grey, alpha, geo["geotransform"]
+
+
+def compare_on_the_wall(a: Path, b: Path, strip: int = 1024) -> dict:
+    """Two maps of different grids compared on the wall: b resampled (bilinear) onto a's grid through both
+    geotransforms, then grey SSIM (Gaussian 11 px, sigma 1.5) and grey differences where both drew (b's coverage
+    eroded by a pixel: resampling mixes its edge with the uncovered black), and pixels covered by only one."""
+    ga, aa, ta = _grey_and_alpha(a)
+    gb, ab, tb = _grey_and_alpha(b)
+    to_b = np.array([[ta[1] / tb[1], 0.0, (ta[0] - tb[0]) / tb[1]], [0.0, ta[5] / tb[5], (ta[3] - tb[3]) / tb[5]]])
+    h, w = ga.shape
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    ssim_sum, ssim_n, only = 0.0, 0, 0
+    hist = np.zeros(256, np.int64)
+    for r0 in range(0, h, strip):
+        r1, q0, q1 = min(h, r0 + strip), max(0, r0 - 8), min(h, r0 + strip + 8)  # 8 rows of margin for the blur
+        m = to_b.copy()
+        m[1, 2] += m[1, 1] * q0
+        yb = cv2.warpAffine(gb, m, (w, q1 - q0), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP).astype(np.float32)
+        cb = cv2.warpAffine(ab, m, (w, q1 - q0), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
+        xa, ca = ga[q0:q1].astype(np.float32), aa[q0:q1] > 0
+        both = ca & (cv2.erode(cb.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+        rows = slice(r0 - q0, r1 - q0)
+        only += int(np.count_nonzero((ca != cb)[rows]))
+        hist += np.bincount(np.abs(xa - yb)[rows][both[rows]].astype(np.int64), minlength=256)[:256]
+
+        def blur(z):
+            return cv2.GaussianBlur(z, (11, 11), 1.5)
+
+        mx, my = blur(xa), blur(yb)
+        sxx, syy, sxy = blur(xa * xa) - mx * mx, blur(yb * yb) - my * my, blur(xa * yb) - mx * my
+        ssim = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+        inner = (cv2.erode(both.astype(np.uint8), np.ones((11, 11), np.uint8)) > 0)[rows]
+        ssim_sum, ssim_n = ssim_sum + float(ssim[rows][inner].sum()), ssim_n + int(inner.sum())
+    n = int(hist.sum())
+    return {
+        "on_the_wall": True,
+        "ssim": round(ssim_sum / max(ssim_n, 1), 5),
+        "mean_diff": round(float(np.dot(np.arange(256), hist)) / max(n, 1), 3),
+        "p99_diff": int(np.searchsorted(np.cumsum(hist) / max(n, 1), 0.99)),
+        "max_diff": int(np.nonzero(hist)[0].max()) if n else 0,
+        "compared_mp": round(n / 1e6, 1),
+        "coverage_px_differing": only,
+    }
+
+
 def compare_maps(a: Path, b: Path) -> dict:
-    """Largest and mean grey-level difference where both maps drew, and pixels covered by only one (maps of the
-    same size only; a map of another size is reported as such)."""
+    """Largest and mean grey-level difference where both maps drew, and pixels covered by only one; maps of
+    different grids are compared on the wall (``compare_on_the_wall``)."""
     ta, tb = _map_tiles(a), _map_tiles(b)
     if set(ta) != set(tb) or any(ta[k].shape != tb[k].shape for k in ta):
-        return {"comparable": False}
+        del ta, tb
+        return compare_on_the_wall(a, b)
     worst, total, n, cov_diff = 0, 0.0, 0, 0
     for name, x in ta.items():
         y = tb[name]

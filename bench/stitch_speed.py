@@ -277,7 +277,10 @@ def main(argv=None) -> int:
             ap.error(f"--peers {peer}: the only peer is scans (cv2.Stitcher SCANS)")
         cmd = [sys.executable, __file__, "--recording", args.recording, "--peer-run", peer]
         cmd += ["--load0", str(os.getloadavg()[0])]
-        done = subprocess.run(cmd, check=True, capture_output=True, text=True)
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:  # a peer that fails (memory, an OpenCV error) is a result too: say how
+            print(f"{peer}: failed (exit {done.returncode}): {done.stderr.strip()[-2000:]}", flush=True)
+            continue
         peer_run = json.loads(done.stdout.strip().splitlines()[-1])
         print(json.dumps(peer_run, indent=1, default=float), flush=True)
         print(f"{peer_run['method']}: wall {peer_run['total_wall_s']:.1f} s, CPU {peer_run['total_cpu_s']:.1f} s (load "

@@ -151,7 +151,7 @@ class _PairPrior:
 
 def keyframe_index(j: int, fj: Features, settings: PairSettings) -> DescriptorIndex:
     """The search structure over keyframe j's descriptors that every pair (i, j) queries: built once per keyframe,
-    not once per pair (a fifth of a pair's matching at 4K). FLANN's randomised kd-trees draw from OpenCV's RNG,
+    not once per pair (a sixth of a pair's matching at 4K). FLANN's randomised kd-trees draw from OpenCV's RNG,
     seeded by the keyframe, so the trees (and the matches) are the same whichever thread builds them, and the
     same as ``match_pair`` builds when given none."""
     cv2.setRNGSeed(7919 * j + 17)
@@ -174,7 +174,9 @@ def match_pair(
     keyframe j's :func:`keyframe_index`, when the caller matches several keyframes against j."""
     if len(fi.keypoints) < settings.min_inliers_affine or len(fj.keypoints) < settings.min_inliers_affine:
         return PairResult(i, j, False, "none", "too few features inside the ROI masks")
-    found = _distinctive_matches(fi, fj, index_j or keyframe_index(j, fj, settings), settings.ratio)
+    if index_j is None:
+        index_j = keyframe_index(j, fj, settings)
+    found = _distinctive_matches(fi, fj, index_j, settings.ratio)
     n_good = found.distinctive
     if n_good < settings.min_inliers_affine:
         return PairResult(i, j, False, "none", f"only {n_good} distinctive matches", matches=n_good)
@@ -366,7 +368,8 @@ def register_pairs(
             path = cache_dir / f"{kfs[i].index:06d}-{kfs[j].index:06d}-{tag}.npz"
             r = load_pair(path)
             if r is None:
-                index_j = index_j or keyframe_index(j, feats[j], settings)
+                if index_j is None:
+                    index_j = keyframe_index(j, feats[j], settings)
                 r = match_pair(
                     i, j, feats[i], feats[j], settings=settings, prior_i=P[i], prior_j=P[j], pixel_to_norm=to_norm,
                     index_j=index_j,

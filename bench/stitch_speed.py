@@ -12,12 +12,14 @@ accepted, the local residuals and the coverage are printed with the largest and 
 drew. The pullback reference starts from a copy of the first run's cache, so both align the same pairs.
 ``--cache-from DIR`` starts every run from a copy of DIR's feature and pair cache (a finished run's ``--out``),
 so two checkouts are compared on their render and report stages alone, from the same alignment.
+``--peers scans`` first runs cv2.Stitcher SCANS on the same keyframes and ROI masks, in its own process.
 
     python -c "from sim.camera.recording import generate_recording; generate_recording(
         'missions/demo-facade.yaml', '/tmp/rec4k', stride=20, width_px=3840, max_frames=35)"
     python bench/stitch_speed.py --recording /tmp/rec4k --out /tmp/stitch_speed
     mkdir /tmp/main && git archive main | tar -x -C /tmp/main
     python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --rounds 2
+    python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --peers scans
     python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --cache-from /tmp/stitch_speed/warp
 """
 
@@ -104,6 +106,33 @@ def run_one(args) -> dict:
     }
 
 
+def run_scans(args) -> dict:
+    """cv2.Stitcher SCANS (OpenCV's affine scan stitcher, default settings: features and seams at reduced
+    resolution, the panorama composited at full resolution) on the same keyframes and ROI masks, in this process."""
+    from sim.camera.recording import load_recording
+
+    rec = load_recording(args.recording)
+    frames = range(len(rec))
+    cpu0, t0 = _cpu_s(), time.perf_counter()
+    images = [rec.image(i) for i in frames]
+    masks = [rec.roi_mask(i) for i in frames]
+    stitcher = cv2.Stitcher_create(cv2.Stitcher_SCANS)
+    status, pano = stitcher.stitch(images, masks)
+    return {
+        "method": "cv2.Stitcher SCANS",
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPUs, cv2 {cv2.__version__}",
+        "load_average_start": round(args.load0, 1),
+        "load_average_end": round(os.getloadavg()[0], 1),
+        "keyframes": len(images),
+        "status": int(status),
+        "ok": status == cv2.Stitcher_OK,
+        "pano_px": None if pano is None or status != cv2.Stitcher_OK else [pano.shape[1], pano.shape[0]],
+        "total_wall_s": round(time.perf_counter() - t0, 1),
+        "total_cpu_s": round(_cpu_s() - cpu0, 1),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024),
+    }
+
+
 def _map_tiles(out: Path) -> dict[str, np.ndarray]:
     if (out / "map.png").exists():
         img = cv2.imread(str(out / "map.png"))
@@ -112,12 +141,68 @@ def _map_tiles(out: Path) -> dict[str, np.ndarray]:
     return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((out / "tiles").glob("*.png"))}
 
 
+def _grey_and_alpha(out: Path) -> tuple[np.ndarray, np.ndarray, list[float]]:
+    """A stitch output's whole map as grey and alpha (from map.png or its tiles) and its geotransform."""
+    geo = json.loads((out / "map_georef.json").read_text())
+    w, h = geo["size_px"]
+    grey, alpha = np.zeros((h, w), np.uint8), np.zeros((h, w), np.uint8)
+    for name, t in _map_tiles(out).items():
+        y0, x0 = (0, 0) if name == "map" else (int(name[6:13]), int(name[15:22]))  # tile_y0000000_x0000000.png
+        grey[y0 : y0 + t.shape[0], x0 : x0 + t.shape[1]] = cv2.cvtColor(t[..., :3], cv2.COLOR_BGR2GRAY)
+        alpha[y0 : y0 + t.shape[0], x0 : x0 + t.shape[1]] = t[..., 3]
+    return grey, alpha, geo["geotransform"]
+
+
+def compare_on_the_wall(a: Path, b: Path, strip: int = 1024) -> dict:
+    """Two maps of different grids compared on the wall: b resampled (bilinear) onto a's grid through both
+    geotransforms, then grey SSIM (Gaussian 11 px, sigma 1.5) and grey differences where both drew (b's coverage
+    eroded by a pixel: resampling mixes its edge with the uncovered black), and pixels covered by only one."""
+    ga, aa, ta = _grey_and_alpha(a)
+    gb, ab, tb = _grey_and_alpha(b)
+    to_b = np.array([[ta[1] / tb[1], 0.0, (ta[0] - tb[0]) / tb[1]], [0.0, ta[5] / tb[5], (ta[3] - tb[3]) / tb[5]]])
+    h, w = ga.shape
+    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
+    ssim_sum, ssim_n, only = 0.0, 0, 0
+    hist = np.zeros(256, np.int64)
+    for r0 in range(0, h, strip):
+        r1, q0, q1 = min(h, r0 + strip), max(0, r0 - 8), min(h, r0 + strip + 8)  # 8 rows of margin for the blur
+        m = to_b.copy()
+        m[1, 2] += m[1, 1] * q0
+        yb = cv2.warpAffine(gb, m, (w, q1 - q0), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP).astype(np.float32)
+        cb = cv2.warpAffine(ab, m, (w, q1 - q0), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP) > 0
+        xa, ca = ga[q0:q1].astype(np.float32), aa[q0:q1] > 0
+        both = ca & (cv2.erode(cb.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+        rows = slice(r0 - q0, r1 - q0)
+        only += int(np.count_nonzero((ca != cb)[rows]))
+        hist += np.bincount(np.abs(xa - yb)[rows][both[rows]].astype(np.int64), minlength=256)[:256]
+
+        def blur(z):
+            return cv2.GaussianBlur(z, (11, 11), 1.5)
+
+        mx, my = blur(xa), blur(yb)
+        sxx, syy, sxy = blur(xa * xa) - mx * mx, blur(yb * yb) - my * my, blur(xa * yb) - mx * my
+        ssim = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
+        inner = (cv2.erode(both.astype(np.uint8), np.ones((11, 11), np.uint8)) > 0)[rows]
+        ssim_sum, ssim_n = ssim_sum + float(ssim[rows][inner].sum()), ssim_n + int(inner.sum())
+    n = int(hist.sum())
+    return {
+        "on_the_wall": True,
+        "ssim": round(ssim_sum / max(ssim_n, 1), 5),
+        "mean_diff": round(float(np.dot(np.arange(256), hist)) / max(n, 1), 3),
+        "p99_diff": int(np.searchsorted(np.cumsum(hist) / max(n, 1), 0.99)),
+        "max_diff": int(np.nonzero(hist)[0].max()) if n else 0,
+        "compared_mp": round(n / 1e6, 1),
+        "coverage_px_differing": only,
+    }
+
+
 def compare_maps(a: Path, b: Path) -> dict:
-    """Largest and mean grey-level difference where both maps drew, and pixels covered by only one (maps of the
-    same size only; a map of another size is reported as such)."""
+    """Largest and mean grey-level difference where both maps drew, and pixels covered by only one; maps of
+    different grids are compared on the wall (``compare_on_the_wall``)."""
     ta, tb = _map_tiles(a), _map_tiles(b)
     if set(ta) != set(tb) or any(ta[k].shape != tb[k].shape for k in ta):
-        return {"comparable": False}
+        del ta, tb
+        return compare_on_the_wall(a, b)
     worst, total, n, cov_diff = 0, 0.0, 0, 0
     for name, x in ta.items():
         y = tb[name]
@@ -173,6 +258,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=1, help="with --compare-with: how many alternations")
     ap.add_argument("--cache-from", type=Path, default=None, help="start every run from this run folder's cache")
     ap.add_argument("--renderer", default=None, help=argparse.SUPPRESS)  # one run in this process
+    ap.add_argument("--peers", default="", help="also run these on the same keyframes, each in its own process: scans")
+    ap.add_argument("--peer-run", default=None, help=argparse.SUPPRESS)  # one peer in this process
     ap.add_argument("--load0", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.cache_from and not (args.cache_from / "cache").is_dir():
@@ -180,8 +267,25 @@ def main(argv=None) -> int:
     if args.renderer:
         print(json.dumps(run_one(args), default=float))
         return 0
+    if args.peer_run:
+        print(json.dumps(run_scans(args), default=float))
+        return 0
     out = Path(args.out)
     shutil.rmtree(out, ignore_errors=True)
+    for peer in filter(None, args.peers.split(",")):
+        if peer != "scans":
+            ap.error(f"--peers {peer}: the only peer is scans (cv2.Stitcher SCANS)")
+        cmd = [sys.executable, __file__, "--recording", args.recording, "--peer-run", peer]
+        cmd += ["--load0", str(os.getloadavg()[0])]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:  # a peer that fails (memory, an OpenCV error) is a result too: say how
+            print(f"{peer}: failed (exit {done.returncode}): {done.stderr.strip()[-2000:]}", flush=True)
+            continue
+        peer_run = json.loads(done.stdout.strip().splitlines()[-1])
+        print(json.dumps(peer_run, indent=1, default=float), flush=True)
+        print(f"{peer_run['method']}: wall {peer_run['total_wall_s']:.1f} s, CPU {peer_run['total_cpu_s']:.1f} s (load "
+              f"{peer_run['load_average_start']}-{peer_run['load_average_end']}), status {peer_run['status']}, "
+              f"panorama {peer_run['pano_px']} px, peak RSS {peer_run['peak_rss_mb']} MB", flush=True)
     if args.compare_with:
         for k in range(args.rounds):
             runs = {}
@@ -195,7 +299,7 @@ def main(argv=None) -> int:
             print(f"round {k}: maps {diff}", flush=True)
         return 0
     runs = []
-    names = args.renderers.split(",")
+    names = [n for n in args.renderers.split(",") if n]  # --renderers "" with --peers: the peers alone
     for k, renderer in enumerate(names):
         run_out = out / renderer
         if k > 0:  # the same features and pairs as the first run: the maps differ only by the renderer

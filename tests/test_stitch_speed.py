@@ -73,6 +73,68 @@ def test_threads_find_the_features_and_pairs_of_one_thread(spool, tmp_path):
             assert np.array_equal(a.H, b.H) and np.array_equal(a.pts_i, b.pts_i)
 
 
+def test_pairs_matched_against_a_shared_keyframe_index_are_those_of_their_own_index(spool, tmp_path):
+    """Every pair (i, j) queries keyframe j's index, built once (seeded by j): the same result as ``match_pair``
+    building its own, whichever pairs share it and whichever thread built it."""
+    from companion.stitch.pairs import PairSettings, keyframe_index, match_pair
+
+    found = Stitcher(StitchConfig(cells=(8, 4)), progress=False).features(load_input(spool), tmp_path)
+    f, settings = found.features, PairSettings()
+    shared = keyframe_index(3, f[3], settings)
+    for i in (0, 1, 2):
+        alone = match_pair(i, 3, f[i], f[3], settings=settings)
+        with_index = match_pair(i, 3, f[i], f[3], settings=settings, index_j=shared)
+        assert alone.accepted and with_index.accepted and alone.inliers == with_index.inliers
+        assert np.array_equal(alone.H, with_index.H) and np.array_equal(alone.pts_i, with_index.pts_i)
+    built = []
+    thread = threading.Thread(target=lambda: built.append(keyframe_index(3, f[3], settings)))
+    thread.start()
+    thread.join()
+    assert np.array_equal(built[0].ratio_test(f[0].descriptors, 0.75), shared.ratio_test(f[0].descriptors, 0.75))
+
+
+def test_a_mask_read_again_is_the_decoded_mask_and_a_rewritten_one_is_decoded_anew(tmp_path):
+    """Masks decoded once are kept as bits: a second read gives the same 0/255 pixels without decoding the PNG;
+    a mask written again (the wall check's, a resumed spool's) is read from the file, and a wrong size is still
+    refused with its fix."""
+    from companion.errors import CompanionError
+    from companion.stitch.features import DecodedMasks, load_mask
+
+    rng = np.random.default_rng(2)
+    first = np.where(rng.random((37, 53)) < 0.6, 200, 30).astype(np.uint8)  # thresholded at 127 when read
+    cv2.imwrite(str(tmp_path / "m.png"), first)
+    kf = KeyframeInput(0, tmp_path / "k.jpg", tmp_path / "m.png", None)
+    a = load_mask(kf, (53, 37))
+    assert a.dtype == np.uint8 and set(np.unique(a)) == {0, 255} and np.array_equal(a > 0, first > 127)
+    b = load_mask(kf, (53, 37))
+    assert np.array_equal(a, b) and b is not a
+    b[:] = 0  # a caller's changes stay its own
+    assert np.array_equal(load_mask(kf, (53, 37)), a)
+    cv2.imwrite(str(tmp_path / "next.png"), 255 - first)
+    (tmp_path / "next.png").replace(tmp_path / "m.png")  # rewritten as the spool does: a new file in its place
+    assert np.array_equal(load_mask(kf, (53, 37)), np.where(first > 127, 0, 255))
+    with pytest.raises(CompanionError, match="full frame resolution"):
+        load_mask(kf, (54, 37))
+    small = DecodedMasks(max_bytes=600)  # bounded: 249 bytes a mask here, the least recently used dropped
+    for k in range(4):
+        small.put(("m", k), a)
+    assert small.get(("m", 0), a.shape) is None and np.array_equal(small.get(("m", 3), a.shape), a)
+
+
+def test_the_wall_check_in_threads_cuts_and_restores_what_one_thread_does(tmp_path):
+    """Pair directions witnessed side by side (their votes summed under a lock, in whatever order the threads
+    finish) give the masks of one thread, pixel for pixel: cut far scene and given-back roof alike."""
+    from companion.stitch.wallcheck import check_wall
+    from tests.test_stitch_wallcheck import _spool
+
+    inp, pairs, _ = _spool(tmp_path, 6, roof_rows=40)
+    runs = [check_wall(inp, pairs, tmp_path / f"masks{workers}", workers=workers) for workers in (1, 4)]
+    one, many = ([cv2.imread(str(kf.mask_path), cv2.IMREAD_GRAYSCALE) for kf in r.input.keyframes] for r in runs)
+    assert runs[0].cut_share == runs[1].cut_share and runs[0].restored_share == runs[1].restored_share
+    assert sum(runs[0].cut_share.values()) > 0 and sum(runs[0].restored_share.values()) > 0  # both at work
+    assert all(np.array_equal(a, b) for a, b in zip(one, many, strict=True))
+
+
 def test_the_cache_decodes_ahead_the_same_keyframes_in_the_same_order():
     from concurrent.futures import ThreadPoolExecutor
 
@@ -158,3 +220,28 @@ def test_alignment_jacobian_is_the_derivative_of_the_transfer():
             numeric = (problem._pair_terms(plus[:8], plus[8:], xs, False)[0]
                        - problem._pair_terms(minus[:8], minus[8:], xs, False)[0]) / (2 * e)
             assert np.allclose(J[:, :, q], numeric, rtol=1e-5, atol=1e-4 * np.abs(numeric).max())
+
+
+@pytest.mark.parametrize("size", [(700, 450), (90, 60)])
+def test_the_pyramid_cut_in_blocks_is_the_pyramid_halved_level_by_level_from_disk(tmp_path, monkeypatch, size):
+    """Levels made in memory from each 4 x 4 tile block are the tiles that halving the level above, read back
+    from its PNGs, gives: every tile of every level, at the map's ragged right and bottom edges, in blank areas
+    and along the coverage's edge (the alpha-weighted halving)."""
+    from companion.viewer import tiles as pyramid
+
+    w, h = size
+    rng = np.random.default_rng(8)
+    bgra = np.dstack((rng.integers(0, 255, (h, w, 3), dtype=np.uint8), np.full((h, w), 255, np.uint8)))
+    bgra[: h // 3, : w // 2] = 0  # not covered
+    bgra[h // 2 :, w // 3 : w // 3 + 7, 3] = 128  # a partly covered band
+    written = {}
+    for levels in (0, pyramid.BLOCK_LEVELS):  # 0: every level below full resolution halved from disk
+        monkeypatch.setattr(pyramid, "BLOCK_LEVELS", levels)
+        out = tmp_path / f"levels{levels}"
+        info = pyramid.write_pyramid(pyramid.MapReader(w, h, image=bgra), out, url_prefix="", tile_px=32)
+        written[levels] = (info, {p.relative_to(out): cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+                                  for p in sorted(out.rglob("*.png"))})
+    (info_disk, disk), (info_blocks, blocks) = written[0], written[pyramid.BLOCK_LEVELS]
+    assert info_disk == info_blocks and info_blocks.tiles_written == len(blocks) == len(disk)
+    assert set(disk) == set(blocks) and all(np.array_equal(disk[k], blocks[k]) for k in disk)
+    assert info_blocks.max_zoom == (5 if w == 700 else 2)

@@ -206,10 +206,13 @@ class _MapSink:
     def put(self, x0: int, y0: int, img: np.ndarray, cov: np.ndarray) -> None:
         """The tile in the map (in memory), the preview and the coverage count (on the stage's thread)."""
         h, w = cov.shape
-        self.covered_px += int(np.count_nonzero(cov))  # the grid is the region measured (facade or content)
+        covered = cv2.countNonZero(cov)
+        self.covered_px += covered  # the grid is the region measured (facade or content)
         if self.in_memory:
             self.canvas[y0 : y0 + h, x0 : x0 + w] = img
             self.coverage[y0 : y0 + h, x0 : x0 + w] = cov
+        if covered == 0 and cv2.countNonZero(img.reshape(h, -1)) == 0:
+            return  # a blank tile (most of a long facade's margin) leaves the preview's zeros as they are
         ps = self.scale
         px0, py0 = round(x0 * ps), round(y0 * ps)
         px1, py1 = min(self.pw, round((x0 + w) * ps)), min(self.ph, round((y0 + h) * ps))

@@ -211,6 +211,7 @@ _CONST = {"borderMode": cv2.BORDER_CONSTANT, "borderValue": 0}
 # move the blended value by < 0.03 grey levels per keyframe, and skipping it saves warping and blending the
 # ~5 keyframes that cover each map pixel at 80 % overlap where only the seam's two neighbours matter.
 MIN_BLEND_WEIGHT = 1e-4
+_LOG_MIN_BLEND_WEIGHT = math.log(MIN_BLEND_WEIGHT) - 0.01
 
 
 def _shift(x: float, y: float) -> np.ndarray:
@@ -325,8 +326,17 @@ def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
         lh, lw = L.mask.shape
         # the feather: weight exp((d - dmax) / feather), 1 for the keyframe that owns the pixel (Voronoi seam)
         e = cv2.addWeighted(L.weight, inv_f, dmax[L.y : L.y + lh, L.x : L.x + lw], -inv_f, 0.0)
-        cv2.exp(e, dst=e)
-        where = cv2.bitwise_and(cv2.compare(e, MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask)
+        # exp only over the box where the weight can reach MIN_BLEND_WEIGHT (a keyframe's share of a tile is
+        # often a band along its seam): below the threshold's log, less a margin for exp's rounding, it cannot,
+        # so every pixel kept below lies in the box (the same pixels and values as exp over the whole layer)
+        near = cv2.bitwise_and(cv2.compare(e, _LOG_MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask)
+        nx, ny, nw, nh = cv2.boundingRect(near)
+        if nw == 0:
+            continue
+        box = (slice(ny, ny + nh), slice(nx, nx + nw))
+        cv2.exp(e[box], dst=e[box])
+        where = np.zeros((lh, lw), np.uint8)
+        cv2.bitwise_and(cv2.compare(e[box], MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask[box], dst=where[box])
         bx, by, bw, bh = cv2.boundingRect(where)
         if bw == 0:
             continue

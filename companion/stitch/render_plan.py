@@ -33,14 +33,16 @@ class RenderPlan:
 def _block_bounds(weight: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
     """Max and min of the seam weight over block x block pixels (the image's edge blocks padded with 0).
 
-    Reduced first across the block's rows, then across its columns: two passes numpy runs as whole-row
-    operations (one 4D reduction over both axes walks the strided pixels one by one, 5x slower on 4K)."""
+    Reduced first across the block's rows (numpy, whole-row operations), then across its columns (OpenCV's row
+    reduction over each block's ``block`` values: numpy reduces such a short last axis pixel by pixel, and that
+    pass was half the planning pass's time at 4K). One 4D reduction over both axes is 10x slower."""
     h, w = weight.shape
     ph, pw = -(-h // block) * block, -(-w // block) * block
     padded = cv2.copyMakeBorder(weight, 0, ph - h, 0, pw - w, cv2.BORDER_CONSTANT, value=0)
     rows = padded.reshape(ph // block, block, pw)
-    hi = rows.max(axis=1).reshape(ph // block, pw // block, block).max(axis=2)
-    lo = rows.min(axis=1).reshape(ph // block, pw // block, block).min(axis=2)
+    shape = (ph // block, pw // block)
+    hi = cv2.reduce(rows.max(axis=1).reshape(-1, block), 1, cv2.REDUCE_MAX).reshape(shape)
+    lo = cv2.reduce(rows.min(axis=1).reshape(-1, block), 1, cv2.REDUCE_MIN).reshape(shape)
     return hi, lo
 
 

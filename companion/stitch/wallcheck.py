@@ -35,6 +35,9 @@ lands on the wall that hides it, and that must not read as proof that the sky is
 from __future__ import annotations
 
 import hashlib
+import os
+import threading
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -79,34 +82,53 @@ class WallCheckSettings:
 
 
 def check_wall(
-    inp: StitchInput, pairs: list[PairResult], cache_dir: Path, settings: WallCheckSettings | None = None
+    inp: StitchInput,
+    pairs: list[PairResult],
+    cache_dir: Path,
+    settings: WallCheckSettings | None = None,
+    *,
+    workers: int = 0,
 ) -> WallCheck:
     """Cuts off-plane pixels from the masks of the keyframes in accepted ``pairs`` (H: pixels of i -> pixels
-    of j); checked masks are written to ``cache_dir``. Keyframes in no pair are left as they are."""
+    of j); checked masks are written to ``cache_dir``. Keyframes in no pair are left as they are. ``workers``:
+    threads (0: one per CPU core); the result does not depend on it."""
     s = settings or WallCheckSettings()
     involved = sorted({k for r in pairs for k in (r.i, r.j)})
     if not involved:
         return WallCheck(inp, {})
-    grey, masks, sizes, scale = _load(inp, involved, s.work_width)
-    S = np.diag([scale, scale, 1.0])
-    K = S @ _intrinsics(inp, sizes[involved[0]])
-    votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
-    checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
-    confirms = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
-    contrast = {k: _local_contrast(grey[k]) for k in involved}  # once per keyframe, not per pair direction
-    for r in pairs:
-        Hw = S @ r.H @ np.linalg.inv(S)
-        gain = float(np.exp(r.lum_ratio)) if r.lum_ratio is not None else 1.0
-        # lum_ratio = log(grey_i / grey_j): j's grey times the gain reads as i's, i's over it as j's
-        for a, b, H, g, pts in ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j)):
-            if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
-                continue
+    # decoding and every pair direction run in OpenCV without the GIL: one keyframe or direction per thread
+    with ThreadPoolExecutor(workers or max(1, len(os.sched_getaffinity(0)))) as pool:
+        grey, masks, sizes, scale = _load(inp, involved, s.work_width, pool)
+        S = np.diag([scale, scale, 1.0])
+        K = S @ _intrinsics(inp, sizes[involved[0]])
+        votes = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+        checks = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+        confirms = {k: np.zeros(grey[k].shape, np.float32) for k in involved}
+        # once per keyframe, not per pair direction
+        contrast = dict(zip(involved, pool.map(_local_contrast, [grey[k] for k in involved]), strict=True))
+        directions = []
+        for r in pairs:
+            Hw = S @ r.H @ np.linalg.inv(S)
+            gain = float(np.exp(r.lum_ratio)) if r.lum_ratio is not None else 1.0
+            # lum_ratio = log(grey_i / grey_j): j's grey times the gain reads as i's, i's over it as j's
+            both = ((r.i, r.j, Hw, gain, r.pts_i), (r.j, r.i, np.linalg.inv(Hw), 1.0 / gain, r.pts_j))
+            for a, b, H, g, pts in both:
+                if r.pts_i is None or _motion(H, pts * scale) < s.min_motion_px * scale:
+                    continue
+                directions.append((a, b, H, g))
+        lock = threading.Lock()
+
+        def witness(direction) -> None:
+            a, b, H, g = direction
             planes = _far_homographies(H, K, s, (*s.far_depth_ratios, 0.5))  # 0.5: twice the standoff
             off, decided, wall = _witness(grey[a], grey[b], H, planes[:-1], g, s, midway=planes[-1:],
                                           contrast_a=contrast[a])
-            votes[a] += off
-            checks[a] += decided
-            confirms[a] += wall
+            with lock:  # sums of 0/1 maps: exact in float32 whatever the order the threads finish in
+                votes[a] += off
+                checks[a] += decided
+                confirms[a] += wall
+
+        list(pool.map(witness, directions))  # each direction's maps are added as they are made: memory stays flat
     cache_dir.mkdir(parents=True, exist_ok=True)
     kfs = list(inp.keyframes)
     cut_share, restored_share = {}, {}
@@ -165,21 +187,25 @@ def _restored(confirmed: np.ndarray, consistent: np.ndarray, kept: np.ndarray, c
     return holds[labels].astype(np.uint8) * 255
 
 
-def _load(inp: StitchInput, positions: list[int], work_width: int):
+def _load(inp: StitchInput, positions: list[int], work_width: int, pool: Executor):
     """Smoothed grey and mask copies at the working width, and each frame's (width, height): only the small copies
-    stay in memory, so a long spool of 4K keyframes costs what its 960 px copies cost."""
-    grey, masks, sizes = {}, {}, {}
-    scale = 1.0
-    for k in positions:
+    stay in memory, so a long spool of 4K keyframes costs what its 960 px copies cost. Decoded on ``pool``'s
+    threads, at most a few full-size frames at a time."""
+
+    def small_copies(k: int):
         img, mask = load_image_and_mask(inp.keyframes[k])
         scale = min(1.0, work_width / img.shape[1])
         size = (round(img.shape[1] * scale), round(img.shape[0] * scale))
         g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         g = cv2.resize(g, size, interpolation=cv2.INTER_AREA) if scale < 1.0 else g
-        grey[k] = cv2.GaussianBlur(g.astype(np.float32), (0, 0), 1.5)
-        masks[k] = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) if scale < 1.0 else mask
-        sizes[k] = (img.shape[1], img.shape[0])
-    return grey, masks, sizes, scale
+        m = cv2.resize(mask, size, interpolation=cv2.INTER_NEAREST) if scale < 1.0 else mask
+        return cv2.GaussianBlur(g.astype(np.float32), (0, 0), 1.5), m, (img.shape[1], img.shape[0]), scale
+
+    grey, masks, sizes = {}, {}, {}
+    copies = list(pool.map(small_copies, positions))
+    for k, (g, m, size, _) in zip(positions, copies, strict=True):
+        grey[k], masks[k], sizes[k] = g, m, size
+    return grey, masks, sizes, copies[-1][3] if copies else 1.0
 
 
 def _local_contrast(grey: np.ndarray, size: int = 9) -> np.ndarray:

@@ -26,7 +26,7 @@ from companion.errors import CompanionError
 from companion.files import write_atomic
 from companion.stitch.align import AlignedKeyframes, align_keyframes
 from companion.stitch.canvas import RenderedMap, render_map
-from companion.stitch.config import RENDERERS, StitchConfig
+from companion.stitch.config import RENDERERS, StitchConfig, worker_count
 from companion.stitch.debug import StageDebug
 from companion.stitch.features import KeyframeFeatures, find_features
 from companion.stitch.inputs import StitchInput
@@ -133,7 +133,7 @@ class Stitcher:
         """Mask pixels the neighbouring keyframes show are not on the wall plane are cut (``wallcheck.py``)."""
         if not self.config.wall_check:
             return found
-        checked = check_wall(found.input, aligned.accepted, out / "cache" / "masks")
+        checked = check_wall(found.input, aligned.accepted, out / "cache" / "masks", workers=worker_count(self.config))
         return replace(found, input=checked.input)
 
     def mesh(self, found: KeyframeFeatures, priors: PlanePriors, aligned: AlignedKeyframes) -> MapLayout:

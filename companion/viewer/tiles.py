@@ -27,6 +27,7 @@ import numpy as np
 from companion.errors import CompanionError
 
 TILE_PX = 256
+BLOCK_LEVELS = 2  # write_pyramid cuts the map in blocks of 2**BLOCK_LEVELS tiles a side (1024 px: a stitcher tile)
 
 
 @dataclass(frozen=True)
@@ -242,27 +243,49 @@ class _TileWriter:
 
 
 def write_pyramid(reader: MapReader, tiles_dir: Path, *, url_prefix: str, tile_px: int = TILE_PX) -> PyramidInfo:
-    """Writes ``tiles_dir/z/x/y.png`` for every level; returns what the page needs to load them."""
+    """Writes ``tiles_dir/z/x/y.png`` for every level; returns what the page needs to load them.
+
+    The map is cut in blocks of ``BLOCK_TILES`` x ``BLOCK_TILES`` full-resolution tiles (1024 px: one stitcher
+    tile); each block gives its tiles at full resolution and, halved in memory, the levels below down to one
+    tile, so those levels are never read back from their PNGs (halving is local to each 2 x 2 pixels: the same
+    tiles as halving level by level from disk, tested). The coarser levels are made from the tiles on disk."""
     zmax = max_zoom_for(reader.width, reader.height, tile_px)
-    count = 0
-    w, h = reader.width, reader.height
     tiles = _TileWriter(tiles_dir, tile_px)
-    # PNG encoding (and a coarser tile's four reads) run in OpenCV without the GIL: one tile per thread, a level
-    # finished before the next reads it
-    with ThreadPoolExecutor(max(1, len(os.sched_getaffinity(0)))) as pool:
+    levels_in_block = min(zmax, BLOCK_LEVELS)  # levels below full resolution made from each block
+    side = tile_px << levels_in_block  # the block, in map pixels
+    grids = [_level_size(reader.width, reader.height, k) for k in range(levels_in_block + 1)]
+    grids = [(-(-w // tile_px), -(-h // tile_px)) for w, h in grids]  # tiles per row and column, level zmax - k
+    count = sum(nx * ny for nx, ny in grids)
+
+    def cut(bx: int, by: int, block: np.ndarray) -> None:
+        for k in range(levels_in_block + 1):
+            if k:
+                block = halve(block)
+            n = 1 << (levels_in_block - k)  # tiles across the block at level zmax - k
+            nx, ny = grids[k]
+            for dy in range(n):
+                for dx in range(n):
+                    tx, ty = bx * n + dx, by * n + dy
+                    if tx < nx and ty < ny:
+                        tiles.path(zmax - k, tx, ty).parent.mkdir(parents=True, exist_ok=True)
+                        part = block[dy * tile_px : (dy + 1) * tile_px, dx * tile_px : (dx + 1) * tile_px]
+                        tiles.write(zmax - k, tx, ty, np.ascontiguousarray(part))
+
+    # PNG encoding and decoding (and a coarser tile's four reads) run in OpenCV without the GIL: one block or tile
+    # per thread, a level finished before the next reads it
+    workers = max(1, len(os.sched_getaffinity(0)))
+    with ThreadPoolExecutor(workers) as pool:
         written = []
-        for tx, ty in _tiles_of_level(w, h, tile_px):
-            if tx == 0:  # a new band of rows: its source tiles decoded on every thread first
-                reader.preload(ty * tile_px, tile_px, pool)
-            (tiles_dir / str(zmax) / str(tx)).mkdir(parents=True, exist_ok=True)
-            block = reader.read(tx * tile_px, ty * tile_px, tile_px, tile_px)
-            written.append(pool.submit(tiles.write, zmax, tx, ty, block))
-            if len(written) > 64:  # bounded memory: wait for the oldest
-                written.pop(0).result()
-            count += 1
+        for by in range(-(-reader.height // side)):
+            reader.preload(by * side, side, pool)  # a new band of blocks: its source tiles decoded on every thread
+            for bx in range(-(-reader.width // side)):
+                block = reader.read(bx * side, by * side, side, side)
+                written.append(pool.submit(cut, bx, by, block))
+                if len(written) > 2 * workers:  # bounded memory: wait for the oldest
+                    written.pop(0).result()
         for f in written:
             f.result()
-        for z in range(zmax - 1, -1, -1):
+        for z in range(zmax - levels_in_block - 1, -1, -1):
             w, h = _level_size(reader.width, reader.height, zmax - z)
             jobs = [pool.submit(tiles.coarser, z, tx, ty) for tx, ty in _tiles_of_level(w, h, tile_px)]
             for f in jobs:

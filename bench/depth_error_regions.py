@@ -73,9 +73,8 @@ VALIDATION = {
 }
 
 
-def validation_pass_frames(name: str, args):
-    """Frames of a validation pass, in the shape ``bench.depth_real_passes.photo_pass_frames`` yields."""
-    from bench.depth_real_passes import rendered_pass_frames
+def validation_spec(name: str, frames: int, background_frames: int):
+    """The PhotoPass of one validation pass (training-split photos only: a figure on them is never a held-out one)."""
     from companion.depth.realdata import facade_mask, list_real_photos, load_image
     from sim.camera.photo_scene import PhotoPass, PhotoTexture
 
@@ -86,9 +85,17 @@ def validation_pass_frames(name: str, args):
             raise SystemExit(f"{n} is held out: validation passes use training photos only")
     wall = PhotoTexture(wall_name, load_image(photos[wall_name]), width_m, facade_mask(photos[wall_name]))
     background = PhotoTexture(bg_name, load_image(photos[bg_name]), 1.0)
-    spec = PhotoPass(name, wall, background, background_distance_m=distance_m, frames=args.frames,
-                     background_frames=args.background_frames)
-    spec = replace(spec, strips_up_m=tuple(f * wall.height_m for f in strips))
+    spec = PhotoPass(name, wall, background, background_distance_m=distance_m, frames=frames,
+                     background_frames=background_frames)
+    return replace(spec, strips_up_m=tuple(f * wall.height_m for f in strips))
+
+
+def validation_pass_frames(name: str, args):
+    """Frames of a validation pass, in the shape ``bench.depth_real_passes.photo_pass_frames`` yields."""
+    from bench.depth_real_passes import rendered_pass_frames
+
+    spec = validation_spec(name, args.frames, args.background_frames)
+    wall_name, width_m, bg_name, distance_m, _ = VALIDATION[name]
     print(f"pass {name} (validation, training photos): wall {wall_name} {width_m:.0f} m, background {bg_name} at "
           f"{distance_m:.0f} m, {spec.frames} frames")
     yield from rendered_pass_frames(spec)

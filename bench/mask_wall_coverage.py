@@ -60,21 +60,9 @@ def render(name: str, frames: int, width: int):
 
 def validation_spec(name: str, frames: int, background_frames: int):
     """The PhotoPass of one of bench/depth_error_regions.py's validation passes (training-split photos only)."""
-    from depth_error_regions import VALIDATION
+    from depth_error_regions import validation_spec as spec_of
 
-    from companion.depth.realdata import facade_mask, list_real_photos, load_image
-    from sim.camera.photo_scene import PhotoPass, PhotoTexture
-
-    wall_name, width_m, bg_name, distance_m, strips = VALIDATION[name]
-    photos = {p.image.name: p for p in list_real_photos()}
-    for n in (wall_name, bg_name):
-        if photos[n].split != "train":
-            raise SystemExit(f"{n} is held out: validation passes use training photos only")
-    wall = PhotoTexture(wall_name, load_image(photos[wall_name]), width_m, facade_mask(photos[wall_name]))
-    background = PhotoTexture(bg_name, load_image(photos[bg_name]), 1.0)
-    spec = PhotoPass(name, wall, background, background_distance_m=distance_m, frames=frames,
-                     background_frames=background_frames)
-    return replace(spec, strips_up_m=tuple(f * wall.height_m for f in strips))
+    return spec_of(name, frames, background_frames)
 
 
 class _Recorder:

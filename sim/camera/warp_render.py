@@ -614,6 +614,13 @@ class WarpRenderer(Renderer):
             else:
                 cv2.copyTo(np.broadcast_to(col, (bh, bw, 3)).copy(), vis, dst=img[out])
             return
+        self._draw_texture(f, key, A, orig, uv, g, w, vis, (X0, Y0, bw, bh), full, img)
+
+    def _draw_texture(self, f: Face, key: int, A, orig, uv, g, w, vis, box, full: bool, img) -> None:
+        """The visible part of a textured face: its patch at the level the frame needs, warped by the face's
+        homography into ``box`` (X0, Y0, width, height) of ``img``, hazed if the face is, copied where ``vis``."""
+        X0, Y0, bw, bh = box
+        out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
         level = self._level(f, w, vis, g, X0, Y0)
         # the visible part's extent on the face (from the clipped polygon's corners, in face coordinates)
         s0, t0, s1, t1 = self._face_extent(f, A, orig, uv)

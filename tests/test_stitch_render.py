@@ -164,3 +164,17 @@ def test_a_blank_tile_file_is_a_transparent_png_of_the_tile_size(tmp_path):
     assert blank.shape == (72, 128, 4) and not blank.any()
     one = cv2.imread(str(tmp_path / "tiles" / "tile_y0000128_x0000128.png"), cv2.IMREAD_UNCHANGED)
     assert tuple(one[5, 7]) == (1, 2, 3, 255) and np.count_nonzero(one.any(axis=2)) == 1
+
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (1, 2), (3, 1), (5, 7)])
+def test_weights_of_a_one_pixel_box_are_compared_like_any_other(shape):
+    """A keyframe whose blend weight reaches the threshold at one pixel of a tile gives a 1 x 1 box. OpenCV's Python
+    binding reads a 1 x 1 array as a scalar, so ``cv2.compare(box, threshold)`` raised "neither 'array op array' nor
+    'array op scalar'" and the fresh-clone demo's stitch stopped with no map (2026-12-02)."""
+    from companion.stitch.render import MIN_BLEND_WEIGHT, _compare
+
+    e = np.random.default_rng(3).uniform(0.0, 2.0 * MIN_BLEND_WEIGHT, shape).astype(np.float32)
+    got = _compare(e, MIN_BLEND_WEIGHT, cv2.CMP_GE)
+    assert got.shape == shape and got.dtype == np.uint8
+    assert np.array_equal(got > 0, e >= MIN_BLEND_WEIGHT)

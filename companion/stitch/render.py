@@ -266,7 +266,7 @@ def _warp_seams(pk, weight, x0, y0, w, h) -> tuple[np.ndarray, np.ndarray, list[
         cv2.fillConvexPoly(inside, fixed - np.int32([bx0 * 16, by0 * 16]), 255, lineType=cv2.LINE_8, shift=4)
         to_src = pk.cell_inv[k] @ _shift(x0 + bx0, y0 + by0)
         cw = cv2.warpPerspective(weight, to_src, size, flags=cv2.INTER_NEAREST | _INVERSE, **_CONST)
-        cm = cv2.compare(cw, 0.0, cv2.CMP_GT)
+        cm = _compare(cw, 0.0, cv2.CMP_GT)
         cv2.copyTo(cm, inside, m[by0:by1, bx0:bx1])
         cv2.bitwise_and(cm, inside, dst=cm)
         ex, ey, ew, eh = cv2.boundingRect(cm)
@@ -300,6 +300,15 @@ def _warp_image(layer: _Layer, where: np.ndarray) -> np.ndarray:
     return im
 
 
+def _compare(a: np.ndarray, value: float, op: int) -> np.ndarray:
+    """``cv2.compare`` of an array with a scalar. OpenCV's Python binding reads a 1 x 1 array as a scalar too and
+    refuses scalar-with-scalar, so a one-pixel region (a keyframe's weight box of one pixel in a tile) stopped the
+    whole stitch (fresh-clone demo, 2026-12-02); there the scalar is given as an array of the same shape."""
+    if a.size == 1:
+        return cv2.compare(a, np.full(a.shape, value, a.dtype), op)
+    return cv2.compare(a, value, op)
+
+
 def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
     """The fast renderer: seam weights of every keyframe first, then each keyframe's image is warped and blended
     only where its weight matters (``MIN_BLEND_WEIGHT``); all per-pixel work in OpenCV."""
@@ -329,14 +338,14 @@ def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
         # exp only over the box where the weight can reach MIN_BLEND_WEIGHT (a keyframe's share of a tile is
         # often a band along its seam): below the threshold's log, less a margin for exp's rounding, it cannot,
         # so every pixel kept below lies in the box (the same pixels and values as exp over the whole layer)
-        near = cv2.bitwise_and(cv2.compare(e, _LOG_MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask)
+        near = cv2.bitwise_and(_compare(e, _LOG_MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask)
         nx, ny, nw, nh = cv2.boundingRect(near)
         if nw == 0:
             continue
         box = (slice(ny, ny + nh), slice(nx, nx + nw))
         cv2.exp(e[box], dst=e[box])
         where = np.zeros((lh, lw), np.uint8)
-        cv2.bitwise_and(cv2.compare(e[box], MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask[box], dst=where[box])
+        cv2.bitwise_and(_compare(e[box], MIN_BLEND_WEIGHT, cv2.CMP_GE), L.mask[box], dst=where[box])
         bx, by, bw, bh = cv2.boundingRect(where)
         if bw == 0:
             continue
@@ -346,7 +355,7 @@ def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
         tile = (slice(L.y + by, L.y + by + bh), slice(L.x + bx, L.x + bx + bw))
         cv2.add(wsum[tile], wgt, dst=wsum[tile])
         cv2.add(acc[tile], cv2.multiply(im[sub], cv2.merge((wgt, wgt, wgt)), dtype=cv2.CV_32F), dst=acc[tile])
-    covered = cv2.compare(wsum, 0.0, cv2.CMP_GT)
+    covered = _compare(wsum, 0.0, cv2.CMP_GT)
     inv = cv2.divide(1.0, wsum)  # OpenCV gives 0 where wsum is 0 (uncovered stays black)
     out = cv2.multiply(acc, cv2.merge((inv, inv, inv)))
     return cv2.convertScaleAbs(out), covered
@@ -381,7 +390,7 @@ def render_tile(
         img, weight = sources.get(pk.position)
         mx, my = maps
         nearest = cv2.remap(weight, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        m = cv2.compare(nearest, 0.0, cv2.CMP_GT)  # the ROI mask's nearest pixel
+        m = _compare(nearest, 0.0, cv2.CMP_GT)  # the ROI mask's nearest pixel
         if not m.any():
             continue
         im = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)

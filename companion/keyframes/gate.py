@@ -298,15 +298,15 @@ class KeyframeGate:
         h, w = mask.shape[:2]
         rows, cols = np.nonzero(roi)
         sy, sx = h / small.shape[0], w / small.shape[1]
-        pts = np.stack([(cols + 0.5) * sx, (rows + 0.5) * sy, np.ones(len(rows))], axis=1)
+        pts = np.stack([(cols + 0.5) * sx, (rows + 0.5) * sy], axis=1).reshape(-1, 1, 2)
         try:
-            back = pts @ np.linalg.inv(H).T  # the candidate's ROI pixels in the previous keyframe's frame
+            to_key = np.linalg.inv(H)
         except np.linalg.LinAlgError:
             return None
-        z = back[:, 2]
+        # the candidate's ROI pixels in the previous keyframe's frame (points behind its camera: not in its view)
+        z = pts.reshape(-1, 2) @ to_key[2, :2] + to_key[2, 2]
+        x, y = cv2.perspectiveTransform(pts, to_key).reshape(-1, 2).T if len(pts) else (z, z)
         kw, kh = key.features.full_size
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x, y = back[:, 0] / z, back[:, 1] / z
         inside = (z > 0) & (x >= 0) & (x < kw) & (y >= 0) & (y < kh)
         new = float(np.count_nonzero(~inside)) / roi.size
         if new < cfg.min_last_new_roi:

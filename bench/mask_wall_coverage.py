@@ -6,7 +6,10 @@ Usage: python bench/mask_wall_coverage.py [--passes NAME ...] [--model sim] [--r
 Each pass (``sim/camera/photo_passes.py``: held-out photos only) is rendered as ``bench/stitch_eval.py --passes``
 renders it (80 frames, 640 px), every frame masked by the onboard ``Masker`` with parallax (true relative
 telemetry) once per parallax rule set (``PARALLAX_RULES``: ``before-borders`` is main's before the mask-wall change),
-and the gate keeps the keyframes it keeps with that mask (``stitch_photo_passes.gate_pass``). Per rule set it prints
+and the gate keeps the keyframes it keeps with that mask (``stitch_photo_passes.gate_pass``). A frame the network alone
+had to judge (a strip's first: no frame behind it) is masked again against the next frame, as the onboard chain does
+(``companion.depth.parallax_first``, issue 15); each rule set is also reported as ``RULE-network-first`` with those
+frames' network-alone masks (main before issue 15), side by side on the same frames. Per rule set it prints
 
 * mask error over all frames, background-only frames dropped, frames with wall dropped;
 * on the keyframes: the share of their wall the mask cuts and of their background it keeps;

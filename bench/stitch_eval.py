@@ -21,6 +21,13 @@ process) and, on the keyframes, by cv2.Stitcher SCANS. Scores against the wall p
 
     python bench/stitch_eval.py --passes ornate-entry,dji-plain-wall --variants exact,noise,jump,raw \
         --baseline-ref main --peers scans --out /tmp/stitch_eval_photo
+
+A shipped mask's frames are masked as the onboard chain masks them: a frame the network alone had to judge (a strip's
+first: no frame behind it) is masked again against the next frame (``companion.depth.parallax_first``, issue 15);
+``--network-first`` adds each shipped mask as before that (``sim-network-first``), side by side in the same run:
+
+    python bench/stitch_eval.py --passes dji-plain-wall,ornate-entry,cmp-balconies,cmp-roofline-40m \
+        --variants exact --masks sim --network-first --peers none --width-px 640 --out /tmp/stitch_eval_first
 """
 
 from __future__ import annotations

@@ -9,7 +9,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from companion.matching import make_matcher, ransac_homography, ratio_test_matches
+from companion.matching import MatcherSettings, match_descriptors
+from companion.ransac import ransac_homography
 from companion.stitch.render import MapGrid
 
 
@@ -136,6 +137,10 @@ def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_p
     return res
 
 
+# The evaluation's matcher: 64 checks, the per-pair matcher every recorded map figure was measured with.
+EVALUATION_MATCHING = MatcherSettings(ratio=0.75, kind="flann", trees=4, checks=64)
+
+
 def truth_homography(image: np.ndarray, truth: np.ndarray, *, equalize: bool = False) -> np.ndarray | None:
     """The best homography from a map with no known geometry (a peer stitcher's panorama) onto the truth grid,
     by SIFT + RANSAC (seeded: the same map always scores the same). ``equalize``: CLAHE and a low contrast
@@ -152,8 +157,8 @@ def truth_homography(image: np.ndarray, truth: np.ndarray, *, equalize: bool = F
     k2, d2 = sift.detectAndCompute(g2, None)
     if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
         return None
-    cv2.setRNGSeed(7)
-    q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
+    found = match_descriptors(d1, d2, EVALUATION_MATCHING, seed=7)
+    q1, t2 = found.query, found.indexed
     if len(q1) < 8:
         return None
     p1 = np.float32([k1[i].pt for i in q1])

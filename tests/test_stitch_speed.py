@@ -4,12 +4,14 @@ full decode puts them, and features and pairs computed in threads are those of o
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
 from companion.stitch import StitchConfig, Stitcher, load_input
+from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect, load_image_and_mask, load_working_copy
 from companion.stitch.inputs import KeyframeInput
 from companion.stitch.synthetic import SyntheticWall, make_spool
@@ -34,8 +36,9 @@ def test_features_of_the_reduced_decode_land_where_the_full_decode_puts_them(tmp
 
     grey, small_mask, size = load_working_copy(kf, 800)
     assert size == (1920, 1080) and grey.shape == (540, 960) and small_mask.shape == grey.shape  # decoded at 1/2
-    reduced = detect(grey, small_mask, work_width=800, max_features=1500, full_size=size)
-    full = detect(*load_image_and_mask(kf), work_width=800, max_features=1500)
+    features = replace(STITCH_FEATURES, long_side_px=800, max_features=1500)
+    reduced = detect(grey, small_mask, features, full_size=size)
+    full = detect(*load_image_and_mask(kf), features)
     assert reduced.image_size == full.image_size == (1920, 1080)
     assert len(reduced.keypoints) > 500 and reduced.keypoints[:, 0].max() < 1500
     # the same wall points: mutual nearest descriptors, compared in full-resolution pixels

@@ -127,3 +127,35 @@ def test_bad_matcher_settings_are_refused_with_the_fix(bad, named):
     with pytest.raises(CompanionError, match=named) as err:
         MatcherSettings(**bad)
     assert err.value.fix
+
+
+def test_the_gate_measures_the_r_opencvs_per_pair_flann_matcher_gives(features, monkeypatch):
+    """The gate's estimator through the index with GATE_MATCHING: the same matches, inliers and R, candidate by
+    candidate, as with OpenCV's FlannBasedMatcher trained on the keyframe with the same trees, checks and ratio."""
+    from companion.keyframes import overlap as overlap_module
+    from companion.matching import Matches
+
+    class OpenCVFlannIndex:
+        def __init__(self, descriptors, settings):
+            self.settings = settings
+            self.matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": settings.trees}, {"checks": settings.checks})
+            self.matcher.add([descriptors])
+            self.matcher.train()  # the trees drawn now, as the index draws them when the keyframe is set
+
+        def match(self, query):
+            knn = self.matcher.knnMatch(query, k=2)
+            good = [a for a, *b in knn if b and a.distance < self.settings.ratio * b[0].distance]
+            return Matches(np.array([a.queryIdx for a in good], np.intp), np.array([a.trainIdx for a in good], np.intp))
+
+    views, feats = features
+
+    def run():
+        cv2.setRNGSeed(5)
+        est = OverlapEstimator()
+        return [est.estimate(feats[0], f) for f in feats[1:]]
+
+    ours = run()
+    monkeypatch.setattr(overlap_module, "DescriptorIndex", OpenCVFlannIndex)
+    theirs = run()
+    for a, b in zip(ours, theirs, strict=True):
+        assert a.known and (a.matches, a.inliers, a.R, a.dx, a.dy) == (b.matches, b.inliers, b.R, b.dx, b.dy)

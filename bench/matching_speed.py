@@ -9,12 +9,19 @@ ratio-tested matches, RANSAC, R) and of its matching alone (the keyframe's index
 candidate's query); then whether both checkouts found the same matches, inliers and R on every pair. Whole frames,
 no ROI mask, no telemetry prior, the gate's default settings.
 
+On a loaded machine CPU time drifts between processes; ``--interleaved`` also times the two checkouts' matching in
+one process, keyframe by keyframe in turn (the other checkout's ``companion/matching.py`` loaded from its file:
+main's ``DescriptorIndex(descriptors, kind, checks).ratio_test`` before this branch),
+``--repeat`` times, so the ratio of the two is measured under the same load.
+
     python bench/matching_speed.py /tmp/masktrain/sub900 --compare-with /tmp/main --frames 0:200 --rounds 2
+    python bench/matching_speed.py /tmp/masktrain/sub900 --compare-with /tmp/main --interleaved --repeat 5
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import subprocess
@@ -69,6 +76,51 @@ def _run_child(args: argparse.Namespace) -> None:
     }))
 
 
+def _interleaved(args: argparse.Namespace) -> None:
+    """This checkout's matching and the other's, keyframe by keyframe in turn in this process (same load)."""
+    import cv2
+
+    from companion.keyframes import FeatureExtractor, OverlapConfig
+    from companion.matching import DescriptorIndex
+
+    spec = importlib.util.spec_from_file_location("other_matching", args.compare_with / "companion" / "matching.py")
+    other = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(other)
+    files = sorted(args.folder.glob("*.jpg")) + sorted(args.folder.glob("*.png"))
+    a, b = (int(x) for x in args.frames.split(":"))
+    feats = [FeatureExtractor().extract(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)) for f in files[a:b]]
+    settings = OverlapConfig().matching
+    groups = [(i, list(range(i + 1, min(len(feats), i + 1 + args.span)))) for i in range(0, len(feats) - 1, args.step)]
+
+    def ours(i, js):
+        cv2.setRNGSeed(i)
+        index = DescriptorIndex(feats[i].descriptors, settings)
+        return [(m.query, m.indexed) for m in (index.match(feats[j].descriptors) for j in js)]
+
+    def theirs(i, js):
+        cv2.setRNGSeed(i)
+        index = other.DescriptorIndex(feats[i].descriptors, settings.kind, settings.checks)
+        return [index.ratio_test(feats[j].descriptors, settings.ratio) for j in js]
+
+    cpu = {"this": 0.0, "other": 0.0}
+    same = total = 0
+    for r in range(args.repeat):
+        for i, js in groups:
+            order = (("this", ours), ("other", theirs)) if (r + i) % 2 == 0 else (("other", theirs), ("this", ours))
+            got = {}
+            for name, fn in order:
+                t = time.process_time()
+                got[name] = fn(i, js)
+                cpu[name] += time.process_time() - t
+            for (q1, t1), (q2, t2) in zip(got["this"], got["other"], strict=True):
+                same += int(np.array_equal(q1, q2) and np.array_equal(t1, t2))
+                total += 1
+    n = args.repeat * sum(len(js) for _, js in groups)
+    print(f"interleaved in one process ({n} candidate matchings each, index built once per keyframe, gate settings "
+          f"{settings}): this {1000 * cpu['this'] / n:.2f} ms, other {1000 * cpu['other'] / n:.2f} ms CPU per "
+          f"candidate (this/other {cpu['this'] / cpu['other']:.3f}); same matches on {same} of {total}")
+
+
 def _child(checkout: Path, args: argparse.Namespace) -> dict:
     cmd = [sys.executable, str(Path(__file__).resolve()), str(args.folder), "--child", "--frames", args.frames,
            "--step", str(args.step), "--span", str(args.span)]
@@ -85,10 +137,17 @@ def main() -> None:
     ap.add_argument("--span", type=int, default=8, help="candidates compared with each keyframe")
     ap.add_argument("--compare-with", type=Path, default=None, help="another checkout, run alternately with this")
     ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--interleaved", action="store_true", help="with --compare-with: time both in this process")
+    ap.add_argument("--repeat", type=int, default=3, help="with --interleaved: passes over the keyframes")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         _run_child(args)
+        return
+    if args.interleaved:
+        if args.compare_with is None:
+            raise SystemExit("--interleaved needs --compare-with CHECKOUT")
+        _interleaved(args)
         return
     runs = [("this", HERE)] + ([("other", args.compare_with.resolve())] if args.compare_with else [])
     seen: dict[str, list] = {}

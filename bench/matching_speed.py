@@ -12,10 +12,12 @@ no ROI mask, no telemetry prior, the gate's default settings.
 On a loaded machine CPU time drifts between processes; ``--interleaved`` also times the two checkouts' matching in
 one process, keyframe by keyframe in turn (the other checkout's ``companion/matching.py`` loaded from its file:
 main's ``DescriptorIndex(descriptors, kind, checks).ratio_test`` before this branch),
-``--repeat`` times, so the ratio of the two is measured under the same load.
+``--repeat`` times, so the ratio of the two is measured under the same load; ``--stitch-features`` (a stitch run's
+``cache/features``) does the same for the stitcher's pair matching on its keyframes' descriptors.
 
     python bench/matching_speed.py /tmp/masktrain/sub900 --compare-with /tmp/main --frames 0:200 --rounds 2
-    python bench/matching_speed.py /tmp/masktrain/sub900 --compare-with /tmp/main --interleaved --repeat 5
+    python bench/matching_speed.py /tmp/masktrain/sub900 --compare-with /tmp/main --interleaved --repeat 5 \
+        --stitch-features /tmp/stitch_speed/warp/cache/features
 """
 
 from __future__ import annotations
@@ -76,16 +78,48 @@ def _run_child(args: argparse.Namespace) -> None:
     }))
 
 
+def _other_matching(checkout: Path):
+    """The other checkout's ``companion/matching.py``, loaded from its file beside this checkout's."""
+    spec = importlib.util.spec_from_file_location("other_matching", checkout / "companion" / "matching.py")
+    other = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(other)
+    return other
+
+
+def _in_turn(groups: list, ours, theirs, repeat: int) -> tuple[float, float, int, int, int]:
+    """CPU seconds of ``ours`` and ``theirs`` over every (indexed frame, query frames) group, called in turn (the
+    first of the two alternating), and how many of the matchings agree exactly."""
+    cpu = {"this": 0.0, "other": 0.0}
+    same = total = 0
+    for r in range(repeat):
+        for k, (i, js) in enumerate(groups):
+            order = (("this", ours), ("other", theirs)) if (r + k) % 2 == 0 else (("other", theirs), ("this", ours))
+            got = {}
+            for name, fn in order:
+                t = time.process_time()
+                got[name] = fn(i, js)
+                cpu[name] += time.process_time() - t
+            for (q1, t1), (q2, t2) in zip(got["this"], got["other"], strict=True):
+                same += int(np.array_equal(q1, q2) and np.array_equal(t1, t2))
+                total += 1
+    return cpu["this"], cpu["other"], same, total, repeat * sum(len(js) for _, js in groups)
+
+
+def _print_in_turn(what: str, timed: tuple[float, float, int, int, int]) -> None:
+    this, other, same, total, n = timed
+    print(f"{what}, in turn in one process, {n} matchings each: this {1000 * this / n:.2f} ms, other "
+          f"{1000 * other / n:.2f} ms CPU per matching (this/other {this / other:.3f}); same matches on {same} of "
+          f"{total}")
+
+
 def _interleaved(args: argparse.Namespace) -> None:
-    """This checkout's matching and the other's, keyframe by keyframe in turn in this process (same load)."""
+    """The gate's matching of this checkout and the other's, keyframe by keyframe in turn (same load)."""
     import cv2
 
     from companion.keyframes import FeatureExtractor, OverlapConfig
     from companion.matching import DescriptorIndex
 
-    spec = importlib.util.spec_from_file_location("other_matching", args.compare_with / "companion" / "matching.py")
-    other = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(other)
+    other = _other_matching(args.compare_with)
     files = sorted(args.folder.glob("*.jpg")) + sorted(args.folder.glob("*.png"))
     a, b = (int(x) for x in args.frames.split(":"))
     feats = [FeatureExtractor().extract(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)) for f in files[a:b]]
@@ -102,23 +136,35 @@ def _interleaved(args: argparse.Namespace) -> None:
         index = other.DescriptorIndex(feats[i].descriptors, settings.kind, settings.checks)
         return [index.ratio_test(feats[j].descriptors, settings.ratio) for j in js]
 
-    cpu = {"this": 0.0, "other": 0.0}
-    same = total = 0
-    for r in range(args.repeat):
-        for i, js in groups:
-            order = (("this", ours), ("other", theirs)) if (r + i) % 2 == 0 else (("other", theirs), ("this", ours))
-            got = {}
-            for name, fn in order:
-                t = time.process_time()
-                got[name] = fn(i, js)
-                cpu[name] += time.process_time() - t
-            for (q1, t1), (q2, t2) in zip(got["this"], got["other"], strict=True):
-                same += int(np.array_equal(q1, q2) and np.array_equal(t1, t2))
-                total += 1
-    n = args.repeat * sum(len(js) for _, js in groups)
-    print(f"interleaved in one process ({n} candidate matchings each, index built once per keyframe, gate settings "
-          f"{settings}): this {1000 * cpu['this'] / n:.2f} ms, other {1000 * cpu['other'] / n:.2f} ms CPU per "
-          f"candidate (this/other {cpu['this'] / cpu['other']:.3f}); same matches on {same} of {total}")
+    _print_in_turn(f"gate, a keyframe's index queried by its candidates ({settings})",
+                   _in_turn(groups, ours, theirs, args.repeat))
+
+
+def _interleaved_stitch(args: argparse.Namespace) -> None:
+    """The stitcher's pair matching of this checkout and the other's on a stitch run's cached features: keyframe
+    j's index (seeded by j, as ``stitch.pairs.keyframe_index``) queried by keyframes j-2 and j-1."""
+    from companion.matching import DescriptorIndex
+    from companion.stitch.config import STITCH_MATCHING
+
+    other = _other_matching(args.compare_with)
+    desc = [np.load(p)["desc"] for p in sorted(args.stitch_features.glob("kf*.npz"))]
+    groups = [(j, [i for i in (j - 2, j - 1) if i >= 0]) for j in range(1, len(desc))]
+
+    def ours(j, is_):
+        index = DescriptorIndex(desc[j], STITCH_MATCHING, seed=7919 * j + 17)
+        return [(m.query, m.indexed) for m in (index.match(desc[i]) for i in is_)]
+
+    def theirs(j, is_):
+        import cv2
+
+        cv2.setRNGSeed(7919 * j + 17)
+        index = other.DescriptorIndex(desc[j], checks=STITCH_MATCHING.checks)
+        return [index.ratio_test(desc[i], STITCH_MATCHING.ratio) for i in is_]
+
+    print(f"stitcher features: {len(desc)} keyframes from {args.stitch_features}, "
+          f"{np.mean([len(d) for d in desc]):.0f} descriptors each")
+    _print_in_turn(f"stitcher, keyframe j's index queried by j-2 and j-1 ({STITCH_MATCHING})",
+                   _in_turn(groups, ours, theirs, args.repeat))
 
 
 def _child(checkout: Path, args: argparse.Namespace) -> dict:
@@ -139,6 +185,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=1)
     ap.add_argument("--interleaved", action="store_true", help="with --compare-with: time both in this process")
     ap.add_argument("--repeat", type=int, default=3, help="with --interleaved: passes over the keyframes")
+    ap.add_argument("--stitch-features", type=Path, default=None,
+                    help="with --interleaved: also the stitcher's pairs on a stitch run's cache/features folder")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -148,6 +196,8 @@ def main() -> None:
         if args.compare_with is None:
             raise SystemExit("--interleaved needs --compare-with CHECKOUT")
         _interleaved(args)
+        if args.stitch_features is not None:
+            _interleaved_stitch(args)
         return
     runs = [("this", HERE)] + ([("other", args.compare_with.resolve())] if args.compare_with else [])
     seen: dict[str, list] = {}

@@ -18,8 +18,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.matching import make_matcher, ransac_homography, ratio_test_matches
-from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_homography, truth_on_grid
+from companion.matching import match_descriptors
+from companion.ransac import ransac_homography
+from companion.stitch.evaluate import (
+    EVALUATION_MATCHING,
+    map_accuracy,
+    register_to_truth,
+    truth_homography,
+    truth_on_grid,
+)
 from companion.stitch.render import MapGrid
 from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
 
@@ -297,7 +304,8 @@ def background_inliers(image: np.ndarray, background: np.ndarray) -> int:
     k2, d2 = sift.detectAndCompute(g2, None)
     if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
         return 0
-    q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
+    found = match_descriptors(d1, d2, EVALUATION_MATCHING)
+    q1, t2 = found.query, found.indexed
     if len(q1) < 8:
         return 0
     p1 = np.float32([k1[i].pt for i in q1])

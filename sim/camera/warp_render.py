@@ -584,6 +584,14 @@ class WarpRenderer(Renderer):
                 w = np.add(w_row[None, :], w_col[:, None], out=zb[out])
             vis = None
             full = True
+        elif not self._drawn and self._in_front(uv, g):
+            # the first face drawn (the wall at its end or seen at an angle): the depth buffer is all 0 and the
+            # plane is in front all over its polygon, so the depth test passes on every pixel of the polygon's
+            # mask, whose rectangle is tight: the test, its AND with the mask and its bounding box are skipped
+            w = w_row[None, :] + w_col[:, None]
+            vis, X0, Y0, bw, bh = mask, x0, y0, x1 - x0, y1 - y0
+            out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
+            full = False  # (a mask means a pixel of the rectangle is outside the polygon)
         else:  # the depth test as a uint8 mask (non-zero: visible), OpenCV masked copies below
             w = w_row[None, :] + w_col[:, None]
             vis = cv2.compare(w, zb[y0:y1, x0:x1], cv2.CMP_GT)
@@ -673,6 +681,12 @@ class WarpRenderer(Renderer):
         if dst is None:
             return cv2.cvtColor(col, cv2.COLOR_BGRA2BGR)
         return cv2.cvtColor(col, cv2.COLOR_BGRA2BGR, dst=dst)
+
+    def _in_front(self, uv, g) -> bool:
+        """True if the plane's inverse depth is positive, with a margin far above float32 rounding, at every
+        pixel centre of the image polygon ``uv``: it is affine in the pixel, so least at a vertex."""
+        w = (g[0] * (uv[:, 0] + 0.5 - self._cx) / self._fx + g[1] * (uv[:, 1] + 0.5 - self._cy) / self._fy + g[2])
+        return float(w.min()) > 1e-3 * float(np.abs(w).max())
 
     def _hidden(self, uv, g, zb) -> bool:
         """True if something nearer already covers the polygon's whole bounding box (far buildings behind the

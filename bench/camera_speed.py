@@ -198,15 +198,10 @@ def main() -> int:
                         "mission's planned scan from its first strip (the wall's left end), kinematic flight")
     p.add_argument("--live-lead", type=float, default=0.0, metavar="S",
                    help="seconds the camera runs before the first pose (takeoff and transit in a real flight)")
-    p.add_argument("--cv-threads", type=int, default=1,
-                   help="OpenCV worker threads (1: as the live camera process runs, python -m sim camera; 0: "
-                        "OpenCV's default, one per CPU)")
     a = p.parse_args()
-    if a.cv_threads > 0:
-        cv2.setNumThreads(a.cv_threads)
     mission = load_mission(a.mission)
     print(f"machine: {platform.platform()}, {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; "
-          f"mission {a.mission}; OpenCV threads {cv2.getNumThreads()}; load average {os.getloadavg()[0]:.1f}")
+          f"mission {a.mission}; load average {os.getloadavg()[0]:.1f}")
     print("view | renderer | width x height | first frame cpu/wall s | per frame cpu s | per frame wall s | "
           "frames/s (cpu) | jpeg s | cpu vs first renderer")
     for view in a.views if a.frames > 0 else []:  # --frames 0: only the live camera

@@ -416,10 +416,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    # one OpenCV worker: the camera process's cost is its CPU per frame, and on a 2-core board shared with the
-    # companion a second worker only adds wake-ups and hand-offs (about 7 % more CPU per 1280 px frame measured
-    # with bench/camera_speed.py --cv-threads); render and delivery already run on two threads of their own
-    cv2.setNumThreads(1)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = LiveConfig(pose_port=args.pose_port, stream_host=args.stream_host, stream_port=args.stream_port,
                      width_px=args.width, fps=args.fps, seed=args.seed, record_dir=args.record,

@@ -196,7 +196,6 @@ class WarpRenderer(Renderer):
                                     for u in (-1, W) for v in (-1, H)])  # _polygon's clipping rectangle's corners
         self._dnorm32 = self._dnorm.astype(np.float32)
         self._horizon_img: np.ndarray | None = None
-        self._warp_buf: np.ndarray | None = None  # _warp's BGRA output, reused frame to frame
 
     # ---- the scene as planes -----------------------------------------------------------------------------
     def _lambert(self, n) -> float:
@@ -584,14 +583,6 @@ class WarpRenderer(Renderer):
                 w = np.add(w_row[None, :], w_col[:, None], out=zb[out])
             vis = None
             full = True
-        elif not self._drawn and self._in_front(uv, g):
-            # the first face drawn (the wall at its end or seen at an angle): the depth buffer is all 0 and the
-            # plane is in front all over its polygon, so the depth test passes on every pixel of the polygon's
-            # mask, whose rectangle is tight: the test, its AND with the mask and its bounding box are skipped
-            w = w_row[None, :] + w_col[:, None]
-            vis, X0, Y0, bw, bh = mask, x0, y0, x1 - x0, y1 - y0
-            out = (slice(Y0, Y0 + bh), slice(X0, X0 + bw))
-            full = False  # (a mask means a pixel of the rectangle is outside the polygon)
         else:  # the depth test as a uint8 mask (non-zero: visible), OpenCV masked copies below
             w = w_row[None, :] + w_col[:, None]
             vis = cv2.compare(w, zb[y0:y1, x0:x1], cv2.CMP_GT)
@@ -641,21 +632,14 @@ class WarpRenderer(Renderer):
             if s0 >= s1 or t0 >= t1:
                 s0, s1, t0, t1 = cs - 1, cs + 1, ct - 1, ct + 1
         patch, ao, uo, px = self._patch(f, key, s0, t0, s1, t1, level, bw * bh)
-        # every sample of a pixel inside the face lies in [s0, s1] x [t0, t1] (unless cut to the patch window
-        # above); a texel or more inside the patch on every side, all four bilinear neighbours are patch texels
-        # and the border rule never applies to them
-        a0, u0 = s0 + f.uv_offset[0], t0 + f.uv_offset[1]
-        a1, u1 = s1 + f.uv_offset[0], t1 + f.uv_offset[1]
-        inside = f.patch_window_m is None and (a0 - ao >= px and u0 - uo >= px and ao + patch.shape[1] * px - a1 >= px
-                  and uo + patch.shape[0] * px - u1 >= px)
         T1 = np.array([[px, 0.0, ao + 0.5 * px - f.uv_offset[0]], [0.0, px, uo + 0.5 * px - f.uv_offset[1]],
                        [0.0, 0.0, 1.0]])
         P = np.column_stack([A.T @ f.e1, A.T @ f.e2, A.T @ (f.origin - orig)])
         Hm = self._kidx(X0, Y0) @ P @ T1
         if full and not f.haze:
-            self._warp(patch, Hm, (bw, bh), dst=img[out], inside=inside)
+            self._warp(patch, Hm, (bw, bh), dst=img[out])
             return
-        col = self._warp(patch, Hm, (bw, bh), inside=inside)
+        col = self._warp(patch, Hm, (bw, bh))
         if f.haze:
             col = self._hazed(col, w, X0, Y0)
         if full:
@@ -663,30 +647,14 @@ class WarpRenderer(Renderer):
         else:
             cv2.copyTo(col, vis, dst=img[out])
 
-    def _warp(self, patch4: np.ndarray, Hm: np.ndarray, size: tuple[int, int], dst: np.ndarray | None = None,
-              inside: bool = False) -> np.ndarray:
+    @staticmethod
+    def _warp(patch4: np.ndarray, Hm: np.ndarray, size: tuple[int, int], dst: np.ndarray | None = None) -> np.ndarray:
         """Bilinear perspective warp of a BGRA patch to BGR. OpenCV vectorises the 4-channel warp (about half the
-        time of the 3-channel one at 1280 x 720); dropping the alpha channel afterwards costs far less.
-
-        ``inside``: the pixels that will be kept sample the patch at least a texel inside its border, so the
-        border rule changes no kept pixel and the constant border (about 30 % cheaper than replicating the edge
-        texels in OpenCV's warp at 1280 x 720) gives the same values; pixels sampling outside are masked out by
-        the caller. The BGRA result goes to a buffer kept across frames (no fresh 3.7 MB per frame)."""
-        w, h = size
-        if self._warp_buf is None or self._warp_buf.shape[0] < h or self._warp_buf.shape[1] < w:
-            self._warp_buf = np.empty((max(h, self.camera.height), max(w, self.camera.width), 4), np.uint8)
-        border = cv2.BORDER_CONSTANT if inside else cv2.BORDER_REPLICATE
-        col = cv2.warpPerspective(patch4, Hm, size, dst=self._warp_buf[:h, :w], flags=cv2.INTER_LINEAR,
-                                  borderMode=border)
+        time of the 3-channel one at 1280 x 720); dropping the alpha channel afterwards costs far less."""
+        col = cv2.warpPerspective(patch4, Hm, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if dst is None:
             return cv2.cvtColor(col, cv2.COLOR_BGRA2BGR)
         return cv2.cvtColor(col, cv2.COLOR_BGRA2BGR, dst=dst)
-
-    def _in_front(self, uv, g) -> bool:
-        """True if the plane's inverse depth is positive, with a margin far above float32 rounding, at every
-        pixel centre of the image polygon ``uv``: it is affine in the pixel, so least at a vertex."""
-        w = (g[0] * (uv[:, 0] + 0.5 - self._cx) / self._fx + g[1] * (uv[:, 1] + 0.5 - self._cy) / self._fy + g[2])
-        return float(w.min()) > 1e-3 * float(np.abs(w).max())
 
     def _hidden(self, uv, g, zb) -> bool:
         """True if something nearer already covers the polygon's whole bounding box (far buildings behind the

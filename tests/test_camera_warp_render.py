@@ -116,6 +116,17 @@ def test_noise_power_is_the_shot_noise_models():
             assert abs(float(d[ok].mean())) < 0.1
 
 
+def test_radiance_depth_is_the_frames(renderers):
+    """``radiance_u8``'s z-depth and surfaces are the rendered frame's, also when the wall fills the view (its
+    inverse depth is written only when read: it was returned unwritten, all sky)."""
+    _, warp_r = renderers
+    for name in ("facing the wall", "off the left end"):
+        _, depth, surface = warp_r.radiance_u8(POSES[name])
+        frame = warp_r.render(POSES[name])
+        assert np.array_equal(depth, frame.depth) and np.array_equal(surface, frame.surface), name
+        assert np.isfinite(depth).any(), name
+
+
 def test_motion_blur_as_the_ray_caster():
     scene = Scene.build(L, H, seed=1)
     fast = pose_at(L / 2, 4.0, 6.0, velocity_enu_m_s=np.array([6.0, 0.0, 0.0]))

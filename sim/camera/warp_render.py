@@ -189,6 +189,7 @@ class WarpRenderer(Renderer):
         self._zb_low = 0.0  # lower bound of the frame's least inverse depth (0: something may still be empty)
         self._zb_exact = True  # _zb_low is the least value itself (nothing drawn since it was read)
         self._drawn = False  # anything drawn in this frame yet
+        self._blank: tuple | None = None  # this frame's buffers while not yet zeroed nor written whole (_clear)
         self._dnorm_max = float(self._dnorm.max())  # a surface at distance d has inverse z-depth <= this / d
         self._median_dn2: float | None = None
         W, H = camera.width, camera.height
@@ -483,6 +484,7 @@ class WarpRenderer(Renderer):
     def radiance_u8(self, pose: TruePose):
         """Scene colour (BGR uint8, radiance x 255 before exposure), z-depth (float32, inf for sky), surfaces."""
         img, zb, sid = self._radiance(pose)
+        self._settle(zb)  # a face filling the frame leaves its inverse depth pending (render's frame writes it)
         with np.errstate(divide="ignore"):
             return img, np.float32(1.0) / zb, sid
 
@@ -491,9 +493,12 @@ class WarpRenderer(Renderer):
         A = self.M @ pose.R_world_from_cam  # facade <- camera
         orig = self.M @ pose.position_enu
         W, H = self.camera.width, self.camera.height
-        img = np.zeros((H, W, 3), np.uint8)
-        zb = np.zeros((H, W), np.float32)  # inverse z-depth: 0 = nothing (sky)
-        sid = np.zeros((H, W), np.uint8)
+        img = np.empty((H, W, 3), np.uint8)
+        zb = np.empty((H, W), np.float32)  # inverse z-depth: 0 = nothing (sky)
+        sid = np.empty((H, W), np.uint8)
+        # zeroed (_clear) before the first partial write; a first face filling the frame writes every pixel of
+        # all three (the wall face-on: most frames), which then are never zeroed
+        self._blank = (img, zb, sid)
         faces = self._faces + self._ground_faces(orig)
         cams, order, dist = self._candidates(faces, A, orig)
         self._zb_low, self._zb_exact, self._drawn = 0.0, True, False
@@ -506,14 +511,24 @@ class WarpRenderer(Renderer):
         # the frame (the wall face-on): their tests below would skip every one on the same bound
         near = np.linalg.norm(np.maximum(np.maximum(self._obj_lo - orig, 0.0), orig - self._obj_hi), axis=1)
         if not (self._zb_low * near > self._dnorm_max * 1.001).all():
+            self._clear()
             self._settle(zb)
             rects, near = self._object_rects(orig, A)
             self._draw_trunks(A, orig, img, zb, sid, rects, near)
             self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
         if self._zb_low == 0.0:  # else every pixel is drawn: no sky in view
+            self._clear()
             self._settle(zb)
             self._draw_sky(A, img, zb)
+        self._clear()  # (nothing was drawn: all sky, already cleared above)
         return img, zb, sid
+
+    def _clear(self) -> None:
+        """Zero the frame's image, depth and surface buffers unless done or a face filling the frame wrote them."""
+        if self._blank is not None:
+            for b in self._blank:
+                b.fill(0)
+            self._blank = None
 
     def _settle(self, zb: np.ndarray) -> None:
         """Write a pending face's inverse depth into the depth buffer before anything reads it."""
@@ -572,6 +587,10 @@ class WarpRenderer(Renderer):
         (x0, y0, x1, y1), mask = got
         w_row = np.float32(g[0]) * self._rx_row[x0:x1]
         w_col = np.float32(g[1]) * self._ry_col[y0:y1] + np.float32(g[2])
+        if not (not self._drawn and mask is None and (x1 - x0) * (y1 - y0) == zb.size):
+            self._clear()  # a partial write: the buffers must hold 0 (nothing) everywhere else
+        else:
+            self._blank = None  # the face fills the frame: every pixel of image, depth, surfaces written below
         if not self._drawn and mask is None:  # (nothing drawn yet: the depth buffer is all 0)
             # the first face drawn there and its polygon covers the rectangle (the wall filling the view): every
             # pixel is visible; its inverse depth goes straight into the depth buffer

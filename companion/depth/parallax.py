@@ -514,7 +514,8 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     patch with only near neighbours may touch the frame's bottom or sides, or hang from its top edge alone
     (``continuity_wall_borders``: balcony bases, a plinth, a pilaster under the frame's top); one spanning the top
     and a side (sky above a roof line, near pixels below it and nothing far) is left to the network: nothing in
-    the two frames says which side of the roof line it belongs to.
+    the two frames says which side of the roof line it belongs to. Except in a frame that shows no background at
+    all (``continuity_top_max_far_share``): there every patch touching the top is judged by its neighbours too.
     """
     p = parallax.params
     plain = ~parallax.trusted

@@ -76,3 +76,17 @@ def test_textured_background_the_flow_could_not_track_is_far_where_a_far_motion_
     share = float(par.far[background].mean())
     assert far_share[0] <= share <= far_share[1], f"{rules}: {100 * share:.1f} % of the background far"
     assert not par.far[:, 8:52].any() and par.near[:, 8:52].mean() > 0.9
+
+
+def test_a_shift_a_millionth_of_a_pixel_off_whole_keeps_the_frames_edge_row():
+    """Telemetry never gives an exactly horizontal baseline (the geodetic round trip alone leaves 1e-7 m up or
+    down): the wall-plane check's patch comparison must not drop the frame's top row as 'outside the reference' for
+    a 1e-6 px vertical shift. It did, so the onboard masker's masks differed from the bench's replay of it (the
+    same frames with an exact baseline) by up to 5 points of a frame on the 40 m pass."""
+    from companion.depth.parallax import _patch_residual
+
+    rng = np.random.default_rng(0)
+    ref = rng.integers(0, 255, (20, 30)).astype(np.uint8)
+    _, inside = _patch_residual(ref, ref, 3.0, -1e-6, 3)
+    assert inside[0, :27].all() and inside[-1, :27].all()
+    assert not inside[:, 27:].any(), "a whole 3 px shift still leaves the last 3 columns outside"

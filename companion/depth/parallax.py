@@ -267,8 +267,11 @@ def _patch_residual(ref: np.ndarray, cur: np.ndarray, dx: float, dy: float, box:
     diff = cv2.absdiff(cur, moved).astype(np.float32)
     h, w = cur.shape
     inside = np.zeros((h, w), bool)
-    x0, x1 = max(0, int(np.ceil(-dx))), min(w, int(np.floor(w - 1 - dx)) + 1)
-    y0, y1 = max(0, int(np.ceil(-dy))), min(h, int(np.floor(h - 1 - dy)) + 1)
+    # a shift within a thousandth of a pixel of whole is whole (telemetry never gives an exact 0: a 1e-6 px
+    # vertical shift must not put the whole top row outside the reference)
+    tol = 1e-3
+    x0, x1 = max(0, int(np.ceil(-dx - tol))), min(w, int(np.floor(w - 1 - dx + tol)) + 1)
+    y0, y1 = max(0, int(np.ceil(-dy - tol))), min(h, int(np.floor(h - 1 - dy + tol)) + 1)
     inside[y0:y1, x0:x1] = True
     return cv2.boxFilter(diff, -1, (box, box)), inside
 

@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from companion.depth.evaluate import MaskEval, frame_eval, save_visual
-from companion.depth.masker import Masker, unjudged_params
+from companion.depth.masker import Masker
 from companion.depth.parallax import PARALLAX_RULES, ParallaxParams
-from companion.depth.roi import ROI_RULES, extract_roi
+from companion.depth.roi import ROI_RULES
 from companion.depth.session import DEFAULT_MODEL, DepthSession
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,43 +81,56 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
             n += 1
 
 
-def _parallax_per_label(params: dict, history: list, image: np.ndarray, pos, R, fx: float,
-                        standoff_m: float | None = None) -> dict:
-    """Each parallax label's depth-from-flow against its reference among the recent frames (None: no reference);
-    one flow per working width, shared by the labels that use it."""
-    from companion.depth.parallax import camera_translation, dense_flow, depth_from_flow, pick_reference
+def facade_pose(index: int, position: np.ndarray):
+    """The exact telemetry pose (``companion.records.Pose``) of a photo pass's camera at facade (along, out, up),
+    facing the wall with the gimbal level: what the onboard masker reads (its parallax baselines are relative)."""
+    from companion.records import Pose
+    from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
-    pars, flows = {}, {}
-    for w, pp in params.items():
-        k = pick_reference([h[1] for h in history], pos, pp)
-        if k is None:
-            pars[w] = None
-            continue
-        t = camera_translation(R, history[k][1], R, pos)
-        if pp.work_width not in flows:
-            flows[pp.work_width] = dense_flow(history[k][0], image, pp)
-        pars[w] = depth_from_flow(flows[pp.work_width], t, fx, pp, standoff_m)
-    return pars
+    along, out, up = (float(v) for v in position)
+    frame = wall_frame(SyntheticWall(length_m=12.0, height_m=3.0))  # any wall: only its site and heading matter
+    row = reported_pose(np.random.default_rng(0), frame, (along, out, up, 0.0, 0.0), TelemetryErrors(), index)
+    return Pose.from_json({**row, "t_boot_s": index / 10.0})
+
+
+def _parallax_maskers(sessions: dict[str, DepthSession], rules: list[str], params: dict, fx: float, width: int,
+                      standoff_m: float) -> dict[tuple[str, str], Masker]:
+    """One onboard masker per (model, ROI rule, parallax label, flow skipped where the network is sure or not),
+    each with its own frame history, as the chain builds it (``SequenceParallax`` with the mission's standoff)."""
+    from companion.depth.parallax import SequenceParallax
+
+    hfov = float(np.degrees(2 * np.arctan(width / 2 / fx)))
+    out = {}
+    for m, session in sessions.items():
+        for r in rules:
+            for w, pp in params.items():
+                for tag in ("", " sure skipped"):
+                    judged = pp if tag else replace(pp, sure_wall_standoffs=None)  # "": every frame judged
+                    out[(m, f"{r}+parallax@{w}{tag}")] = Masker(
+                        session=session, params=ROI_RULES[r],
+                        parallax=SequenceParallax(hfov, judged, standoff_m=standoff_m))
+    return out
 
 
 def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], save: Path | None,
-                  parallax: dict | None = None):
+                  parallax: dict | None = None, facade_poses: bool = True):
     """Run every model once per frame and every ROI rule on its disparity; MaskEval per (model, rule).
 
-    With ``parallax`` (label -> ParallaxParams): also each (model, rule) corrected by motion parallax (each label's
-    flow width and rules)
-    against an earlier frame of the pass (true camera positions as telemetry), once on every frame and once
-    skipping the frames the network is sure of (``network_is_sure``: no depth boundary, at about the standoff),
-    as the onboard masker does; and parallax alone (model "-", untrusted pixels background).
+    With ``parallax`` (label -> ParallaxParams): also each (model, rule) masked by the onboard masker with motion
+    parallax (``Masker.mask_disparity`` on the same network output: each label's flow width and rules), frames in
+    capture order with exact telemetry (``facade_pose``; ``facade_poses=False``, the simulator's recordings: no
+    pose, so the network alone, as their frames are a metre apart), once judging every frame and once skipping the
+    frames the network is sure of (``network_is_sure``) as the chain does; and parallax alone (model "-",
+    untrusted pixels background).
     """
     from companion.depth.parallax import (
-        carried_wall,
+        camera_translation,
+        dense_flow,
+        depth_from_flow,
         fuse_with_network,
-        keep_wall_in_view,
-        kept_wall,
-        network_is_sure,
-        wall_depth_of,
+        pick_reference,
     )
+    from companion.records import Frame, TaggedFrame
 
     maskers = {(m, r): Masker(session=s, params=ROI_RULES[r]) for m, s in sessions.items() for r in rules}
     evals = {key: MaskEval(recording=f"{key[0]} / {key[1]}") for key in maskers}
@@ -128,20 +141,24 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                 evals[(m, f"{r}+parallax@{w}{tag}")] = MaskEval(recording=f"{m} / {r}+parallax@{w}{tag}")
     if params:
         evals[("-", "parallax alone")] = MaskEval(recording="parallax alone")
-    skipped = {key: 0 for key in evals}
-    history: list[tuple[np.ndarray, np.ndarray]] = []  # (image, camera position) of recent frames
-    kept = {}  # per parallax row: the last kept frame's wall (carried into frames about to be dropped)
+    onboard: dict[tuple[str, str], Masker] = {}
+    history: list[tuple[np.ndarray, np.ndarray]] = []  # (image, camera position) of recent frames: parallax alone
     for i, image, truth, (pos, R, fx, standoff_m) in frames:
-        pars = {}
-        if params and fx:
-            pars = _parallax_per_label(params, history, image, pos, R, fx, standoff_m)
-            history = (history + [(image, pos)])[-12:]
+        if params and not onboard:
+            onboard = _parallax_maskers(sessions, rules, params, fx, image.shape[1], standoff_m)
         if params:
+            first = next(iter(params.values()))
+            k = pick_reference([h[1] for h in history], pos, first) if fx else None
             zero = np.zeros(image.shape[:2], np.uint8)
-            first = pars.get(next(iter(params)))
-            alone, dropped = fuse_with_network(zero, first) if first is not None else (zero, False)
+            alone, dropped = zero, False
+            if k is not None:
+                t = camera_translation(R, history[k][1], R, pos)
+                alone, dropped = fuse_with_network(zero, depth_from_flow(dense_flow(history[k][0], image, first), t,
+                                                                         fx, first, standoff_m))
+            history = (history + [(image, pos)])[-12:]
             evals[("-", "parallax alone")].frames.append(frame_eval(i, truth, np.zeros((8, 8), np.float32),
                                                                     _as_roi(alone, dropped)))
+        tagged = TaggedFrame(Frame(i, i / 10.0, image), facade_pose(i, pos) if facade_poses else None)
         for model, session in sessions.items():
             t0 = time.perf_counter()
             disp = session.disparity(image)
@@ -152,32 +169,15 @@ def evaluate_pass(frames, sessions: dict[str, DepthSession], rules: list[str], s
                 roi = masker.roi_from_disparity(disp, image.shape[:2])
                 ev = frame_eval(i, truth, disp, roi, depth_ms=depth_ms, mask_ms=(time.perf_counter() - t1) * 1e3)
                 evals[(model, rule)].frames.append(ev)
-                sure = network_is_sure(roi, session.info, standoff_m)
-                net_depth = session.info.depth_from_disparity(np.squeeze(disp))
-                for w, par in pars.items():
-                    pp = params[w]
-                    for tag in ("", " sure skipped"):
-                        key = (model, f"{rule}+parallax@{w}{tag}")
-                        judged = par if not (tag and sure) else None
-                        if judged is not None:
-                            fused, dropped = fuse_with_network(roi.mask, judged, net_depth, image)
-                        elif par is None:  # no reference: the masker's ROI for a frame parallax cannot judge
-                            own = extract_roi(disp, (image.shape[1], image.shape[0]),
-                                              unjudged_params(masker.params, pp))
-                            fused, dropped = own.mask, own.empty
-                        else:
-                            fused, dropped = roi.mask, roi.empty
-                        in_view = carried_wall(kept.get(key), pos, R, fx, image.shape[1], pp) if fx else None
-                        carried = keep_wall_in_view(fused, dropped, in_view, judged, pp)
-                        wall_m = (wall_depth_of(judged, standoff_m) if carried[0] is fused
-                                  else kept[key].wall_depth_m)
-                        fused, dropped = carried
-                        if not dropped and fused.any():
-                            kept[key] = kept_wall(fused, pos, wall_m, pp)
-                        skipped[key] += int(bool(tag) and sure and par is not None)
-                        evals[key].frames.append(frame_eval(i, truth, disp, _as_roi(fused, dropped)))
+                for key, seq in onboard.items():
+                    if key[0] == model and key[1].startswith(f"{rule}+"):
+                        masked, own = seq.mask_disparity(tagged, disp)
+                        mask = own.mask if masked is not None else np.zeros(image.shape[:2], np.uint8)
+                        evals[key].frames.append(frame_eval(i, truth, disp, _as_roi(mask, masked is None)))
                 if save is not None and i % 10 == 0:
                     save_visual(save / f"{Path(model).stem}_{rule}" / f"{i:04d}.jpg", image, disp, roi.mask, truth)
+    skipped = {key: (seq.stats.parallax_skipped_sure if "sure skipped" in key[1] else 0)
+               for key, seq in onboard.items()}
     return evals, skipped
 
 
@@ -245,7 +245,7 @@ def main() -> None:
     for name in args.passes:
         frames = sim_frames(args) if name == "sim" else photo_pass_frames(name, args)
         save = Path(args.save) / name if args.save else None
-        rows += print_table(name, *evaluate_pass(frames, sessions, args.roi, save, parallax))
+        rows += print_table(name, *evaluate_pass(frames, sessions, args.roi, save, parallax, name != "sim"))
     print(f"\nmachine: {platform.machine()} {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; "
           f"{time.perf_counter() - t0:.0f} s")
     if args.json:

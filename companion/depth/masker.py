@@ -68,9 +68,20 @@ class Masker:
     def mask_measured(self, tagged: TaggedFrame) -> tuple[MaskedFrame | None, RoiResult, np.ndarray]:
         """:meth:`mask` plus the network's disparity (model resolution), for evaluations that look at it; the
         chain does not carry it."""
-        image = tagged.frame.image
         t0 = time.perf_counter()
-        disp = self.session.disparity(image)
+        disp = self.session.disparity(tagged.frame.image)
+        masked, roi = self._mask_from_disparity(tagged, disp, (time.perf_counter() - t0) * 1e3)
+        return masked, roi, disp
+
+    def mask_disparity(self, tagged: TaggedFrame, disparity: np.ndarray) -> tuple[MaskedFrame | None, RoiResult]:
+        """:meth:`mask` of a frame whose disparity this masker's model already gave (``session.disparity``): an
+        evaluation runs the network once per frame and several maskers (ROI and parallax rules) on its answer, each
+        exactly as the chain masks (no network time is counted)."""
+        return self._mask_from_disparity(tagged, disparity, None)
+
+    def _mask_from_disparity(self, tagged: TaggedFrame, disp: np.ndarray,
+                             depth_ms: float | None) -> tuple[MaskedFrame | None, RoiResult]:
+        image = tagged.frame.image
         t1 = time.perf_counter()
         roi = self.roi_from_disparity(disp, image.shape[:2])
         if self.parallax is not None:
@@ -78,13 +89,14 @@ class Masker:
         t2 = time.perf_counter()
         st = self.stats
         st.frames += 1
-        st.depth_ms.append((t1 - t0) * 1e3)
+        if depth_ms is not None:
+            st.depth_ms.append(depth_ms)
         st.mask_ms.append((t2 - t1) * 1e3)
         st.no_boundary += int(roi.no_boundary)
         if roi.empty:
             st.dropped_empty += 1
-            return None, roi, disp
-        return MaskedFrame(tagged=tagged, mask=roi.mask), roi, disp
+            return None, roi
+        return MaskedFrame(tagged=tagged, mask=roi.mask), roi
 
     def remember(self, tagged: TaggedFrame) -> None:
         """Show the masker a frame it will not mask (the chain tracks it only): with parallax on, it becomes a

@@ -62,6 +62,17 @@ class ParallaxParams:
     # more wall on the held-out passes, but on a validation pass it kept background seen through a hole in the
     # facade hanging from the frame's top, where the flow had called the background near).
     continuity_wall_borders: str = "bottom,left,right"
+    # A frame whose trusted pixels show (almost) no far texture (at most this share of the frame is trusted far)
+    # gives no sign of a background anywhere: there a plain patch touching the top whose trusted neighbours are all
+    # near (plain render between windows running up out of the frame, a plain band beside the balconies, the plain
+    # part of the wall photo the network reads at 20-90 m) is judged wall like the other borders. It was the
+    # largest error left on the real-texture passes (docs/DEPTH.md "Plain wall running out of the frame's top"):
+    # on wall-only frames of the two-strip passes the `sim` network cut 2-17 % of the frame there. The price: plain
+    # sky above a roof line in a frame that shows no textured background at all is kept (nothing in the two
+    # frames tells it from plain wall). 1 % of the frame: the few far pixels flow noise and mistracked railings
+    # give a wall-only frame stay under it, a background beside the wall's end shows far more. None: the top is
+    # always left to the network (the rule before).
+    continuity_top_max_far_share: float | None = 0.01
     calibrate_min_share: float = 0.03
     calibrate_max_error: float = 0.15
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
@@ -111,6 +122,13 @@ class ParallaxParams:
     # True: a pixel DIS calls far stays far only where the far motion fits clearly better; False: unless the wall's
     # motion fits clearly better
     plane_far_verified: bool = True
+    # True: a textured pixel DIS could not track (forward-backward inconsistent: DIS's coarse-to-fine flow smears the
+    # wall's large motion over a background beside it) whose patch fits a far motion clearly better than the
+    # wall's, and closely (within ``plane_fit_max``), is far too, not only the pixels DIS itself called far. On the
+    # 40 m pass the textured street beside the wall's end was 90 % untracked (DIS gave it 5-13 px of the wall's
+    # 14 px against its true 1.4 px) and the network kept it; it is also what shows a frame has background in view
+    # (``continuity_top_max_far_share``). False: DIS's far pixels only (the rule before)
+    plane_far_untracked: bool = True
     plane_open: int = 3  # morphological opening (work pixels) of the pixels that move like the wall; 1: none
     # Plain pixels the network keeps, cut where a watershed of the frame's colours grown from the trusted near and
     # far pixels gives them to the far side: plain sky or a plain hillside joins the textured background it
@@ -131,25 +149,31 @@ class ParallaxParams:
 
 
 # Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
+# the mask-top change's two rules switched off: the rule sets named before it compare as they were measured
+_BEFORE_TOP = {"continuity_top_max_far_share": None, "plane_far_untracked": False}
 PARALLAX_RULES: dict[str, ParallaxParams] = {
     "default": ParallaxParams(),
     # the rules before issue 13's diagnosis: trusted pixels nearer than 15 m are near, plain pixels keep the
     # network's answer
     "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network", plane_check=False,
-                                plain_watershed_cut=False),
+                                plain_watershed_cut=False, **_BEFORE_TOP),
     # the rules before the wall-plane check (DIS alone decides which textured pixels are near and far)
-    "no-plane-check": ParallaxParams(plane_check=False, plain_watershed_cut=False),
+    "no-plane-check": ParallaxParams(plane_check=False, plain_watershed_cut=False, **_BEFORE_TOP),
     # the wall-plane check without the watershed cut of plain background
-    "no-watershed": ParallaxParams(plain_watershed_cut=False),
+    "no-watershed": ParallaxParams(plain_watershed_cut=False, **_BEFORE_TOP),
     # the wall-plane check's first drop rule: at most 1.5 % of the frame near after the check
-    "near-drop": ParallaxParams(plane_drop_rule="near"),
+    "near-drop": ParallaxParams(plane_drop_rule="near", **_BEFORE_TOP),
     # the rules before the mask-wall change: a plain patch touching any frame border keeps the network's answer
-    "before-borders": ParallaxParams(continuity_wall_borders=""),
+    "before-borders": ParallaxParams(continuity_wall_borders="", **_BEFORE_TOP),
+    # the rules before the mask-top change: a plain patch touching the frame's top always keeps the network's
+    # answer, and only pixels DIS itself calls far are far
+    "before-top": ParallaxParams(**_BEFORE_TOP),
     # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
     # background beside the wall's start with it (docs/DEPTH.md; measured with the top-alone border rule)
-    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0, continuity_wall_borders="bottom,left,right,top-alone"),
+    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0, continuity_wall_borders="bottom,left,right,top-alone",
+                                     **_BEFORE_TOP),
     # plain patches hanging from the frame's top edge alone judged by their neighbours too (docs/DEPTH.md)
-    "borders-top-alone": ParallaxParams(continuity_wall_borders="bottom,left,right,top-alone"),
+    "borders-top-alone": ParallaxParams(continuity_wall_borders="bottom,left,right,top-alone", **_BEFORE_TOP),
 }
 
 
@@ -243,17 +267,21 @@ def _patch_residual(ref: np.ndarray, cur: np.ndarray, dx: float, dy: float, box:
     diff = cv2.absdiff(cur, moved).astype(np.float32)
     h, w = cur.shape
     inside = np.zeros((h, w), bool)
-    x0, x1 = max(0, int(np.ceil(-dx))), min(w, int(np.floor(w - 1 - dx)) + 1)
-    y0, y1 = max(0, int(np.ceil(-dy))), min(h, int(np.floor(h - 1 - dy)) + 1)
+    # a shift within a thousandth of a pixel of whole is whole (telemetry never gives an exact 0: a 1e-6 px
+    # vertical shift must not put the whole top row outside the reference)
+    tol = 1e-3
+    x0, x1 = max(0, int(np.ceil(-dx - tol))), min(w, int(np.floor(w - 1 - dx + tol)) + 1)
+    y0, y1 = max(0, int(np.ceil(-dy - tol))), min(h, int(np.floor(h - 1 - dy + tol)) + 1)
     inside[y0:y1, x0:x1] = True
     return cv2.boxFilter(diff, -1, (box, box)), inside
 
 
 def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float,
-                     params: ParallaxParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(moves like the wall, moves like the far background, moves like the wall and fits it closely): textured
-    pixels whose patch fits the wall plane's motion (``wall_flow_px`` along ``direction``) ``plane_margin`` better
-    than every far motion, the reverse, and the first within ``plane_fit_max``. See ``ParallaxParams.plane_check``."""
+                     params: ParallaxParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(moves like the wall, moves like the far background, moves like the wall and fits it closely, moves like
+    the far background and fits it closely): textured pixels whose patch fits the wall plane's motion
+    (``wall_flow_px`` along ``direction``) ``plane_margin`` better than every far motion, the reverse, and the first
+    two within ``plane_fit_max``. See ``ParallaxParams.plane_check``."""
     p = params
     ref, cur = flow.ref, flow.cur
     e_wall, inside = _patch_residual(ref, cur, wall_flow_px * direction[0], wall_flow_px * direction[1], p.plane_box)
@@ -267,7 +295,7 @@ def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float
         like_wall = cv2.morphologyEx(like_wall.astype(np.uint8), cv2.MORPH_OPEN,
                                      np.ones((p.plane_open, p.plane_open), np.uint8)).astype(bool)
     like_far = textured & (e_far + p.plane_margin < e_wall)
-    return like_wall, like_far, like_wall & (e_wall < p.plane_fit_max)
+    return like_wall, like_far, like_wall & (e_wall < p.plane_fit_max), like_far & (e_far < p.plane_fit_max)
 
 
 def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float,
@@ -299,10 +327,12 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     far = flow.trusted & ~near
     if p.plane_check and flow.ref is not None and flow.cur is not None and wall_depth_m is not None \
             and np.isfinite(wall_depth_m) and wall_depth_m > 0:
-        like_wall, like_far, fits_wall = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
+        like_wall, like_far, fits_wall, fits_far = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
         near_flow, far_flow = near, far
         near = (near & ~like_far) | like_wall
         far = far & (like_far if p.plane_far_verified else ~like_wall)
+        if p.plane_far_untracked:
+            far |= fits_far & ~flow.trusted
         return ParallaxResult(depth, near | far, near, far, p, plane_checked=True,
                               before_plane=ParallaxResult(depth, flow.trusted, near_flow, far_flow, p),
                               wall_fit_share=float(fits_wall.mean()))
@@ -487,7 +517,8 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     patch with only near neighbours may touch the frame's bottom or sides, or hang from its top edge alone
     (``continuity_wall_borders``: balcony bases, a plinth, a pilaster under the frame's top); one spanning the top
     and a side (sky above a roof line, near pixels below it and nothing far) is left to the network: nothing in
-    the two frames says which side of the roof line it belongs to.
+    the two frames says which side of the roof line it belongs to. Except in a frame that shows no background at
+    all (``continuity_top_max_far_share``): there every patch touching the top is judged by its neighbours too.
     """
     p = parallax.params
     plain = ~parallax.trusted
@@ -507,7 +538,10 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     for name, flag in (("bottom", bottom), ("left", left), ("right", right)):
         if name not in allowed:
             closed_border |= flag
-    if "top" not in allowed:
+    # no background in view (``continuity_top_max_far_share``): the top is judged like the other borders
+    no_far_in_view = p.continuity_top_max_far_share is not None \
+        and float(parallax.far.mean()) <= p.continuity_top_max_far_share
+    if "top" not in allowed and not no_far_in_view:
         # "top-alone": a patch hanging from the top edge between near pixels (a plain pilaster under the frame's
         # top) is judged too; one that also reaches a side (sky spanning the frame above a roof line) is not
         closed_border |= top & (left | right) if "top-alone" in allowed else top

@@ -52,6 +52,7 @@ class ChainStats:
     parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
     parallax_skipped_sure: int = 0  # masked frames the network read as wall everywhere: no flow spent on them
     frames_tracked: int = 0  # followed by the wall tracker only (cheap); 0 without a tracker
+    skipped_far: int = 0  # judged frames the telemetry and tracker put far above Rth: not decoded (tracked.py)
     frames_measured: int = 0  # depth mask + SIFT measurement (every processed frame without a tracker)
     keyframes: int = 0
     already_spooled: int = 0  # resumed run: keyframes found in the spool already
@@ -194,6 +195,12 @@ class CullChain:
             st.cpu_s += time.thread_time() - cpu0
             return out
         st.scan_segments += int(where == ScopeStep.OPENS)
+        if self.selection is not None and self.selection.skips(tagged):  # far above Rth: counted, not decoded
+            self._count_processed(now)
+            st.skipped_far = self.selection.counts.skipped_far
+            st.busy_s += time.monotonic() - now
+            st.cpu_s += time.thread_time() - cpu0
+            return []
         work = self.working.of(frame)
         if work is None:  # an encoded frame that is not an image: counted with the camera's corrupt frames
             st.undecodable += 1

@@ -123,11 +123,12 @@ def test_frames_far_above_the_band_are_skipped_without_moving_a_keyframe(posed_s
     assert all(abs(a - b) < 0.05 for (_, a), (_, b) in zip(kept, every, strict=True))
     assert len(every) >= 5 and len(skipped) >= 0.15 * len(frames) and counts.skipped_far == len(skipped)
     keys = [k for k, _ in kept]
-    floor = 80.0 + 6.0 + 6.0
+    schedule = MeasureSchedule()
+    floor = 80.0 + schedule.hold_above + schedule.skip_above
     for i in skipped:  # each skipped frame truly far above Rth from the keyframe before it
         key = max(k for k in keys if k < i)
         assert 100.0 * scene.true_overlap(cams[key], cams[i]) > floor - 1.0
     runs = np.split(np.array(skipped), np.where(np.diff(skipped) != 1)[0] + 1)
-    assert max(len(r) for r in runs) <= MeasureSchedule().skip_stride - 1  # every third frame still tracked
+    assert max(len(r) for r in runs) <= MeasureSchedule().skip_stride - 1  # every skip_stride-th frame still tracked
     with pytest.raises(CompanionError, match="skip_stride"):
         MeasureSchedule(skip_stride=0)

@@ -148,6 +148,7 @@ class CullChain:
             gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
         self._seen_pose = False
+        self._skipped_last: tuple[Frame | EncodedFrame, TaggedFrame] | None = None
         observe = masker.remember if masker is not None and masker.parallax is not None else None
         self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track,
                                                                      observe=observe)
@@ -198,9 +199,11 @@ class CullChain:
         if self.selection is not None and self.selection.skips(tagged):  # far above Rth: counted, not decoded
             self._count_processed(now)
             st.skipped_far = self.selection.counts.skipped_far
+            self._skipped_last = (frame, tagged)  # decoded only if it turns out to be the wall's last view
             st.busy_s += time.monotonic() - now
             st.cpu_s += time.thread_time() - cpu0
             return []
+        self._skipped_last = None
         work = self.working.of(frame)
         if work is None:  # an encoded frame that is not an image: counted with the camera's corrupt frames
             st.undecodable += 1
@@ -232,7 +235,8 @@ class CullChain:
 
     def finish(self) -> list[SpoolEntry]:
         """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
-        out = [] if self.selection is None else self._spool(self.selection.finish())
+        out = self._offer_skipped_last()
+        out += [] if self.selection is None else self._spool(self.selection.finish())
         out += self._spool(self.gate.flush())
         self._full.release_below(None)
         self._events()
@@ -246,10 +250,28 @@ class CullChain:
     def _end_segment(self) -> list[SpoolEntry]:
         """The scan was left: the held frames are decided and the gate's segment ends with its last view (the same
         as the end of a stream); the next frame of the scan opens a new segment."""
-        out = [] if self.selection is None else self._spool(self.selection.finish())
+        out = self._offer_skipped_last()
+        out += [] if self.selection is None else self._spool(self.selection.finish())
         out += self._spool(self.gate.end_segment())
         self._events()
         return out
+
+    def _offer_skipped_last(self) -> list[SpoolEntry]:
+        """The segment or the stream ends on a frame skipped far above Rth: it is the wall's last view, so it is
+        decoded and offered now, as if it had not been skipped."""
+        pending, self._skipped_last = self._skipped_last, None
+        if pending is None or self.selection is None:
+            return []
+        frame, tagged = pending
+        work = self.working.of(frame)
+        if work is None:
+            self.stats.undecodable += 1
+            return []
+        self._full.keep(frame, work)
+        keyframes = self.selection.offer(replace(tagged, frame=work))
+        self.stats.frames_tracked = self.selection.counts.tracked
+        self._events()
+        return self._spool(keyframes)
 
     def _oldest_undecided(self, newest: int) -> int:
         """The oldest frame that may still become a keyframe: held for a decision, or the gate's candidate."""

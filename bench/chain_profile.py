@@ -127,6 +127,7 @@ def main() -> int:
         "off_scan": st.off_scan,
         "tracked": st.frames_tracked,
         "measured": st.frames_measured,
+        "skipped_far_not_decoded": getattr(st, "skipped_far", 0),
         "keyframes": st.keyframes,
         "keyframe_indices_hash": hash(tuple(k["index"] for k in kept)) & 0xFFFFFFFF,
         "lowest_measured_R": round(min(overlaps), 2) if overlaps else None,

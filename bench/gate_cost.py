@@ -20,7 +20,8 @@ import numpy as np
 
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
 from companion.keyframes.overlap import eq2_overlap
-from companion.matching import DescriptorIndex, ransac_homography, ratio_test_matches
+from companion.matching import DescriptorIndex, MatcherSettings, Matches, match_descriptors
+from companion.ransac import ransac_homography
 
 
 def _cpu_ms(fn, *args):
@@ -73,16 +74,18 @@ def main() -> None:
     F = feats[default]
 
     def per_pair_flann(p, q, checks):
-        m = cv2.FlannBasedMatcher({"algorithm": 1, "trees": 4}, {"checks": checks})
-        qi, ti = ratio_test_matches(m, p.descriptors, q.descriptors, 0.75)
-        return qi, ti  # src index into p, dst index into q
+        found = match_descriptors(p.descriptors, q.descriptors, MatcherSettings(checks=checks))  # q's trees, built
+        return found.query, found.indexed  # src index into p, dst index into q
+
+    def p_to_q(found: Matches):
+        return found.indexed, found.query  # q queried p's index: src index into p, dst index into q
 
     variants = {
         "FLANN per pair, 64 checks (before)": lambda p, q, c: per_pair_flann(p, q, 64),
         "FLANN per pair, 32 checks": lambda p, q, c: per_pair_flann(p, q, 32),
-        "keyframe index reused, 64 checks": lambda p, q, c: c(p, 64).ratio_test(q.descriptors, 0.75)[::-1],
-        "keyframe index reused, 32 checks (after)": lambda p, q, c: c(p, 32).ratio_test(q.descriptors, 0.75)[::-1],
-        "keyframe index reused, 16 checks": lambda p, q, c: c(p, 16).ratio_test(q.descriptors, 0.75)[::-1],
+        "keyframe index reused, 64 checks": lambda p, q, c: p_to_q(c(p, 64).match(q.descriptors)),
+        "keyframe index reused, 32 checks (after)": lambda p, q, c: p_to_q(c(p, 32).match(q.descriptors)),
+        "keyframe index reused, 16 checks": lambda p, q, c: p_to_q(c(p, 16).match(q.descriptors)),
     }
     ref_R: dict[tuple[int, int], float | None] = {}
     for name, fn in variants.items():
@@ -92,7 +95,7 @@ def main() -> None:
             key = (id(p), checks)
             if key not in cache:
                 cache.clear()
-                cache[key] = DescriptorIndex(p.descriptors, "flann", checks)
+                cache[key] = DescriptorIndex(p.descriptors, MatcherSettings(checks=checks))
             return cache[key]
 
         cpu = 0.0
@@ -114,7 +117,7 @@ def main() -> None:
         diffs = []
         for i, j in pairs:
             r0 = ref_R.get((i, j))
-            si, di = DescriptorIndex(fs[i].descriptors, "flann", 32).ratio_test(fs[j].descriptors, 0.75)[::-1]
+            si, di = p_to_q(DescriptorIndex(fs[i].descriptors, MatcherSettings(checks=32)).match(fs[j].descriptors))
             r = _r(fs[i], fs[j], si, di)
             if r is not None and r0 is not None:
                 diffs.append(abs(r - r0))

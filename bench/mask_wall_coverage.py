@@ -6,7 +6,10 @@ Usage: python bench/mask_wall_coverage.py [--passes NAME ...] [--model sim] [--r
 Each pass (``sim/camera/photo_passes.py``: held-out photos only) is rendered as ``bench/stitch_eval.py --passes``
 renders it (80 frames, 640 px), every frame masked by the onboard ``Masker`` with parallax (true relative
 telemetry) once per parallax rule set (``PARALLAX_RULES``: ``before-borders`` is main's before the mask-wall change),
-and the gate keeps the keyframes it keeps with that mask (``stitch_photo_passes.gate_pass``). Per rule set it prints
+and the gate keeps the keyframes it keeps with that mask (``stitch_photo_passes.gate_pass``). A frame the network alone
+had to judge (a strip's first: no frame behind it) is masked again against the next frame, as the onboard chain does
+(``companion.depth.parallax_first``, issue 15); each rule set is also reported as ``RULE-network-first`` with those
+frames' network-alone masks (main before issue 15), side by side on the same frames. Per rule set it prints
 
 * mask error over all frames, background-only frames dropped, frames with wall dropped;
 * on the keyframes: the share of their wall the mask cuts and of their background it keeps;
@@ -80,26 +83,35 @@ class _Recorder:
         seq.update = recorded
 
 
+NETWORK_FIRST = "-network-first"  # suffix of a rule set's figures with main's first frames (network alone)
+
+
 def mask_pass(rp, model: str, rules: list[str]):
-    """Every frame masked by one Masker per rule set (frames in capture order, exact relative telemetry); returns
-    per rule {frame: (mask or None, network mask, parallax answer or "sure" or None)} and the frames' truth."""
+    """Every frame masked by one Masker per rule set (frames in capture order, exact relative telemetry), a frame
+    the network alone had to judge (a strip's first: no reference) held and masked again against the next frame
+    far enough along the baseline (``companion.depth.parallax_first``, as the onboard chain does with its
+    keyframes); returns per rule {frame: (mask or None, network mask, parallax answer or "sure" or None, network
+    disparity)}, the same per rule + ``NETWORK_FIRST`` with those frames' network-alone masks (main's path), and the
+    frames' truth."""
     from stitch_photo_passes import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     from companion.depth.masker import Masker
     from companion.depth.parallax import PARALLAX_RULES, SequenceParallax
+    from companion.depth.parallax_first import LaterReference, judged_alone, reference_mark
     from companion.depth.session import DepthSession
     from companion.records import Frame, Pose, TaggedFrame
 
     spec = rp.spec
     session = DepthSession(model)
-    maskers, recorders = {}, {}
+    maskers, recorders, later = {}, {}, {}
     for rule in rules:
         seq = SequenceParallax(spec.camera.hfov_deg, PARALLAX_RULES[rule])
         recorders[rule] = _Recorder(seq)
         maskers[rule] = Masker(session=session, parallax=seq)
+        later[rule] = LaterReference(maskers[rule])
     frame = wall_frame(SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m))
     rng = np.random.default_rng(0)
-    out = {rule: {} for rule in rules}
+    out = {label: {} for rule in rules for label in (rule, rule + NETWORK_FIRST)}
     truth = {}
     for i in range(len(rp.renderer)):
         f = rp.renderer.render(i)
@@ -108,9 +120,21 @@ def mask_pass(rp, model: str, rules: list[str]):
         tagged = TaggedFrame(Frame(i, i / 10.0, f.image), Pose.from_json({**row, "t_boot_s": i / 10.0}))
         for rule in rules:
             recorders[rule].last = "sure"
+            mark = reference_mark(maskers[rule])
             masked, _, disp = maskers[rule].mask_measured(tagged)
             net = maskers[rule].roi_from_disparity(disp, f.image.shape[:2]).mask
-            out[rule][i] = (None if masked is None else masked.mask, net, recorders[rule].last, disp)
+            entry = (None if masked is None else masked.mask, net, recorders[rule].last, disp)
+            out[rule][i] = out[rule + NETWORK_FIRST][i] = entry
+            for r in later[rule].offer(tagged):
+                if r.judgement is None:  # the next frame was already beyond the baseline's reach: network alone
+                    continue
+                j = r.tagged.frame.index
+                _, net_j, _, disp_j = out[rule][j]
+                out[rule][j] = (None if r.masked is None else r.masked.mask, net_j, r.judgement.parallax, disp_j)
+            if judged_alone(maskers[rule], mark, tagged):
+                later[rule].hold(tagged, masked)
+    for rule in rules:
+        later[rule].release()  # still held at the end: they keep the network's mask (already in ``out``)
     return out, truth
 
 
@@ -244,7 +268,8 @@ def main() -> None:
         rp = render(name, args.frames, args.width_px)
         masks, truth = mask_pass(rp, args.model, args.rules)
         for rule in args.rules:
-            report(rp, rule, masks[rule], truth, save)
+            for label in (rule + NETWORK_FIRST, rule):  # main's first frames, then judged by a later frame
+                report(rp, label, masks[label], truth, save)
     print(f"{time.process_time() - t0:.0f} s CPU, load average {os.getloadavg()[0]:.1f}")
 
 

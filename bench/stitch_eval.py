@@ -21,6 +21,13 @@ process) and, on the keyframes, by cv2.Stitcher SCANS. Scores against the wall p
 
     python bench/stitch_eval.py --passes ornate-entry,dji-plain-wall --variants exact,noise,jump,raw \
         --baseline-ref main --peers scans --out /tmp/stitch_eval_photo
+
+A shipped mask's frames are masked as the onboard chain masks them: a frame the network alone had to judge (a strip's
+first: no frame behind it) is masked again against the next frame (``companion.depth.parallax_first``, issue 15);
+``--network-first`` adds each shipped mask as before that (``sim-network-first``), side by side in the same run:
+
+    python bench/stitch_eval.py --passes dji-plain-wall,ornate-entry,cmp-balconies,cmp-roofline-40m \
+        --variants exact --masks sim --network-first --peers none --width-px 640 --out /tmp/stitch_eval_first
 """
 
 from __future__ import annotations
@@ -40,6 +47,8 @@ from companion.stitch import StitchConfig, stitch
 from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
 from companion.stitch.inputs import load_recording_input
 from companion.stitch.render import MapGrid
+
+NETWORK_FIRST = "-network-first"  # a shipped mask's label with main's first frames (bench/mask_wall_coverage.py)
 
 
 def select_keyframes(rec, overlap: float, max_keyframes: int | None) -> list[int]:
@@ -129,6 +138,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--masks", default="truth,real-nc",
                     help="--passes: ROI masks: truth, none, or a shipped depth model (sim, real-nc) through the "
                          "onboard Masker with parallax")
+    ap.add_argument("--network-first", action="store_true",
+                    help="--passes: each shipped mask also as before issue 15's fix (label MODEL-network-first): a "
+                         "frame the masker could judge by the network alone (a strip's first) keeps that mask "
+                         "instead of being judged again against a later frame (companion.depth.parallax_first)")
     ap.add_argument("--image-only-passes", default=None,
                     help="--passes: the image-only variant on these passes only (default: every pass)")
     ap.add_argument("--jump-m", type=float, default=1.5, help="--passes: the GNSS jump (along the wall)")
@@ -288,6 +301,8 @@ def run_photo_passes(args) -> int:
     tree = baseline_tree(args.baseline_ref, out) if args.baseline_ref else None
     peers = [] if args.peers == "none" else [p for p in args.peers.split(",") if p == "scans"]
     masks = args.masks.split(",")
+    if args.network_first:  # main's first frames beside each shipped model's, in the same run
+        masks += [m + NETWORK_FIRST for m in masks if m not in ("truth", "none")]
     rows = []
     for name in args.passes.split(","):
         t0 = time.process_time()
@@ -297,19 +312,24 @@ def run_photo_passes(args) -> int:
               f"all {[round(v, 1) for v in rp.pair_overlap]} ({time.process_time() - t0:.0f} s CPU)", flush=True)
         model_masks, gated = {}, {"truth": rp, "none": rp}
         rows.append({"pass": name, "gate": "truth", **gate_summary(rp)})
-        for m in masks:
-            if m not in ("truth", "none"):
-                t0 = time.process_time()
-                chain_masks = shipped_masks(rp.spec, rp.renderer, m)  # None: the masker dropped the frame
-                model_masks[m] = pass_masks(rp, m, masks=chain_masks)
-                gated[m] = gate_pass(rp, chain_masks)  # the keyframes the chain keeps with this mask
-                gate = gate_summary(gated[m])
-                rows.append({"pass": name, "gate": m, **gate})
-                err_k = mask_error(rp, gated[m].keyframes, model_masks[m])
-                err_all = mask_error(rp, list(range(len(rp.renderer))), model_masks[m])
-                print(f"  mask {m} + parallax: gate {json.dumps(gate)}; mask error on the keyframes "
-                      f"{json.dumps(err_k)}, all frames {json.dumps(err_all)} ({time.process_time() - t0:.0f} s CPU)",
-                      flush=True)
+        for m in list(masks):
+            if m in ("truth", "none") or m.endswith(NETWORK_FIRST):
+                continue
+            t0 = time.process_time()
+            network_first: dict = {}
+            chain_masks = {m: shipped_masks(rp.spec, rp.renderer, m, network_first=network_first)}  # None: dropped
+            if m + NETWORK_FIRST in masks:
+                chain_masks[m + NETWORK_FIRST] = network_first
+            for label, by_frame in chain_masks.items():
+                model_masks[label] = pass_masks(rp, m, masks=by_frame)
+                gated[label] = gate_pass(rp, by_frame)  # the keyframes the chain keeps with this mask
+                gate = gate_summary(gated[label])
+                rows.append({"pass": name, "gate": label, **gate})
+                err_k = mask_error(rp, gated[label].keyframes, model_masks[label])
+                err_all = mask_error(rp, list(range(len(rp.renderer))), model_masks[label])
+                print(f"  mask {label} + parallax: gate {json.dumps(gate)}; mask error on the keyframes "
+                      f"{json.dumps(err_k)}, all frames {json.dumps(err_all)} ({time.process_time() - t0:.0f} s "
+                      "CPU)", flush=True)
         for variant, mask in photo_inputs(args.variants.split(","), masks):
             if variant == "image-only" and args.image_only_passes and name not in args.image_only_passes.split(","):
                 continue

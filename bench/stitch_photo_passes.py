@@ -18,8 +18,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.matching import make_matcher, ransac_homography, ratio_test_matches
-from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_homography, truth_on_grid
+from companion.matching import match_descriptors
+from companion.ransac import ransac_homography
+from companion.stitch.evaluate import (
+    EVALUATION_MATCHING,
+    map_accuracy,
+    register_to_truth,
+    truth_homography,
+    truth_on_grid,
+)
 from companion.stitch.render import MapGrid
 from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
 
@@ -131,14 +138,20 @@ def pass_masks(rp: RenderedPass, model: str, *, parallax: bool = True,
             for i, m in masks.items()}
 
 
-def shipped_masks(spec, renderer, model: str, *, parallax: bool = True) -> dict[int, np.ndarray | None]:
+def shipped_masks(spec, renderer, model: str, *, parallax: bool = True,
+                  network_first: dict[int, np.ndarray | None] | None = None) -> dict[int, np.ndarray | None]:
     """Every frame's mask from the onboard Masker with a shipped depth model (``sim``, the default, or
     ``real-nc``, the setting docs/DEPTH.md gives for real facades), frames shown in capture order with their
     telemetry (exact: the short baselines parallax uses are relative motion, not absolute GNSS), so ``parallax``
-    confirms or corrects the network as in the onboard chain. None where the masker drops the frame (the onboard
-    chain never passes it on)."""
+    confirms or corrects the network as in the onboard chain. A frame the masker could judge by the network alone
+    (no reference: a strip's first frame) is held and masked again against the next frame far enough along the
+    baseline, as the onboard chain does with such a keyframe (``companion.depth.parallax_first``; the chain holds
+    keyframes only, here every frame is held, as the gate has not chosen yet). ``network_first`` (a dict, filled):
+    those frames' network-alone masks, the path before issue 15's fix, for a side-by-side. None where the masker
+    drops the frame (the onboard chain never passes it on)."""
     from companion.depth.masker import Masker
     from companion.depth.parallax import SequenceParallax
+    from companion.depth.parallax_first import LaterReference, masked_without_reference
     from companion.records import Frame, Pose, TaggedFrame
 
     wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
@@ -146,13 +159,30 @@ def shipped_masks(spec, renderer, model: str, *, parallax: bool = True) -> dict[
     rng = np.random.default_rng(0)
     seq = SequenceParallax(spec.camera.hfov_deg) if parallax else None
     masker = Masker(model, parallax=seq)
+    later = LaterReference(masker) if parallax else None
     masks: dict[int, np.ndarray | None] = {}
+
+    def settle(resolved) -> None:
+        for r in resolved:
+            i = r.tagged.frame.index
+            masks[i] = None if r.masked is None else r.masked.mask
+            if network_first is not None:
+                network_first[i] = None if r.network is None else r.network.mask
+
     for i in range(len(renderer)):
         f = renderer.render(i)
         row = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
-        pose = Pose.from_json({**row, "t_boot_s": i / 10.0})
-        masked, _ = masker.mask(TaggedFrame(Frame(i, i / 10.0, f.image), pose))
+        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), Pose.from_json({**row, "t_boot_s": i / 10.0}))
+        masked, alone = masked_without_reference(masker, tagged)
         masks[i] = None if masked is None else masked.mask
+        if later is not None:
+            settle(later.offer(tagged))
+            if alone:
+                later.hold(tagged, masked)
+    if later is not None:
+        settle(later.release())
+    if network_first is not None:
+        network_first.update({i: m for i, m in masks.items() if i not in network_first})
     return masks
 
 
@@ -274,7 +304,8 @@ def background_inliers(image: np.ndarray, background: np.ndarray) -> int:
     k2, d2 = sift.detectAndCompute(g2, None)
     if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
         return 0
-    q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
+    found = match_descriptors(d1, d2, EVALUATION_MATCHING)
+    q1, t2 = found.query, found.indexed
     if len(q1) < 8:
         return 0
     p1 = np.float32([k1[i].pt for i in q1])

@@ -18,22 +18,25 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.keyframes.features import FeatureConfig
 from companion.spool.layout import MANIFEST
 from companion.stitch import StitchConfig, load_input, stitch
+from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect
 from companion.stitch.pairs import PairSettings, match_pair
 from companion.stitch.synthetic import make_spool, wall_for_texture
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-uav-facade"
 SETTINGS = {
-    "plain SIFT (before)": {"contrast_threshold": 0.04, "equalize": False},
-    "CLAHE + contrast 0.01 (gate's, now)": {"contrast_threshold": 0.01, "equalize": True},
+    "plain SIFT (before)": replace(STITCH_FEATURES, contrast_threshold=0.04, equalize=False),
+    "CLAHE + contrast 0.01 (gate's, now)": STITCH_FEATURES,
 }
 
 
@@ -51,9 +54,9 @@ def plain_wall_texture(photo: Path, band_m: float | None, mm_per_px: float) -> n
     return np.ascontiguousarray(wall)
 
 
-def run_pass(spool: Path, out: Path, settings: dict, use_poses: bool) -> dict:
+def run_pass(spool: Path, out: Path, settings: FeatureConfig, use_poses: bool) -> dict:
     t0 = time.perf_counter()
-    res = stitch(load_input(spool), out, StitchConfig(use_poses=use_poses, **settings), progress=False)
+    res = stitch(load_input(spool), out, StitchConfig(use_poses=use_poses, features=settings), progress=False)
     rep = res.report
     feats = [len(np.load(p)["kp"]) for p in sorted((out / "cache" / "features").glob("*.npz"))]
     return {
@@ -67,10 +70,10 @@ def run_pass(spool: Path, out: Path, settings: dict, use_poses: bool) -> dict:
     }
 
 
-def real_pair(paths: list[Path], settings: dict) -> dict:
+def real_pair(paths: list[Path], settings: FeatureConfig) -> dict:
     imgs = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in paths]
     full = [np.full(i.shape[:2], 255, np.uint8) for i in imgs]
-    f = [detect(i, m, **settings) for i, m in zip(imgs, full, strict=True)]
+    f = [detect(i, m, settings) for i, m in zip(imgs, full, strict=True)]
     r = match_pair(0, 1, f[0], f[1], settings=PairSettings(ransac_px=max(2.0, 0.004 * imgs[0].shape[1])))
     return {
         "features": [len(x.keypoints) for x in f],
@@ -98,7 +101,7 @@ def extraction_cost(recording: Path, frames=(0, 10, 20, 30), rounds: int = 2) ->
         for img, mask in pairs:
             for name, settings in SETTINGS.items():
                 t0 = time.process_time()
-                feats[name].append(len(detect(img, mask, **settings).keypoints))
+                feats[name].append(len(detect(img, mask, settings).keypoints))
                 cpu[name] += time.process_time() - t0
     n = rounds * len(pairs)
     return {k: {"cpu_s": round(cpu[k] / n, 3), "features": int(np.mean(feats[k]))} for k in SETTINGS}
@@ -142,7 +145,7 @@ def main(argv=None) -> int:
     modes = [("image-only", False)] + ([("telemetry", True)] if args.poses else [])
     for name, settings in SETTINGS.items():
         for mode, poses in modes:
-            tag = f"{mode}-{'clahe' if settings['equalize'] else 'plain'}"
+            tag = f"{mode}-{'clahe' if settings.equalize else 'plain'}"
             r = run_pass(spool, out / tag, settings, poses)
             results["runs"][f"{name} / {mode}"] = r
             print(

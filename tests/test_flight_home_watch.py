@@ -59,6 +59,25 @@ def test_each_move_over_the_threshold_is_said_once(demo_items, caplog):
     assert "every later mission altitude moved with it" in said[0]
 
 
+def test_moves_inside_the_correction_window_are_debug_and_its_net_move_one_warning(demo_items, caplog):
+    """Real PX4 SIH moved home 30+ times while the plan held above the wall: each was a warning in the log, so a real
+    warning after them was lost in the noise. Inside the window they are DEBUG; its net move is said once after it."""
+    watch = _settle_watch(demo_items, restore=False)
+    with caplog.at_level(logging.DEBUG, logger="companion.flight.home_watch"):
+        for step, alt in enumerate((30.4, 29.9, 30.5, 29.8, 30.6, 29.7)):
+            watch.on_home(alt, in_window=watch.window_open(10.0 + step))
+            watch.summarise_window(10.0 + step)
+        watch.summarise_window(130.0)
+        watch.summarise_window(131.0)
+        watch.on_home(29.2, in_window=watch.window_open(131.0))  # after the window: a warning again
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    debug = [r.getMessage() for r in caplog.records if r.levelno == logging.DEBUG]
+    assert len(debug) == 6 and all("moved home's altitude" in m for m in debug)
+    assert len(warnings) == 2
+    assert "window is over: home moved 6 times in it (each at debug level, -v) and is now -0.30 m" in warnings[0]
+    assert "by -0.80 m" in warnings[1]
+
+
 def test_a_move_that_brings_a_strip_bottom_near_the_ground_ends_the_scan(demo_items):
     watch = _flying(demo_items)
     watch.on_home(29.8)  # -0.2 m: strip bottoms at 1.35 m, still clear
@@ -193,7 +212,7 @@ def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_p
     true ground. Before, the flight ended (exit 1) with RTL and no scan."""
     proc, out = _fly_demo_with_home_moved(tmp_path)
     assert proc.returncode == 0, out[-4000:]
-    assert "moved home's altitude by -1.20 m during the flight" in out, out[-4000:]
+    assert "window is over: home moved 1 time in it (each at debug level, -v) and is now -1.20 m" in out, out[-4000:]
     assert "PX4 SIH: home is back at 30.00 m AMSL" in out and "home handed back to the vehicle" in out, out[-4000:]
     assert "mission complete" in out, out[-4000:]
     heights = _true_heights_by_item(tmp_path)
@@ -210,7 +229,7 @@ def test_a_real_px4_home_moved_too_low_ends_the_flight_at_the_hold_above_the_wal
     Before (no hold, the move ended the scan when it came), the vehicle had started its first strip."""
     proc, out = _fly_demo_with_home_moved(tmp_path, "--sim-arg", f"params={REAL_FMU}")
     assert proc.returncode == 1, out[-4000:]
-    assert "moved home's altitude by -1.20 m during the flight" in out, out[-4000:]
+    assert "window is over: home moved 1 time in it (each at debug level, -v) and is now -1.20 m" in out, out[-4000:]
     assert "0.35 m above the take-off ground" in out and "raise the strip bottoms" in out, out[-4000:]
     assert "stopped by home" in out and "mission NOT complete" in out, out[-4000:]
     assert "landed and disarmed after RTL" in out and "put home back" not in out, out[-4000:]

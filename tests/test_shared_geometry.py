@@ -1,5 +1,5 @@
 """The shared helpers: polygon area and clipping, the camera footprint on the wall, SIFT ratio matching and
-RANSAC fits (companion/polygons.py, companion/wall_footprint.py, companion/matching.py)."""
+RANSAC fits (companion/polygons.py, companion/wall_footprint.py, companion/matching.py, companion/ransac.py)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
+from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
 from companion.keyframes.motion import camera_rotation_enu
-from companion.matching import make_matcher, ransac_affine, ransac_homography, ratio_test_matches
+from companion.matching import MatcherSettings, match_descriptors
 from companion.polygons import (
     clip_convex,
     clip_to_rect,
@@ -20,6 +21,7 @@ from companion.polygons import (
     polygon_area,
     signed_area,
 )
+from companion.ransac import ransac_affine, ransac_homography
 from companion.wall_footprint import corner_footprint, facade_from_enu, visible_footprint
 
 SQUARE = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
@@ -85,7 +87,8 @@ def test_ratio_test_and_ransac_recover_a_known_homography():
     sift = cv2.SIFT_create(1000)
     ka, da = sift.detectAndCompute(img, None)
     kb, db = sift.detectAndCompute(warped, None)
-    qa, tb = ratio_test_matches(make_matcher("bf"), da, db, 0.75)
+    found = match_descriptors(da, db, MatcherSettings(kind="bf"))
+    qa, tb = found.query, found.indexed
     assert len(qa) > 100 and qa.dtype == np.intp
     src = np.array([ka[i].pt for i in qa])
     dst = np.array([kb[i].pt for i in tb])
@@ -98,5 +101,5 @@ def test_ratio_test_and_ransac_recover_a_known_homography():
     assert A.shape == (3, 3) and inl_a.sum() > 0.5 * len(src)
     none, mask = ransac_homography(src[:3], dst[:3], method=cv2.RANSAC, threshold_px=2.0, max_iters=10, confidence=0.9)
     assert none is None and mask.shape == (3,) and not mask.any()
-    with pytest.raises(ValueError, match="unknown matcher"):
-        make_matcher("orb")
+    with pytest.raises(CompanionError, match="unknown matcher"):
+        MatcherSettings(kind="orb")

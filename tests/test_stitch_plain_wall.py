@@ -4,6 +4,7 @@ to end from the images alone (`--no-poses`), where plain SIFT finds almost nothi
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 
 from companion.stitch import StitchConfig, load_input, stitch
+from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect
 from companion.stitch.synthetic import make_spool, wall_for_texture
 
@@ -38,7 +40,7 @@ def test_plain_sift_finds_almost_nothing_on_plain_cladding_and_the_shared_extrac
     d, _ = plain_spool
     img = cv2.imread(str(d / "frames" / "000002.jpg"))
     mask = cv2.imread(str(d / "frames" / "000002_mask.png"), cv2.IMREAD_GRAYSCALE)
-    plain = detect(img, mask, contrast_threshold=0.04, equalize=False)
+    plain = detect(img, mask, replace(STITCH_FEATURES, contrast_threshold=0.04, equalize=False))
     shared = detect(img, mask)
     assert len(plain.keypoints) < 100
     assert len(shared.keypoints) > 10 * max(len(plain.keypoints), 20)

@@ -4,12 +4,14 @@ full decode puts them, and features and pairs computed in threads are those of o
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
 from companion.stitch import StitchConfig, Stitcher, load_input
+from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect, load_image_and_mask, load_working_copy
 from companion.stitch.inputs import KeyframeInput
 from companion.stitch.synthetic import SyntheticWall, make_spool
@@ -34,8 +36,9 @@ def test_features_of_the_reduced_decode_land_where_the_full_decode_puts_them(tmp
 
     grey, small_mask, size = load_working_copy(kf, 800)
     assert size == (1920, 1080) and grey.shape == (540, 960) and small_mask.shape == grey.shape  # decoded at 1/2
-    reduced = detect(grey, small_mask, work_width=800, max_features=1500, full_size=size)
-    full = detect(*load_image_and_mask(kf), work_width=800, max_features=1500)
+    features = replace(STITCH_FEATURES, long_side_px=800, max_features=1500)
+    reduced = detect(grey, small_mask, features, full_size=size)
+    full = detect(*load_image_and_mask(kf), features)
     assert reduced.image_size == full.image_size == (1920, 1080)
     assert len(reduced.keypoints) > 500 and reduced.keypoints[:, 0].max() < 1500
     # the same wall points: mutual nearest descriptors, compared in full-resolution pixels
@@ -90,7 +93,9 @@ def test_pairs_matched_against_a_shared_keyframe_index_are_those_of_their_own_in
     thread = threading.Thread(target=lambda: built.append(keyframe_index(3, f[3], settings)))
     thread.start()
     thread.join()
-    assert np.array_equal(built[0].ratio_test(f[0].descriptors, 0.75), shared.ratio_test(f[0].descriptors, 0.75))
+    from_thread, here = built[0].match(f[0].descriptors), shared.match(f[0].descriptors)
+    assert len(here) > 100
+    assert np.array_equal(from_thread.query, here.query) and np.array_equal(from_thread.indexed, here.indexed)
 
 
 def test_a_mask_read_again_is_the_decoded_mask_and_a_rewritten_one_is_decoded_anew(tmp_path):
@@ -245,3 +250,36 @@ def test_the_pyramid_cut_in_blocks_is_the_pyramid_halved_level_by_level_from_dis
     assert info_disk == info_blocks and info_blocks.tiles_written == len(blocks) == len(disk)
     assert set(disk) == set(blocks) and all(np.array_equal(disk[k], blocks[k]) for k in disk)
     assert info_blocks.max_zoom == (5 if w == 700 else 2)
+
+
+def test_the_pairs_stage_registers_the_pairs_opencvs_per_pair_flann_matcher_registers(spool, tmp_path, monkeypatch):
+    """The stitcher matches through companion.matching's index with its named settings (STITCH_MATCHING): every
+    candidate pair of a small spool gets the matches, inliers and model that OpenCV's FlannBasedMatcher finds
+    over keyframe j's descriptors with the same trees, checks, ratio and seed (the path before the index)."""
+    from companion.matching import Matches
+    from companion.stitch import pairs as pairs_module
+
+    class OpenCVFlannMatcher:
+        def __init__(self, j, fj, settings):
+            self.descriptors, self.matching, self.seed = fj.descriptors, settings.matching, 7919 * j + 17
+
+        def match(self, query):
+            s = self.matching
+            cv2.setRNGSeed(self.seed)
+            m = cv2.FlannBasedMatcher({"algorithm": 1, "trees": s.trees}, {"checks": s.checks})
+            knn = m.knnMatch(query, self.descriptors, k=2)
+            good = sorted((a.queryIdx, a.trainIdx) for a, *b in knn if b and a.distance < s.ratio * b[0].distance)
+            return Matches(np.array([g[0] for g in good], np.intp), np.array([g[1] for g in good], np.intp))
+
+    st = Stitcher(StitchConfig(cells=(8, 4)), progress=False)
+    found = st.features(load_input(spool), tmp_path / "index")
+    priors = st.priors(found)
+    ours = st.pairs(found, priors, tmp_path / "index")
+    monkeypatch.setattr(pairs_module, "keyframe_index", OpenCVFlannMatcher)
+    theirs = st.pairs(found, priors, tmp_path / "opencv")
+    assert len(ours.results) == len(theirs.results) > len(found.features)
+    assert sum(r.accepted for r in ours.results) > len(found.features)
+    for a, b in zip(ours.results, theirs.results, strict=True):
+        assert (a.i, a.j, a.accepted, a.matches, a.inliers) == (b.i, b.j, b.accepted, b.matches, b.inliers)
+        if a.accepted:
+            assert np.array_equal(a.H, b.H)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from companion.cli import main
+from companion.matching import MatcherSettings
 from companion.stitch import StitchConfig, Stitcher, load_input
 from companion.stitch.align import AlignedKeyframes
 from companion.stitch.canvas import RenderedMap
@@ -119,7 +120,7 @@ def test_a_pair_registers_the_same_whatever_ran_before():
     results = []
     for history in (1, 2, 3):
         cv2.setRNGSeed(history)  # whatever used OpenCV's RNG before this pair
-        r = match_pair(0, 1, fi, fj, settings=PairSettings(ratio=0.8))
+        r = match_pair(0, 1, fi, fj, settings=PairSettings(matching=MatcherSettings(ratio=0.8)))
         results.append((r.matches, r.inliers, r.accepted))
     assert results[0][0] > 1000 and results[0][2]
     assert results[1] == results[0] and results[2] == results[0]

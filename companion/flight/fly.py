@@ -290,10 +290,11 @@ class _Supervisor:
             self.home.on_home(before)
         if airborne and not self.home.airborne:
             self.home.on_airborne()
+        since = self._since_takeoff_s(airborne)
         alt = self.rec.state.get("home_alt_m")
         if self.home.airborne and alt is not None and alt != self.home.home_now_m:
-            self.home.on_home(alt)
-        since = self._since_takeoff_s(airborne)
+            self.home.on_home(alt, in_window=self.home.window_open(since))
+        self.home.summarise_window(since)
         restore_to = self.home.restore_step(since)
         if restore_to is not None:
             await self._send_home(restore_to)

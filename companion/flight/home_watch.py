@@ -9,7 +9,9 @@ way when its GPS and barometer disagree.
 
 The reference is home's altitude at arming (the last HOME_POSITION before the vehicle was seen in the air): the
 ground the vehicle took off from. Each move of more than ``HOME_MOVE_REPORT_M`` is said once; a move that brings the
-lowest waypoint still ahead closer than ``MIN_GROUND_CLEARANCE_M`` to that ground ends the scan.
+lowest waypoint still ahead closer than ``MIN_GROUND_CLEARANCE_M`` to that ground ends the scan. Moves inside the
+autopilot's correction window are expected (PX4 SIH makes 30+ of them while the plan holds), so each is said at DEBUG
+(``-v``) and the window's net move once, as a warning, when it closes; a move outside the window is always a warning.
 
 Waiting for home to settle: the PX4 plan holds above the wall until its correction window is over
 (``planner.home_settle_hold_s``). While the autopilot may still move home and the vehicle has not left that hold
@@ -123,9 +125,12 @@ class HomeWatch:
         self.airborne = False
         self._reported_offset_m = 0.0
         self.moves: list[float] = []  # every offset said, in order
+        self.window_moves = 0  # moves said inside the correction window
+        self.window_summarised = False
 
-    def on_home(self, alt_amsl_m: float) -> None:
-        """A HOME_POSITION altitude. Before the vehicle is in the air it is the reference (home at arming)."""
+    def on_home(self, alt_amsl_m: float, *, in_window: bool = False) -> None:
+        """A HOME_POSITION altitude. Before the vehicle is in the air it is the reference (home at arming).
+        ``in_window``: the autopilot's correction window is open, so a move is expected and said at DEBUG."""
         if not math.isfinite(alt_amsl_m):
             return
         self.home_now_m = alt_amsl_m
@@ -139,9 +144,28 @@ class HomeWatch:
         if offset is not None and abs(offset - self._reported_offset_m) > self.report_m:
             self._reported_offset_m = offset
             self.moves.append(offset)
-            log.warning("the autopilot moved home's altitude by %+.2f m during the flight (now %.2f m AMSL, %.2f m "
-                        "at arming): every later mission altitude moved with it", offset, alt_amsl_m,
-                        self.home_at_arming_m)
+            if in_window:
+                self.window_moves += 1
+            log.log(logging.DEBUG if in_window else logging.WARNING,
+                    "the autopilot moved home's altitude by %+.2f m during the flight (now %.2f m AMSL, %.2f m "
+                    "at arming): every later mission altitude moved with it", offset, alt_amsl_m,
+                    self.home_at_arming_m)
+
+    def summarise_window(self, since_takeoff_s: float | None) -> None:
+        """Once the correction window is over: its net move, said once as a warning (each move inside it was said at
+        DEBUG)."""
+        if (self.window_summarised or self.window_s <= 0 or not self.airborne or since_takeoff_s is None
+                or self.window_open(since_takeoff_s)):
+            return
+        self.window_summarised = True
+        offset = self.offset_m or 0.0
+        if self.window_moves == 0 and abs(offset) <= self.report_m:
+            return
+        log.warning("the autopilot's %g s home correction window is over: home moved %d time%s in it (each at debug "
+                    "level, -v) and is now %+.2f m from where it was at arming%s", self.window_s, self.window_moves,
+                    "" if self.window_moves == 1 else "s", offset,
+                    " (to be put back: PX4 SIH)" if self.restore and abs(offset) >= RESTORE_MIN_M else
+                    ": every later mission altitude moved with it")
 
     def on_airborne(self) -> None:
         self.airborne = True

@@ -23,13 +23,16 @@ import numpy as np
 
 from companion.errors import CompanionError
 from companion.keyframes.features import FeatureSet
-from companion.matching import DescriptorIndex, ransac_affine, ransac_homography
+from companion.matching import DescriptorIndex, MatcherSettings
 from companion.polygons import convex_intersection_area
+from companion.ransac import ransac_affine, ransac_homography
 
 if TYPE_CHECKING:
     from companion.keyframes.motion import WallMotion
 
 METHODS = ("displacement", "polygon")
+# The gate's matcher: Lowe's 0.75, 4 kd-trees, 32 checks (64 found the same matches at twice the search time).
+GATE_MATCHING = MatcherSettings(ratio=0.75, kind="flann", trees=4, checks=32)
 
 
 class OverlapStatus(StrEnum):
@@ -44,14 +47,12 @@ class OverlapStatus(StrEnum):
 @dataclass(frozen=True)
 class OverlapConfig:
     method: str = "displacement"
-    ratio_test: float = 0.75  # Lowe's ratio
+    matching: MatcherSettings = GATE_MATCHING  # ratio test and FLANN search ("bf": exact brute force)
     ransac_reproj_px: float = 3.0  # in working pixels
     min_matches: int = 12
     min_inliers: int = 12
     min_inlier_share: float = 0.15  # inliers / matches; repeated texture gives many wrong matches
     max_scale_change: float = 2.0  # homography area change allowed between neighbouring frames
-    matcher: str = "flann"  # "flann" or "bf"
-    flann_checks: int = 32  # leaves FLANN visits per query; 64 found the same matches at twice the search time
     # With a telemetry prior (the wall's predicted motion): how many RANSAC models to try one after the other,
     # and how far (median, full-resolution px) a model's inliers may land from where the wall should be:
     # the larger of prior_floor x frame width and prior_tolerance x the predicted shift. A static background
@@ -63,14 +64,8 @@ class OverlapConfig:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise CompanionError(f"unknown overlap method {self.method!r}", f"use one of {', '.join(METHODS)}")
-        if self.matcher not in ("flann", "bf"):
-            raise CompanionError(f"unknown matcher {self.matcher!r}", "use 'flann' or 'bf'")
-        if not 0.0 < self.ratio_test < 1.0:
-            raise CompanionError(f"ratio_test={self.ratio_test} is outside (0, 1)", "use about 0.7-0.8")
         if self.min_inliers < 4:
             raise CompanionError("min_inliers must be at least 4 (a homography needs 4 points)", "use 12 or more")
-        if self.flann_checks < 1:
-            raise CompanionError(f"flann_checks={self.flann_checks} must be at least 1", "use about 32")
         if self.max_hypotheses < 1:
             raise CompanionError(f"max_hypotheses={self.max_hypotheses} must be at least 1", "use about 4")
         if not (0.0 < self.prior_tolerance < 1.0 and 0.0 < self.prior_floor < 1.0):
@@ -176,7 +171,7 @@ class OverlapEstimator:
 
     def _index_of(self, p: FeatureSet) -> DescriptorIndex:
         if self._ref is not p or self._ref_index is None:
-            self._ref_index = DescriptorIndex(p.descriptors, self.config.matcher, self.config.flann_checks)
+            self._ref_index = DescriptorIndex(p.descriptors, self.config.matching)
             self._ref = p
         return self._ref_index
 
@@ -197,7 +192,8 @@ class OverlapEstimator:
         if len(p) < cfg.min_matches or len(q) < cfg.min_matches or p.descriptors is None or q.descriptors is None:
             return OverlapEstimate(OverlapStatus.TOO_FEW_FEATURES, **unknown)
         # Iq's descriptors query Ip's index (built once per reference): one entry per distinctive match.
-        in_q, in_p = self._index_of(p).ratio_test(q.descriptors, cfg.ratio_test)
+        found = self._index_of(p).match(q.descriptors)
+        in_q, in_p = found.query, found.indexed
         good = in_q
         if len(good) < cfg.min_matches:
             return OverlapEstimate(OverlapStatus.TOO_FEW_MATCHES, matches=len(good), **unknown)

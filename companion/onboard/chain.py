@@ -15,6 +15,7 @@ import numpy as np
 
 from companion.capture.tagging import FrameTagger
 from companion.depth.masker import Masker
+from companion.depth.parallax_first import LaterReference, Resolved, masked_without_reference
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateEventKind, KeyframeGate
 from companion.keyframes.gate_scope import ScanPhase, ScanScope, ScopeStep
@@ -51,6 +52,11 @@ class ChainStats:
     dropped_no_roi: int = 0
     parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
     parallax_skipped_sure: int = 0  # masked frames the network read as wall everywhere: no flow spent on them
+    # keyframes the network alone had masked (no reference before them: a scan's first) masked again against a
+    # later frame before they were spooled (companion.depth.parallax_first), and of those, found all background
+    # by that parallax (not spooled)
+    keyframes_judged_later: int = 0
+    keyframes_later_background: int = 0
     frames_tracked: int = 0  # followed by the wall tracker only (cheap); 0 without a tracker
     skipped_far: int = 0  # judged frames the telemetry and tracker put far above Rth: not decoded (tracked.py)
     frames_measured: int = 0  # depth mask + SIFT measurement (every processed frame without a tracker)
@@ -150,6 +156,9 @@ class CullChain:
         self._seen_pose = False
         self._skipped_last: tuple[Frame | EncodedFrame, TaggedFrame] | None = None
         observe = masker.remember if masker is not None and masker.parallax is not None else None
+        # a keyframe the network alone masked waits here for a later frame's parallax before it is spooled
+        self._later = None if observe is None else LaterReference(masker)
+        self._alone: set[int] = set()  # frames masked by the network alone for want of a reference
         self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track,
                                                                      observe=observe)
 
@@ -221,8 +230,10 @@ class CullChain:
             keyframes = [] if masked is None else self.gate.push(masked)
         st.telemetry_vetoes = self.gate.telemetry_vetoes
         self._events()
-        out = self._spool(keyframes)
-        self._full.release_below(self._oldest_undecided(tagged.index))
+        out = self._spool(self._in_spool_order(keyframes, tagged))
+        oldest = self._oldest_undecided(tagged.index)
+        self._full.release_below(oldest)
+        self._alone = {i for i in self._alone if i >= oldest}
         st.busy_s += time.monotonic() - now
         st.cpu_s += time.thread_time() - cpu0
         return out
@@ -236,8 +247,8 @@ class CullChain:
     def finish(self) -> list[SpoolEntry]:
         """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
         out = self._offer_skipped_last()
-        out += [] if self.selection is None else self._spool(self.selection.finish())
-        out += self._spool(self.gate.flush())
+        out += [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
+        out += self._spool(self._in_spool_order(self.gate.flush(), None))
         self._full.release_below(None)
         self._events()
         if not self.spool_disabled:
@@ -251,8 +262,8 @@ class CullChain:
         """The scan was left: the held frames are decided and the gate's segment ends with its last view (the same
         as the end of a stream); the next frame of the scan opens a new segment."""
         out = self._offer_skipped_last()
-        out += [] if self.selection is None else self._spool(self.selection.finish())
-        out += self._spool(self.gate.end_segment())
+        out += [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
+        out += self._spool(self._in_spool_order(self.gate.end_segment(), None))
         self._events()
         return out
 
@@ -268,14 +279,16 @@ class CullChain:
             self.stats.undecodable += 1
             return []
         self._full.keep(frame, work)
-        keyframes = self.selection.offer(replace(tagged, frame=work))
+        tagged = replace(tagged, frame=work)
+        keyframes = self.selection.offer(tagged)
         self.stats.frames_tracked = self.selection.counts.tracked
         self._events()
-        return self._spool(keyframes)
+        return self._spool(self._in_spool_order(keyframes, tagged))
 
     def _oldest_undecided(self, newest: int) -> int:
         """The oldest frame that may still become a keyframe: held for a decision, or the gate's candidate."""
         held = [] if self.selection is None else self.selection.held_indices()
+        held += [] if self._later is None else self._later.held_indices()
         candidate = self.gate.candidate_index
         return min([newest, *held, *([] if candidate is None else [candidate])])
 
@@ -284,11 +297,54 @@ class CullChain:
         self.stats.frames_measured += 1
         if self.masker is None:  # no depth model requested: the whole frame is ROI
             return MaskedFrame(tagged, np.full(tagged.image.shape[:2], 255, np.uint8))
-        masked = self.masker(tagged)
+        masked, alone = masked_without_reference(self.masker, tagged)
+        if alone:
+            self._alone.add(tagged.index)
         self.stats.dropped_no_roi += int(masked is None)
         self.stats.parallax_frames = self.masker.stats.parallax_frames
         self.stats.parallax_skipped_sure = self.masker.stats.parallax_skipped_sure
         return masked
+
+    def _in_spool_order(self, keyframes: list[Keyframe], later: TaggedFrame | None) -> list[Keyframe]:
+        """The keyframes to spool now, in capture order (issue 15: the first keyframe of a scan judged by the
+        parallax of the frames after it).
+
+        A keyframe the network alone masked (no frame far enough back: the scan's first, the first after the scan
+        was left) is held until a later frame lies far enough along the baseline, then masked again against it with
+        the parallax rules every other frame gets (``companion.depth.parallax_first``) and spooled. ``later``: this
+        frame, which may resolve a held keyframe; None when no later frame will come (end of stream or of the scan
+        segment), so a held keyframe is spooled now with the network's mask. A newer keyframe never overtakes a held
+        one: it is released first (network mask), so the spool stays in capture order."""
+        if self._later is None:
+            return keyframes
+        resolved = [] if later is None else self._later.offer(later)
+        if keyframes or later is None:
+            resolved += self._later.release()
+        ready = [kf for kf in map(self._settled, resolved) if kf is not None]
+        for n, kf in enumerate(keyframes):
+            if later is not None and n == len(keyframes) - 1 and kf.index in self._alone:
+                tagged = TaggedFrame(kf.frame, kf.pose, kf.pose_stale)
+                self._later.hold(tagged, MaskedFrame(tagged, kf.mask), kf)
+                ready += [k for k in map(self._settled, self._later.offer(later)) if k is not None]
+            else:
+                ready.append(kf)
+        return ready
+
+    def _settled(self, resolved: Resolved) -> Keyframe | None:
+        """A held keyframe with the mask a later frame's parallax gave it (None: all background by that parallax,
+        not spooled), or as it was when no later frame could judge it."""
+        kf = resolved.item
+        judgement = resolved.judgement
+        if judgement is None:
+            return kf
+        self.stats.keyframes_judged_later += 1
+        if judgement.masked is None:
+            self.stats.keyframes_later_background += 1
+            self.stats.notes.append(f"keyframe {kf.index} not spooled: the parallax against frame "
+                                    f"{judgement.later_index} shows only background (the network alone kept it)")
+            log.info(self.stats.notes[-1])
+            return None
+        return replace(kf, mask=judgement.masked.mask)
 
     def _cross_check(self, kf: Keyframe) -> Keyframe:
         """The keyframe as spooled: a new record flagged ``telemetry_overlap_suspect`` where the poses contradict

@@ -6,10 +6,14 @@ onto the map's own grid, so an error is a true position error on the wall, not j
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
-from companion.matching import make_matcher, ransac_homography, ratio_test_matches
+from companion.keyframes.features import FeatureConfig, FeatureExtractor
+from companion.matching import MatcherSettings, match_descriptors
+from companion.ransac import ransac_homography
 from companion.stitch.render import MapGrid
 
 
@@ -136,28 +140,29 @@ def map_accuracy(image: np.ndarray, coverage: np.ndarray, truth: np.ndarray, m_p
     return res
 
 
+# The evaluation's matcher: 64 checks, the per-pair matcher every recorded map figure was measured with.
+EVALUATION_MATCHING = MatcherSettings(ratio=0.75, kind="flann", trees=4, checks=64)
+# The evaluation's features: the gate's plain-wall extraction at full resolution, up to 8000 features, keypoints
+# anywhere the map is drawn (no ROI erosion); ``equalize=False`` is plain SIFT (OpenCV's contrast threshold).
+_EVALUATION_FEATURES = FeatureConfig(long_side_px=0, max_features=8000, mask_erode_px=0)
+_PLAIN_SIFT = replace(_EVALUATION_FEATURES, contrast_threshold=0.04, equalize=False)
+
+
 def truth_homography(image: np.ndarray, truth: np.ndarray, *, equalize: bool = False) -> np.ndarray | None:
     """The best homography from a map with no known geometry (a peer stitcher's panorama) onto the truth grid,
     by SIFT + RANSAC (seeded: the same map always scores the same). ``equalize``: CLAHE and a low contrast
     threshold, the gate's and stitcher's settings; with OpenCV's defaults a plain wall gives features only at its
     few strong edges (a window frame), and a homography fitted to one corner of the map extrapolates badly."""
-    sift = cv2.SIFT_create(nfeatures=8000, contrastThreshold=0.01 if equalize else 0.04)
-    g1 = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    g2 = cv2.cvtColor(truth, cv2.COLOR_BGR2GRAY)
-    drawn = (g1 > 0).astype(np.uint8) * 255
-    if equalize:
-        clahe = cv2.createCLAHE(clipLimit=3.0, tileGridSize=(8, 8))
-        g1, g2 = clahe.apply(g1), clahe.apply(g2)
-    k1, d1 = sift.detectAndCompute(g1, drawn)
-    k2, d2 = sift.detectAndCompute(g2, None)
-    if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
+    extractor = FeatureExtractor(_EVALUATION_FEATURES if equalize else _PLAIN_SIFT)
+    grey = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    f1 = extractor.extract(grey, (grey > 0).astype(np.uint8) * 255)
+    f2 = extractor.extract(truth)
+    if f1.descriptors is None or f2.descriptors is None or len(f1) < 8 or len(f2) < 8:
         return None
-    cv2.setRNGSeed(7)
-    q1, t2 = ratio_test_matches(make_matcher("flann"), d1, d2, 0.75)
-    if len(q1) < 8:
+    found = match_descriptors(f1.descriptors, f2.descriptors, EVALUATION_MATCHING, seed=7)
+    if len(found) < 8:
         return None
-    p1 = np.float32([k1[i].pt for i in q1])
-    p2 = np.float32([k2[i].pt for i in t2])
+    p1, p2 = f1.points[found.query], f2.points[found.indexed]
     H, inl = ransac_homography(p1, p2, method=cv2.USAC_MAGSAC, threshold_px=3.0, max_iters=2000, confidence=0.995)
     if H is None or inl.sum() < 8:
         return None

@@ -12,7 +12,7 @@ import logging
 import threading
 from collections import OrderedDict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -23,7 +23,7 @@ from companion.errors import CompanionError
 from companion.files import atomic_path
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
 from companion.progress import progress_bar
-from companion.stitch.config import StitchConfig, worker_count
+from companion.stitch.config import STITCH_FEATURES, StitchConfig, worker_count
 from companion.stitch.inputs import KeyframeInput, SkippedKeyframe, StitchInput
 
 log = logging.getLogger(__name__)
@@ -168,29 +168,18 @@ def load_mask(kf: KeyframeInput, size: tuple[int, int]) -> np.ndarray:
 def detect(
     image: np.ndarray,
     mask: np.ndarray,
+    features: FeatureConfig = STITCH_FEATURES,
     *,
-    work_width: int = 1600,
-    max_features: int = 4000,
-    contrast_threshold: float = 0.01,
-    equalize: bool = True,
     full_size: tuple[int, int] | None = None,
 ) -> Features:
-    """SIFT on a working-resolution copy; keypoints are returned in full-resolution pixels. ``full_size``:
-    ``image`` is itself a reduced copy (``load_working_copy``) of a keyframe of this (width, height).
+    """SIFT on a working-resolution copy (``features.long_side_px``); keypoints are returned in full-resolution
+    pixels. ``full_size``: ``image`` is itself a reduced copy (``load_working_copy``) of a keyframe of this
+    (width, height).
 
-    Extraction is the keyframe gate's (:class:`companion.keyframes.FeatureExtractor`): CLAHE before SIFT and a
-    contrast threshold below OpenCV's 0.04, the settings that find matchable features on plain walls (plain
-    SIFT left 39 of 90 pairs of a plain wall unregistered, issue 15). ``equalize=False,
-    contrast_threshold=0.04`` is plain SIFT."""
-    extractor = FeatureExtractor(
-        FeatureConfig(
-            long_side_px=work_width,
-            max_features=max_features,
-            contrast_threshold=contrast_threshold,
-            equalize=equalize,
-        )
-    )
-    fs = extractor.extract(image, mask)
+    Extraction is the keyframe gate's (:class:`companion.keyframes.FeatureExtractor`) with the stitcher's
+    :data:`~companion.stitch.config.STITCH_FEATURES`: the gate's plain-wall settings (CLAHE, contrast threshold
+    0.01) on a larger copy. ``replace(STITCH_FEATURES, equalize=False, contrast_threshold=0.04)`` is plain SIFT."""
+    fs = FeatureExtractor(features).extract(image, mask)
     w, h = full_size or fs.full_size
     to_work = fs.scale * fs.full_size[0] / w  # working px per full-resolution px
     if fs.descriptors is None or len(fs) == 0:
@@ -216,22 +205,14 @@ def feature_key(kf: KeyframeInput, settings: dict) -> str:
     return hashlib.sha1("|".join(parts).encode()).hexdigest()[:16]
 
 
-def detect_settings(work_width: int, max_features: int, contrast_threshold: float, equalize: bool) -> dict:
-    """What the features depend on besides the files (the cache key)."""
-    return FEATURE_SETTINGS | {"w": work_width, "n": max_features, "c": contrast_threshold, "eq": equalize}
+def detect_settings(features: FeatureConfig) -> dict:
+    """What the features depend on besides the files (the cache key): every extraction setting."""
+    return FEATURE_SETTINGS | asdict(features)
 
 
-def cached_features(
-    kf: KeyframeInput,
-    cache_dir: Path,
-    *,
-    work_width: int,
-    max_features: int,
-    contrast_threshold: float = 0.01,
-    equalize: bool = True,
-) -> Features:
+def cached_features(kf: KeyframeInput, cache_dir: Path, features: FeatureConfig = STITCH_FEATURES) -> Features:
     """Features from the on-disk cache when the image, mask and settings are unchanged (resumable runs)."""
-    key = feature_key(kf, detect_settings(work_width, max_features, contrast_threshold, equalize))
+    key = feature_key(kf, detect_settings(features))
     path = cache_dir / f"kf{kf.index:06d}-{key}.npz"
     if path.exists():
         try:
@@ -239,16 +220,8 @@ def cached_features(
             return Features(z["kp"], z["desc"], (int(z["size"][0]), int(z["size"][1])), z["lum"])
         except (OSError, ValueError, KeyError):
             path.unlink(missing_ok=True)  # torn write from an interrupted run: recompute
-    grey, mask, full_size = load_working_copy(kf, work_width)
-    feats = detect(
-        grey,
-        mask,
-        work_width=work_width,
-        max_features=max_features,
-        contrast_threshold=contrast_threshold,
-        equalize=equalize,
-        full_size=full_size,
-    )
+    grey, mask, full_size = load_working_copy(kf, features.long_side_px)
+    feats = detect(grey, mask, features, full_size=full_size)
     cache_dir.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         np.savez(tmp, kp=feats.keypoints, desc=feats.descriptors, size=np.array(feats.image_size), lum=feats.luminance)
@@ -268,19 +241,12 @@ class KeyframeFeatures:
 def find_features(inp: StitchInput, cfg: StitchConfig, cache_dir: Path, *, progress: bool) -> KeyframeFeatures:
     """Features inside the ROI of every keyframe; a keyframe whose files are damaged, or whose size is not the
     camera's, is left out and named (not fatal). No usable keyframe at all is an error naming the first reasons."""
-    settings = detect_settings(cfg.work_width, cfg.max_features, cfg.contrast_threshold, cfg.equalize)
+    settings = detect_settings(cfg.features)
     feats, keys, usable, skipped = [], [], [], list(inp.skipped)
 
     def extract(kf: KeyframeInput) -> Features | str:
         try:
-            return cached_features(
-                kf,
-                cache_dir,
-                work_width=cfg.work_width,
-                max_features=cfg.max_features,
-                contrast_threshold=cfg.contrast_threshold,
-                equalize=cfg.equalize,
-            )
+            return cached_features(kf, cache_dir, cfg.features)
         except CompanionError as exc:
             return exc.problem
         except OSError as exc:

@@ -26,9 +26,10 @@ import numpy as np
 
 from companion.errors import CompanionError
 from companion.files import atomic_path
-from companion.matching import DescriptorIndex, ransac_affine, ransac_homography
+from companion.matching import DescriptorIndex, MatcherSettings
 from companion.progress import progress_bar
-from companion.stitch.config import StitchConfig, worker_count
+from companion.ransac import ransac_affine, ransac_homography
+from companion.stitch.config import STITCH_MATCHING, StitchConfig, worker_count
 from companion.stitch.features import Features, KeyframeFeatures
 from companion.stitch.geometry import apply_h, is_sane_homography
 from companion.stitch.priors import PlanePriors
@@ -59,7 +60,7 @@ class PairResult:
 
 @dataclass(frozen=True)
 class PairSettings:
-    ratio: float = 0.75
+    matching: MatcherSettings = STITCH_MATCHING
     ransac_px: float = 3.0
     min_inliers: int = 15
     min_inliers_affine: int = 8
@@ -67,9 +68,6 @@ class PairSettings:
     far_motion_ratio: float = 0.25  # a plane moving less than this fraction of another is far (background)
     max_points: int = 400  # inliers kept per pair for the global adjustment and the mesh
     min_inlier_area: float = 0.01  # inliers' convex hull / image area: below this the model is extrapolation
-    # FLANN leaves visited per query: on 4K keyframes 32 finds 98.7 % of the ratio-test matches that 64 finds (and
-    # 98.9 % of exact brute force's, against 99.6 % for 64) in 0.65x the search time (docs/BENCHMARKS.md)
-    flann_checks: int = 32
 
 
 def candidate_pairs(
@@ -154,8 +152,7 @@ def keyframe_index(j: int, fj: Features, settings: PairSettings) -> DescriptorIn
     not once per pair (a sixth of a pair's matching at 4K). FLANN's randomised kd-trees draw from OpenCV's RNG,
     seeded by the keyframe, so the trees (and the matches) are the same whichever thread builds them, and the
     same as ``match_pair`` builds when given none."""
-    cv2.setRNGSeed(7919 * j + 17)
-    return DescriptorIndex(fj.descriptors, checks=settings.flann_checks)
+    return DescriptorIndex(fj.descriptors, settings.matching, seed=7919 * j + 17)
 
 
 def match_pair(
@@ -176,7 +173,7 @@ def match_pair(
         return PairResult(i, j, False, "none", "too few features inside the ROI masks")
     if index_j is None:
         index_j = keyframe_index(j, fj, settings)
-    found = _distinctive_matches(fi, fj, index_j, settings.ratio)
+    found = _distinctive_matches(fi, fj, index_j)
     n_good = found.distinctive
     if n_good < settings.min_inliers_affine:
         return PairResult(i, j, False, "none", f"only {n_good} distinctive matches", matches=n_good)
@@ -242,8 +239,9 @@ def _motion_px(H: np.ndarray, pts: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(apply_h(H, pts) - pts, axis=1)))
 
 
-def _distinctive_matches(fi: Features, fj: Features, index_j: DescriptorIndex, ratio: float) -> _Matches:
-    qi, tj = index_j.ratio_test(fi.descriptors, ratio)
+def _distinctive_matches(fi: Features, fj: Features, index_j: DescriptorIndex) -> _Matches:
+    found = index_j.match(fi.descriptors)
+    qi, tj = found.query, found.indexed
     return _Matches(
         fi.keypoints[qi].astype(np.float64),
         fj.keypoints[tj].astype(np.float64),
@@ -348,7 +346,7 @@ def register_pairs(
     W, H = cam.width, cam.height
     to_norm = np.linalg.inv(cam.K)
     settings = PairSettings(
-        ratio=cfg.ratio,
+        matching=cfg.matching,
         ransac_px=cfg.ransac_threshold_px(W),
         min_inliers=cfg.min_inliers,
         pose_gate_m=cfg.pose_gate_m,

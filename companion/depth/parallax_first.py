@@ -1,0 +1,163 @@
+"""A frame the network alone had to judge, judged again by the parallax against a LATER frame (issue 15).
+
+Why: the masker's parallax compares a frame with one 8-60 cm back along the telemetry's baseline. The first frame
+of a pass or of a strip has none (nothing before it, or the previous frame is a strip away), so the network alone
+decides its mask, and on real walls the shipped model reads the top of the wall farther than the background behind
+it: that frame's mask cuts the wall top, and as the only keyframe that sees the strip's start, what it cuts is a hole
+in the map (bench/mask_wall_coverage.py: most of the uncovered wall). Giving the cut back blindly keeps the
+background beside the wall's start with it (``ParallaxParams.unjudged_far_cut_ratio``, off).
+
+Motion parallax does not care which of the two frames came first: the flow of frame k against frame k+j, with the
+translation between them from the telemetry, measures the same depths as against k-j. So such a frame is held until
+a later frame lies far enough along the baseline, then masked again by a masker whose only reference is that later
+frame: the same ``Masker`` and the same parallax rules every other frame gets (no copy of them here), so trusted near
+pixels keep the wall top, trusted far ones cut the background, and a frame whose trusted pixels are all far is
+dropped as any other. The onboard chain holds the keyframe for this before spooling it (``onboard/chain.py``);
+the benches hold every frame in the same way (``bench/stitch_photo_passes.py``, ``bench/mask_wall_coverage.py``).
+A frame no later frame reaches (the stream or the segment ends first, or the next frame is already beyond
+``max_baseline_m``) keeps the network's mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+from companion.depth.masker import Masker
+from companion.depth.parallax import ParallaxResult, SequenceParallax
+from companion.records import MaskedFrame, Pose, TaggedFrame
+
+
+class Baseline(StrEnum):
+    """How far a later frame lies from a held one, against the parallax's baseline limits."""
+
+    SHORT = "short"  # closer than ``min_baseline_m``: wait for a later one
+    USABLE = "usable"
+    TOO_FAR = "too_far"  # beyond ``max_baseline_m``: the flow cannot track it, and later frames lie farther
+
+
+def reference_mark(masker: Masker) -> tuple[int, int, int]:
+    """The masker's counters that :func:`judged_alone` compares: frames, judged by parallax, skipped as sure."""
+    st = masker.stats
+    return st.frames, st.parallax_frames, st.parallax_skipped_sure
+
+
+def judged_alone(masker: Masker, mark: tuple[int, int, int], tagged: TaggedFrame) -> bool:
+    """Whether the one frame masked since ``mark`` (:func:`reference_mark`) was decided by the network alone for
+    want of a reference frame: the masker has parallax, the frame a fresh pose, and the masker neither judged it by
+    parallax nor skipped the flow because the network was sure of it (``MaskerStats``)."""
+    frames, by_parallax, sure = reference_mark(masker)
+    return (masker.parallax is not None and tagged.pose is not None and not tagged.pose_stale
+            and frames == mark[0] + 1 and by_parallax == mark[1] and sure == mark[2])
+
+
+def masked_without_reference(masker: Masker, tagged: TaggedFrame) -> tuple[MaskedFrame | None, bool]:
+    """``masker(tagged)``, and whether the network alone decided it for want of a reference (:func:`judged_alone`)."""
+    mark = reference_mark(masker)
+    masked = masker(tagged)
+    return masked, judged_alone(masker, mark, tagged)
+
+
+def baseline_between(masker: Masker, held: Pose, later: Pose) -> Baseline:
+    """Where ``later`` lies from ``held`` against the masker's parallax limits (distance of the camera centres)."""
+    import pymap3d
+
+    p = masker.parallax.params
+    d = float(np.linalg.norm(pymap3d.geodetic2enu(later.lat, later.lon, later.alt_amsl_m,
+                                                  held.lat, held.lon, held.alt_amsl_m)))
+    if d < p.min_baseline_m:
+        return Baseline.SHORT
+    return Baseline.USABLE if d <= p.max_baseline_m else Baseline.TOO_FAR
+
+
+class _LaterOnly(SequenceParallax):
+    """A SequenceParallax whose one reference is a later frame; it keeps its answer for whoever asks why."""
+
+    answer: ParallaxResult | None = None
+
+    def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
+        self.answer = super().update(image, pose)
+        return self.answer
+
+
+@dataclass(frozen=True)
+class LaterJudgement:
+    """A held frame masked again against a later frame: the mask (None: parallax found only background, the frame is
+    dropped as any other would be) and the parallax answer behind it (None: the flow gave none, network alone)."""
+
+    masked: MaskedFrame | None
+    parallax: ParallaxResult | None
+    later_index: int
+
+
+def judge_with_later(masker: Masker, tagged: TaggedFrame, later: TaggedFrame) -> LaterJudgement:
+    """Mask ``tagged`` again with ``later`` as its only parallax reference (same model, ROI rules and parallax rules
+    as ``masker``; its own state untouched). Costs one network run and the two flows of any judged frame."""
+    seq = masker.parallax
+    reference = _LaterOnly(seq.hfov_deg, seq.params, keep=1, standoff_m=seq.standoff_m)
+    reference.remember(later.frame.image, later.pose)
+    judge = Masker(session=masker.session, params=masker.params, max_roi_depth_m=None, parallax=reference)
+    return LaterJudgement(judge(tagged), reference.answer, later.frame.index)
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A held frame's outcome: ``judgement`` None when no later frame could judge it (the network's mask stands)."""
+
+    tagged: TaggedFrame
+    network: MaskedFrame | None  # the mask the network alone gave it
+    item: object  # what the caller held with it (the chain: the keyframe)
+    judgement: LaterJudgement | None
+
+    @property
+    def masked(self) -> MaskedFrame | None:
+        return self.network if self.judgement is None else self.judgement.masked
+
+
+class LaterReference:
+    """Frames waiting for a later frame to judge them, in capture order: ``hold`` one the masker could not judge,
+    ``offer`` every later frame (each resolves the held frames it lies far enough from, or too far from), and
+    ``release`` what still waits when no later frame will come (end of stream or of a scan segment)."""
+
+    def __init__(self, masker: Masker):
+        if masker.parallax is None:
+            raise ValueError("a masker without parallax has no later reference to use")
+        self.masker = masker
+        self._held: list[tuple[TaggedFrame, MaskedFrame | None, object]] = []
+        self.judged = 0  # held frames masked against a later frame
+        self.unjudged = 0  # held frames that kept the network's mask (no later frame in reach)
+
+    def held_indices(self) -> list[int]:
+        return [t.frame.index for t, _, _ in self._held]
+
+    def hold(self, tagged: TaggedFrame, network: MaskedFrame | None, item: object = None) -> None:
+        self._held.append((tagged, network, item))
+
+    def offer(self, later: TaggedFrame) -> list[Resolved]:
+        """Resolve, in capture order, the held frames ``later`` judges (or lies beyond reach of); stops at the first
+        one it is still too close to, so outcomes come out in the order the frames were held."""
+        out: list[Resolved] = []
+        if later.pose is None or later.pose_stale:
+            return out
+        while self._held:
+            tagged, network, item = self._held[0]
+            if later.frame.index <= tagged.frame.index:
+                break
+            reach = baseline_between(self.masker, tagged.pose, later.pose)
+            if reach == Baseline.SHORT:
+                break
+            self._held.pop(0)
+            judgement = judge_with_later(self.masker, tagged, later) if reach == Baseline.USABLE else None
+            self.judged += judgement is not None
+            self.unjudged += judgement is None
+            out.append(Resolved(tagged, network, item, judgement))
+        return out
+
+    def release(self) -> list[Resolved]:
+        """Every held frame with the network's mask (no later frame will come)."""
+        out = [Resolved(t, n, item, None) for t, n, item in self._held]
+        self.unjudged += len(out)
+        self._held = []
+        return out

@@ -133,6 +133,7 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
         "frames_considered_per_s": round((st.frames_in - st.skipped_backlog) / span, 2),
         "frames_skipped_for_cpu": st.skipped_backlog,
         "frames_measured": st.frames_measured,
+        "frames_skipped_far_from_decision": getattr(st, "skipped_far", 0),  # not decoded (issue 17, tracked.py)
         "chain_thread_cpu_share_of_one_core": round(st.cpu_s / wall, 3),
         "chain_cpu_s_per_simulated_s": round(st.cpu_s / span, 3),
         "decode_on_arrival_plus_chain_cpu_s_per_simulated_s": (round((capture_cpu_s + st.cpu_s) / span, 3)

@@ -82,3 +82,53 @@ def test_schedule_rejects_bands_that_cannot_work():
         MeasureSchedule(hold_above=0.0)
     with pytest.raises(CompanionError, match="max_held"):
         MeasureSchedule(max_held=1)
+
+
+@pytest.fixture(scope="module")
+def posed_scan():
+    """A 30 fps pass at 1 m/s, 4 m from a textured wall, with exact telemetry poses: 26 frames per keyframe."""
+    from companion.keyframes.motion import WallMotionPredictor
+    from companion.keyframes.synthetic import WallCamera, WallScene
+
+    scene = WallScene(textured_wall(3000, 1000, seed=4), textured_wall(800, 300, seed=6), 12.0, 6.0,
+                      width_px=W, height_px=H)
+    cams = [WallCamera(3.0 + i / 30.0, 4.0, 3.0) for i in range(150)]
+    frames = [scene.masked_frame(i, c, t_s=i / 30.0, pose=scene.pose(c, i / 30.0)) for i, c in enumerate(cams)]
+    return scene, cams, frames, WallMotionPredictor(scene.frame, scene.hfov_deg, standoff_m=4.0)
+
+
+def _select_posed(frames, predictor, schedule):
+    gate = KeyframeGate(predictor=predictor)
+    by_index = {f.index: f for f in frames}
+    selection = TrackedSelection(gate, lambda t: by_index[t.frame.index], predictor, schedule)
+    keyframes, skipped = [], []
+    for f in frames:
+        if selection.skips(f.tagged):
+            skipped.append(f.index)
+            continue
+        keyframes += selection.offer(f.tagged)
+    keyframes += selection.finish() + gate.flush()
+    return [(k.index, round(k.overlap_to_previous or 100.0, 6)) for k in keyframes], skipped, selection.counts
+
+
+def test_frames_far_above_the_band_are_skipped_without_moving_a_keyframe(posed_scan):
+    """Issue 17: a frame the telemetry and the tracker put more than skip_above points above the hold band cannot
+    be the keyframe nor its neighbour, so only every skip_stride-th such frame is decoded and tracked."""
+    scene, cams, frames, predictor = posed_scan
+    every, none_skipped, _ = _select_posed(frames, predictor, MeasureSchedule(skip_above=None))
+    kept, skipped, counts = _select_posed(frames, predictor, MeasureSchedule())
+    assert none_skipped == []
+    assert [k for k, _ in kept] == [k for k, _ in every]  # the same keyframes
+    # at the same measured R (RANSAC's random samples depend on OpenCV's generator, which the calls before move)
+    assert all(abs(a - b) < 0.05 for (_, a), (_, b) in zip(kept, every, strict=True))
+    assert len(every) >= 5 and len(skipped) >= 0.15 * len(frames) and counts.skipped_far == len(skipped)
+    keys = [k for k, _ in kept]
+    schedule = MeasureSchedule()
+    floor = 80.0 + schedule.hold_above + schedule.skip_above
+    for i in skipped:  # each skipped frame truly far above Rth from the keyframe before it
+        key = max(k for k in keys if k < i)
+        assert 100.0 * scene.true_overlap(cams[key], cams[i]) > floor - 1.0
+    runs = np.split(np.array(skipped), np.where(np.diff(skipped) != 1)[0] + 1)
+    assert max(len(r) for r in runs) <= MeasureSchedule().skip_stride - 1  # every skip_stride-th frame still tracked
+    with pytest.raises(CompanionError, match="skip_stride"):
+        MeasureSchedule(skip_stride=0)

@@ -144,3 +144,28 @@ def test_off_scan_frames_do_not_pile_up_at_full_resolution(tmp_path):
         chain.process(Frame(i, i / 10.0, image))
         assert chain.full_resolution_held == 0
     assert chain.stats.off_scan == 10 and chain.stats.keyframes == 0
+
+
+def test_frames_off_the_scan_or_before_telemetry_are_never_decoded(tmp_path, monkeypatch):
+    """Tagging and the scan scope need the capture time only: a transit frame costs no JPEG decode (issue 17)."""
+    from companion.keyframes.gate_scope import ScanScope
+    from companion.keyframes.synthetic import WallCamera, WallScene
+    from companion.onboard import working
+
+    scene = WallScene(textured_wall(600, 200, seed=1), textured_wall(160, 60, seed=2), 16.0, 10.0,
+                      width_px=1280, height_px=720)
+    buf = TelemetryBuffer()
+    for i in range(3, 14):  # telemetry from 0.3 s; a transit 15 m out: every frame off the scan
+        buf.add(scene.pose(WallCamera(4.0 + 0.1 * i, 15.0, 5.0), i / 10.0))
+    chain = build_chain(tmp_path, FrameTagger(buf, ClockMap(0.0)), mask=False)
+    chain.scope = ScanScope(scene.frame, 4.0)
+    decodes = []
+    real_imdecode = working.cv2.imdecode
+    monkeypatch.setattr(working.cv2, "imdecode", lambda *a: decodes.append(1) or real_imdecode(*a))
+    data = _jpeg(np.zeros((720, 1280, 3), np.uint8))
+    for i in range(12):
+        chain.process(EncodedFrame(i, i / 10.0, data, 1280, 720))
+    st = chain.stats
+    assert st.before_telemetry >= 2 and st.off_scan >= 9 and st.before_telemetry + st.off_scan == 12
+    assert st.frames_processed == 12
+    assert decodes == [] and st.corrupt == 0 and chain.full_resolution_held == 0

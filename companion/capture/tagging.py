@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
-from companion.records import Frame, TaggedFrame
+from companion.records import EncodedFrame, Frame, TaggedFrame
 
 log = logging.getLogger(__name__)
 
@@ -21,7 +21,8 @@ class FrameTagger:
         self.earliest_frame_s: float | None = None  # autopilot clock
         self.latest_frame_s: float | None = None
 
-    def tag(self, frame: Frame) -> TaggedFrame:
+    def tag(self, frame: Frame | EncodedFrame) -> TaggedFrame:
+        """Reads the frame's index and capture time only (an encoded frame is tagged before it is decoded)."""
         t = self.clock.to_autopilot(frame.capture_time_s)
         if t is None:
             self.stale_count += 1

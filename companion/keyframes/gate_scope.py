@@ -37,7 +37,7 @@ extent, which the strips' top frames cover up to the margin. Without a ``wall`` 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
@@ -66,6 +66,8 @@ class ScanScope:
     extent_tolerance_m: float = 1.0
     open_band: float = 0.5  # a scan segment opens only within this share of the standoff from the standoff
     wall: tuple[float, float, float, float] | None = None  # the wall itself (along, up metres); None: the extent
+    # the last pose's footprint: a frame's scope asks for it up to twice (loose extent, then the wall itself)
+    _last_footprint: list = field(default_factory=list, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         if not (self.standoff_m > 0.0 and math.isfinite(self.standoff_m)):
@@ -98,6 +100,14 @@ class ScanScope:
     def footprint(self, pose: Pose | None) -> np.ndarray | None:
         """The frame's corners on the wall plane, (4, 2) along/up metres (None: no pose, or a corner's ray misses
         the wall plane ahead)."""
+        last = self._last_footprint
+        if last and last[0] is pose:
+            return last[1]
+        corners = self._footprint_of(pose)
+        last[:] = [pose, corners]
+        return corners
+
+    def _footprint_of(self, pose: Pose | None) -> np.ndarray | None:
         if pose is None or not all(math.isfinite(float(v)) for v in (pose.lat, pose.lon, pose.alt_amsl_m,
                                                                         *pose.camera_angles())):
             return None

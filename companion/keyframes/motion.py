@@ -36,7 +36,7 @@ class WallMotion:
     """
 
     H: np.ndarray
-    overlap_percent: float
+    overlap_percent: float | None  # None: not asked for (``predict(..., overlap=False)``)
     dx: float
     dy: float
     baseline_m: float  # camera travel between the two poses
@@ -100,9 +100,12 @@ class WallMotionPredictor:
         to_cam = np.array([[1.0, 0.0, -centre[0]], [0.0, 0.0, -centre[1]], [0.0, 1.0, -centre[2]]])
         return K @ rot.T @ to_cam
 
-    def predict(self, a: Pose | None, b: Pose | None, width: int, height: int) -> WallMotion | None:
+    def predict(self, a: Pose | None, b: Pose | None, width: int, height: int, *,
+                overlap: bool = True) -> WallMotion | None:
         """The wall's motion from frame a to frame b (``width`` x ``height`` px); None without a usable geometry
-        (a pose missing or not finite, a camera behind the wall plane or looking past it)."""
+        (a pose missing or not finite, a camera behind the wall plane or looking past it). ``overlap=False``: the
+        homography and shift only, without the footprints' intersection (the tracker's frame-to-frame first
+        guess needs no overlap; the polygon clipping is most of a prediction's CPU)."""
         if a is None or b is None:
             return None
         values = (a.lat, a.lon, a.alt_amsl_m, *a.camera_angles(), b.lat, b.lon, b.alt_amsl_m, *b.camera_angles())
@@ -122,11 +125,12 @@ class WallMotionPredictor:
         area_a = polygon_area(footprints[0])
         if area_a <= 0.0:
             return None
-        overlap = 100.0 * convex_intersection_area(footprints[1], footprints[0]) / area_a
+        share = (float(min(100.0, 100.0 * convex_intersection_area(footprints[1], footprints[0]) / area_a))
+                 if overlap else None)
         Ha, Hb = self._wall_to_image(K, ca, ra), self._wall_to_image(K, cb, rb)
         H = Hb @ np.linalg.inv(Ha)
         H = H / H[2, 2]
-        motion = WallMotion(H, float(min(100.0, overlap)), 0.0, 0.0, float(np.linalg.norm(cb - ca)))
+        motion = WallMotion(H, share, 0.0, 0.0, float(np.linalg.norm(cb - ca)))
         centre_b = motion.map_points(np.array([[width / 2.0, height / 2.0]]))[0]
         return WallMotion(H, motion.overlap_percent, float(centre_b[0] - width / 2.0),
                           float(centre_b[1] - height / 2.0), motion.baseline_m)

@@ -58,6 +58,7 @@ class ChainStats:
     keyframes_judged_later: int = 0
     keyframes_later_background: int = 0
     frames_tracked: int = 0  # followed by the wall tracker only (cheap); 0 without a tracker
+    skipped_far: int = 0  # judged frames the telemetry and tracker put far above Rth: not decoded (tracked.py)
     frames_measured: int = 0  # depth mask + SIFT measurement (every processed frame without a tracker)
     keyframes: int = 0
     already_spooled: int = 0  # resumed run: keyframes found in the spool already
@@ -153,6 +154,7 @@ class CullChain:
             gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
         self._seen_pose = False
+        self._skipped_last: tuple[Frame | EncodedFrame, TaggedFrame] | None = None
         observe = masker.remember if masker is not None and masker.parallax is not None else None
         # a keyframe the network alone masked waits here for a later frame's parallax before it is spooled
         self._later = None if observe is None else LaterReference(masker)
@@ -183,24 +185,19 @@ class CullChain:
         """One camera frame, decoded or still encoded as the camera sent it (decoded here at the working size)."""
         now, cpu0 = time.monotonic(), time.thread_time()
         st = self.stats
-        work = self.working.of(frame)
-        if work is None:  # an encoded frame that is not an image: counted with the camera's corrupt frames
-            st.undecodable += 1
-            st.cpu_s += time.thread_time() - cpu0
-            return []
-        st.first_frame_wall_s = st.first_frame_wall_s or now
-        st.last_frame_wall_s = now
-        st.frames_processed += 1
-        self._full.keep(frame, work)
-        tagged = self.tagger.tag(work)
+        # Tagging and the scan scope read the capture time only, so a frame that is not judged (before the first
+        # telemetry sample, off the scan) is never decoded: at 1280 px that is 5 ms of CPU each (issue 17).
+        tagged = self.tagger.tag(frame)
         if tagged.pose is None and not self._seen_pose and self.require_telemetry:
+            self._count_processed(now)
             st.before_telemetry += 1
             self._full.release_below(None)
             return []
         self._seen_pose = self._seen_pose or tagged.pose is not None
-        st.stale_pose += int(tagged.pose_stale)
         where = None if self.phase is None else self.phase.step(tagged.pose, tagged.pose_stale)
         if where is not None and not where.judged:
+            self._count_processed(now)
+            st.stale_pose += int(tagged.pose_stale)
             st.off_scan += 1  # take-off, transit, landing: not a frame of the scan, so the gate never judges it
             out = self._end_segment() if where == ScopeStep.LEAVES else []
             self._full.release_below(self._oldest_undecided(tagged.index + 1))  # this one is never a keyframe
@@ -208,6 +205,23 @@ class CullChain:
             st.cpu_s += time.thread_time() - cpu0
             return out
         st.scan_segments += int(where == ScopeStep.OPENS)
+        if self.selection is not None and self.selection.skips(tagged):  # far above Rth: counted, not decoded
+            self._count_processed(now)
+            st.skipped_far = self.selection.counts.skipped_far
+            self._skipped_last = (frame, tagged)  # decoded only if it turns out to be the wall's last view
+            st.busy_s += time.monotonic() - now
+            st.cpu_s += time.thread_time() - cpu0
+            return []
+        self._skipped_last = None
+        work = self.working.of(frame)
+        if work is None:  # an encoded frame that is not an image: counted with the camera's corrupt frames
+            st.undecodable += 1
+            st.cpu_s += time.thread_time() - cpu0
+            return []
+        self._count_processed(now)
+        st.stale_pose += int(tagged.pose_stale)
+        self._full.keep(frame, work)
+        tagged = replace(tagged, frame=work)
         if self.selection is not None:
             keyframes = self.selection.offer(tagged)
             st.frames_tracked = self.selection.counts.tracked
@@ -224,9 +238,16 @@ class CullChain:
         st.cpu_s += time.thread_time() - cpu0
         return out
 
+    def _count_processed(self, now: float) -> None:
+        st = self.stats
+        st.first_frame_wall_s = st.first_frame_wall_s or now
+        st.last_frame_wall_s = now
+        st.frames_processed += 1
+
     def finish(self) -> list[SpoolEntry]:
         """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
-        out = [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
+        out = self._offer_skipped_last()
+        out += [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
         out += self._spool(self._in_spool_order(self.gate.flush(), None))
         self._full.release_below(None)
         self._events()
@@ -240,10 +261,29 @@ class CullChain:
     def _end_segment(self) -> list[SpoolEntry]:
         """The scan was left: the held frames are decided and the gate's segment ends with its last view (the same
         as the end of a stream); the next frame of the scan opens a new segment."""
-        out = [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
+        out = self._offer_skipped_last()
+        out += [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
         out += self._spool(self._in_spool_order(self.gate.end_segment(), None))
         self._events()
         return out
+
+    def _offer_skipped_last(self) -> list[SpoolEntry]:
+        """The segment or the stream ends on a frame skipped far above Rth: it is the wall's last view, so it is
+        decoded and offered now, as if it had not been skipped."""
+        pending, self._skipped_last = self._skipped_last, None
+        if pending is None or self.selection is None:
+            return []
+        frame, tagged = pending
+        work = self.working.of(frame)
+        if work is None:
+            self.stats.undecodable += 1
+            return []
+        self._full.keep(frame, work)
+        tagged = replace(tagged, frame=work)
+        keyframes = self.selection.offer(tagged)
+        self.stats.frames_tracked = self.selection.counts.tracked
+        self._events()
+        return self._spool(self._in_spool_order(keyframes, tagged))
 
     def _oldest_undecided(self, newest: int) -> int:
         """The oldest frame that may still become a keyframe: held for a decision, or the gate's candidate."""

@@ -9,6 +9,12 @@ frame whose MEASURED R is >= Rth, followed by the first one below (which makes i
 so a keyframe costs about two measurements instead of one per frame. Every measurement also re-seats the tracker
 (its summed flow is replaced by the measured shift), so drift never outlives a keyframe.
 
+Far from the decision (the telemetry's overlap with the keyframe and the tracker's both more than
+``MeasureSchedule.skip_above`` points above the hold band: about half of each keyframe's frames) three frames in
+four are not even decoded: ``skips`` says so before the chain decodes them, and they are counted
+(``skipped_far``). Every frame in the band, and so every frame that may become a keyframe or its neighbour, is
+decoded and tracked; the keyframes are those of a chain that tracks every frame (tested).
+
 When the tracker loses the wall (no texture, no telemetry), the held frames are decided at once with the newest one
 measured too, as a chain without a tracker would. Frames that arrive while a search runs wait in the runner's
 queue (or are dropped there, oldest first): they cost frames, never a keyframe below Rth, because the search only
@@ -40,6 +46,12 @@ class MeasureSchedule:
     resolve_below: float = 1.5
     max_held: int = 45  # 1.5 s of a 30 fps camera; the band itself is about 10 frames at the planned speed
     tracker: TrackerConfig = TrackerConfig()
+    # Far above the band (the telemetry AND the tracker put the overlap more than ``skip_above`` points above
+    # Rth + hold_above) no frame can be the keyframe nor its neighbour, so only every ``skip_stride``-th frame is
+    # decoded and tracked; the others are counted, not decoded (issue 17: decode + LK flow + the telemetry's
+    # step prediction are about 10 ms of CPU per 1280 px frame). None: every frame tracked.
+    skip_above: float | None = 2.0  # 2 and 4: the same keyframes on a 1280 px demo recording, 40 % of frames skipped
+    skip_stride: int = 4
 
     def __post_init__(self) -> None:
         if self.hold_above <= 0 or self.resolve_below <= 0:
@@ -47,6 +59,9 @@ class MeasureSchedule:
                                  "use e.g. hold_above=6, resolve_below=1.5 (percentage points)")
         if self.max_held < 2:
             raise CompanionError(f"max_held={self.max_held} cannot hold a frame pair", "use e.g. 45")
+        if (self.skip_above is not None and self.skip_above < 0) or self.skip_stride < 1:
+            raise CompanionError(f"skip_above={self.skip_above}, skip_stride={self.skip_stride}",
+                                 "use skip_above >= 0 points (or None: track every frame) and skip_stride >= 1")
 
 
 @dataclass(frozen=True)
@@ -58,6 +73,7 @@ class TrackedCounts:
     searches: int
     lost: int
     held_dropped: int
+    skipped_far: int = 0  # far above the band: counted, not decoded nor tracked (``MeasureSchedule.skip_above``)
 
 
 class TrackedSelection:
@@ -80,10 +96,38 @@ class TrackedSelection:
         self._prev: TaggedFrame | None = None
         self._anchor_tagged: TaggedFrame | None = None
         self._tracked = self._measured = self._searches = self._lost = self._held_dropped = 0
+        self._skipped = self._skip_run = 0
+        self._anchor_motion: tuple | None = None  # (frame index, prediction from the anchor, (width, height))
 
     @property
     def counts(self) -> TrackedCounts:
-        return TrackedCounts(self._tracked, self._measured, self._searches, self._lost, self._held_dropped)
+        return TrackedCounts(self._tracked, self._measured, self._searches, self._lost, self._held_dropped,
+                             self._skipped)
+
+    def skips(self, tagged: TaggedFrame) -> bool:
+        """True when this frame need not be decoded nor tracked: the telemetry's overlap with the keyframe and the
+        tracker's on the last tracked frame are both more than ``skip_above`` points above the hold band, and
+        fewer than ``skip_stride`` - 1 frames were skipped since the last tracked one. Called before ``offer``
+        (``tagged.frame`` may still be encoded); a skipped frame is counted and never offered."""
+        sch = self.schedule
+        prev = self._prev
+        if (sch.skip_above is None or sch.skip_stride < 2 or prev is None or self._anchor_tagged is None
+                or self.tracker.anchor_index is None or self.gate.keyframe_index is None
+                or self._skip_run + 1 >= sch.skip_stride):
+            self._skip_run = 0
+            return False
+        floor = self.gate.rth_percent + sch.hold_above + sch.skip_above
+        if self._predicted(prev, 0.0) <= floor:
+            self._skip_run = 0
+            return False
+        h, w = prev.frame.image.shape[:2]  # the working size the tracker's frames have
+        prior = self._anchor_prior(tagged, w, h)
+        if prior is None or prior.overlap_percent <= floor:
+            self._skip_run = 0
+            return False
+        self._skip_run += 1
+        self._skipped += 1
+        return True
 
     def held_indices(self) -> list[int]:
         """Frames held for a decision (capture order): any of them may still become a keyframe."""
@@ -92,8 +136,9 @@ class TrackedSelection:
     def offer(self, tagged: TaggedFrame) -> list[Keyframe]:
         if self.tracker.anchor_index is None or self.gate.keyframe_index is None:
             return self._measure_and_push(tagged)
-        track = self.tracker.track(tagged.frame.index, tagged.frame.image, self._motion(self._prev, tagged),
-                                   self._motion(self._anchor_tagged, tagged))
+        h, w = tagged.frame.image.shape[:2]
+        track = self.tracker.track(tagged.frame.index, tagged.frame.image,
+                                   self._motion(self._prev, tagged, overlap=False), self._anchor_prior(tagged, w, h))
         self._prev = tagged
         self._tracked += 1
         if self.observe is not None:
@@ -220,6 +265,7 @@ class TrackedSelection:
         """The gate made a keyframe: the tracker's anchor moves there (it was tracked, or it is anchored anew)."""
         tagged = TaggedFrame(kf.frame, kf.pose, kf.pose_stale)
         self._anchor_tagged = tagged
+        self._anchor_motion = None
         if not self.tracker.reanchor(kf.index):
             self.tracker.anchor(kf.index, kf.image, kf.mask)
             self._prev = tagged
@@ -241,8 +287,19 @@ class TrackedSelection:
             else:
                 self.tracker.correct(index, last.dx, last.dy)
 
-    def _motion(self, a: TaggedFrame | None, b: TaggedFrame) -> WallMotion | None:
+    def _anchor_prior(self, tagged: TaggedFrame, width: int, height: int) -> WallMotion | None:
+        """The telemetry's wall motion from the keyframe to this frame, computed once per frame (``skips`` asks
+        for it before ``offer`` does)."""
+        known = self._anchor_motion
+        if known is not None and known[0] == tagged.index and known[1] is not None and known[2] == (width, height):
+            return known[1]
+        motion = self._motion(self._anchor_tagged, tagged, (width, height))
+        self._anchor_motion = (tagged.index, motion, (width, height))
+        return motion
+
+    def _motion(self, a: TaggedFrame | None, b: TaggedFrame, size: tuple[int, int] | None = None, *,
+                overlap: bool = True) -> WallMotion | None:
         if self.predictor is None or a is None or a.pose_stale or b.pose_stale:
             return None
-        h, w = b.frame.image.shape[:2]
-        return self.predictor.predict(a.pose, b.pose, w, h)
+        w, h = size or b.frame.image.shape[1::-1]
+        return self.predictor.predict(a.pose, b.pose, w, h, overlap=overlap)

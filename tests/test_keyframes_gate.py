@@ -252,6 +252,30 @@ def test_a_last_candidate_that_adds_nothing_of_the_wall_is_not_kept(tex):
         assert all("nothing of the wall" in e.message for e in events)
 
 
+def test_a_segment_ending_on_an_unusable_frame_is_a_gap_only_when_that_frame_shows_wall(tex):
+    """The judged 1280 px demo flagged "1 gap": the scan's last frame, leaving the wall, held a sliver of ROI with
+    too few features to measure. No wall was lost there. A last frame that shows wall and cannot be measured
+    (a black frame over the wall) is still a gap."""
+    views = [View(400 + 12 * i, 450, W, H) for i in range(2)]  # the keyframe, then the last frame: no candidate
+    sliver = _block_mask(0, 150, 30, 180)  # 30 x 30 px of a plain corner: < 3 % of the frame, too few features
+    for last, gap in ((sliver, False), (None, True)):
+        gate = _gate()
+        kfs = []
+        for i, v in enumerate(views):
+            mf = masked_frame(i, render(tex, v))
+            if i == 1:
+                mf = _with_mask(mf, sliver) if last is not None else masked_frame(i, np.zeros((H, W, 3), np.uint8))
+            kfs += gate.push(mf)
+        assert gate.last_step.role == "unusable"
+        kfs += gate.end_segment()
+        events = gate.pop_events()
+        gaps = [e for e in events if e.kind == GateEventKind.GAP]
+        assert len(gaps) == int(gap), [e.message for e in events]
+        if not gap:
+            said = [e.message for e in events if e.kind == GateEventKind.BARE_END]
+            assert len(said) == 1 and "no gap" in said[0]
+
+
 def test_a_segment_ended_by_leaving_the_scan_restarts_fresh(tex):
     """The chain ends a segment where the scan is left; the next frame opens a new one: not a pair below target,
     not a lost track, and the old segment's last view is kept."""

@@ -90,6 +90,7 @@ class GateEventKind(StrEnum):
     GAP = "gap"  # tracking lost: a new segment starts, the map may have a hole here
     UNUSABLE_FRAME = "unusable_frame"  # no texture in the ROI, or blurred and unmatched: frame skipped
     LAST_DROPPED = "last_dropped"  # a segment's last candidate had no wall to add: not kept
+    BARE_END = "bare_end"  # a segment ended on unusable frames with next to no ROI: no wall lost, no gap
     SEGMENT = "segment"  # the scan resumed after a stretch off it: a new segment, not judged against the old one
 
 
@@ -161,6 +162,7 @@ class KeyframeGate:
         self._prev_R: float = 100.0  # R of the previous frame vs the current keyframe
         self._segment = 0
         self._unusable_since_key = 0
+        self._unusable_bare_since_key = 0  # ... of them with next to no ROI (< min_last_roi): no wall to lose
         self._events: list[GateEvent] = []
         self._out: list[Keyframe] = []  # keyframes decided during the current push/flush
         self.last_step: GateStep | None = None
@@ -262,18 +264,28 @@ class KeyframeGate:
                 self.last_dropped += 1
                 step.events.append(GateEvent(GateEventKind.LAST_DROPPED, cand.index,
                                              f"last candidate {cand.index} of the {where} not kept: {why}"))
-        if self._unusable_since_key:
+        with_wall = self._unusable_since_key - self._unusable_bare_since_key
+        if with_wall:
             step.events.append(
                 GateEvent(
                     GateEventKind.GAP,
                     -1,
-                    f"{where} ended with {self._unusable_since_key} unusable frame(s) after the last keyframe",
+                    f"{where} ended with {with_wall} unusable frame(s) showing wall after the last keyframe",
+                )
+            )
+        elif self._unusable_since_key:
+            step.events.append(
+                GateEvent(
+                    GateEventKind.BARE_END,
+                    -1,
+                    f"{where} ended with {self._unusable_since_key} unusable frame(s) after the last keyframe, each "
+                    f"with an ROI under {100 * self.config.min_last_roi:g} % of the frame (leaving the wall): no gap",
                 )
             )
         self._segment_ended = self._segment_ended or self._key is not None
         self._key = None
         self._prev_R = 100.0
-        self._unusable_since_key = 0
+        self._unusable_since_key = self._unusable_bare_since_key = 0
         self._looked, self._looked_est = {}, {}
         self._events.extend(step.events)
         out, self._out = self._out, []
@@ -435,7 +447,12 @@ class KeyframeGate:
         self._emit(item, step, overlap=None, gap=True, reason="tracking_lost")
 
     def _unusable(self, item: _Held, step: GateStep, why: str) -> None:
+        """A frame the gate cannot measure. One whose ROI is next to nothing (the camera leaving the wall at a
+        segment's end: too few features in a sliver) loses no wall, so a segment ending on it is no gap."""
         self._unusable_since_key += 1
+        roi = _small_mask(item.masked.mask) > 127
+        if roi.size == 0 or float(roi.mean()) < self.config.min_last_roi:
+            self._unusable_bare_since_key += 1
         step.role = "unusable"
         step.events.append(GateEvent(GateEventKind.UNUSABLE_FRAME, item.index, f"frame {item.index} skipped: {why}"))
 
@@ -511,7 +528,7 @@ class KeyframeGate:
         )
         self._key = item
         self._prev_R = 100.0
-        self._unusable_since_key = 0
+        self._unusable_since_key = self._unusable_bare_since_key = 0
         self.keyframes_out += 1
         self._out.append(kf)
         step.keyframe_indices.append(item.index)

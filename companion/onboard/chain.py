@@ -383,6 +383,9 @@ class CullChain:
                 self.stats.last_candidates_dropped += 1
                 self.stats.notes.append(one_line(ev.message))
                 log.info(ev.message)
+            elif ev.kind == GateEventKind.BARE_END:
+                self.stats.notes.append(one_line(ev.message))
+                log.info(ev.message)
 
     def _spool(self, keyframes: list[Keyframe]) -> list[SpoolEntry]:
         out = []

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -22,6 +23,9 @@ import cv2
 import numpy as np
 
 from companion.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a script
 
 
 def _cpu(fn, repeat: int = 3) -> float:

@@ -21,8 +21,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parents[1]
 
 
-def _frames(root: Path, mission_path: Path, width: int, poses: int, noise: bool) -> tuple[list, float, str]:
-    """Render the poses with the ``sim`` package of checkout ``root`` (imported afresh from there)."""
+def warp_rig(root: Path, mission_path: Path, width: int, noise: bool = True):
+    """A warp renderer, flight, exposure and the camera's fps built by the ``sim`` package of checkout ``root``
+    (imported afresh from there, so two checkouts can be compared in one process)."""
     for name in [k for k in sys.modules if k == "sim" or k.startswith("sim.")]:
         del sys.modules[name]
     sys.path.insert(0, str(root))
@@ -40,8 +41,12 @@ def _frames(root: Path, mission_path: Path, width: int, poses: int, noise: bool)
     cam = camera_from_mission(mission, width)
     scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=0)
     r = WarpRenderer(scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=0, noise=noise)
-    flight = KinematicFlight(plan.frame, scan_path(plan), seed=0)
-    ae = AutoExposure(seed=0)
+    return r, KinematicFlight(plan.frame, scan_path(plan), seed=0), AutoExposure(seed=0), float(mission.camera.fps)
+
+
+def _frames(root: Path, mission_path: Path, width: int, poses: int, noise: bool) -> tuple[list, float, str]:
+    """Render the poses with the ``sim`` package of checkout ``root`` (imported afresh from there)."""
+    r, flight, ae, _ = warp_rig(root, mission_path, width, noise)
     out = []
     c0 = time.process_time()
     for i, t in enumerate(np.linspace(0.0, flight.duration_s, poses)):

@@ -22,28 +22,14 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(HERE))  # bench.camera_identity, run as a script
 
 
 def _rig(root: Path, mission_path: Path, width: int):
     """A warp renderer, flight and exposure built by the ``sim`` package of checkout ``root`` (imported afresh)."""
-    for name in [k for k in sys.modules if k == "sim" or k.startswith("sim.")]:
-        del sys.modules[name]
-    sys.path.insert(0, str(root))
-    try:
-        from companion.mission import load_mission, plan_scan
-        from sim.camera.recording import camera_from_mission
-        from sim.camera.render import AutoExposure
-        from sim.camera.scene import Scene
-        from sim.camera.trajectory import KinematicFlight, scan_path
-        from sim.camera.warp_render import WarpRenderer
-    finally:
-        sys.path.pop(0)
-    mission = load_mission(mission_path)
-    plan = plan_scan(mission)
-    cam = camera_from_mission(mission, width)
-    scene = Scene.build(plan.frame.length_m, float(mission.facade.height_m), seed=0)
-    r = WarpRenderer(scene, plan.frame, cam, exposure_s=float(mission.camera.exposure_s), seed=0)
-    return r, KinematicFlight(plan.frame, scan_path(plan), seed=0), AutoExposure(seed=0), float(mission.camera.fps)
+    from bench.camera_identity import warp_rig
+
+    return warp_rig(root, mission_path, width)
 
 
 def main() -> int:

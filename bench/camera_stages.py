@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import collections
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -23,6 +24,9 @@ import numpy as np
 
 import sim.camera.warp_render as warp_render
 from companion.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a script
 
 STAGES = ("_radiance", "radiance_u8", "_draw_face", "_blurred", "_draw_trees", "_draw_trunks", "_draw_sky", "_expose",
           "_motion_blur", "_object_rects", "_candidates", "_warp", "_hazed", "_patch", "_level", "_rect_mask",

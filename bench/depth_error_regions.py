@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field, replace
@@ -50,6 +51,9 @@ from companion.depth.parallax import (
     wall_depth_of,
 )
 from companion.depth.session import DepthSession
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a script
 
 EVAL_WIDTH = 480
 VARIANTS: dict[str, ParallaxParams] = {

@@ -42,6 +42,18 @@ def _r(p, q, src_i, dst_i):
     return eq2_overlap(float(d[0]), float(d[1]), w, h)
 
 
+def _features_by_size(images: list, long_sides: list[int]) -> dict[int, list]:
+    """SIFT working sizes: each one's features for every frame, its cost per frame printed."""
+    feats: dict[int, list] = {}
+    for ls in long_sides:
+        ext = FeatureExtractor(FeatureConfig(long_side_px=ls))
+        t = time.process_time()
+        feats[ls] = [ext.extract(im) for im in images]
+        ms = 1000.0 * (time.process_time() - t) / len(images)
+        print(f"SIFT long side {ls:4d}: {ms:6.1f} ms/frame, {np.mean([len(f) for f in feats[ls]]):.0f} features")
+    return feats
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("folder", type=Path)
@@ -59,14 +71,7 @@ def main() -> None:
     print(f"{len(images)} frames {images[0].shape[1]}x{images[0].shape[0]} from {args.folder}, "
           f"reference every {args.step}, {args.span} candidates each; CPU ms per call (process time)")
 
-    # SIFT working sizes: cost per frame and R against the default's R.
-    feats: dict[int, list] = {}
-    for ls in (int(x) for x in args.long_sides.split(",")):
-        ext = FeatureExtractor(FeatureConfig(long_side_px=ls))
-        t = time.process_time()
-        feats[ls] = [ext.extract(im) for im in images]
-        ms = 1000.0 * (time.process_time() - t) / len(images)
-        print(f"SIFT long side {ls:4d}: {ms:6.1f} ms/frame, {np.mean([len(f) for f in feats[ls]]):.0f} features")
+    feats = _features_by_size(images, [int(x) for x in args.long_sides.split(",")])
 
     pairs = [(i, j) for i in range(0, len(images) - 1, args.step)
              for j in range(i + 1, min(len(images), i + 1 + args.span))]

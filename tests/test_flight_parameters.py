@@ -64,6 +64,37 @@ class _Params:
         await self._set(name, value, True)
 
 
+class _LossyParams(_Params):
+    """Each request first times out ``timeouts`` times, as mavsdk reports a request whose re-sends were all lost."""
+
+    def __init__(self, values: dict, timeouts: int):
+        super().__init__(values)
+        self.timeouts = timeouts
+        self.left: dict[str, int] = {}
+
+    def _get(self, name, want_int):
+        left = self.left.setdefault(name, self.timeouts)
+        if left:
+            self.left[name] = left - 1
+            raise _ParamError("TIMEOUT")
+        return super()._get(name, want_int)
+
+
+def test_a_timed_out_read_or_write_is_asked_again():
+    """CI's SITL run with 20 % packet loss each way lost every re-send of one read: the flight stopped before
+    take-off although the vehicle answered. Two timeouts in a row are ridden out; three are the error."""
+    p = _LossyParams({"NAV_DLL_ACT": 0, "RTL_RETURN_ALT": 30.0}, timeouts=2)
+    assert asyncio.run(read_parameter(p, "RTL_RETURN_ALT")).value == 30.0
+
+    async def fly():
+        async with FlightParameters(p, {"NAV_DLL_ACT": 2.0}):
+            assert p.values["NAV_DLL_ACT"] == 2
+    asyncio.run(fly())
+    assert p.values["NAV_DLL_ACT"] == 0  # set and restored through the timeouts
+    with pytest.raises(CompanionError, match=r"cannot read parameter RTL_RETURN_ALT .*\(TIMEOUT\)"):
+        asyncio.run(read_parameter(_LossyParams({"RTL_RETURN_ALT": 30.0}, timeouts=3), "RTL_RETURN_ALT"))
+
+
 def test_read_uses_the_parameter_own_type():
     p = _Params({"NAV_DLL_ACT": 0, "RTL_RETURN_ALT": 30.0})
     act, alt = asyncio.run(read_parameter(p, "NAV_DLL_ACT")), asyncio.run(read_parameter(p, "RTL_RETURN_ALT"))

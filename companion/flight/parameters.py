@@ -47,27 +47,51 @@ def _result_name(exc: Exception) -> str:
     return getattr(getattr(exc, "result", None), "name", type(exc).__name__)
 
 
+LINK_ATTEMPTS = 3  # mavsdk already re-sends each request 5 times; a lossy link (20 % each way) still loses some
+
+
+async def _over_the_link(request, what: str):
+    """``await request()``, asked again when mavsdk gave up with ``TIMEOUT``.
+
+    Why: mavsdk's parameter client re-sends a request a few times within about 3 s and then reports TIMEOUT. Over a
+    link losing a fifth of its packets each way (SITL's packet-loss test, a real radio at the edge of its range) that
+    happened for one of the flight's parameter reads; the flight then stopped before take-off although the vehicle
+    was answering. A read or a write of the same value is safe to repeat; any other result is the vehicle's answer
+    and is raised at once."""
+    for attempt in range(1, LINK_ATTEMPTS + 1):
+        try:
+            return await request()
+        except Exception as exc:
+            if _result_name(exc) != "TIMEOUT" or attempt == LINK_ATTEMPTS:
+                raise
+            log.warning("%s timed out over the link (attempt %d of %d); asking again", what, attempt, LINK_ATTEMPTS)
+
+
 async def read_parameter(param_plugin, name: str) -> ParamValue:
     """The vehicle's value of ``name`` with its type; CompanionError if the vehicle does not have it."""
     try:
-        return ParamValue(name, float(await param_plugin.get_param_float(name)), False)
+        value = await _over_the_link(lambda: param_plugin.get_param_float(name), f"reading {name}")
+        return ParamValue(name, float(value), False)
     except Exception as exc:
         if _result_name(exc) != "WRONG_TYPE":
             raise CompanionError(f"cannot read parameter {name} from the vehicle ({_result_name(exc)})",
                                  "check the parameter name for this firmware and the link") from exc
     try:
-        return ParamValue(name, float(await param_plugin.get_param_int(name)), True)
+        value = await _over_the_link(lambda: param_plugin.get_param_int(name), f"reading {name}")
+        return ParamValue(name, float(value), True)
     except Exception as exc:
         raise CompanionError(f"cannot read parameter {name} from the vehicle ({_result_name(exc)})",
                              "check the parameter name for this firmware and the link") from exc
 
 
 async def write_parameter(param_plugin, name: str, value: float, is_int: bool) -> None:
-    try:
+    def request():
         if is_int:
-            await param_plugin.set_param_int(name, int(round(value)))
-        else:
-            await param_plugin.set_param_float(name, float(value))
+            return param_plugin.set_param_int(name, int(round(value)))
+        return param_plugin.set_param_float(name, float(value))
+
+    try:
+        await _over_the_link(request, f"setting {name}")
     except Exception as exc:
         raise CompanionError(f"the vehicle did not accept {name} = {value:g} ({_result_name(exc)})",
                              "check the value's range for this firmware, or set it on the ground station") from exc

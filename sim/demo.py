@@ -99,15 +99,6 @@ def _check_demo_args(out: Path, fps: float) -> None:
         raise CompanionError(f"--fps {fps:g} is not a frame rate", "give a positive rate, e.g. --fps 10")
 
 
-# The simulated camera yields the CPU to the companion. Why: on a drone the camera renders and encodes on its own
-# hardware and costs the companion nothing, while the simulated one costs 0.5-0.8 of a core at 1280 px / 30 fps
-# (docs/BENCHMARKS.md, "The 12 ms camera"). At the same priority, on a machine with one core taken by other work,
-# it starved the chain it feeds (68 % of the frames skipped for CPU, 24 keyframes below the overlap target): the
-# test then measured the simulator's contention, not the companion. Niced, it drops frames instead when the CPU is
-# short (counted in the report's camera line), which costs frames, as on a real camera that cannot deliver.
-DEMO_CAMERA_NICE = 10
-
-
 def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
     """Start the SITL rig, fly the plan culling the simulated camera's frames into ``out/spool``, stop the rig."""
     from companion.onboard.live import run_live_scan
@@ -115,8 +106,7 @@ def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
 
     out: Path = args.out
     with SitlRig(
-        mission_path, log_dir=out / "sim", seed=args.seed, width_px=args.width, fps=args.fps, speedup=args.speedup,
-        camera_nice=DEMO_CAMERA_NICE,
+        mission_path, log_dir=out / "sim", seed=args.seed, width_px=args.width, fps=args.fps, speedup=args.speedup
     ) as rig:
         scan = run_live_scan(plan, rig.url, rig.capture, out / "spool", model=args.model, mask=not args.no_mask,
                              end_action=plan.mission.end_action, progress=True)

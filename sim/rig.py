@@ -53,7 +53,6 @@ class SitlRig:
         truth_log: str | Path | None = None,
         sim_options: dict | None = None,
         renderer: str = "warp",
-        camera_nice: int = 0,
     ):
         from companion.mission import load_mission, plan_scan
 
@@ -67,7 +66,6 @@ class SitlRig:
         self.truth_log = Path(truth_log).resolve() if truth_log else None
         self.sim_options = dict(sim_options or {})
         self.renderer = renderer
-        self.camera_nice = camera_nice
         self.pose_port = free_port(socket.SOCK_DGRAM)
         self.stream_port = free_port(socket.SOCK_STREAM)
         self.camera: subprocess.Popen | None = None
@@ -87,7 +85,7 @@ class SitlRig:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         args = [sys.executable, "-m", "sim", "camera", str(self.mission_path), "--pose-port", str(self.pose_port),
                 "--stream-port", str(self.stream_port), "--width", str(self.width_px), "--fps", str(self.fps),
-                "--seed", str(self.seed), "--renderer", self.renderer, "--nice", str(self.camera_nice)]  # fmt: skip
+                "--seed", str(self.seed), "--renderer", self.renderer]  # fmt: skip
         if self.record_dir is not None:
             args += ["--record", str(self.record_dir)]
             if self.record_max_out_m is not None:

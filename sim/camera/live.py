@@ -14,7 +14,6 @@ import contextlib
 import json
 import logging
 import math
-import os
 import queue
 import signal
 import socket
@@ -412,16 +411,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="stop after this many wall seconds")
     p.add_argument("--renderer", choices=RENDERERS, default="warp",
                    help="warp: textures warped per plane (real time, default); raycast: per-pixel reference")
-    p.add_argument("--nice", type=int, default=0, metavar="N",
-                   help="lower this process's CPU priority by N (the SITL rig's demo: a real camera's rendering and "
-                        "encoding run on its own hardware, not on the companion's CPU)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.nice:
-        os.nice(args.nice)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = LiveConfig(pose_port=args.pose_port, stream_host=args.stream_host, stream_port=args.stream_port,
                      width_px=args.width, fps=args.fps, seed=args.seed, record_dir=args.record,

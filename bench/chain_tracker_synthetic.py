@@ -43,7 +43,7 @@ from companion.keyframes.gate import GateConfig, KeyframeGate  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 from companion.onboard.chain import CullChain  # noqa: E402
-from companion.onboard.runner import LiveRunner  # noqa: E402
+from companion.onboard.runner import MEASURE_ALL_BACKLOG, TRACKED_BACKLOG, LiveRunner  # noqa: E402
 from companion.onboard.tracked import MeasureSchedule  # noqa: E402
 from companion.onboard.working import WorkingCopy  # noqa: E402
 from companion.records import EncodedFrame, Frame  # noqa: E402
@@ -103,7 +103,7 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
     capture_cpu_s = 0.0  # unpaced only: the decode on arrival, outside the chain (0 when the chain decodes)
     wall0 = time.monotonic()
     if args.speedup > 0:
-        runner = LiveRunner(source, chain, queue_size=30 if tracked else 3, drop="thin" if tracked else "oldest")
+        runner = LiveRunner(source, chain, TRACKED_BACKLOG if tracked else MEASURE_ALL_BACKLOG)
         runner.run_until_done(poll_s=0.05)
     else:  # unpaced: every frame through the chain, none dropped (the chain's CPU per frame, whatever the load)
         profile = cProfile.Profile(time.thread_time) if args.profile else None

@@ -7,15 +7,16 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 
 from companion.capture.sources import FrameSource
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.cli import main
 from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
-from companion.onboard.runner import LiveRunner
+from companion.onboard.runner import Backlog, LiveRunner
 from companion.onboard.setup import build_chain
-from companion.records import Frame, Pose
+from companion.records import EncodedFrame, Frame, Pose
 from companion.spool.layout import CLOSED, CULL_REPORT, MANIFEST
 
 
@@ -72,7 +73,7 @@ def test_live_runner_skips_backlog_but_never_a_keyframe(tmp_path):
         return slow(frame)
 
     chain.process = slow_process
-    runner = LiveRunner(ListSource(images, delay_s=0.005), chain, queue_size=2)
+    runner = LiveRunner(ListSource(images, delay_s=0.005), chain, Backlog(frames=2))
     runner.run_until_done()
     assert runner.error is None
     st = chain.stats
@@ -130,15 +131,58 @@ def test_cull_cli_on_image_folder(tmp_path):
 
 
 def test_a_thinning_buffer_keeps_waiting_frames_spread_over_the_busy_time():
-    from companion.onboard.runner import FrameBuffer
+    from companion.onboard.runner import Backlog, FrameBuffer
 
     image = np.zeros((2, 2, 3), np.uint8)
-    thin, oldest = FrameBuffer(10, "thin"), FrameBuffer(10, "oldest")
+    thin, oldest = FrameBuffer(Backlog(10, "thin")), FrameBuffer(Backlog(10, "oldest"))
     dropped_thin = [thin.put(Frame(i, i / 30.0, image)) for i in range(100)]  # a worker busy for 100 frames
     dropped_old = [oldest.put(Frame(i, i / 30.0, image)) for i in range(100)]
-    assert sum(d is not None for d in dropped_thin) == sum(d is not None for d in dropped_old) == 90
-    kept_thin = [thin.get().index for _ in range(10)]
-    kept_old = [oldest.get().index for _ in range(10)]
+    assert sum(map(len, dropped_thin)) == sum(map(len, dropped_old)) == 90
+    kept_thin = [thin.get()[0].index for _ in range(10)]
+    kept_old = [oldest.get()[0].index for _ in range(10)]
     assert kept_old == list(range(90, 100))  # a 90-frame hole: the stretch of wall flown meanwhile is lost
     assert kept_thin[0] == 0 and kept_thin[-1] == 99 and kept_thin == sorted(kept_thin)
     assert max(b - a for a, b in zip(kept_thin, kept_thin[1:], strict=False)) <= 16  # 11 on average
+
+
+def test_the_tracker_backlog_rides_out_a_long_busy_stretch_without_dropping_a_frame():
+    """One core busy: the chain fell behind for most of the scan and a one-second buffer thinned the frames to six a
+    second, leaving gaps around decisions (keyframes below the target). Twenty seconds behind now cost no frame."""
+    from companion.onboard.runner import TRACKED_BACKLOG, FrameBuffer
+
+    backlog = FrameBuffer(TRACKED_BACKLOG)
+    jpeg = b"\xff" * 150_000  # a 1280 px camera JPEG
+    dropped = [backlog.put(EncodedFrame(i, i / 30.0, jpeg, 1280, 720)) for i in range(600)]
+    assert sum(map(len, dropped)) == 0
+    first, lag = backlog.get()
+    assert first.index == 0 and lag == pytest.approx(599 / 30.0)
+    assert backlog.waiting() == (599, pytest.approx(598 / 30.0))
+
+
+def test_a_backlog_that_keeps_growing_is_thinned_evenly_within_its_span():
+    """A chain that needs 1.5x the CPU it gets for a whole flight: the waiting frames stay within the span bound
+    (the telemetry the chain keeps reaches back that far) and what is dropped is spread, never a stretch."""
+    from companion.onboard.runner import Backlog, FrameBuffer
+
+    backlog = FrameBuffer(Backlog(frames=1800, drop="thin", seconds=20.0))
+    processed, dropped = [], 0
+    for i in range(30 * 300):  # five minutes of a 30 fps camera; the chain takes two frames in three arriving
+        dropped += len(backlog.put(EncodedFrame(i, i / 30.0, b"j", 1280, 720)))
+        if i % 3:
+            frame, lag = backlog.get()
+            processed.append(frame.index)
+            assert lag <= 21.0  # the bound is kept within a second: one frame dropped per arrival past it
+    assert dropped > 0 and backlog.waiting()[1] <= 21.0
+    rest = [backlog.get()[0].index for _ in range(backlog.waiting()[0])]
+    kept = processed + rest
+    assert kept == sorted(kept) and kept[0] == 0 and kept[-1] == 30 * 300 - 1
+    assert max(b - a for a, b in zip(kept, kept[1:], strict=False)) <= 6  # 1.5 on average: no stretch lost
+
+
+def test_decoded_frames_are_bounded_by_megabytes():
+    from companion.onboard.runner import Backlog, FrameBuffer
+
+    backlog = FrameBuffer(Backlog(frames=1800, drop="thin", megabytes=30.0))
+    image = np.zeros((720, 1280, 3), np.uint8)  # 2.76 MB decoded
+    dropped = sum(len(backlog.put(Frame(i, i / 30.0, image))) for i in range(40))
+    assert backlog.waiting()[0] == 10 and dropped == 30

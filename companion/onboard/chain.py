@@ -71,6 +71,7 @@ class ChainStats:
     spool_errors: int = 0
     undecodable: int = 0  # frames that reached the chain still encoded and did not decode (part of ``corrupt``)
     busy_s: float = 0.0
+    backlog_max_s: float = 0.0  # the furthest the chain worked behind the newest camera frame (capture time)
     cpu_s: float = 0.0  # CPU time of the thread running the chain (the depth model's own threads not included)
     first_frame_wall_s: float | None = None
     last_frame_wall_s: float | None = None

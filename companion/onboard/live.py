@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from companion.errors import CompanionError
 from companion.files import write_atomic
 from companion.onboard.chain import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
-from companion.onboard.runner import LiveRunner
+from companion.onboard.runner import MEASURE_ALL_BACKLOG, TRACKED_BACKLOG, Backlog, LiveRunner
 from companion.onboard.setup import build_chain
 from companion.spool.clock import CaptureClock, TelemetryWallClock, UnixCaptureClock
 from companion.spool.layout import CULL_REPORT
@@ -115,7 +116,7 @@ def run_live_scan(
     mask: bool = True,
     parallax: bool = True,
     gcs_camera_url: str | None = None,
-    queue_size: int | None = None,
+    backlog: Backlog | None = None,
     capture_time_offset_s: float = 0.0,
     track: bool = True,
     **fly_kwargs,
@@ -129,9 +130,9 @@ def run_live_scan(
     reaches it (``companion.capture.pacing``); times it can never reach are refused before the flight.
 
     ``track``: every frame is followed by the wall tracker and only the frames around each keyframe decision are
-    masked and measured (``companion.onboard.tracked``); False measures every frame the CPU can take. The capture
-    queue holds ``queue_size`` frames (default: about a second of a 30 fps camera with the tracker, which bursts
-    while it measures; 3 without, which never catches up anyway).
+    masked and measured (``companion.onboard.tracked``); False measures every frame the CPU can take. Frames wait
+    for the chain within ``backlog`` (default: a minute of camera time with the tracker, ``runner.TRACKED_BACKLOG``;
+    3 frames without, which never catches up anyway); after the flight the chain finishes what waits.
 
     A run that ends without a keyframe raises ``NoKeyframesError`` (after the flight, with the report written),
     saying why: a flight with a camera and no keyframe is a failed capture, never a silent success.
@@ -141,7 +142,8 @@ def run_live_scan(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     telemetry_log = Path(telemetry_log) if telemetry_log else out / "telemetry.jsonl"
-    buffer = TelemetryBuffer()
+    backlog = backlog or (TRACKED_BACKLOG if track else MEASURE_ALL_BACKLOG)
+    buffer = TelemetryBuffer(max_samples=_telemetry_samples(backlog, fly_kwargs["telemetry_rate_hz"]))
     source, paced = _open_capture(capture, buffer, capture_time_offset_s)
     on_autopilot_clock = capture.startswith("sim://") or paced is not None
     clock = ClockMap(fixed_offset_s=0.0) if on_autopilot_clock else ClockMap()
@@ -157,14 +159,18 @@ def run_live_scan(
     except BaseException:
         source.close()
         raise
-    runner = LiveRunner(source, chain, queue_size=queue_size or (_TRACKED_QUEUE if track else 3),
-                        drop="thin" if track else "oldest")
+    runner = LiveRunner(source, chain, backlog)
     flight = _fly_while_culling(plan, connect_url, telemetry_log, fly_kwargs, tailer=tailer, runner=runner,
                                 source=source, paced=paced, camera_component=camera_component)
     return _report(flight, chain, runner, out, telemetry_log, capture, paced)
 
 
-_TRACKED_QUEUE = 30  # frames: about a second of a 30 fps camera, absorbs the tracker's measuring bursts
+def _telemetry_samples(backlog: Backlog, rate_hz: float) -> int:
+    """Telemetry samples to keep: the chain tags a frame when it reaches it, up to ``backlog.seconds`` after its
+    capture, so the buffer reaches back that far and another two minutes (the default ring, 4000 samples, is the
+    least)."""
+    keep_s = (backlog.seconds or 0.0) + 120.0
+    return max(4000, math.ceil(keep_s * max(rate_hz, 1.0) * 1.5))  # 1.5: samples may come faster than asked
 
 
 def _open_capture(capture: str, buffer: TelemetryBuffer, offset_s: float):
@@ -180,6 +186,11 @@ def _open_capture(capture: str, buffer: TelemetryBuffer, offset_s: float):
         raise
     paced = AutopilotPacedSource(source, buffer, offset_s=offset_s)
     return paced, paced
+
+
+# What waits after the flight is at most a minute of camera time (``TRACKED_BACKLOG``); the chain crosses it in a few
+# minutes even on a loaded companion. Past this, something hangs: the report is written with what was done.
+_CATCH_UP_LIMIT_S = 600.0
 
 
 def _fly_while_culling(plan, connect_url: str, telemetry_log: Path, fly_kwargs: dict, *, tailer, runner, source,
@@ -200,7 +211,9 @@ def _fly_while_culling(plan, connect_url: str, telemetry_log: Path, fly_kwargs: 
             runner.stop()
         if not runner.join(timeout=5.0):
             source.close()  # unblocks a capture thread waiting on a silent camera
-            runner.join(timeout=120.0)
+            if not runner.wait_for_chain(limit_s=_CATCH_UP_LIMIT_S):
+                log.error("the onboard chain did not finish within %.0f s of the flight's end; the report is what it "
+                          "had done", _CATCH_UP_LIMIT_S)
         source.close()
         if camera_component is not None:
             camera_component.close()

@@ -110,4 +110,5 @@ def flight_summary(result) -> str:
 def culling_summary(stats, spool_dir: Path) -> str:
     return (f"culling: {stats.frames_in} frames -> {stats.keyframes} keyframes in {spool_dir} "
             f"({stats.skipped_backlog} skipped for CPU, {stats.dropped_no_roi} without facade, "
-            f"{stats.overlap_warnings} overlap warnings, {stats.gaps} possible gaps)")
+            f"{stats.overlap_warnings} overlap warnings, {stats.gaps} possible gaps; "
+            f"at most {stats.backlog_max_s:.1f} s behind the camera)")

@@ -82,6 +82,31 @@ def test_live_runner_skips_backlog_but_never_a_keyframe(tmp_path):
     assert idx == sorted(set(idx)) and idx[-1] <= len(images) - 1 and len(idx) == st.keyframes
 
 
+def test_after_the_flight_the_runner_waits_for_the_chain_to_finish_what_waits(tmp_path, caplog):
+    """The chain fell behind the camera (slow CPU); the capture stops (the flight ended) and every frame that was
+    waiting is still culled before the report: none skipped, the lag recorded."""
+    views, images = _scan(n=30, step=6)
+    chain = build_chain(tmp_path, FrameTagger(_buffer(len(images)), ClockMap(0.0)), mask=False)
+    fast = chain.process
+
+    def slow_process(frame):
+        time.sleep(0.08)
+        return fast(frame)
+
+    chain.process = slow_process
+    runner = LiveRunner(ListSource(images), chain, Backlog(frames=100, drop="thin", seconds=60.0)).start()
+    while chain.stats.frames_processed < 2:
+        time.sleep(0.01)
+    runner.stop()
+    caplog.set_level("INFO", logger="companion.onboard.runner")
+    assert runner.wait_for_chain(limit_s=30.0, log_every_s=0.5)
+    st = chain.stats
+    assert runner.error is None and st.skipped_backlog == 0 and st.frames_processed == len(images)
+    assert st.backlog_max_s >= 1.0  # the last frames waited while the first were culled (2.9 s of recording)
+    assert "onboard chain catching up" in caplog.text
+    assert (tmp_path / CLOSED).exists()
+
+
 def test_cull_cli_on_image_folder(tmp_path):
     views, images = _scan(n=25)
     frames = tmp_path / "frames"

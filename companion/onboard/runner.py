@@ -12,7 +12,8 @@ Why the tracker chain's buffer is deep (a minute of camera time, ``TRACKED_BACKL
 needs somewhat more than it gets for the length of a scan. With a one-second buffer it then thinned the frames to
 six per second, and the gaps that left around decisions made keyframes below the overlap target. Waiting frames
 are the camera's JPEGs (a 1280 px frame is about 0.1-0.2 MB), so a minute of them is affordable; the chain then
-works behind the camera for a while, loses no frame, and catches up when the scan ends (the flight waits for it).
+works behind the camera for a while, loses no frame, and catches up when the scan ends (the live scan waits for
+it before writing its report).
 Only a backlog that keeps growing past the minute is thinned.
 """
 
@@ -103,7 +104,8 @@ class FrameBuffer:
             if item is _END:
                 return item, 0.0
             self._bytes -= _nbytes(item)
-            return item, max(0.0, (self._newest_time_s or item.capture_time_s) - item.capture_time_s)
+            newest = item.capture_time_s if self._newest_time_s is None else self._newest_time_s
+            return item, max(0.0, newest - item.capture_time_s)
 
     def waiting(self) -> tuple[int, float]:
         """(frames waiting, seconds of capture time they span)."""

@@ -134,3 +134,28 @@ def test_a_recording_failure_stops_the_camera_with_that_error(tmp_path):
         assert time.monotonic() - t0 < 15.0  # stopped at the failure, not at the 20 s duration
     finally:
         vehicle.stop.set()
+
+
+def test_a_camera_behind_drops_frames_spread_not_a_stretch():
+    """With one core of the machine busy the camera stalled for up to 0.9 s and then jumped to the newest pose: 27
+    frames in a row never sent, and the keyframe gate took a keyframe below its target across the gap. After a
+    stall it now drops a quarter of its lag per frame rendered, so the frames it sends keep coming from inside the
+    stall. The loop below is the camera's own timeline: a 0.9 s stall at frame 300, then 20 ms per frame."""
+    from types import SimpleNamespace
+
+    camera = SimpleNamespace(cfg=LiveConfig(), fps=30.0)
+    behind = LiveCamera._next_when_behind
+    sent, k, clock = [], 0, 0.0
+    while k < 600:
+        t = k / camera.fps
+        clock = max(clock, t)  # the newest pose: the camera never renders ahead of simulated time
+        lag = (clock - t) * camera.fps
+        if lag > camera.cfg.max_lag_frames:
+            k = behind(camera, k, lag, clock)
+            t = k / camera.fps
+        sent.append(k)
+        clock += 0.9 if k == 300 else 0.020
+        k += 1
+    gaps = np.diff(sent)
+    assert sent[-1] >= 590 and gaps.max() <= 8  # the old jump: a gap of 28 frames after the stall
+    assert behind(camera, 0, 120.0, 4.0) == 120  # past catch_up_frames (3 s): the newest pose's frame

@@ -158,7 +158,11 @@ def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: 
     truth = TrueOverlap(rig.plan, TruthTrack(out / "truth.jsonl"))
     length_m, height_m = truth.predictor.frame.length_m, float(rig.plan.mission.facade.height_m)
     times = [kf["capture_time_s"] for kf in lines]
-    pairs = [truth.percent(a, b) for a, b in zip(times, times[1:], strict=False)]
+    # a keyframe after a gap or opening a new scan segment (the scan left and resumed, e.g. a landing in front of
+    # the wall) is not judged against the one before: its pair is counted apart (the chain's gaps say which were
+    # gaps within the scan)
+    opens = [bool(kf.get("gap_before")) for kf in lines[1:]]
+    pairs = [truth.percent(a, b) for a, b, new in zip(times, times[1:], opens, strict=False) if not new]
     known = [p for p in pairs if p is not None]
     considered = st.frames_in - st.skipped_backlog - st.before_telemetry
     return {
@@ -183,6 +187,7 @@ def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: 
         "pairs_true_below_rth": sum(p < rth for p in known),
         "pairs_true_below_rth_minus_3": sum(p < rth - 3.0 for p in known),
         "pairs_without_wall_in_view": len(pairs) - len(known),
+        "keyframes_after_a_gap_or_new_segment": sum(opens),
         "wall_covered_by_true_footprints": round(truth.coverage(times, length_m, height_m), 4) if times else 0.0,
         "overlap_warnings": st.overlap_warnings,
         "low_overlap_keyframes": st.low_overlap_keyframes,

@@ -56,7 +56,7 @@ _NOISE_ZERO = 15  # the noise table's offset: it holds unit triangular noise (-1
 # far scenery drawn as cached layers (_FarLayer): objects at least this far from the scanned region (the wall's
 # front, up to 10 m out and 5 m above the roof), grouped into bands by that distance; each band's spread of
 # parallax is small, so its layer is re-used (shifted by whole pixels) for several frames; the sky is its own layer
-_LAYER_BANDS_M = (20.0, 40.0, 90.0)
+_LAYER_BANDS_M = (40.0, 90.0)
 _LAYER_MAX_ERROR_PX = 0.5  # a layer is re-used while no point of it is further than this from where it belongs
 RENDERERS = ("warp", "raycast")
 

@@ -57,6 +57,7 @@ _NOISE_ZERO = 15  # the noise table's offset: it holds unit triangular noise (-1
 # front, up to 10 m out and 5 m above the roof), grouped into bands by that distance; each band's spread of
 # parallax is small, so its layer is re-used (shifted by whole pixels) for several frames; the sky is its own layer
 _LAYER_BANDS_M = (40.0, 90.0)
+_LAYER_PER_OBJECT = True  # one layer per object (its own small parallax spread) rather than per band
 _LAYER_MAX_ERROR_PX = 0.5  # a layer is re-used while no point of it is further than this from where it belongs
 RENDERERS = ("warp", "raycast")
 
@@ -967,9 +968,12 @@ class WarpRenderer(Renderer):
         edges = (*_LAYER_BANDS_M, np.inf)
         for a, b in zip(edges[:-1], edges[1:], strict=True):
             objects = np.nonzero((gap >= a) & (gap < b))[0]
-            if len(objects):
-                self._layers.append(_FarLayer(self, objects, False, margin))
-                self._skip_obj[objects] = True
+            if not len(objects):
+                continue
+            groups = [objects[k:k + 1] for k in range(len(objects))] if _LAYER_PER_OBJECT else [objects]
+            for g in groups:
+                self._layers.append(_FarLayer(self, g, False, margin))
+            self._skip_obj[objects] = True
         self._skip_face = np.array([b is not None and bool(self._skip_obj[b]) for b in self._face_box])
         self._sky_layer = _FarLayer(self, np.zeros(0, int), True, margin)
 
@@ -1161,15 +1165,18 @@ class _FarLayer:
     def render(self, pose: TruePose, A, orig) -> None:
         img, zb, sid = self.child._radiance(pose)
         self.child._settle(zb)
-        self.img, self.zb, self.sid, self.pose = img, zb, sid, (A, orig)
         if self.sky:
             self.box = (0, 0, zb.shape[1], zb.shape[0])
-        else:
-            self.box = cv2.boundingRect(cv2.compare(zb, 0.0, cv2.CMP_GT))
+        else:  # kept cropped to what was drawn (a far object: a small part of the view)
+            self.box = bx, by, bw, bh = cv2.boundingRect(cv2.compare(zb, 0.0, cv2.CMP_GT))
+            crop = (slice(by, by + bh), slice(bx, bx + bw))
+            img, zb, sid = img[crop].copy(), zb[crop].copy(), sid[crop].copy()
+        self.img, self.zb, self.sid, self.pose = img, zb, sid, (A, orig)
         self.renders += 1
 
     def window(self, s: tuple[int, int], W: int, H: int, box=None):
-        """Frame and layer slices of the layer's drawn rectangle (or ``box``, frame coordinates) shifted by s."""
+        """Frame and layer-array slices of the layer's drawn rectangle (intersected with ``box``, frame
+        coordinates) shifted by s."""
         bx, by, bw, bh = self.box
         m = self.margin
         x0, y0 = max(bx - m + s[0], 0), max(by - m + s[1], 0)
@@ -1178,7 +1185,7 @@ class _FarLayer:
             x0, y0, x1, y1 = max(x0, box[0]), max(y0, box[1]), min(x1, box[0] + box[2]), min(y1, box[1] + box[3])
         if x0 >= x1 or y0 >= y1:
             return None
-        lx, ly = x0 + m - s[0], y0 + m - s[1]
+        lx, ly = x0 + m - s[0] - bx, y0 + m - s[1] - by  # (the layer's arrays start at its box)
         return (slice(y0, y1), slice(x0, x1)), (slice(ly, ly + y1 - y0), slice(lx, lx + x1 - x0))
 
 

@@ -53,12 +53,6 @@ _GROUND_NEAR_M = 40.0  # ground within this distance of the camera is drawn at t
 _FAR_PATCH_M = 2000.0  # the coarse far ground texture covers this far around the camera (hazed beyond)
 _SPAN_FILL_PX = 20000  # polygon masks larger than this are filled row by row (cheaper than a per-pixel compare)
 _NOISE_ZERO = 15  # the noise table's offset: it holds unit triangular noise (-15..15) + this, as uint8
-# far scenery drawn as cached layers (_FarLayer): objects at least this far from the scanned region (the wall's
-# front, up to 10 m out and 5 m above the roof), grouped into bands by that distance; each band's spread of
-# parallax is small, so its layer is re-used (shifted by whole pixels) for several frames; the sky is its own layer
-_LAYER_BANDS_M = (40.0, 90.0)
-_LAYER_PER_OBJECT = True  # one layer per object (its own small parallax spread) rather than per band
-_LAYER_MAX_ERROR_PX = 0.5  # a layer is re-used while no point of it is further than this from where it belongs
 RENDERERS = ("warp", "raycast")
 
 
@@ -172,7 +166,7 @@ class WarpRenderer(Renderer):
     """Drop-in replacement of :class:`Renderer` (same constructor, ``render`` and truth) at real-time speed."""
 
     def __init__(self, scene: Scene, frame: FacadeFrame, camera: CameraModel, *, exposure_s: float = 1 / 240,
-                 noise: bool = True, blur: bool = True, seed: int = 0, layers: bool = True):
+                 noise: bool = True, blur: bool = True, seed: int = 0):
         super().__init__(scene, frame, camera, exposure_s=exposure_s, noise=noise, blur=blur, seed=seed)
         K = self.K
         self._fx, self._fy = float(K[0, 0]), float(K[1, 1])
@@ -203,16 +197,6 @@ class WarpRenderer(Renderer):
                                     for u in (-1, W) for v in (-1, H)])  # _polygon's clipping rectangle's corners
         self._dnorm32 = self._dnorm.astype(np.float32)
         self._horizon_img: np.ndarray | None = None
-        # the box each static face belongs to (None: the target building), as _static_faces lists them
-        self._face_box = [None] * 5 + [j for j, b in enumerate(scene.boxes) if b.kind != "trunk" for _ in range(5)]
-        n_obj = len(self._obj_lo)
-        self._skip_face = np.zeros(len(self._faces), bool)  # static faces not drawn per frame (in a layer)
-        self._skip_obj = np.zeros(n_obj, bool)  # objects (boxes, then crowns) not drawn per frame (in a layer)
-        self._draw_ground, self._draw_sky_here = True, True
-        self._layers: list[_FarLayer] = []
-        self._sky_layer: _FarLayer | None = None
-        if layers:
-            self._make_layers()
 
     # ---- the scene as planes -----------------------------------------------------------------------------
     def _lambert(self, n) -> float:
@@ -519,41 +503,23 @@ class WarpRenderer(Renderer):
         cams, order, dist = self._candidates(faces, A, orig)
         self._zb_low, self._zb_exact, self._drawn = 0.0, True, False
         self._zb_pending: _OuterSum | None = None
-        n_static = len(self._faces)
-        ground = [i for i in order if i >= n_static] if self._draw_ground else []
         for i in order:
-            if i >= n_static:
-                break  # the ground faces: last in the order
-            if self._skip_face[i] or self._zb_low * float(dist[i]) > self._dnorm_max * 1.001:
-                continue  # (a layer's, or behind what covers the whole frame)
+            if self._zb_low * float(dist[i]) > self._dnorm_max * 1.001:  # behind what covers the whole frame
+                continue
             self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
-        if not self._layers:  # the ground after the faces, then trunks and crowns: nothing stands below the ground
-            for i in ground:
-                if self._zb_low * float(dist[i]) <= self._dnorm_max * 1.001:
-                    self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
         # trunks and crowns (boxes, then crowns, as _object_rects lists them), unless all are behind what covers
         # the frame (the wall face-on): their tests below would skip every one on the same bound
         near = np.linalg.norm(np.maximum(np.maximum(self._obj_lo - orig, 0.0), orig - self._obj_hi), axis=1)
-        if not (self._zb_low * near[~self._skip_obj] > self._dnorm_max * 1.001).all():
+        if not (self._zb_low * near > self._dnorm_max * 1.001).all():
             self._clear()
             self._settle(zb)
-            rects, near_r = self._object_rects(orig, A)
-            self._draw_trunks(A, orig, img, zb, sid, rects, near_r)
-            self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near_r[len(self.scene.boxes):])
-        if self._layers:  # far scenery from its layers, then the ground (it hides none of them)
-            for layer in self._layers:
-                if not (self._zb_low * near[layer.objects] > self._dnorm_max * 1.001).all():
-                    self._composite(layer, pose, A, orig, img, zb, sid)
-            for i in ground:
-                if self._zb_low * float(dist[i]) <= self._dnorm_max * 1.001:
-                    self._draw_face(faces[i], i, cams[i], A, orig, img, zb, sid)
-        if self._zb_low == 0.0 and self._draw_sky_here:  # else every pixel is drawn: no sky in view
+            rects, near = self._object_rects(orig, A)
+            self._draw_trunks(A, orig, img, zb, sid, rects, near)
+            self._draw_trees(A, orig, img, zb, sid, rects[len(self.scene.boxes):], near[len(self.scene.boxes):])
+        if self._zb_low == 0.0:  # else every pixel is drawn: no sky in view
             self._clear()
             self._settle(zb)
-            if self._sky_layer is not None:
-                self._composite_sky(self._sky_layer, pose, A, orig, img, zb)
-            else:
-                self._draw_sky(A, img, zb)
+            self._draw_sky(A, img, zb)
         self._clear()  # (nothing was drawn: all sky, already cleared above)
         return img, zb, sid
 
@@ -780,10 +746,8 @@ class WarpRenderer(Renderer):
         col = np.clip(np.array([0.1, 0.15, 0.2]) * self._lambert(_vec(0, 1, 0)) * 255 + 0.5, 0, 255).astype(np.uint8)
         for j, b in enumerate(self.scene.boxes):
             rect = rects[j]
-            if b.kind != "trunk" or rect is None or self._skip_obj[j]:
-                continue  # (the last: in a layer)
-            if self._zb_low * float(nears[j]) > self._dnorm_max * 1.001:
-                continue  # behind what covers the whole frame
+            if b.kind != "trunk" or rect is None or self._zb_low * float(nears[j]) > self._dnorm_max * 1.001:
+                continue  # (the last: behind what covers the whole frame)
             lo, hi = np.array(b.lo), np.array(b.hi)
             zr = zb[rect]
             near = float(nears[j])
@@ -800,13 +764,10 @@ class WarpRenderer(Renderer):
 
     def _draw_trees(self, A, orig, img, zb, sid, rects, nears):
         sc = self.scene
-        n_boxes = len(sc.boxes)
         for ti, tr in enumerate(sc.trees):
             rect = rects[ti]
-            if rect is None or self._skip_obj[n_boxes + ti]:
-                continue  # (the last: in a layer)
-            if self._zb_low * float(nears[ti]) > self._dnorm_max * 1.001:
-                continue  # behind what covers the whole frame
+            if rect is None or self._zb_low * float(nears[ti]) > self._dnorm_max * 1.001:
+                continue  # (the last: behind what covers the whole frame)
             rad = np.array([tr.radius, tr.radius, tr.radius * tr.squash])
             c = np.array(tr.centre)
             rect = self._ellipse_rect(c, rad, orig, A, rect)
@@ -955,73 +916,6 @@ class WarpRenderer(Renderer):
             col = self._warp(tex, Hm, (x1 - x0, y1 - y0))
             cv2.copyTo(col, sel, dst=img[y0:y1, x0:x1])
 
-
-    # ---- far scenery as cached layers ------------------------------------------------------------------------
-    def _make_layers(self) -> None:
-        """Far buildings, trunks and crowns at least ``_LAYER_BANDS_M[0]`` from the scanned region go into one
-        layer per distance band (nearer ones are drawn every frame), and the sky into its own."""
-        sc = self.scene
-        lo = np.array([0.0, 0.0, 0.0])
-        hi = np.array([sc.length_m, 10.0, sc.height_m + 5.0])
-        gap = np.linalg.norm(np.maximum(np.maximum(self._obj_lo - hi, lo - self._obj_hi), 0.0), axis=1)
-        margin = max(8, self.camera.width // 64)
-        edges = (*_LAYER_BANDS_M, np.inf)
-        for a, b in zip(edges[:-1], edges[1:], strict=True):
-            objects = np.nonzero((gap >= a) & (gap < b))[0]
-            if not len(objects):
-                continue
-            groups = [objects[k:k + 1] for k in range(len(objects))] if _LAYER_PER_OBJECT else [objects]
-            for g in groups:
-                self._layers.append(_FarLayer(self, g, False, margin))
-            self._skip_obj[objects] = True
-        self._skip_face = np.array([b is not None and bool(self._skip_obj[b]) for b in self._face_box])
-        self._sky_layer = _FarLayer(self, np.zeros(0, int), True, margin)
-
-    def layer_counts(self) -> dict[str, tuple[int, int]]:
-        """Per layer (band's nearest distance, or 'sky'): (frames it was rendered for, frames it was re-used for)."""
-        out = {f"band {i}": (la.renders, la.reuses) for i, la in enumerate(self._layers)}
-        if self._sky_layer is not None:
-            out["sky"] = (self._sky_layer.renders, self._sky_layer.reuses)
-        return out
-
-    def _layer_shift(self, layer: _FarLayer, pose: TruePose, A, orig) -> tuple[int, int] | None:
-        """The layer's shift to this pose, rendered anew first if it cannot be re-used; None: not in view."""
-        seen, s = layer.shift(A, orig)
-        if not seen:
-            return None
-        if s is None:
-            layer.render(pose, A, orig)
-            return 0, 0
-        layer.reuses += 1
-        return s
-
-    def _composite(self, layer: _FarLayer, pose: TruePose, A, orig, img, zb, sid) -> None:
-        """A band's layer drawn where it is nearer than what the frame holds (the per-pixel depth test)."""
-        s = self._layer_shift(layer, pose, A, orig)
-        got = None if s is None else layer.window(s, self.camera.width, self.camera.height)
-        if got is None:
-            return
-        out, src = got
-        self._clear()
-        self._settle(zb)
-        vis = cv2.compare(layer.zb[src], zb[out], cv2.CMP_GT)
-        if not cv2.countNonZero(vis):
-            return
-        cv2.copyTo(layer.zb[src], vis, dst=zb[out])
-        cv2.copyTo(layer.sid[src], vis, dst=sid[out])
-        cv2.copyTo(layer.img[src], vis, dst=img[out])
-        self._drawn, self._zb_exact = True, False
-
-    def _composite_sky(self, layer: _FarLayer, pose: TruePose, A, orig, img, zb) -> None:
-        """The sky layer where nothing is drawn."""
-        empty = cv2.compare(zb, 0.0, cv2.CMP_EQ)
-        box = cv2.boundingRect(empty)
-        if box[2] == 0 or box[3] == 0:
-            return
-        s = self._layer_shift(layer, pose, A, orig)
-        out, src = layer.window(s, self.camera.width, self.camera.height, box)
-        cv2.copyTo(layer.img[src], empty[out], dst=img[out])
-
     # ---- camera effects ----------------------------------------------------------------------------------
     def render(self, pose: TruePose, *, index: int = 0, time_s: float = 0.0,
                exposure: AutoExposure | None = None) -> RenderedFrame:
@@ -1083,110 +977,6 @@ class WarpRenderer(Renderer):
             self._noise = cv2.LUT(b, self._tri).ravel()
         offset = int(np.random.default_rng([self.seed, index, 17]).integers(len(self._noise) - n + 1))
         return self._noise[offset:offset + n]
-
-
-class _FarLayer:
-    """Far scenery (a band of far buildings, trunks and crowns by distance, or the sky) rendered by a child
-    renderer whose view is the frame widened by ``margin`` px on every side, and re-used on the following frames
-    shifted by whole pixels while that puts every point of it within ``_LAYER_MAX_ERROR_PX`` of where the new pose
-    sees it (the corners of its objects' boxes, or the frame's rays for the sky, checked each frame). Far things move
-    little between frames (a point 40 m away 0.6 px per frame at the scan's 0.7 m/s, the sky only with the
-    attitude's wobble), so a layer lasts several frames and its faces, haze, crown ray tests and sky warps are paid
-    once for all of them. Its z-depth and surface ids are the layer's, moved with its pixels: the truth of the
-    image the frame shows (a re-used layer's depth is its render pose's, within 0.1 % for a far point)."""
-
-    def __init__(self, parent: WarpRenderer, objects: np.ndarray, sky: bool, margin: int):
-        cam = parent.camera
-        wide_w, wide_h = cam.width + 2 * margin, cam.height + 2 * margin
-        hfov = 2.0 * math.degrees(math.atan(wide_w / 2.0 / parent._fx))  # the same focal length, centred
-        child = WarpRenderer(parent.scene, parent.frame, CameraModel(wide_w, wide_h, hfov), noise=False, blur=False,
-                             seed=parent.seed, layers=False)
-        # the parent's faces (their texture tiles), sky cube faces and crown textures: built once for both
-        child._faces, child._cube, child._crowns = parent._faces, parent._cube, parent._crowns
-        child._pano = parent._sky_panorama()
-        boxes = {int(j) for j in objects if j < len(parent.scene.boxes)}
-        child._skip_face = np.array([b is None or b not in boxes for b in parent._face_box])
-        child._skip_obj = np.ones(len(parent._obj_lo), bool)
-        child._skip_obj[objects] = False
-        child._draw_ground, child._draw_sky_here = False, sky
-        self.child, self.objects, self.sky, self.margin = child, objects, sky, margin
-        # the check points: a 5 x 5 x 5 grid over each object's box (those in view are checked each frame)
-        g = np.linspace(0.0, 1.0, 5)
-        grid = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-        lo, hi = parent._obj_lo[objects], parent._obj_hi[objects]
-        self.points = (lo[:, None, :] + grid[None] * (hi - lo)[:, None, :]).reshape(-1, 3)
-        self.fx, self.fy = parent._fx, parent._fy
-        W, H = cam.width, cam.height
-        cx, cy = parent._cx, parent._cy
-        # the sky's check points: the frame's corners and edge midpoints, as camera rays (z = 1)
-        self.rays = np.array([[(u + 0.5 - cx) / self.fx, (v + 0.5 - cy) / self.fy, 1.0]
-                              for u in (-1, W // 2, W) for v in (-1, H // 2, H)])
-        self.view = (-cx, W - cx, -cy, H - cy)  # the frame's extent around the principal point (px)
-        self.pose: tuple[np.ndarray, np.ndarray] | None = None  # (A, orig) the layer was rendered at
-        self.img = self.zb = self.sid = None
-        self.box = (0, 0, 0, 0)  # the layer's drawn pixels' bounding rectangle (layer coordinates)
-        self.renders, self.reuses = 0, 0
-
-    def shift(self, A, orig) -> tuple[bool, tuple[int, int] | None]:
-        """(in view, shift): whether any of the layer is in the frame seen from (A, orig) (a band: some check point
-        of its objects' boxes in the widened frame), and the whole-pixel shift that carries the layer there; None
-        when a check point in view would be further than ``_LAYER_MAX_ERROR_PX`` from where it belongs (or was
-        behind the layer's camera), or nothing is rendered yet: re-render."""
-        if self.sky:
-            if self.pose is None:
-                return True, None
-            c1 = self.rays
-            c0 = (self.rays @ A.T) @ self.pose[0]  # the frame's rays now, seen from the layer's pose
-        else:
-            c1 = (self.points - orig) @ A
-            z = c1[:, 2]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u, v = self.fx * c1[:, 0] / z, self.fy * c1[:, 1] / z
-            m = self.margin
-            seen = (z > _NEAR) & (u >= self.view[0] - m) & (u <= self.view[1] + m) & (v >= self.view[2] - m) & (
-                v <= self.view[3] + m)
-            if not seen.any():
-                return False, None
-            if self.pose is None:
-                return True, None
-            c1 = c1[seen]
-            A0, o0 = self.pose
-            c0 = (self.points[seen] - o0) @ A0
-            if (c0[:, 2] <= _NEAR).any():
-                return True, None
-        m0 = c0[:, :2] / c0[:, 2:3]
-        m1 = c1[:, :2] / c1[:, 2:3]
-        motion = (m1 - m0) * np.array([self.fx, self.fy])
-        s = np.round(0.5 * (motion.min(axis=0) + motion.max(axis=0)))
-        if float(np.max(np.hypot(*(motion - s).T))) > _LAYER_MAX_ERROR_PX or float(np.abs(s).max()) > self.margin - 1:
-            return True, None
-        return True, (int(s[0]), int(s[1]))
-
-    def render(self, pose: TruePose, A, orig) -> None:
-        img, zb, sid = self.child._radiance(pose)
-        self.child._settle(zb)
-        if self.sky:
-            self.box = (0, 0, zb.shape[1], zb.shape[0])
-        else:  # kept cropped to what was drawn (a far object: a small part of the view)
-            self.box = bx, by, bw, bh = cv2.boundingRect(cv2.compare(zb, 0.0, cv2.CMP_GT))
-            crop = (slice(by, by + bh), slice(bx, bx + bw))
-            img, zb, sid = img[crop].copy(), zb[crop].copy(), sid[crop].copy()
-        self.img, self.zb, self.sid, self.pose = img, zb, sid, (A, orig)
-        self.renders += 1
-
-    def window(self, s: tuple[int, int], W: int, H: int, box=None):
-        """Frame and layer-array slices of the layer's drawn rectangle (intersected with ``box``, frame
-        coordinates) shifted by s."""
-        bx, by, bw, bh = self.box
-        m = self.margin
-        x0, y0 = max(bx - m + s[0], 0), max(by - m + s[1], 0)
-        x1, y1 = min(bx + bw - m + s[0], W), min(by + bh - m + s[1], H)
-        if box is not None:
-            x0, y0, x1, y1 = max(x0, box[0]), max(y0, box[1]), min(x1, box[0] + box[2]), min(y1, box[1] + box[3])
-        if x0 >= x1 or y0 >= y1:
-            return None
-        lx, ly = x0 + m - s[0] - bx, y0 + m - s[1] - by  # (the layer's arrays start at its box)
-        return (slice(y0, y1), slice(x0, x1)), (slice(ly, ly + y1 - y0), slice(lx, lx + x1 - x0))
 
 
 def make_renderer(kind: str, scene: Scene, frame: FacadeFrame, camera: CameraModel, **kw) -> Renderer:

@@ -122,8 +122,9 @@ def _print_flight(plan, demo: DemoFlight, fps: float) -> None:
     )
     print(
         f"culling: {st.frames_in} frames -> {st.keyframes} keyframes ({st.skipped_backlog} skipped for CPU, "
-        f"{st.dropped_no_roi} without facade, {st.off_scan} off the scan's standoff, {st.overlap_warnings} overlap "
-        f"warnings, {st.gaps} gaps; at most {st.backlog_max_s:.1f} s behind the camera)"
+        f"{st.dropped_no_roi} without facade, {st.off_scan} off the scan's standoff, {st.low_overlap_keyframes} below "
+        f"the overlap target, {st.overlap_warnings} overlap warnings, {st.gaps} gaps; at most {st.backlog_max_s:.1f} s "
+        "behind the camera)"
     )
     expected = plan.estimates.expected_keyframes
     print(f"keyframes: {st.keyframes} against the planner's expected {expected} "

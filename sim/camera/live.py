@@ -343,9 +343,9 @@ class LiveCamera:
         """The frame to render next when rendering is ``lag_frames`` behind simulated time.
 
         Why not the newest pose's frame, as before: that dropped every frame of a stall at once. With one core of
-        the machine busy the camera stalled for up to 0.9 s now and then and then delivered 27 frames in a row
-        none, a gap a real camera (which encodes on its own hardware) never has; the keyframe gate then took a
-        keyframe below its overlap target across it. Frames are dropped spread instead, a quarter of the lag per
+        the machine busy the camera stalled for up to 0.9 s now and then and so skipped 27 frames in a row, a gap
+        a real camera (which encodes on its own hardware) never has; the keyframe gate then took a keyframe below
+        its overlap target across it. Frames are dropped spread instead, a quarter of the lag per
         frame rendered: the camera catches up within a few frames, and what it delivers still holds frames from
         inside the stall (late, with exact capture times: the companion tags them with the telemetry it keeps).
         Only past ``catch_up_frames`` does it jump to the newest pose."""

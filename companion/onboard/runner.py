@@ -14,7 +14,7 @@ six per second, and the gaps that left around decisions made keyframes below the
 are the camera's JPEGs (a 1280 px frame is about 0.1-0.2 MB), so a minute of them is affordable; the chain then
 works behind the camera for a while, loses no frame, and catches up when the scan ends (the live scan waits for
 it before writing its report).
-Only a backlog that keeps growing past the minute is thinned, the faster the further past.
+Only a backlog that keeps growing past the minute is thinned.
 """
 
 from __future__ import annotations
@@ -84,7 +84,7 @@ class FrameBuffer:
             dropped = []
             while len(self._items) > 1 and self._over_count():
                 dropped.append(self._drop())
-            for _ in range(0 if dropped else self._span_drops()):
+            if not dropped and self._over_span():
                 dropped.append(self._drop())
             self._ready.notify()
             return dropped
@@ -118,17 +118,14 @@ class FrameBuffer:
         lim = self.limits
         return len(self._items) > lim.frames or (lim.megabytes is not None and self._bytes > lim.megabytes * 1e6)
 
-    def _span_drops(self) -> int:
-        """Frames to drop on this arrival for the span bound: the waiting frames span more capture time than
-        ``seconds``. Thinning keeps the oldest and the newest waiting frame, so it cannot shorten the span itself;
-        but the worker then crosses the waiting time in fewer frames, and the span shrinks as it catches up. One
-        frame per arrival, one more for every sixth of ``seconds`` past it: a chain still falling behind thins
-        faster (a one-core-busy demo reached 87 s behind with one per arrival)."""
+    def _over_span(self) -> bool:
+        """The waiting frames span more capture time than ``seconds``. One frame is dropped per arrival while so:
+        thinning keeps the oldest and the newest, so it cannot shorten the span itself, but the worker then crosses
+        the waiting time in fewer frames and the span shrinks as it catches up."""
         items, seconds = self._items, self.limits.seconds
         if seconds is None or len(items) < 3 or items[0] is _END or items[-1] is _END:
-            return 0
-        excess = items[-1].capture_time_s - items[0].capture_time_s - seconds
-        return 0 if excess <= 0 else min(len(items) - 2, 1 + int(excess / (seconds / 6.0)))
+            return False
+        return items[-1].capture_time_s - items[0].capture_time_s > seconds
 
     def _drop(self) -> Frame | EncodedFrame:
         victim = self._victim()

@@ -356,7 +356,9 @@ def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
         cv2.add(wsum[tile], wgt, dst=wsum[tile])
         cv2.add(acc[tile], cv2.multiply(im[sub], cv2.merge((wgt, wgt, wgt)), dtype=cv2.CV_32F), dst=acc[tile])
     covered = _compare(wsum, 0.0, cv2.CMP_GT)
-    inv = cv2.divide(1.0, wsum)  # OpenCV gives 0 where wsum is 0 (uncovered stays black)
+    # 1 / wsum, 0 where nothing was drawn: OpenCV gives inf there, acc * inf is NaN, and OpenCV 5.1's
+    # convertScaleAbs turns NaN into 255 (5.0: 0), which drew uncovered map white
+    inv = np.reciprocal(wsum, where=wsum > 0, out=np.zeros_like(wsum))
     out = cv2.multiply(acc, cv2.merge((inv, inv, inv)))
     return cv2.convertScaleAbs(out), covered
 

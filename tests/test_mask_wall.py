@@ -93,7 +93,8 @@ def test_a_speck_of_far_pixels_beside_a_plain_patch_does_not_veto_it_in_a_frame_
     patch (more than 5 % dissent), so the network's cut stood and 6 % of an all-wall frame was lost. Which pixels of
     the pane track as far is chance: OpenCV 5.1's warpAffine, one grey level off 5.0's on 3 % of the rendered pixels,
     was enough to make them. A frame that shows no background (at most 1 % trusted far) has none beside its plain
-    patches either: its far specks do not veto one."""
+    patches either: far specks the wall encloses do not veto one; far pixels coming in from the frame's border
+    (the edge of a background or sky) still do."""
     near, far, network, _, pilaster, _ = _scene()
     speck = np.zeros_like(near)
     speck[25:28, 47:53] = True  # 0.3 % of the frame trusted far, just under the pilaster's lower end
@@ -102,6 +103,10 @@ def test_a_speck_of_far_pixels_beside_a_plain_patch_does_not_veto_it_in_a_frame_
     before = replace(PARALLAX_RULES["before-speck"], plain_rule="continuity")
     vote = _vote(before, near & ~speck, far | speck, network)
     assert (vote[pilaster] < 0.5).all(), "the rule before let the speck veto it"
+    edge = np.zeros_like(near)
+    edge[:6, 55:58] = True  # as few far pixels, but reaching the frame's top beside the pilaster: the sky's edge
+    vote = _vote(ParallaxParams(plain_rule="continuity"), near & ~edge, far | edge, network)
+    assert (vote[pilaster] < 0.5).all(), "far pixels coming in from a border still veto"
     near_bg, far_bg = _with_background_in_view(near & ~speck, far | speck)
     vote = _vote(ParallaxParams(plain_rule="continuity"), near_bg, far_bg, network)
     assert (vote[pilaster] < 0.5).all(), "with a background in view the top stays the network's, as before"

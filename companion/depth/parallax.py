@@ -73,10 +73,12 @@ class ParallaxParams:
     # give a wall-only frame stay under it, a background beside the wall's end shows far more. None: the top is
     # always left to the network (the rule before).
     continuity_top_max_far_share: float | None = 0.01
-    # In such a frame its few far pixels are no background either: they veto no wall patch (a window pane reflecting
-    # the scene behind the camera tracked as far, 0.1 % of a held-out frame, vetoed the plain render beside it and
-    # 6 % of an all-wall frame was lost; docs/DEPTH.md "A far speck"). True: they veto it (the rule before).
-    continuity_far_speck_veto: bool = False
+    # In such a frame, which of its few far pixels veto a wall patch (more than ``continuity_max_dissent`` of its
+    # trusted neighbours far): "every" (the rule before); "border": those of a far region that reaches the frame's
+    # border (a background beside the wall's end or above the roof comes in from a border; a window pane reflecting
+    # the scene behind the camera, tracked as far, is enclosed by the wall: 0.1 % of a held-out all-wall frame,
+    # it vetoed the plain render beside it and 6 % of the frame was lost); "none" (docs/DEPTH.md "A far speck").
+    continuity_speck_veto: str = "border"
     calibrate_min_share: float = 0.03
     calibrate_max_error: float = 0.15
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
@@ -172,8 +174,10 @@ PARALLAX_RULES: dict[str, ParallaxParams] = {
     # the rules before the mask-top change: a plain patch touching the frame's top always keeps the network's
     # answer, and only pixels DIS itself calls far are far
     "before-top": ParallaxParams(**_BEFORE_TOP),
-    # the rules before a frame's far specks stopped vetoing wall patches where no background is in view
-    "before-speck": ParallaxParams(continuity_far_speck_veto=True),
+    # the rules before far specks enclosed by the wall stopped vetoing wall patches where no background is in view
+    "before-speck": ParallaxParams(continuity_speck_veto="every"),
+    # ... and no far pixel of such a frame vetoing one (measured, docs/DEPTH.md "A far speck": more background kept)
+    "speck-none": ParallaxParams(continuity_speck_veto="none"),
     # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
     # background beside the wall's start with it (docs/DEPTH.md; measured with the top-alone border rule)
     "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0, continuity_wall_borders="bottom,left,right,top-alone",
@@ -525,8 +529,8 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     and a side (sky above a roof line, near pixels below it and nothing far) is left to the network: nothing in
     the two frames says which side of the roof line it belongs to. Except in a frame that shows no background at
     all (``continuity_top_max_far_share``): there every patch touching the top is judged by its neighbours too, and
-    the frame's few far pixels (a window pane's reflection, a mistracked railing) veto no wall patch: 28 such votes
-    beside a plain patch cost a held-out all-wall frame 6 % of its wall.
+    a few far pixels enclosed by the wall (a window pane's reflection) veto no wall patch
+    (``continuity_speck_veto``): 28 such votes beside a plain patch cost a held-out all-wall frame 6 % of its wall.
     """
     p = parallax.params
     plain = ~parallax.trusted
@@ -560,9 +564,13 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     kept = np.bincount(labels.ravel(), weights=(net >= 0.5).ravel(), minlength=n)
     size = np.bincount(labels.ravel(), minlength=n)
     votes = np.maximum(near_votes + far_votes, 1)
-    # in a frame with no background in view its few far pixels are not a background either (a window pane reflecting
-    # the scene behind the camera, mistracked railings): they do not veto a wall patch
-    dissent = np.zeros_like(far_votes) if no_far_in_view and not p.continuity_far_speck_veto else far_votes
+    # in a frame with no background in view, far pixels the wall encloses (a window pane reflecting the scene behind
+    # the camera) are no background either: they do not veto a wall patch (``continuity_speck_veto``)
+    dissent = far_votes
+    if no_far_in_view and p.continuity_speck_veto != "every":
+        vetoing = _reaching_border(parallax.far) if p.continuity_speck_veto == "border" else np.zeros_like(plain)
+        touches_vetoing = cv2.dilate(vetoing.astype(np.uint8), ring).astype(bool) & plain
+        dissent = np.bincount(labels[touches_vetoing], minlength=n)
     wall = (near_votes > 0) & (dissent <= p.continuity_max_dissent * votes) & ~closed_border & (kept < size)
     background = (far_votes > 0) & (near_votes <= p.continuity_max_dissent * votes) & (kept > 0) & ~side_strip
     wall[0] = background[0] = False  # label 0: the trusted pixels
@@ -570,6 +578,15 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     out[wall[labels]] = 1.0
     out[background[labels]] = 0.0
     return out
+
+
+def _reaching_border(region: np.ndarray) -> np.ndarray:
+    """The pixels of ``region`` whose 8-connected part of it reaches the frame's border."""
+    n, labels = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
+    reach = np.zeros(n, bool)
+    reach[np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))] = True
+    reach[0] = False
+    return reach[labels]
 
 
 def pick_reference(positions: list[np.ndarray], current: np.ndarray,

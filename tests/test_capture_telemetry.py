@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import threading
+import time
+
 import pytest
 
 from companion.attitude import euler_to_quat, quat_to_euler
@@ -54,3 +57,54 @@ def test_clock_map_uses_minimum_delay_and_tagger_flags_stale():
     tagged = tagger.tag(Frame(0, 1002.06, None))
     assert not tagged.pose_stale and tagged.pose.lat == pytest.approx(37.0005)
     assert tagger.tag(Frame(1, 1010.0, None)).pose_stale and tagger.stale_count == 1
+
+
+def _rolling_in(buf: TelemetryBuffer, after_s: float) -> threading.Thread:
+    """The sample after a frame's capture time arriving ``after_s`` of wall time late: the vehicle has rolled 4 deg
+    (a strip's start in SITL: 0.12 -> -3.98 deg in 80 ms)."""
+    def late():
+        time.sleep(after_s)
+        buf.add(_pose(23.0, roll=-3.98))
+    thread = threading.Thread(target=late)
+    thread.start()
+    return thread
+
+
+def test_a_live_frame_newer_than_the_telemetry_waits_for_the_sample_after_it():
+    """SITL on a loaded machine (CI): a keyframe captured at 23.0 s was tagged while the newest sample was 22.92 s,
+    so it got that sample's attitude held (roll 0.12 deg against the true -3.98). Waiting for the sample after the
+    capture time tags it by interpolation. Without a wait (a recorded flight) the old answer stands."""
+    buf = TelemetryBuffer(max_extrapolation_s=0.1)
+    buf.add(_pose(22.92, roll=0.12))
+    clock = ClockMap(fixed_offset_s=0.0)
+    thread = _rolling_in(buf, 0.05)
+    tagged = FrameTagger(buf, clock, wait_for_telemetry_s=5.0).tag(Frame(69, 23.0, None))
+    thread.join()
+    assert not tagged.pose_stale and tagged.pose.roll_deg == pytest.approx(-3.98)
+
+    buf = TelemetryBuffer(max_extrapolation_s=0.1)
+    buf.add(_pose(22.92, roll=0.12))
+    thread = _rolling_in(buf, 0.05)
+    held = FrameTagger(buf, clock).tag(Frame(69, 23.0, None))
+    thread.join()
+    assert held.pose.roll_deg == pytest.approx(0.12)  # the old answer: tagged at once, the last sample held
+
+
+def test_a_silent_link_costs_one_wait_not_one_per_frame():
+    buf = TelemetryBuffer(max_extrapolation_s=0.1)
+    buf.add(_pose(10.0))
+    tagger = FrameTagger(buf, ClockMap(fixed_offset_s=0.0), wait_for_telemetry_s=0.3)
+    t0 = time.monotonic()
+    assert not tagger.tag(Frame(0, 10.05, None)).pose_stale  # waited 0.3 s in vain, then held as before
+    first = time.monotonic() - t0
+    t1 = time.monotonic()
+    for k in range(1, 20):
+        tagger.tag(Frame(k, 10.05 + k * 0.1, None))
+    rest = time.monotonic() - t1
+    assert first >= 0.3 and rest < 0.3, (first, rest)
+    buf.add(_pose(12.0))  # the link is back: the next frame newer than it waits again
+    thread = threading.Thread(target=lambda: (time.sleep(0.05), buf.add(_pose(12.2, roll=5.0))))
+    thread.start()
+    tagged = tagger.tag(Frame(30, 12.2, None))
+    thread.join()
+    assert tagged.pose.roll_deg == pytest.approx(5.0)

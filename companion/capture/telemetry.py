@@ -61,6 +61,7 @@ class TelemetryBuffer:
         self._poses: deque[Pose] = deque(maxlen=max_samples)
         self._first_time_s: float | None = None  # the first sample ever (the ring forgets it on long flights)
         self._lock = threading.Lock()
+        self._arrived = threading.Condition(self._lock)  # notified on every new sample (``wait_for``)
 
     def __len__(self) -> int:
         return len(self._times)
@@ -74,7 +75,18 @@ class TelemetryBuffer:
             self._poses.append(pose)
             if self._first_time_s is None:
                 self._first_time_s = pose.time_s
+            self._arrived.notify_all()
             return True
+
+    def wait_for(self, t: float, timeout_s: float) -> bool:
+        """Wait, at most ``timeout_s`` of wall time, until a sample at or after autopilot time ``t`` has arrived.
+
+        Why: a live frame can reach the chain before the telemetry of its capture time does (the recorder writes a
+        position row once the ATTITUDE after it has come, and the log is tailed); tagged at once, its pose is the
+        last sample held up to ``max_extrapolation_s``, and at a strip's start the vehicle rolls 4 degrees in those
+        80 ms (SITL, a loaded machine). Returns whether such a sample is there."""
+        with self._arrived:
+            return self._arrived.wait_for(lambda: bool(self._times) and self._times[-1] >= t, timeout_s)
 
     @property
     def first_time_s(self) -> float | None:

@@ -153,7 +153,8 @@ def run_live_scan(
     tailer = TelemetryLogTailer(telemetry_log, buffer, None if on_autopilot_clock else clock,
                                 wall_clock=capture_clock if on_autopilot_clock else None)
     try:
-        chain, camera_component = _build(out, FrameTagger(buffer, clock), plan, model=model, mask=mask,
+        tagger = FrameTagger(buffer, clock, wait_for_telemetry_s=TELEMETRY_WAIT_S)
+        chain, camera_component = _build(out, tagger, plan, model=model, mask=mask,
                                          gcs_camera_url=gcs_camera_url, capture_clock=capture_clock, track=track,
                                          parallax=parallax)
     except BaseException:
@@ -187,6 +188,12 @@ def _open_capture(capture: str, buffer: TelemetryBuffer, offset_s: float):
     paced = AutopilotPacedSource(source, buffer, offset_s=offset_s)
     return paced, paced
 
+
+# A frame newer than the newest telemetry sample waits this long (wall time) for the sample after its capture time,
+# so its pose is interpolated rather than held (``FrameTagger``). Samples come every 33-80 ms of autopilot time; the
+# recorder holds a position row until the next ATTITUDE and the tailer polls every 20 ms. The limit is the buffer's
+# own gap limit: a sample later than that could not tag the frame anyway.
+TELEMETRY_WAIT_S = 0.5
 
 # What waits after the flight is at most a minute of camera time (``TRACKED_BACKLOG``); the chain crosses it in a few
 # minutes even on a loaded companion. Past this, something hangs: the report is written with what was done.

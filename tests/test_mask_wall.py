@@ -205,3 +205,15 @@ def test_balcony_bases_along_the_frames_bottom_are_kept(rules, least, most):
     bottom[int(0.8 * wall.shape[0]):] = True
     kept = float((roi.mask > 0)[wall & bottom].mean())
     assert least <= kept <= most, f"{rules}: {100 * kept:.1f} % of the bottom fifth's wall kept"
+
+
+@pytest.mark.parametrize("field, value", [("continuity_speck_veto", "bordr"), ("plain_rule", "continuty"),
+                                          ("near_rule", "ratio"), ("plane_drop_rule", "fits"),
+                                          ("continuity_wall_borders", "bottom,tops")])
+def test_a_misspelt_parallax_rule_is_refused_with_the_names_it_takes(field, value):
+    """Each rule is chosen by comparing with one name, so a misspelt one used to act silently as another."""
+    from companion.errors import CompanionError
+
+    with pytest.raises(CompanionError, match=field):
+        ParallaxParams(**{field: value})
+    assert all(isinstance(rules, ParallaxParams) for rules in PARALLAX_RULES.values())

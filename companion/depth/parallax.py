@@ -153,6 +153,20 @@ class ParallaxParams:
     # 40 m pass showed more of it (27 background inliers against 16): nothing on that frame tells the two apart.
     unjudged_far_cut_ratio: float | None = None
 
+    def __post_init__(self) -> None:
+        """A misspelt rule name would silently act as another rule (every check is ``==`` one name): refuse it."""
+        named = {"near_rule": ("wall_ratio", "fixed"), "plain_rule": ("calibrated", "continuity", "network"),
+                 "plane_drop_rule": ("fit", "near"), "continuity_speck_veto": ("border", "every", "none")}
+        for field, allowed in named.items():
+            if getattr(self, field) not in allowed:
+                raise CompanionError(f"parallax rule {field}={getattr(self, field)!r} is not one of {allowed}",
+                                     f"set {field} to one of {', '.join(allowed)}")
+        borders = {b.strip() for b in self.continuity_wall_borders.split(",") if b.strip()}
+        unknown = borders - {"bottom", "left", "right", "top", "top-alone"}
+        if unknown:
+            raise CompanionError(f"continuity_wall_borders names unknown borders {sorted(unknown)}",
+                                 "use a comma list of bottom, left, right, top, top-alone")
+
 
 # Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
 # the mask-top change's two rules switched off: the rule sets named before it compare as they were measured

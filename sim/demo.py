@@ -115,17 +115,14 @@ def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
 
 
 def _print_flight(plan, demo: DemoFlight, fps: float) -> None:
+    from companion.onboard.scan_flight import culling_summary
+
     flight, st = demo.scan.flight, demo.scan.stats
     print(
         f"flight: {'complete' if flight.completed else 'NOT complete'}, {flight.items_reached}/{flight.items_total} "
         f"items, {'landed' if flight.landed else 'NOT landed'}, {flight.duration_s:.0f} s"
     )
-    print(
-        f"culling: {st.frames_in} frames -> {st.keyframes} keyframes ({st.skipped_backlog} skipped for CPU, "
-        f"{st.dropped_no_roi} without facade, {st.off_scan} off the scan's standoff, {st.low_overlap_keyframes} below "
-        f"the overlap target, {st.overlap_warnings} overlap warnings, {st.gaps} gaps; at most {st.backlog_max_s:.1f} s "
-        "behind the camera)"
-    )
+    print(culling_summary(st))
     expected = plan.estimates.expected_keyframes
     print(f"keyframes: {st.keyframes} against the planner's expected {expected} "
           f"({st.keyframes / expected:.2f}x)" if expected else f"keyframes: {st.keyframes} (planner expects none)")

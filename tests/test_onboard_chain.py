@@ -211,3 +211,21 @@ def test_decoded_frames_are_bounded_by_megabytes():
     image = np.zeros((720, 1280, 3), np.uint8)  # 2.76 MB decoded
     dropped = sum(len(backlog.put(Frame(i, i / 30.0, image))) for i in range(40))
     assert backlog.waiting()[0] == 10 and dropped == 30
+
+
+def test_the_culling_line_of_fly_and_demo_names_keyframes_below_the_target_and_the_lag():
+    """`companion fly` and the demo print the same line; the fly line used to leave out the keyframes taken below
+    the overlap target and the frames off the scan, the first figures a field engineer checks."""
+    from pathlib import Path
+
+    from companion.onboard.chain import ChainStats
+    from companion.onboard.scan_flight import culling_summary
+
+    st = ChainStats()
+    st.frames_processed, st.keyframes, st.low_overlap_keyframes, st.off_scan = 900, 40, 2, 120
+    st.backlog_max_s = 12.34
+    line = culling_summary(st, Path("/spool"))
+    assert line.startswith("culling: 900 frames -> 40 keyframes in /spool (")
+    assert "2 below the overlap target" in line and "120 off the scan's standoff" in line
+    assert "at most 12.3 s behind the camera" in line
+    assert " in " not in culling_summary(st).split("(")[0]

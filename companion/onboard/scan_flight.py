@@ -107,8 +107,11 @@ def flight_summary(result) -> str:
                + ", ".join(c.name for c in result.parameter_changes) if result.parameter_changes else ""))
 
 
-def culling_summary(stats, spool_dir: Path) -> str:
-    return (f"culling: {stats.frames_in} frames -> {stats.keyframes} keyframes in {spool_dir} "
-            f"({stats.skipped_backlog} skipped for CPU, {stats.dropped_no_roi} without facade, "
-            f"{stats.overlap_warnings} overlap warnings, {stats.gaps} possible gaps; "
-            f"at most {stats.backlog_max_s:.1f} s behind the camera)")
+def culling_summary(stats, spool_dir: Path | None = None) -> str:
+    """One line for a person, the same for `companion fly` and the demo: frames in, keyframes, and what a field
+    engineer checks first (keyframes below the overlap target, warnings, gaps, how far the chain fell behind)."""
+    where = f" in {spool_dir}" if spool_dir is not None else ""
+    return (f"culling: {stats.frames_in} frames -> {stats.keyframes} keyframes{where} "
+            f"({stats.skipped_backlog} skipped for CPU, {stats.dropped_no_roi} without facade, {stats.off_scan} off "
+            f"the scan's standoff, {stats.low_overlap_keyframes} below the overlap target, {stats.overlap_warnings} "
+            f"overlap warnings, {stats.gaps} gaps; at most {stats.backlog_max_s:.1f} s behind the camera)")

@@ -15,6 +15,7 @@ drift between chained pairs is spread out.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, replace
 
@@ -110,23 +111,31 @@ class _Anchor:
     robust: bool = True  # the centre term is Cauchy (telemetry), not Gaussian (the gauge seed)
 
 
-def _image_first_init(n: int, edges, priors: list[np.ndarray | None]) -> list[np.ndarray | None]:
-    """Each connected part of the pair graph placed by its images (chained from the keyframe with the most
-    inliers, oriented by its telemetry), then moved as one piece by the median offset between its image
-    centres and where telemetry puts them: one bad pose cannot bend the map, a jump cannot move it far.
-    Keyframes in no accepted pair stand where telemetry puts them; parts without any telemetry are not placed."""
-    G: list[np.ndarray | None] = [None] * n
+def chained_layouts(n: int, edges, priors: list[np.ndarray | None]):
+    """Each connected part of the pair graph laid out by its images alone: (root, part, homographies), chained
+    from the keyframe with telemetry and the most inliers, which its telemetry places (so the layout's scale is
+    that keyframe's footprint). Parts without telemetry are not laid out."""
     strength = np.zeros(n)
     for i, j, _, inl in edges:
         strength[i] += inl
         strength[j] += inl
-    centre = np.zeros((1, 2))
     for comp in _components(n, [(e[0], e[1]) for e in edges]):
         told = [k for k in comp if priors[k] is not None]
         if not told:
             continue
         root = max(told, key=lambda k: (strength[k], -k))
-        chained = _spanning_init(n, edges, {root: priors[root]})
+        yield root, comp, _spanning_init(n, edges, {root: priors[root]})
+
+
+def _image_first_init(n: int, edges, priors: list[np.ndarray | None]) -> list[np.ndarray | None]:
+    """Each connected part of the pair graph placed by its images (``chained_layouts``), then moved as one
+    piece by the median offset between its image centres and where telemetry puts them: one bad pose cannot
+    bend the map, a jump cannot move it far. Keyframes in no accepted pair stand where telemetry puts them;
+    parts without any telemetry are not placed."""
+    G: list[np.ndarray | None] = [None] * n
+    centre = np.zeros((1, 2))
+    for _root, comp, chained in chained_layouts(n, edges, priors):
+        told = [k for k in comp if priors[k] is not None]
         offsets = np.array([apply_h(priors[k], centre)[0] - apply_h(chained[k], centre)[0] for k in told])
         shift = np.median(offsets, axis=0)
         T = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
@@ -169,6 +178,11 @@ def global_alignment(
         c = problem.col[k]
         out[k] = _to_h(params[8 * c : 8 * c + 8])
     return Alignment(out, dropped, rms0, rms1, it)
+
+
+def pair_graph(pairs, to_norm: np.ndarray) -> list[tuple[int, int, np.ndarray, int]]:
+    """Accepted pairs as graph edges: (i, j, homography image-normalised i -> j, inliers)."""
+    return _pair_observations(pairs, to_norm)[0]
 
 
 def _pair_observations(pairs: list[PairResult], to_norm: np.ndarray):
@@ -366,6 +380,16 @@ class Anchoring:
     outvoted: tuple[int, ...]  # keyframe positions
     placement_sigma_m: float
     mean_offset_m: tuple[float, float]  # (along, up) mean over the keyframes not outvoted
+    # the images against the telemetry alone (``placement_sigma_m`` before the wall's edges or GNSS's absolute
+    # error are counted: ``with_absolute``)
+    relative_sigma_m: float | None = None
+
+    def with_absolute(self, sigma_m: tuple[float, float]) -> Anchoring:
+        """This anchoring with the map's absolute placement uncertainty (along, up) counted in
+        ``placement_sigma_m``: GNSS's bias, or the wall's edges where the keyframes show them."""
+        relative = self.placement_sigma_m if self.relative_sigma_m is None else self.relative_sigma_m
+        total = math.sqrt(relative**2 + sigma_m[0] ** 2 + sigma_m[1] ** 2)
+        return replace(self, placement_sigma_m=total, relative_sigma_m=relative)
 
     def summary(self) -> dict:
         d = np.asarray(self.offsets_m)
@@ -378,6 +402,8 @@ class Anchoring:
             },
             "mean_offset_m": [round(v, 3) for v in self.mean_offset_m],
             "placement_sigma_m": round(self.placement_sigma_m, 3),
+            "relative_sigma_m": round(self.placement_sigma_m if self.relative_sigma_m is None
+                                      else self.relative_sigma_m, 3),
         }
 
 

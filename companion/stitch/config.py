@@ -39,6 +39,10 @@ class StitchConfig:
     # far beyond (a GNSS jump) it hardly pulls at all, so the images outvote it
     sigma_prior_m: float = 0.5  # how far GNSS may put an image centre off on the wall
     sigma_shape_m: float = 0.15  # how far attitude errors may bend an image's corners (relative to centre): 2 deg
+    # how far GNSS absolute position may put the whole map off (per axis, one sigma): a non-RTK receiver's bias of
+    # a metre or two that lasts minutes, so it does not average out over a scan (RTK: a few centimetres). The map's
+    # placement is this uncertain along (up) unless the keyframes show the wall's ends (roof line: wall_anchor.py)
+    gnss_sigma_m: float = 1.5
     local: bool = True  # APAP mesh; False draws each keyframe with its global homography only
     cells: tuple[int, int] = (16, 9)  # Cx x Cy
     rho_px: float | None = None  # Eq. 4 scale; default 10 % of the image width

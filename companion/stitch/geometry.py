@@ -22,10 +22,15 @@ def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
         return q[:, :2] / q[:, 2:3]
 
 
-def prior_plane_from_image(pose: CameraPose, facade: FacadeGeometry) -> np.ndarray:
-    """Homography image-normalised -> plane (along_m, up_m) induced by the wall plane for this camera pose."""
-    o = facade.frame.origin
-    c = np.array(pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, o.lat, o.lon, o.alt_amsl_m), dtype=float)
+def prior_plane_from_image(pose: CameraPose, facade: FacadeGeometry, out_shift_m: float = 0.0) -> np.ndarray:
+    """Homography image-normalised -> plane (along_m, up_m) induced by the wall plane for this camera pose.
+
+    ``out_shift_m`` moves the camera that far out from the wall (negative: towards it) before projecting: the
+    correction the measured wall distance makes to a GNSS position that is biased across the wall
+    (``wall_distance.py``)."""
+    c = camera_centre_enu(pose, facade)
+    oe, on = facade.frame.out_enu
+    c = c + out_shift_m * np.array([oe, on, 0.0])
     de, dn = facade.frame.along_enu
     a = np.array([de, dn, 0.0])
     u = np.array([0.0, 0.0, 1.0])
@@ -34,9 +39,14 @@ def prior_plane_from_image(pose: CameraPose, facade: FacadeGeometry) -> np.ndarr
     return H / H[2, 2]
 
 
-def camera_distance_to_wall(pose: CameraPose, facade: FacadeGeometry) -> float:
+def camera_centre_enu(pose: CameraPose, facade: FacadeGeometry) -> np.ndarray:
+    """The camera's position (ENU metres from the wall's start on the ground) as its telemetry gives it."""
     o = facade.frame.origin
-    e, n, _ = pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, o.lat, o.lon, o.alt_amsl_m)
+    return np.array(pymap3d.geodetic2enu(pose.lat, pose.lon, pose.alt_amsl_m, o.lat, o.lon, o.alt_amsl_m), dtype=float)
+
+
+def camera_distance_to_wall(pose: CameraPose, facade: FacadeGeometry) -> float:
+    e, n, _ = camera_centre_enu(pose, facade)
     _, out, _ = facade.frame.enu_to_facade(e, n, 0.0)
     return float(out)
 

@@ -1,7 +1,8 @@
 """Where telemetry puts each keyframe on the wall plane, and the map's scale: the prior every later stage uses.
 
 With poses, each keyframe gets an image-normalised -> plane homography from its pose (``prior_plane_from_image``)
-and the plane is in metres at the median camera distance. Without, the first placed keyframe fixes the plane
+and the plane is in metres at the median camera distance (the telemetry's, corrected by the distance the images
+measure: ``wall_distance.py``). Without, the first placed keyframe fixes the plane
 (``reference``) and the scale is known only when the spool gives the standoff.
 """
 
@@ -26,15 +27,18 @@ class PlanePriors:
     reference: np.ndarray  # places the first keyframe when none has a prior (fixes the gauge)
 
 
-def plane_priors(inp: StitchInput, cfg: StitchConfig) -> PlanePriors:
+def plane_priors(inp: StitchInput, cfg: StitchConfig, out_shift_m: float = 0.0) -> PlanePriors:
+    """The priors of ``inp``'s keyframes; ``out_shift_m`` moves every camera that far out from the wall first
+    (the correction the measured wall distance makes: ``wall_distance.py``)."""
     cam = inp.camera
     use_poses = cfg.use_poses and inp.has_poses
     priors = tuple(
-        prior_plane_from_image(kf.pose, inp.facade) if use_poses and kf.pose is not None else None
+        prior_plane_from_image(kf.pose, inp.facade, out_shift_m) if use_poses and kf.pose is not None else None
         for kf in inp.keyframes
     )
     if use_poses:
-        dists = [camera_distance_to_wall(kf.pose, inp.facade) for kf in inp.keyframes if kf.pose is not None]
+        dists = [camera_distance_to_wall(kf.pose, inp.facade) + out_shift_m
+                 for kf in inp.keyframes if kf.pose is not None]
         distance = float(np.median(dists))
         if distance <= 0:
             raise CompanionError(

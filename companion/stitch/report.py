@@ -24,6 +24,8 @@ from companion.stitch.layout import MapLayout
 from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
 from companion.stitch.pairs import PairResult
 from companion.stitch.render import PlacedKeyframe
+from companion.stitch.wall_anchor import WallPlacement
+from companion.stitch.wall_distance import WallDistance
 
 
 @dataclass(frozen=True)
@@ -93,6 +95,8 @@ class StitchRun:
     layout: MapLayout
     rendered: RenderedMap
     timing_s: dict[str, float]
+    wall: WallDistance | None = None  # the measured camera-wall distance (None: not run)
+    placement: WallPlacement | None = None  # the wall's edges the map was moved onto (None: no telemetry)
 
 
 @dataclass(frozen=True)
@@ -113,6 +117,8 @@ class StitchReport:
     pairs: list[dict]
     alignment: dict
     anchor: dict | None  # how well the map is anchored on the wall by telemetry (None without telemetry)
+    wall_distance: dict | None  # the camera-wall distance the scale stands on, measured by the images
+    placement: dict | None  # where the map sits on the wall: the wall's edges it was moved onto, sigma per axis
     map: dict
     coverage_fraction: float
     gains: dict[int, float]
@@ -144,7 +150,7 @@ def build_report(run: StitchRun, coverage: MapCoverage, files: dict[str, str]) -
         keyframes_used=[kfs[k].index for k in sorted(layout.placed)],
         keyframes_skipped=[sk.as_dict() for sk in inp.skipped],
         keyframes_dropped=dropped,
-        warnings=[sk.warning() for sk in inp.skipped],
+        warnings=[sk.warning() for sk in inp.skipped] + (list(run.placement.warnings) if run.placement else []),
         telemetry_prior=run.use_poses,
         pairs_tried=len(results),
         pairs_accepted=sum(r.accepted for r in results),
@@ -161,6 +167,8 @@ def build_report(run: StitchRun, coverage: MapCoverage, files: dict[str, str]) -
             "local_residual_mm": _in_mm(_stats(loc), mm),
         },
         anchor=_anchor_section(run),
+        wall_distance=run.wall.summary() if run.wall is not None else None,
+        placement=run.placement.summary() if run.placement is not None else None,
         map=_map_section(layout, run.rendered, run.use_poses),
         coverage_fraction=round(coverage.fraction, 4),
         gains={kfs[k].index: round(float(run.rendered.gains[k]), 4) for k in layout.placed},

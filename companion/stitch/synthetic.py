@@ -41,6 +41,9 @@ class TelemetryErrors:
     noise_deg: float = 0.0
     jump_m: tuple[float, float] = (0.0, 0.0)
     jump_keyframes: tuple[int, int] = (0, 0)  # [first, stop): keyframe positions the jump applies to
+    # a non-RTK receiver's slowly varying error, constant over a pass: (along, out, up) metres added to every
+    # reported position (out negative: the telemetry puts the camera nearer the wall than it was)
+    bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def jump_at(self, k: int) -> tuple[float, float]:
         first, stop = self.jump_keyframes
@@ -276,7 +279,8 @@ def reported_pose(rng, frame: FacadeFrame, true_pose, errors: TelemetryErrors, k
     na, no, nu = rng.normal(0, errors.noise_m, 3) if errors.noise_m else (0.0, 0.0, 0.0)
     dy, dp, dr = rng.normal(0, errors.noise_deg, 3) if errors.noise_deg else (0.0, 0.0, 0.0)
     ja, ju = errors.jump_at(k)
-    lat, lon, alt = frame.facade_to_geodetic(along + na + ja, out + no, up + nu + ju)
+    ba, bo, bu = errors.bias_m
+    lat, lon, alt = frame.facade_to_geodetic(along + na + ja + ba, out + no + bo, up + nu + ju + bu)
     return {
         "lat": float(lat),
         "lon": float(lon),

@@ -5,7 +5,10 @@
     features (features.py)  -> KeyframeFeatures   SIFT inside the ROI; damaged keyframes left out, named
     priors   (priors.py)    -> PlanePriors        where telemetry puts each keyframe on the wall, the scale
     pairs    (pairs.py)     -> RegisteredPairs    DLT/MAGSAC per candidate pair, telemetry gate, cached
+    wall distance (wall_distance.py) -> WallDistance  the camera-wall distance the images measure: the scale
     alignment (align.py)    -> AlignedKeyframes   global least squares onto the plane, outlier pairs dropped
+    wall check (wallcheck.py) -> masks             pixels the neighbours show off the wall plane cut
+    placement (wall_anchor.py) -> WallPlacement   the map moved onto the wall's ends / roof line where seen
     mesh     (layout.py)    -> MapLayout          the map grid and APAP meshes (paper Eq. 4)
     render   (canvas.py)    -> RenderedMap        tiles, seams, gains; map in memory or as tiles
     report   (report.py)    -> StitchReport       coverage and holes, images, georeferencing, report.json
@@ -36,6 +39,8 @@ from companion.stitch.pairs import RegisteredPairs, register_pairs
 from companion.stitch.priors import PlanePriors, plane_priors
 from companion.stitch.render import MapGrid
 from companion.stitch.report import StitchRun, build_report, measure_coverage, write_map_images
+from companion.stitch.wall_anchor import WallPlacement, place_on_wall
+from companion.stitch.wall_distance import WallDistance, measure_wall_distance
 from companion.stitch.wallcheck import check_wall
 from companion.viewer import write_viewer
 
@@ -89,16 +94,21 @@ class Stitcher:
         priors = self.priors(found)
         pairs = self.pairs(found, priors, out)
         clock.lap("matching")
+        wall = self.wall_distance(found, priors, pairs)
+        priors = self.priors(found, wall)
         aligned = self.alignment(found, priors, pairs)
         clock.lap("alignment")
         found = self.wall_check(found, aligned, out)
         clock.lap("wall_check")
+        aligned, placement = self.placement(found, priors, aligned, wall)
         layout = self.mesh(found, priors, aligned)
         clock.lap("mesh")
         rendered = self.render(found, aligned, layout, out)
         clock.lap("render")
         return self.report(
-            StitchRun(found.input, self.config, priors.use_poses, aligned, layout, rendered, clock.seconds), out
+            StitchRun(found.input, self.config, priors.use_poses, aligned, layout, rendered, clock.seconds, wall,
+                      placement),
+            out,
         )
 
     def _prepare(self, inp: StitchInput, out_dir: str | Path) -> Path:
@@ -116,8 +126,14 @@ class Stitcher:
         self.debug.features(found)
         return found
 
-    def priors(self, found: KeyframeFeatures) -> PlanePriors:
-        return plane_priors(found.input, self.config)
+    def priors(self, found: KeyframeFeatures, wall: WallDistance | None = None) -> PlanePriors:
+        """Telemetry's placement of every keyframe; with ``wall``, each camera moved across the wall by the
+        correction the images measured."""
+        return plane_priors(found.input, self.config, wall.out_shift_m if wall is not None else 0.0)
+
+    def wall_distance(self, found: KeyframeFeatures, priors: PlanePriors, pairs: RegisteredPairs) -> WallDistance:
+        """The camera-wall distance measured by the images against the telemetry's relative motion."""
+        return measure_wall_distance(found.input, priors, pairs)
 
     def pairs(self, found: KeyframeFeatures, priors: PlanePriors, out: Path) -> RegisteredPairs:
         pairs = register_pairs(found, priors, self.config, out / "cache" / "pairs", progress=self.progress)
@@ -135,6 +151,19 @@ class Stitcher:
             return found
         checked = check_wall(found.input, aligned.accepted, out / "cache" / "masks", workers=worker_count(self.config))
         return replace(found, input=checked.input)
+
+    def placement(self, found: KeyframeFeatures, priors: PlanePriors, aligned: AlignedKeyframes,
+                  wall: WallDistance) -> tuple[AlignedKeyframes, WallPlacement | None]:
+        """The aligned map moved onto the wall's ends and roof line where the keyframes show them
+        (``wall_anchor.py``); the anchoring's placement sigma then counts what is left: those edges' sigma, or
+        GNSS's absolute error on an axis no edge fixes."""
+        if not priors.use_poses or aligned.anchoring is None:
+            return aligned, None
+        cfg = self.config
+        moved, placement = place_on_wall(found.input, aligned, gnss_sigma_m=cfg.gnss_sigma_m,
+                                         search_m=max(1.0, 2.0 * cfg.gnss_sigma_m), scale_sigma=wall.scale_sigma,
+                                         internal_m=aligned.anchoring.placement_sigma_m)
+        return replace(moved, anchoring=aligned.anchoring.with_absolute(placement.sigma_m)), placement
 
     def mesh(self, found: KeyframeFeatures, priors: PlanePriors, aligned: AlignedKeyframes) -> MapLayout:
         layout = lay_out(found.input, priors, aligned, self.config, progress=self.progress)

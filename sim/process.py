@@ -56,7 +56,8 @@ def terminate(proc: subprocess.Popen, timeout_s: float) -> None:
 class SimulatorProcess:
     """``with SimulatorProcess(speedup=20, packet_loss=20) as sim: fly_mission(plan, sim.url)``.
 
-    Keyword options become ``python -m sim vehicle`` options (``packet_loss=20`` -> ``--packet-loss 20``).
+    Keyword options become ``python -m sim vehicle`` options (``packet_loss=20`` -> ``--packet-loss 20``,
+    ``gnss_bias=(1.5, 0, 0)`` -> ``--gnss-bias 1.5,0,0``, ``rangefinder=True`` -> ``--rangefinder``).
     ``pose_port`` defaults to a free port so a test run does not feed a camera simulator listening on 14660.
     """
 
@@ -72,7 +73,10 @@ class SimulatorProcess:
             if value is True:
                 self.args.append(flag)
             elif value is not None and value is not False:
-                self.args += [flag, str(value)]
+                # a tuple is the option's comma form (gnss_bias=(1.5, 0, 0) -> 1.5,0,0); a value starting with '-'
+                # (--gnss-bias=-1.5,0,0) is glued to its flag, or argparse takes it for an option
+                text = ",".join(str(v) for v in value) if isinstance(value, (tuple, list)) else str(value)
+                self.args += [f"{flag}={text}"] if text.startswith("-") else [flag, text]
         self.log_path = log_path
         self.proc: subprocess.Popen | None = None
         self._log = None

@@ -26,6 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilo
 from companion.geo import GeoPoint
 from companion.mission import items as mi
 from sim.vehicle import flavours as fl
+from sim.vehicle import rangefinder as rf
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
@@ -34,6 +35,7 @@ from sim.vehicle.gnss_bias import GnssBias, ned_to_enu
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
 from sim.vehicle.model import Limits, Multirotor
+from sim.vehicle.rangefinder import ForwardRangefinder, WallNed, WallSpec
 from sim.vehicle.tasks import Climb, Hold, Land, Line, ReturnHome, Task
 from sim.vehicle.telemetry import TelemetryStreams
 
@@ -43,6 +45,7 @@ DT_S = 0.02  # 50 Hz simulated time
 # Streams of random draws added later: each its own generator, seeded (vehicle seed, stream), so a new fault never
 # shifts the sequences of the older ones (wind seed+1, GPS noise +2, link +3, stalls +4)
 GNSS_BIAS_STREAM = 5
+RANGEFINDER_STREAM = 6
 
 
 @dataclass
@@ -77,6 +80,12 @@ class VehicleConfig:
     gnss_bias_enu_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gnss_drift_m_per_min: float = 0.0
     gnss_drift_max_m: float | None = None
+    # forward rangefinder (sim/vehicle/rangefinder.py): DISTANCE_SENSOR from the TRUE position to this wall
+    rangefinder: bool = False
+    rangefinder_wall: WallSpec | None = None
+    rangefinder_max_m: float = rf.DEFAULT_MAX_M
+    rangefinder_min_m: float = rf.DEFAULT_MIN_M
+    rangefinder_noise_m: float = rf.DEFAULT_NOISE_M
     duration_s: float | None = None
     max_mission_items: int | None = None  # None: the firmware's own (flavour.max_mission_items)
     system_id: int = 1
@@ -126,6 +135,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                             cfg.gps_glitch_m, cfg.gps_glitch_s)
         self.gnss_bias = GnssBias(cfg.gnss_bias_enu_m, cfg.gnss_drift_m_per_min,
                                   np.random.default_rng((cfg.seed, GNSS_BIAS_STREAM)), cfg.gnss_drift_max_m)
+        wall = WallNed.from_spec(cfg.rangefinder_wall, cfg.home) if cfg.rangefinder_wall else None
+        self.rangefinder = ForwardRangefinder(wall, np.random.default_rng((cfg.seed, RANGEFINDER_STREAM)),
+                                              min_m=cfg.rangefinder_min_m, max_m=cfg.rangefinder_max_m,
+                                              noise_m=cfg.rangefinder_noise_m) if cfg.rangefinder else None
         self.battery = Battery()
         self.link = FaultyUdpLink(cfg.target, np.random.default_rng(cfg.seed + 3),
                                   bind=("127.0.0.1", cfg.bind_port), loss=cfg.packet_loss,
@@ -135,6 +148,8 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.params = dict(self.flavour.params)
         self.params.update({name: type(self.params.get(name, 0.0))(value) for name, value in cfg.params.items()})
         self.rates = dict(self.flavour.default_rates_hz)
+        if self.rangefinder is not None:  # ArduPilot too: a rangefinder is no use to the companion unless it streams
+            self.rates.setdefault("DISTANCE_SENSOR", rf.RATE_HZ)
         self._next_due: dict[str, float] = {}
         self.stream_rng = np.random.default_rng(cfg.seed + 4)  # its own draws: other faults keep their sequences
         self._held: dict[str, list] = {}  # stream -> messages held back while it stalls (--stream-stall)

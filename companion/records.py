@@ -42,6 +42,9 @@ class Pose:
     mission_item: int = -1
     gimbal_yaw_deg: float | None = None
     gimbal_source: GimbalSource | None = None
+    # the forward rangefinder's distance to what is ahead (DISTANCE_SENSOR, orientation forward), metres: the one
+    # measure of the standoff that a GNSS bias does not move; None without a fresh, in-range reading
+    range_forward_m: float | None = None
 
     def camera_angles(self) -> tuple[float, float, float]:
         """(yaw, pitch, roll) of the camera on its stabilised gimbal (``companion.attitude.gimbal_camera_angles``:
@@ -74,6 +77,7 @@ class Pose:
             mission_item=int(row["mission_item"]) if row.get("mission_item") is not None else -1,
             gimbal_yaw_deg=_optional_float(row.get("gimbal_yaw_deg")),
             gimbal_source=GimbalSource(source) if source is not None else None,
+            range_forward_m=_optional_float(row.get("range_forward_m")),
         )
 
 
@@ -92,6 +96,7 @@ def pose_json(
     mission_item: int = -1,
     gimbal_yaw_deg: float | None = None,
     gimbal_source: str | None = None,
+    range_forward_m: float | None = None,
 ) -> dict:
     """Pose fields -> their JSON keys. The telemetry recorder calls it with what it has so far (None where a
     stream has not arrived yet); :meth:`Pose.to_json` with a whole pose. The keys are the telemetry log's columns
@@ -102,6 +107,7 @@ def pose_json(
         "roll_deg": roll_deg, "pitch_deg": pitch_deg, "yaw_deg": yaw_deg, "vn_m_s": vn, "ve_m_s": ve, "vd_m_s": vd,
         "gimbal_pitch_deg": gimbal_pitch_deg, "gimbal_yaw_deg": gimbal_yaw_deg,
         "gimbal_source": None if gimbal_source is None else str(gimbal_source), "mission_item": mission_item,
+        "range_forward_m": range_forward_m,
     }
 
 

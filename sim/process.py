@@ -53,10 +53,33 @@ def terminate(proc: subprocess.Popen, timeout_s: float) -> None:
         proc.wait()
 
 
+def switch_value(value) -> bool | None:
+    """True / False for an on-off option's value, None for any other value. ``--sim-arg rangefinder=true`` arrives
+    as the text 'true', so the words count as well as Python's booleans."""
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.strip().lower() in ("true", "yes", "on"):
+        return True
+    if isinstance(value, str) and value.strip().lower() in ("false", "no", "off"):
+        return False
+    return None
+
+
+def with_mission_wall(options: dict, mission) -> dict:
+    """The vehicle options with the mission's wall added for a rangefinder that has none: the vehicle process
+    knows no facade otherwise (sim/vehicle/rangefinder.py)."""
+    if not switch_value(options.get("rangefinder")) or options.get("rangefinder_wall"):
+        return dict(options)
+    from sim.vehicle.rangefinder import WallSpec
+
+    return {**options, "rangefinder_wall": WallSpec.of_mission(mission).option()}
+
+
 class SimulatorProcess:
     """``with SimulatorProcess(speedup=20, packet_loss=20) as sim: fly_mission(plan, sim.url)``.
 
-    Keyword options become ``python -m sim vehicle`` options (``packet_loss=20`` -> ``--packet-loss 20``).
+    Keyword options become ``python -m sim vehicle`` options (``packet_loss=20`` -> ``--packet-loss 20``,
+    ``gnss_bias=(1.5, 0, 0)`` -> ``--gnss-bias 1.5,0,0``, ``rangefinder=True`` -> ``--rangefinder``).
     ``pose_port`` defaults to a free port so a test run does not feed a camera simulator listening on 14660.
     """
 
@@ -69,10 +92,14 @@ class SimulatorProcess:
                      str(self.pose_port), "--speedup", str(speedup), "--seed", str(seed)]
         for key, value in options.items():
             flag = "--" + key.replace("_", "-")
-            if value is True:
+            switch = switch_value(value)
+            if switch is True:
                 self.args.append(flag)
-            elif value is not None and value is not False:
-                self.args += [flag, str(value)]
+            elif value is not None and switch is None:
+                # a tuple is the option's comma form (gnss_bias=(1.5, 0, 0) -> 1.5,0,0); a value starting with '-'
+                # (--gnss-bias=-1.5,0,0) is glued to its flag, or argparse takes it for an option
+                text = ",".join(str(v) for v in value) if isinstance(value, (tuple, list)) else str(value)
+                self.args += [f"{flag}={text}"] if text.startswith("-") else [flag, text]
         self.log_path = log_path
         self.proc: subprocess.Popen | None = None
         self._log = None

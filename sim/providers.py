@@ -18,16 +18,18 @@ def start_sitl(request: SitlRequest):
     """The simulated vehicle, and with ``request.camera_fps`` the simulated camera wired to it (a ``SitlRig``);
     started, so the caller connects to ``.url`` (and reads frames from ``.capture``) and calls ``.stop()``."""
     from companion.mission import load_mission, plan_scan
-    from sim.process import SimulatorProcess
+    from sim.process import SimulatorProcess, with_mission_wall
     from sim.rig import SitlRig
 
     if request.camera_fps is not None:
         return SitlRig(request.mission_path, log_dir=request.log_dir, speedup=request.speedup,
                        fps=request.camera_fps, width_px=request.camera_width_px, autopilot=request.autopilot,
                        sim_options=dict(request.options)).start()
-    home = plan_scan(load_mission(request.mission_path)).home
+    plan = plan_scan(load_mission(request.mission_path))
+    home = plan.home
     vehicle = SimulatorProcess(speedup=request.speedup, home=f"{home.lat},{home.lon},{home.alt_amsl_m}",
-                               autopilot=request.autopilot, **dict(request.options)).start()
+                               autopilot=request.autopilot,
+                               **with_mission_wall(dict(request.options), plan.mission)).start()
     vehicle.capture = None
     return vehicle
 

@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 from companion.errors import CompanionError
-from sim.process import SimulatorProcess, child_environment, free_port, terminate
+from sim.process import SimulatorProcess, child_environment, free_port, terminate, with_mission_wall
 
 # The simulator told to keep home where the vehicle armed (by default its PX4 flavour moves home for 120 s after
 # take-off, as real PX4 SIH does: sim/vehicle/home_drift.py).
@@ -101,7 +101,7 @@ class SitlRig:
                 raise CompanionError("the simulated camera did not start", f"see {cam_log_path}")
             time.sleep(0.1)
         home = self.plan.home
-        options = dict(self.sim_options)
+        options = with_mission_wall(self.sim_options, self.plan.mission)  # a rangefinder sees this mission's wall
         if self.truth_log is not None:
             options["truth_log"] = str(self.truth_log)
         self.vehicle = SimulatorProcess(

@@ -14,7 +14,9 @@ pytestmark = pytest.mark.sitl
 
 FIELDS = {"t_s", "time_boot_ms", "lat", "lon", "alt_amsl_m", "north_m", "east_m", "down_m", "vn_m_s", "ve_m_s",
           "vd_m_s", "roll_deg", "pitch_deg", "yaw_deg", "gimbal_pitch_deg", "gimbal_yaw_deg", "armed", "in_air",
-          "home"}
+          "home",
+          # the estimator's position beside the truth, and the GNSS bias between them (issue 26)
+          "nav_lat", "nav_lon", "nav_alt_amsl_m", "nav_north_m", "nav_east_m", "nav_down_m", "gnss_bias_enu_m"}
 
 
 def test_pose_channel_and_truth_log(tmp_path):

@@ -146,12 +146,13 @@ def interpolate(a: Pose, b: Pose, s: float, t: float) -> Pose:
         mission_item=nearer.mission_item,
         gimbal_yaw_deg=_lerp_known(a.gimbal_yaw_deg, b.gimbal_yaw_deg, s),
         gimbal_source=nearer.gimbal_source,
+        range_forward_m=_lerp_known(a.range_forward_m, b.range_forward_m, s),
     )
 
 
 def _lerp_known(x: float | None, y: float | None, s: float) -> float | None:
-    """Linear between two known values; where one is unknown (the gimbal was commanded between the samples) the
-    nearer sample's value, unknown included."""
+    """Linear between two known values; where one is unknown (the gimbal was commanded between the samples, the
+    rangefinder lost the wall) the nearer sample's value, unknown included."""
     if x is not None and y is not None:
         return x + s * (y - x)
     return y if s >= 0.5 else x

@@ -27,6 +27,8 @@ log = logging.getLogger(__name__)
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_DO_SET_MODE = 176
 MSG_ID_MISSION_CURRENT = 42
+MSG_ID_DISTANCE_SENSOR = 132
+DISTANCE_SENSOR_INTERVAL_US = 1e5  # 10 Hz: the telemetry log's range_forward_m (a vehicle without one sends none)
 HEALTH_FIELDS = {
     "is_global_position_ok": "global position (GPS fix)",
     "is_local_position_ok": "local position estimate",
@@ -108,8 +110,8 @@ async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto")
 
 async def request_rates(vehicle: Vehicle, rate_hz: float) -> None:
     """Ask for the telemetry the flight needs. ArduPilot streams nothing but HEARTBEAT until asked; PX4 streams
-    by default, but asking makes the log density explicit. MISSION_CURRENT has no telemetry setter, so it is
-    requested with MAV_CMD_SET_MESSAGE_INTERVAL."""
+    by default, but asking makes the log density explicit. MISSION_CURRENT and DISTANCE_SENSOR (a forward
+    rangefinder, if fitted) have no telemetry setter, so they are requested with MAV_CMD_SET_MESSAGE_INTERVAL."""
     t = vehicle.telemetry
     setters = [(t.set_rate_position, rate_hz), (t.set_rate_attitude_euler, rate_hz),
                (t.set_rate_velocity_ned, rate_hz), (t.set_rate_health, 1.0), (t.set_rate_gps_info, 1.0),
@@ -122,6 +124,8 @@ async def request_rates(vehicle: Vehicle, rate_hz: float) -> None:
             failed.append(f"{setter.__name__}: {exc}")
     with contextlib.suppress(Exception):
         await vehicle.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID_MISSION_CURRENT, 1e6)
+    with contextlib.suppress(Exception):  # ArduPilot streams a rangefinder only when asked (or by its SRn_ rates)
+        await vehicle.command_long(MAV_CMD_SET_MESSAGE_INTERVAL, MSG_ID_DISTANCE_SENSOR, DISTANCE_SENSOR_INTERVAL_US)
     if failed:
         log.warning("telemetry rate requests refused: %s", "; ".join(failed))
 

@@ -6,6 +6,12 @@ gimbal's angles come from the gimbal's own attitude report (GIMBAL_DEVICE_ATTITU
 one; PX4 and ArduPilot SITL without a configured gimbal send none (notes/real-firmware.md), and mavsdk's gimbal
 plugin reports nothing without it either. Then they come from the plan's gimbal command once the vehicle has
 passed that item, and before that they are unknown (null). ``gimbal_source`` says which.
+
+A forward rangefinder (DISTANCE_SENSOR with orientation MAV_SENSOR_ROTATION_NONE) gives ``range_forward_m``: the
+reading nearest the row's autopilot time, within 0.5 s, and inside the sensor's own min/max (outside it, e.g.
+MAVLink's max + 1 "nothing in range", there is no distance). It is what a GNSS bias cannot move: the estimate says
+the planned standoff, the rangefinder the true one. Read from the raw MAVLink stream because mavsdk's
+``distance_sensor()`` does not say which way the sensor points (a downward one would be taken for the wall).
 """
 
 from __future__ import annotations
@@ -34,6 +40,9 @@ _GIMBAL_YAW_LOCK = 16  # GIMBAL_DEVICE_FLAGS: yaw held in the earth frame (older
 _GIMBAL_YAW_IN_VEHICLE_FRAME = 32
 _GIMBAL_YAW_IN_EARTH_FRAME = 64
 _GIMBAL_REPORT_FRESH_S = 2.0  # a gimbal report older than this (monotonic seconds) is not the gimbal's angle now
+_RANGE_FRESH_S = 0.5  # a rangefinder reading further than this (autopilot seconds) from a row is not its distance
+_RANGE_KEEP = 32  # readings kept to find the one nearest a row (a row may wait a while for its ATTITUDE)
+_SENSOR_ROTATION_FORWARD = 0  # MAV_SENSOR_ROTATION_NONE: the sensor looks along the vehicle's nose
 
 
 @dataclass(frozen=True)
@@ -128,6 +137,8 @@ class TelemetryRecorder:
         self._prev_att: tuple[float, float, float, float] | None = None
         self._raw_pos: tuple | None = None
         self._pending: deque[tuple] = deque()  # latest raw GLOBAL_POSITION_INT; once it flows, rows come from it
+        # forward DISTANCE_SENSOR readings: (autopilot s, monotonic s, metres or None when outside min/max)
+        self._ranges: deque[tuple[float, float, float | None]] = deque(maxlen=_RANGE_KEEP)
 
     async def __aenter__(self) -> TelemetryRecorder:
         if self.path is not None:
@@ -148,7 +159,8 @@ class TelemetryRecorder:
         direct = getattr(self.vehicle, "direct", None)
         if direct is not None:
             for name, handler in (("ATTITUDE", self._on_raw_att), ("GLOBAL_POSITION_INT", self._on_raw_pos),
-                                  ("GIMBAL_DEVICE_ATTITUDE_STATUS", self._on_gimbal_status)):
+                                  ("GIMBAL_DEVICE_ATTITUDE_STATUS", self._on_gimbal_status),
+                                  ("DISTANCE_SENSOR", self._on_distance_sensor)):
                 self._tasks.append(asyncio.create_task(self._follow(direct.subscribe_message(name), handler)))
         return self
 
@@ -247,6 +259,27 @@ class TelemetryRecorder:
             pitch, yaw = gimbal_from_status(json.loads(msg.fields_json), self.state.get("yaw_deg"))
             self._gimbal_report = (time.monotonic(), pitch, yaw)
 
+    def _on_distance_sensor(self, msg) -> None:
+        """Keep forward readings only (orientation 0); a reading outside the sensor's min/max is no distance."""
+        with contextlib.suppress(ValueError, TypeError, KeyError):
+            f = json.loads(msg.fields_json)
+            if int(f["orientation"]) != _SENSOR_ROTATION_FORWARD:
+                return
+            cm, lo, hi = int(f["current_distance"]), int(f["min_distance"]), int(f["max_distance"])
+            metres = cm / 100.0 if lo <= cm <= hi else None
+            self._ranges.append((f["time_boot_ms"] / 1000.0, time.monotonic(), metres))
+
+    def _range_at(self, t_boot: float | None) -> float | None:
+        """The forward distance for a row at autopilot time ``t_boot``: the nearest reading within 0.5 s (by
+        arrival time when the row has no autopilot time)."""
+        if not self._ranges:
+            return None
+        if t_boot is None:
+            _, arrived, metres = self._ranges[-1]
+            return metres if time.monotonic() - arrived <= _RANGE_FRESH_S else None
+        t, _, metres = min(self._ranges, key=lambda r: abs(r[0] - t_boot))
+        return metres if abs(t - t_boot) <= _RANGE_FRESH_S else None
+
     def _gimbal(self) -> dict:
         """The gimbal's angles for a row now: its own fresh report, else the plan's command once passed."""
         report = self._gimbal_report
@@ -294,7 +327,7 @@ class TelemetryRecorder:
             roll, pitch, yaw = st.get("roll_deg"), st.get("pitch_deg"), st.get("yaw_deg")
         pose = pose_json(time_s=t_boot, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=rel, roll_deg=roll,
                          pitch_deg=pitch, yaw_deg=yaw, velocity_ned_m_s=vel, mission_item=st["mission_item"],
-                         **self._gimbal())
+                         range_forward_m=self._range_at(t_boot), **self._gimbal())
         self._file.write(json.dumps(self._row(pose)) + "\n")
 
     def _row(self, pose: dict) -> dict:
@@ -312,7 +345,7 @@ class TelemetryRecorder:
             alt_amsl_m=_num(p.absolute_altitude_m), relative_alt_m=_num(p.relative_altitude_m),
             roll_deg=st.get("roll_deg"), pitch_deg=st.get("pitch_deg"), yaw_deg=st.get("yaw_deg"),
             velocity_ned_m_s=(st.get("vn_m_s"), st.get("ve_m_s"), st.get("vd_m_s")), mission_item=st["mission_item"],
-            **self._gimbal(),
+            range_forward_m=self._range_at(None), **self._gimbal(),
         )
         self._file.write(json.dumps(self._row(pose)) + "\n")
 

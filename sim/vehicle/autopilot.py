@@ -26,19 +26,26 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilo
 from companion.geo import GeoPoint
 from companion.mission import items as mi
 from sim.vehicle import flavours as fl
+from sim.vehicle import rangefinder as rf
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
 from sim.vehicle.firmware import FirmwareRules, lost_link_action
+from sim.vehicle.gnss_bias import GnssBias, ned_to_enu
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
 from sim.vehicle.model import Limits, Multirotor
+from sim.vehicle.rangefinder import ForwardRangefinder, WallNed, WallSpec
 from sim.vehicle.tasks import Climb, Hold, Land, Line, ReturnHome, Task
 from sim.vehicle.telemetry import TelemetryStreams
 
 log = logging.getLogger(__name__)
 
 DT_S = 0.02  # 50 Hz simulated time
+# Streams of random draws added later: each its own generator, seeded (vehicle seed, stream), so a new fault never
+# shifts the sequences of the older ones (wind seed+1, GPS noise +2, link +3, stalls +4)
+GNSS_BIAS_STREAM = 5
+RANGEFINDER_STREAM = 6
 
 
 @dataclass
@@ -68,6 +75,17 @@ class VehicleConfig:
     gps_glitch_at_s: float | None = None
     gps_glitch_m: float = 5.0
     gps_glitch_s: float = 3.0
+    # GNSS bias (sim/vehicle/gnss_bias.py): estimate minus truth, East/North/Up metres, plus a random walk of
+    # this RMS growth per axis (metres per minute), optionally clamped per axis; zeros: off (the old estimate)
+    gnss_bias_enu_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gnss_drift_m_per_min: float = 0.0
+    gnss_drift_max_m: float | None = None
+    # forward rangefinder (sim/vehicle/rangefinder.py): DISTANCE_SENSOR from the TRUE position to this wall
+    rangefinder: bool = False
+    rangefinder_wall: WallSpec | None = None
+    rangefinder_max_m: float = rf.DEFAULT_MAX_M
+    rangefinder_min_m: float = rf.DEFAULT_MIN_M
+    rangefinder_noise_m: float = rf.DEFAULT_NOISE_M
     duration_s: float | None = None
     max_mission_items: int | None = None  # None: the firmware's own (flavour.max_mission_items)
     system_id: int = 1
@@ -115,6 +133,12 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.wind = Wind(cfg.wind_m_s, cfg.gusts_m_s, np.random.default_rng(cfg.seed + 1), cfg.wind_from_deg)
         self.gps = GpsError(cfg.gps_noise_m, np.random.default_rng(cfg.seed + 2), cfg.gps_glitch_at_s,
                             cfg.gps_glitch_m, cfg.gps_glitch_s)
+        self.gnss_bias = GnssBias(cfg.gnss_bias_enu_m, cfg.gnss_drift_m_per_min,
+                                  np.random.default_rng((cfg.seed, GNSS_BIAS_STREAM)), cfg.gnss_drift_max_m)
+        wall = WallNed.from_spec(cfg.rangefinder_wall, cfg.home) if cfg.rangefinder_wall else None
+        self.rangefinder = ForwardRangefinder(wall, np.random.default_rng((cfg.seed, RANGEFINDER_STREAM)),
+                                              min_m=cfg.rangefinder_min_m, max_m=cfg.rangefinder_max_m,
+                                              noise_m=cfg.rangefinder_noise_m) if cfg.rangefinder else None
         self.battery = Battery()
         self.link = FaultyUdpLink(cfg.target, np.random.default_rng(cfg.seed + 3),
                                   bind=("127.0.0.1", cfg.bind_port), loss=cfg.packet_loss,
@@ -124,6 +148,8 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.params = dict(self.flavour.params)
         self.params.update({name: type(self.params.get(name, 0.0))(value) for name, value in cfg.params.items()})
         self.rates = dict(self.flavour.default_rates_hz)
+        if self.rangefinder is not None:  # ArduPilot too: a rangefinder is no use to the companion unless it streams
+            self.rates.setdefault("DISTANCE_SENSOR", rf.RATE_HZ)
         self._next_due: dict[str, float] = {}
         self.stream_rng = np.random.default_rng(cfg.seed + 4)  # its own draws: other faults keep their sequences
         self._held: dict[str, list] = {}  # stream -> messages held back while it stalls (--stream-stall)
@@ -167,6 +193,8 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self._outage_start_wall: float | None = None
         self._stop = False
         self.nav = self.model.state.pos.copy()
+        if self.gnss_bias.active:
+            self.nav = self.nav + self.gnss_bias.ned
         self._init_firmware_rules()
 
     # --- helpers -------------------------------------------------------------------------------------------
@@ -472,6 +500,8 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         st = self.model.state
         wind = self.wind.step(dt)
         self.nav = st.pos + self.gps.step(self.t, dt)
+        if self.gnss_bias.active:  # off: not even + 0, so the estimate stays bit for bit the old one
+            self.nav = self.nav + self.gnss_bias.step(dt)
         v_cmd = np.zeros(3)
         if self.armed:
             if self.mode == fl.MISSION and self.mission_refused:
@@ -535,8 +565,13 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         return mavlink.MAV_LANDED_STATE_IN_AIR
 
     def true_pose(self) -> dict:
+        """The pose channel's and truth log's line: the TRUE pose (what the camera renders from: ``lat``, ``lon``,
+        ``alt_amsl_m``, ``north_m``...), and beside it the estimator's position (``nav_*``: what telemetry reports
+        and position control flies) and the GNSS bias part of their difference (``gnss_bias_enu_m``, East/North/Up;
+        the rest is ``--gps-noise`` / glitch), so an evaluation can compare the two."""
         st = self.model.state
         lat, lon, alt = self.ned_to_geodetic(st.pos)
+        nav_lat, nav_lon, nav_alt = self.ned_to_geodetic(self.nav)
         h = self.cfg.home
         return {
             "t_s": round(self.t, 4), "time_boot_ms": int(round(self.t * 1000)), "lat": lat, "lon": lon,
@@ -545,6 +580,9 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             "roll_deg": st.roll_deg, "pitch_deg": st.pitch_deg, "yaw_deg": st.yaw_deg,
             "gimbal_pitch_deg": self.gimbal_pitch_deg, "gimbal_yaw_deg": self.gimbal_yaw_deg,
             "armed": self.armed, "in_air": not st.on_ground,
+            "nav_lat": nav_lat, "nav_lon": nav_lon, "nav_alt_amsl_m": nav_alt, "nav_north_m": float(self.nav[0]),
+            "nav_east_m": float(self.nav[1]), "nav_down_m": float(self.nav[2]),
+            "gnss_bias_enu_m": ned_to_enu(self.gnss_bias.ned),
             "home": {"lat": h.lat, "lon": h.lon, "alt_amsl_m": h.alt_amsl_m},
         }
 

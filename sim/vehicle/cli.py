@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 from pathlib import Path
@@ -14,6 +15,9 @@ from sim.vehicle.autopilot import SimVehicle, VehicleConfig
 from sim.vehicle.flavours import FLAVOURS
 from sim.vehicle.home_drift import PX4_HOME_CORRECTION_WINDOW_S
 from sim.vehicle.model import Limits
+from sim.vehicle.rangefinder import DEFAULT_MAX_M, DEFAULT_MIN_M, parse_wall
+
+log = logging.getLogger(__name__)
 
 
 def _home(text: str) -> GeoPoint:
@@ -39,6 +43,17 @@ def _params(text: str) -> dict[str, float]:
     return out
 
 
+def _gnss_bias(text: str) -> tuple[float, float, float]:
+    try:
+        parts = [float(p) for p in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) != 3 or not all(math.isfinite(v) for v in parts):
+        raise argparse.ArgumentTypeError(f"--gnss-bias wants EAST,NORTH,UP in metres (e.g. 1.5,0,0; a negative first "
+                                         f"value as --gnss-bias=-1.5,0,0), got {text!r}")
+    return parts[0], parts[1], parts[2]
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--home", type=_home, default=GeoPoint(37.56638, 126.97815, 30.0),
                    help="home LAT,LON,ALT_AMSL (default: the demo mission's takeoff point)")
@@ -56,6 +71,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wind-from", type=float, help="wind direction (from), degrees; default: random by seed")
     p.add_argument("--gusts", type=float, default=0.0, help="peak gust amplitude, m/s")
     p.add_argument("--gps-noise", type=float, default=0.0, help="GPS position error std (random walk), metres")
+    p.add_argument("--gnss-bias", type=_gnss_bias, default=(0.0, 0.0, 0.0), metavar="E,N,U",
+                   help="GNSS bias: the estimate (telemetry, position control) is this far East,North,Up of the true "
+                        "vehicle, metres; the vehicle flies its estimate, so it truly sits at minus this "
+                        "(e.g. 1.5,0,0; default 0,0,0: off)")
+    p.add_argument("--gnss-drift", type=float, default=0.0, metavar="M_PER_MIN",
+                   help="the GNSS bias also random-walks: RMS growth per axis after one minute, metres (grows as "
+                        "the square root of time; seeded by --seed; default 0: a constant bias)")
+    p.add_argument("--gnss-drift-max", type=float, default=None, metavar="M",
+                   help="clamp the bias's random walk to +-M metres per axis (default: unbounded)")
+    p.add_argument("--rangefinder", action="store_true",
+                   help="fit a forward laser rangefinder: DISTANCE_SENSOR (orientation forward) at 10 Hz, the TRUE "
+                        "distance along the heading to --rangefinder-wall (no wall in range: max + 1 cm)")
+    p.add_argument("--rangefinder-wall", type=parse_wall, default=None,
+                   metavar="LAT,LON,LAT,LON,BASE_AMSL,HEIGHT",
+                   help="the wall the rangefinder sees: both base ends, the base altitude AMSL and the height (the "
+                        "SITL rig and fly --sitl pass the mission's wall)")
+    p.add_argument("--rangefinder-max", type=float, default=DEFAULT_MAX_M, metavar="M",
+                   help=f"rangefinder's maximum range, metres (default {DEFAULT_MAX_M:g})")
     p.add_argument("--packet-loss", type=float, default=0.0, metavar="PCT", help="drop this percent of datagrams")
     p.add_argument("--latency-ms", type=float, default=0.0, help="added one-way link latency, wall ms")
     p.add_argument("--stream-stall", type=float, default=0.0, metavar="S",
@@ -131,6 +164,16 @@ def _check_home_shift(args: argparse.Namespace) -> None:
                              "given", "add e.g. --home-shift-after-takeoff 30 (or --home-shift-m 0 for a still home)")
 
 
+def _check_gnss(args: argparse.Namespace) -> None:
+    """A drift is a rate and its bound a size: neither negative nor NaN."""
+    if not (math.isfinite(args.gnss_drift) and args.gnss_drift >= 0):
+        raise CompanionError(f"--gnss-drift {args.gnss_drift:g} is not a rate >= 0",
+                             "give metres per minute, e.g. --gnss-drift 0.5 (0: a constant bias)")
+    if args.gnss_drift_max is not None and not (math.isfinite(args.gnss_drift_max) and args.gnss_drift_max > 0):
+        raise CompanionError(f"--gnss-drift-max {args.gnss_drift_max:g} is not a positive size",
+                             "give metres, e.g. --gnss-drift-max 2, or leave it out for an unbounded walk")
+
+
 def config_from_args(args: argparse.Namespace) -> VehicleConfig:
     if not 0.0 <= args.packet_loss < 100.0:
         raise CompanionError(f"--packet-loss {args.packet_loss} is not a percentage below 100",
@@ -142,11 +185,19 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
                              "a stall cannot be negative nor stalls come every 0 s",
                              "give e.g. --stream-stall 2.5 --stream-stall-every 30")
     _check_home_shift(args)
+    _check_gnss(args)
+    if args.rangefinder and not DEFAULT_MIN_M < args.rangefinder_max <= 650.0:
+        raise CompanionError(f"--rangefinder-max {args.rangefinder_max:g} is not a rangefinder's range",
+                             f"give metres above {DEFAULT_MIN_M:g} and at most 650 (DISTANCE_SENSOR's 16-bit cm)")
+    if args.rangefinder and args.rangefinder_wall is None:
+        log.warning("--rangefinder without --rangefinder-wall: there is nothing to see, every reading is 'none'")
     return VehicleConfig(
         home=args.home, home_yaw_deg=args.home_yaw, speedup=args.speedup, seed=args.seed, autopilot=args.autopilot,
         target=(args.mavlink_host, args.mavlink_port), bind_port=args.bind_port, pose_port=args.pose_port or None,
         truth_log=args.truth_log, wind_m_s=args.wind, gusts_m_s=args.gusts, wind_from_deg=args.wind_from,
-        gps_noise_m=args.gps_noise, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
+        gps_noise_m=args.gps_noise, gnss_bias_enu_m=tuple(args.gnss_bias), gnss_drift_m_per_min=args.gnss_drift,
+        gnss_drift_max_m=args.gnss_drift_max, rangefinder=args.rangefinder, rangefinder_wall=args.rangefinder_wall,
+        rangefinder_max_m=args.rangefinder_max, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
         stream_stall_s=args.stream_stall, stream_stall_every_s=args.stream_stall_every,
         outage_at_s=args.outage_at, outage_s=args.outage_s,
         gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,

@@ -83,6 +83,7 @@ class Px4:
         "LOCAL_POSITION_NED": 10.0, "ATTITUDE": 20.0, "ATTITUDE_QUATERNION": 20.0, "HOME_POSITION": 0.5,
         "EXTENDED_SYS_STATE": 2.0, "BATTERY_STATUS": 1.0, "MISSION_CURRENT": 1.0, "VFR_HUD": 4.0,
         "GIMBAL_DEVICE_ATTITUDE_STATUS": 5.0,
+        "DISTANCE_SENSOR": 10.0,  # sent only with --rangefinder
     }
     params = {
         "MIS_TAKEOFF_ALT": 2.5, "RTL_RETURN_ALT": 15.0, "RTL_DESCEND_ALT": 10.0, "MPC_XY_CRUISE": 5.0,

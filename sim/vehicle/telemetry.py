@@ -143,6 +143,20 @@ class TelemetryStreams:
             flags = mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_VERT | mavlink.EKF_CONST_POS_MODE
         return self.mav.ekf_status_report_encode(flags, 0.05, bad, 0.05, 0.02, 0.0)
 
+    def _distance_sensor(self):
+        """The forward rangefinder's reading, measured from the TRUE position (not the estimate): centimetres, or
+        max_distance + 1 when no wall is in range (MAVLink's 'no reading')."""
+        rf = self.rangefinder
+        st = self.model.state
+        d = rf.measure(st.pos, st.yaw_deg, st.pitch_deg)
+        max_cm = int(round(rf.max_m * 100))
+        current = max_cm + 1 if d is None else int(round(d * 100))
+        return self.mav.distance_sensor_encode(int(self.t * 1000), int(round(rf.min_m * 100)), max_cm, current,
+                                               mavlink.MAV_DISTANCE_SENSOR_LASER, 0,
+                                               mavlink.MAV_SENSOR_ROTATION_NONE,
+                                               min(254, int(round((rf.noise_m * 100) ** 2))),
+                                               signal_quality=1 if d is None else 100)
+
     def _autopilot_version(self):
         caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
@@ -159,6 +173,7 @@ class TelemetryStreams:
         "ATTITUDE": "_attitude", "ATTITUDE_QUATERNION": "_attitude_q", "HOME_POSITION": "_home_position",
         "EXTENDED_SYS_STATE": "_extended_sys_state", "BATTERY_STATUS": "_battery_status",
         "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud", "EKF_STATUS_REPORT": "_ekf_status",
+        "DISTANCE_SENSOR": "_distance_sensor",
     }
 
     def send_streams(self) -> None:
@@ -168,6 +183,8 @@ class TelemetryStreams:
                 continue
             if name == "HOME_POSITION" and not self.position_ready:
                 continue  # no home until the estimator uses GPS
+            if name == "DISTANCE_SENSOR" and self.rangefinder is None:
+                continue  # no rangefinder fitted
             if self.initialising and name != "HEARTBEAT":
                 continue  # ArduPilot sends only HEARTBEAT while it starts up (should_send_message_in_delay_callback)
             due = self._next_due.get(name, 0.0)
@@ -209,6 +226,8 @@ class TelemetryStreams:
         if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return self._autopilot_version()
         if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION and not self.position_ready:
+            return None
+        if msg_id == mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR and self.rangefinder is None:
             return None
         cls = mavlink.mavlink_map.get(msg_id)
         if cls is not None and cls.msgname in self.STREAMS:

@@ -5,23 +5,28 @@ truth."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import cv2
 import pytest
 
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
+from companion.cli import main
 from companion.keyframes import FeatureConfig, GateConfig, KeyframeGate
 from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall
+from companion.mission import load_mission
 from companion.onboard.chain import ChainStats, CullChain
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.scan_flight import culling_summary
+from companion.onboard.setup import scan_scope
 from companion.onboard.standoff_watch import StandoffWatch
 from companion.spool import KeyframeSpool
-from companion.spool.layout import MANIFEST
+from companion.spool.layout import CULL_REPORT, MANIFEST
 
 W, H = 320, 180
 PLAN = 4.0
+SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -101,3 +106,42 @@ def test_no_watch_no_figures():
     assert ChainStats().standoff is None
     assert "standoff measured" not in culling_summary(ChainStats())
     assert "standoff not measured" not in culling_summary(ChainStats())
+
+
+def _bias_telemetry(src: Path, dst: Path, mission: Path, out_m: float) -> None:
+    """The recording's telemetry log as a receiver off by ``out_m`` out of the wall would give it."""
+    frame = scan_scope(load_mission(mission)).frame
+    rows = [json.loads(x) for x in src.read_text().splitlines()]
+    for r in rows:
+        along, out, up = frame.geodetic_to_facade(r["lat"], r["lon"], r["alt_amsl_m"])
+        lat, lon, alt = frame.facade_to_geodetic(along, out + out_m, up)
+        r["lat"], r["lon"], r["alt_amsl_m"] = round(float(lat), 9), round(float(lon), 9), round(float(alt), 3)
+    dst.write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_companion_cull_on_a_biased_simulator_recording_spools_the_true_standoff(tmp_path):
+    """The simulator flies the small wall at 2.5 m and renders from there; its telemetry log is shifted 1.5 m out
+    (a GNSS bias: it says 4.0, the plan). ``companion cull`` with the 4.0 m mission, the tracker on, no mask:
+    the keyframes carry the camera's 2.5 m (within 0.1 m of each one's true distance) and so does the report."""
+    true_mission = tmp_path / "true.yaml"
+    true_mission.write_text(SMALL_WALL.read_text().replace("standoff_m: 4.0", "standoff_m: 2.5"))
+    rec, spool = tmp_path / "rec", tmp_path / "spool"
+    assert main(["record", str(true_mission), "--out", str(rec), "--fast", "--width", "320", "--max-frames", "40",
+                 "--stride", "8"]) == 0
+    _bias_telemetry(rec / "telemetry.jsonl", tmp_path / "biased.jsonl", SMALL_WALL, 1.5)
+    assert main(["cull", str(rec / "frames"), "--telemetry", str(tmp_path / "biased.jsonl"), "--out", str(spool),
+                 "--mission", str(SMALL_WALL), "--no-mask"]) == 0
+    frame = scan_scope(load_mission(SMALL_WALL)).frame
+    truth = [json.loads(x) for x in (rec / "truth.jsonl").read_text().splitlines()]
+    kfs = _sidecars(spool)
+    measured = [k for k in kfs if k["standoff_measured_m"] is not None]
+    assert len(measured) >= 5 and len(measured) >= len(kfs) - 3
+    for k in measured:
+        pose = truth[k["index"]]["pose"]
+        true_out = float(frame.geodetic_to_facade(pose["lat"], pose["lon"], pose["alt_amsl_m"])[1])
+        told_out = float(frame.geodetic_to_facade(k["pose"]["lat"], k["pose"]["lon"], k["pose"]["alt_amsl_m"])[1])
+        assert abs(true_out - 2.5) < 0.1 and abs(told_out - 4.0) < 0.1  # the camera at 2.5, the log says 4.0
+        assert k["standoff_measured_m"] == pytest.approx(true_out, abs=0.1) and k["standoff_source"] == "camera"
+    report = json.loads((spool / CULL_REPORT).read_text())["standoff"]
+    assert report["measured_median_m"] == pytest.approx(2.5, abs=0.05) and report["planned_m"] == 4.0
+    assert report["measurements"] >= 10 and report["measured_spread_m"] < 0.1

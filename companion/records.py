@@ -220,11 +220,37 @@ class GateDecision:
 
 
 @dataclass(frozen=True)
+class StandoffEstimate:
+    """The camera-to-wall distance measured from the images at ``time_s`` (``companion.keyframes.standoff``):
+    metres, one sigma, from ``measurements`` frame pairs of the last few seconds. ``source``: what measured it."""
+
+    distance_m: float
+    sigma_m: float
+    measurements: int
+    time_s: float
+    source: str = "camera"
+
+    def as_json(self) -> dict:
+        """The spool's keys (sidecar and manifest line); :func:`standoff_json` gives them for no estimate."""
+        return standoff_json(self)
+
+
+def standoff_json(estimate: StandoffEstimate | None) -> dict:
+    """``standoff_measured_m``, ``standoff_sigma_m``, ``standoff_source`` (None each without an estimate)."""
+    if estimate is None:
+        return {"standoff_measured_m": None, "standoff_sigma_m": None, "standoff_source": None}
+    return {"standoff_measured_m": estimate.distance_m, "standoff_sigma_m": estimate.sigma_m,
+            "standoff_source": estimate.source}
+
+
+@dataclass(frozen=True)
 class Keyframe:
     """A kept frame: the image, its pose and mask, and the gate's decision; never changed after creation.
 
     ``telemetry_overlap_suspect``: the overlap the poses predict where they contradict the image's (the chain's
-    cross-check, a new record made with ``dataclasses.replace``); None when they agree or were not checked."""
+    cross-check, a new record made with ``dataclasses.replace``); None when they agree or were not checked.
+    ``standoff``: the chain's measured camera-to-wall distance when the keyframe was spooled (None: none measured
+    in the last few seconds, or no chain measuring it)."""
 
     frame: Frame
     pose: Pose | None
@@ -232,6 +258,7 @@ class Keyframe:
     decision: GateDecision = field(default_factory=GateDecision)
     pose_stale: bool = False
     telemetry_overlap_suspect: float | None = None
+    standoff: StandoffEstimate | None = None  # the measured standoff when it was spooled (the chain's estimate)
 
     @classmethod
     def of(cls, masked: MaskedFrame, decision: GateDecision) -> Keyframe:

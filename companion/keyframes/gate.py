@@ -31,7 +31,7 @@ against nothing before the gap, so it is neither a low-overlap pair nor a lost t
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
@@ -145,11 +145,15 @@ class KeyframeGate:
     """Online keyframe selection. ``push(frame) -> keyframes decided now``; ``flush()`` at end of stream.
 
     ``predictor``: the wall's motion from telemetry poses (see module docstring); None decides on images alone.
+    ``on_matches``: called once per pair the gate matched with fresh poses on both frames, as
+    ``on_matches(reference, frame, points, (width, height))`` (``points``: every distinctive match, N x 4, full
+    resolution px): the chain measures the standoff from them (``companion.onboard.standoff_watch``).
     """
 
     def __init__(self, config: GateConfig | None = None, predictor: WallMotionPredictor | None = None):
         self.config = config or GateConfig()
         self.predictor = predictor
+        self.on_matches: Callable[[MaskedFrame, MaskedFrame, np.ndarray, tuple[int, int]], None] | None = None
         self.telemetry_vetoes = 0  # comparisons where the poses overruled an image R >= Rth
         self.telemetry_fallbacks = 0  # comparisons decided by the poses because the image could not measure the wall
         self.last_dropped = 0  # segments' last candidates not kept: no wall to add (see the module docstring)
@@ -482,6 +486,10 @@ class KeyframeGate:
     def _estimate(self, key: _Held, item: _Held, count: bool) -> OverlapEstimate:
         prior = self._predict(key, item)
         est = self._estimator.estimate(key.features, item.features, prior=prior)
+        if est.matched_points is not None:  # handed on, not kept: estimates are held for later pushes and reports
+            if self.on_matches is not None and prior is not None:
+                self.on_matches(key.masked, item.masked, est.matched_points, item.features.full_size)
+            est = replace(est, matched_points=None)
         if prior is not None:
             est = self._with_telemetry(est, prior)
             if count:

@@ -26,6 +26,28 @@ from companion.records import Pose
 from companion.wall_footprint import corner_footprint
 
 
+def intrinsics(hfov_deg: float, width: int, height: int) -> np.ndarray:
+    """The pinhole matrix of the module's camera model (square pixels, principal point at the image centre)."""
+    f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+    return np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def pose_camera(frame: FacadeFrame, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
+    """(camera centre in facade coordinates (along, out, up), rotation facade <- camera) of a telemetry pose."""
+    de, dn = frame.along_enu
+    oe, on = frame.out_enu
+    basis = np.array([[de, oe, 0.0], [dn, on, 0.0], [0.0, 0.0, 1.0]])  # columns: along, out, up in ENU
+    centre = np.array([float(v) for v in frame.geodetic_to_facade(pose.lat, pose.lon, pose.alt_amsl_m)])
+    yaw, pitch, roll = pose.camera_angles()
+    return centre, basis.T @ camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
+
+
+def wall_to_image(K: np.ndarray, centre: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """Homography from wall-plane coordinates (along_m, up_m, 1) to image pixels."""
+    to_cam = np.array([[1.0, 0.0, -centre[0]], [0.0, 0.0, -centre[1]], [0.0, 1.0, -centre[2]]])
+    return K @ rot.T @ to_cam
+
+
 @dataclass(frozen=True)
 class WallMotion:
     """Where the wall plane seen in frame a appears in frame b, predicted from the two poses.
@@ -73,12 +95,6 @@ class WallMotionPredictor:
             raise CompanionError(f"standoff_m={self.standoff_m} is not a distance in front of the wall",
                                  "give the planned camera-to-wall distance in metres (e.g. 4.0)")
 
-    def _basis(self) -> np.ndarray:
-        """Columns: the facade's along, out and up axes as ENU vectors."""
-        de, dn = self.frame.along_enu
-        oe, on = self.frame.out_enu
-        return np.array([[de, oe, 0.0], [dn, on, 0.0], [0.0, 0.0, 1.0]])
-
     def _camera(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
         """(camera centre in facade coordinates, rotation facade <- camera)."""
         known = self._cameras.get(pose)
@@ -89,16 +105,11 @@ class WallMotionPredictor:
         return known
 
     def _camera_of(self, pose: Pose) -> tuple[np.ndarray, np.ndarray]:
-        centre = np.array([float(v) for v in self.frame.geodetic_to_facade(pose.lat, pose.lon, pose.alt_amsl_m)])
-        yaw, pitch, roll = pose.camera_angles()
-        rot = self._basis().T @ camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
-        return centre, rot
+        return pose_camera(self.frame, pose)
 
     @staticmethod
     def _wall_to_image(K: np.ndarray, centre: np.ndarray, rot: np.ndarray) -> np.ndarray:
-        """Homography from wall-plane coordinates (along_m, up_m, 1) to image pixels."""
-        to_cam = np.array([[1.0, 0.0, -centre[0]], [0.0, 0.0, -centre[1]], [0.0, 1.0, -centre[2]]])
-        return K @ rot.T @ to_cam
+        return wall_to_image(K, centre, rot)
 
     def predict(self, a: Pose | None, b: Pose | None, width: int, height: int, *,
                 overlap: bool = True) -> WallMotion | None:
@@ -117,8 +128,7 @@ class WallMotionPredictor:
             ca, cb = ca + [0.0, shift, 0.0], cb + [0.0, shift, 0.0]
         if ca[1] <= 0.1 or cb[1] <= 0.1:
             return None
-        f = (width / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
-        K = np.array([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]])
+        K = intrinsics(self.hfov_deg, width, height)
         footprints = [corner_footprint(K, width, height, c, r) for c, r in ((ca, ra), (cb, rb))]
         if footprints[0] is None or footprints[1] is None:  # a corner ray does not reach the wall ahead
             return None

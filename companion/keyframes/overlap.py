@@ -14,7 +14,7 @@ saying why, and the gate treats it as "unknown".
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 from typing import TYPE_CHECKING
 
@@ -97,6 +97,9 @@ class OverlapEstimate:
     prediction_miss_px: float | None = None  # median distance of the chosen inliers from the predicted wall
     hypotheses: int = 0  # RANSAC models tried against the prediction
     rejected_matches: int = 0  # inliers of models that did not move like the wall (background)
+    # Every distinctive match, N x 4 (x, y in Ip, x, y in Iq; full-resolution px), for a measurement that selects
+    # its own inliers (the standoff: companion.keyframes.standoff). The gate hands it on and does not keep it.
+    matched_points: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def known(self) -> bool:
@@ -199,12 +202,14 @@ class OverlapEstimator:
             return OverlapEstimate(OverlapStatus.TOO_FEW_MATCHES, matches=len(good), **unknown)
         src = p.points[in_p]
         dst = q.points[in_q]
+        matched = np.hstack([src, dst]).astype(np.float64) / p.scale
         if prior is None:
             fit = self._fit(src, dst, p)
             if fit.status != OverlapStatus.OK:
-                return OverlapEstimate(fit.status, matches=len(good), inliers=int(fit.inliers.sum()), **unknown)
-            return self._result(fit, src, dst, p, len(good))
-        return self._estimate_with_prior(src, dst, p, prior, len(good))
+                return OverlapEstimate(fit.status, matches=len(good), inliers=int(fit.inliers.sum()),
+                                       matched_points=matched, **unknown)
+            return replace(self._result(fit, src, dst, p, len(good)), matched_points=matched)
+        return replace(self._estimate_with_prior(src, dst, p, prior, len(good)), matched_points=matched)
 
     def _fit(self, src: np.ndarray, dst: np.ndarray, p: FeatureSet, min_share: float | None = None) -> _Fit:
         """RANSAC homography, or a similarity where the homography is ill-posed (the paper's model, guarded)."""

@@ -20,9 +20,10 @@ from companion.errors import CompanionError
 from companion.keyframes.gate import GateEventKind, KeyframeGate
 from companion.keyframes.gate_scope import ScanPhase, ScanScope, ScopeStep
 from companion.onboard.crosscheck import OverlapCrossCheck
+from companion.onboard.standoff_watch import StandoffWatch
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
 from companion.onboard.working import FullResolution, WorkingCopy
-from companion.records import EncodedFrame, Frame, Keyframe, MaskedFrame, TaggedFrame
+from companion.records import EncodedFrame, Frame, Keyframe, MaskedFrame, StandoffEstimate, TaggedFrame
 from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 
 log = logging.getLogger(__name__)
@@ -69,6 +70,9 @@ class ChainStats:
     telemetry_vetoes: int = 0  # frames the poses put below Rth - 3 points although the image said >= Rth
     telemetry_overlap_keyframes: int = 0  # keyframes whose overlap the poses gave (too little wall to measure)
     spool_errors: int = 0
+    # the standoff measured from the images (companion.onboard.standoff_watch.StandoffWatch.summary); None: not
+    # measured (no mission, so no wall to measure against)
+    standoff: dict | None = None
     undecodable: int = 0  # frames that reached the chain still encoded and did not decode (part of ``corrupt``)
     busy_s: float = 0.0
     backlog_max_s: float = 0.0  # the furthest the chain worked behind the newest camera frame (capture time)
@@ -121,6 +125,10 @@ class CullChain:
     ``working``: each frame is resized once to this working copy, on which tagging, tracking, the depth mask and the
     gate all run, so the chain's cost per frame does not grow with the camera's resolution; keyframes are spooled
     with their full-resolution pixels (``companion.onboard.working``).
+
+    ``standoff_watch`` (a ``StandoffWatch``): the camera-to-wall distance is measured from the pairs the gate
+    matches; each spooled keyframe carries the estimate of its time, the stats its summary, and ``standoff`` is the
+    current estimate for whoever supervises the flight (None: nothing measured in the last few seconds).
     """
 
     def __init__(
@@ -137,6 +145,7 @@ class CullChain:
         track: MeasureSchedule | None = None,
         working: WorkingCopy | None = None,
         scope: ScanScope | None = None,
+        standoff_watch: StandoffWatch | None = None,
     ):
         self.tagger = tagger
         self.working = working or WorkingCopy()
@@ -151,6 +160,10 @@ class CullChain:
         self.require_telemetry = require_telemetry
         self.crosscheck = crosscheck
         self.scope = scope
+        self.standoff_watch = standoff_watch
+        if standoff_watch is not None:
+            gate.on_matches = standoff_watch.observe
+            self.stats.standoff = standoff_watch.summary()
         if crosscheck is not None and gate.predictor is None:
             gate.predictor = crosscheck.predictor  # the cross-check decides in the gate, it does not only flag
         self._last_key_pose = None
@@ -171,6 +184,12 @@ class CullChain:
     def scope(self, scope: ScanScope | None) -> None:
         self._scope = scope
         self.phase = None if scope is None else ScanPhase(scope)
+
+    @property
+    def standoff(self) -> StandoffEstimate | None:
+        """The camera-to-wall distance measured from the images, as of the last frame of the scan (None: none in
+        the last few seconds, or not measured). The hook for a flight supervisor that corrects the distance."""
+        return None if self.standoff_watch is None else self.standoff_watch.current
 
     @property
     def full_resolution_held(self) -> int:
@@ -206,6 +225,7 @@ class CullChain:
             st.cpu_s += time.thread_time() - cpu0
             return out
         st.scan_segments += int(where == ScopeStep.OPENS)
+        self._watch_standoff(tagged.frame.capture_time_s)
         if self.selection is not None and self.selection.skips(tagged):  # far above Rth: counted, not decoded
             self._count_processed(now)
             st.skipped_far = self.selection.counts.skipped_far
@@ -239,6 +259,15 @@ class CullChain:
         st.cpu_s += time.thread_time() - cpu0
         return out
 
+    def _watch_standoff(self, time_s: float) -> None:
+        """A frame of the scan: the standoff estimate at its time, and the warnings it calls for."""
+        watch = self.standoff_watch
+        if watch is None:
+            return
+        for message in watch.step(time_s):
+            self.warn(message)
+        self.stats.standoff = watch.summary()
+
     def _count_processed(self, now: float) -> None:
         st = self.stats
         st.first_frame_wall_s = st.first_frame_wall_s or now
@@ -252,6 +281,8 @@ class CullChain:
         out += self._spool(self._in_spool_order(self.gate.flush(), None))
         self._full.release_below(None)
         self._events()
+        if self.standoff_watch is not None:
+            self.stats.standoff = self.standoff_watch.summary()
         if not self.spool_disabled:
             try:
                 self.spool.close()
@@ -392,6 +423,8 @@ class CullChain:
         out = []
         for kf in keyframes:
             kf = self._cross_check(self._full.restore(kf))
+            if self.standoff_watch is not None:
+                kf = replace(kf, standoff=self.standoff_watch.current)
             if self.spool_disabled:
                 continue
             try:

@@ -25,6 +25,7 @@ from companion.onboard.chain import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.runner import MEASURE_ALL_BACKLOG, TRACKED_BACKLOG, Backlog, LiveRunner
 from companion.onboard.setup import build_chain
+from companion.onboard.standoff_watch import standoff_line
 from companion.spool.clock import CaptureClock, TelemetryWallClock, UnixCaptureClock
 from companion.spool.layout import CULL_REPORT
 
@@ -255,7 +256,10 @@ def _build(
         ).start()
 
     def on_keyframe(kf, entry) -> None:
-        log.debug("keyframe %d saved (overlap to previous %s)", kf.index, kf.overlap_to_previous)
+        est = kf.standoff  # the live status line: what a field engineer watches besides the overlap
+        log.info("keyframe %d saved (overlap to previous %s); %s", kf.index, kf.overlap_to_previous,
+                 standoff_line(None if est is None else est.distance_m, None if est is None else est.sigma_m,
+                               float(plan.mission.standoff_m)))
         if camera_component is not None:
             camera_component.publish(kf.pose, entry.image)
 

@@ -11,6 +11,7 @@ from typing import Any
 
 from companion.errors import CompanionError
 from companion.flight.limits import FLIGHT_DEFAULTS
+from companion.onboard.standoff_watch import standoff_line
 from companion.plugins import SitlRequest, provided
 
 log = logging.getLogger(__name__)
@@ -109,9 +110,18 @@ def flight_summary(result) -> str:
 
 def culling_summary(stats, spool_dir: Path | None = None) -> str:
     """One line for a person, the same for `companion fly` and the demo: frames in, keyframes, and what a field
-    engineer checks first (keyframes below the overlap target, warnings, gaps, how far the chain fell behind)."""
+    engineer checks first (keyframes below the overlap target, warnings, gaps, how far the chain fell behind), and
+    the standoff measured from the images against the plan (median +- robust spread of the pairs) when measured."""
     where = f" in {spool_dir}" if spool_dir is not None else ""
+    standoff = getattr(stats, "standoff", None)
+    measured = ""
+    if standoff:
+        measured = "; " + standoff_line(standoff.get("measured_median_m"), standoff.get("measured_spread_m"),
+                                         standoff.get("planned_m"))
+        if standoff.get("measurements"):
+            measured += (f" from {standoff['measurements']} frame pairs, none for "
+                         f"{100 * (standoff.get('frames_without_share') or 0.0):.0f} % of the scan")
     return (f"culling: {stats.frames_in} frames -> {stats.keyframes} keyframes{where} "
             f"({stats.skipped_backlog} skipped for CPU, {stats.dropped_no_roi} without facade, {stats.off_scan} off "
             f"the scan's standoff, {stats.low_overlap_keyframes} below the overlap target, {stats.overlap_warnings} "
-            f"overlap warnings, {stats.gaps} gaps; at most {stats.backlog_max_s:.1f} s behind the camera)")
+            f"overlap warnings, {stats.gaps} gaps; at most {stats.backlog_max_s:.1f} s behind the camera){measured}")

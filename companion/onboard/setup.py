@@ -7,6 +7,7 @@ from pathlib import Path
 from companion.capture.tagging import FrameTagger
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.onboard.chain import CullChain
+from companion.onboard.standoff_watch import StandoffWatch
 from companion.onboard.tracked import MeasureSchedule
 from companion.onboard.working import WorkingCopy
 from companion.spool import KeyframeSpool
@@ -99,7 +100,7 @@ def build_chain(
         camera_tags=camera_tags_for_mission(mission.camera) if mission is not None else None,
         capture_clock=capture_clock,
     )
-    crosscheck = scope = None
+    crosscheck = scope = watch = None
     if mission is not None:
         from companion.onboard.crosscheck import OverlapCrossCheck
 
@@ -112,6 +113,7 @@ def build_chain(
             cam.height_px / cam.width_px,
             standoff_m=float(mission.standoff_m),
         )
+        watch = StandoffWatch(wall, cam.hfov_deg, float(mission.standoff_m))
     return CullChain(
         tagger,
         masker,
@@ -123,4 +125,5 @@ def build_chain(
         track=MeasureSchedule() if track else None,
         working=working,
         scope=scope,
+        standoff_watch=watch,
     )

@@ -21,7 +21,7 @@ import cv2
 
 from companion.errors import CompanionError
 from companion.files import TEMP_GLOB, append_durable, write_atomic
-from companion.records import Keyframe
+from companion.records import Keyframe, standoff_json
 from companion.spool.camera import CameraTags
 from companion.spool.clock import CaptureClock, UnixCaptureClock
 from companion.spool.exif import encode_tagged_jpeg
@@ -149,6 +149,7 @@ class KeyframeSpool:
         }
         if keyframe.overlap_suspect:
             sidecar.update(overlap_suspect=True, overlap_telemetry=keyframe.telemetry_overlap_suspect)
+        sidecar.update(standoff_json(keyframe.standoff))
         line = {
             "index": frame.index,
             "image": entry.image,
@@ -159,6 +160,7 @@ class KeyframeSpool:
             "overlap_to_previous": keyframe.overlap_to_previous,
             "gap_before": keyframe.gap_before,
             "overlap_suspect": keyframe.overlap_suspect,
+            **standoff_json(keyframe.standoff),
         }
         try:
             self._check_camera_size(frame.image.shape[1], frame.image.shape[0])

@@ -196,8 +196,9 @@ def test_refly_of_a_real_stitch_covers_its_hole(tmp_path):
     re-flown by `companion plan --refly`: the re-fly frames cover the patch the map lacks."""
     from companion.stitch.synthetic import SyntheticWall, make_spool
 
-    hole = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: masked as background in every keyframe
-    truth = make_spool(tmp_path / "spool", SyntheticWall(length_m=8.0, height_m=4.0), hole_m=hole)
+    hole = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: no keyframe shows it (flown at 2 m: small footprints)
+    truth = make_spool(tmp_path / "spool", SyntheticWall(length_m=8.0, height_m=4.0), standoff_m=2.0,
+                       missing_m=hole)
     assert main(["stitch", str(tmp_path / "spool"), "--out", str(tmp_path / "map")]) == 0
     frame = truth["frame"]
     end_lat, end_lon, _ = frame.facade_to_geodetic(frame.length_m, 0.0, 0.0)

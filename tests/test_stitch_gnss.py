@@ -76,5 +76,9 @@ def test_report_says_how_well_the_map_is_anchored_and_which_telemetry_was_outvot
     assert named and named <= set(range(*JUMPED))  # the jump is named (noise may hide part of it), nothing else
     assert all(o["offset_m"] > 1.0 for o in anchor["outvoted"])
     assert anchor["offset_m"]["max"] > 1.0
-    assert 0.05 < anchor["placement_sigma_m"] < 0.5
+    assert 0.05 < anchor["relative_sigma_m"] < 0.5  # the images against the telemetry
+    # where the map sits on the wall: the strip ends 5 cm past the wall's ends, too little to see them, so along
+    # the wall the place is GNSS's (a non-RTK bias of a metre or two, issue 26), and the sigma says so
+    assert "start" not in gnss[0].report["placement"]["anchored_by"]
+    assert anchor["placement_sigma_m"] > 1.5
     assert anchor["keyframes"] == 9

@@ -55,19 +55,31 @@ def test_map_is_accurate_against_the_wall_texture(spool, result):
     assert rep["map"]["rectified_to_facade"]
 
 
-def test_background_is_never_drawn_and_the_hole_is_reported(result):
+def test_background_is_never_drawn_and_the_hole_is_reported_as_relief(result):
+    """The patch every keyframe shows and masks out (a portal, a recess, glass) is relief: seen, not the flat wall,
+    so not a re-fly area (a re-fly at the same standoff would mask it out again; issue 26 item 5)."""
     g = result.grid
     x0, y0 = g.to_px(np.array([HOLE[0] + 0.05, HOLE[3] - 0.05])).astype(int)
     x1, y1 = g.to_px(np.array([HOLE[1] - 0.05, HOLE[2] + 0.05])).astype(int)
     assert result.coverage[y0:y1, x0:x1].max() == 0
     assert result.map_image[y0:y1, x0:x1].max() == 0
     assert 0.9 < result.coverage_fraction < 0.99
-    hits = [
-        a
-        for a in result.uncovered
-        if a.along_min_m < 4.0 < a.along_max_m and a.up_min_m < 2.0 < a.up_max_m and a.area_m2 < 1.0
-    ]
-    assert hits, result.uncovered
+
+    def at_hole(areas):
+        return [a for a in areas
+                if a["along_min_m"] < 4.0 < a["along_max_m"] and a["up_min_m"] < 2.0 < a["up_max_m"]
+                and a["area_m2"] < 1.0]
+
+    assert at_hole(result.report["relief_areas_m"]), result.report["relief_areas_m"]
+    assert not at_hole([a.as_dict() for a in result.uncovered]), result.uncovered
+
+
+def test_a_patch_no_keyframe_shows_is_a_refly_area_not_relief(tmp_path):
+    truth = make_spool(tmp_path / "spool", WALL, standoff_m=2.0, missing_m=HOLE)
+    res = stitch(load_input(tmp_path / "spool"), tmp_path / "map", progress=False)
+    assert len(truth["views"]) >= 10
+    hits = [a for a in res.uncovered if a.along_min_m < 4.0 < a.along_max_m and a.up_min_m < 2.0 < a.up_max_m]
+    assert hits and not res.report["relief_areas_m"]
 
 
 def test_outputs_on_disk(result):
@@ -75,7 +87,7 @@ def test_outputs_on_disk(result):
     for key in ("map", "coverage", "preview", "report"):
         assert (result.out_dir / files[key].split("/")[-1]).exists()
     rep = json.loads((result.out_dir / "report.json").read_text())
-    assert rep["uncovered_areas_m"] and rep["map"]["mm_per_px"] > 0
+    assert rep["relief_areas_m"] and not rep["uncovered_areas_m"] and rep["map"]["mm_per_px"] > 0
     preview = cv2.imread(files["preview"])
     assert preview.shape[0] > result.grid.height  # the scale-bar strip is appended below the map
 

@@ -66,11 +66,14 @@ def test_stitch_writes_a_self_contained_viewer(mapped):
     assert data["frame"]["units"] == "m"
     assert [data["frame"]["left"], data["frame"]["top"]] == [georef["geotransform"][0], georef["geotransform"][3]]
     assert data["tiles"]["max_zoom"] == max_zoom_for(res.grid.width, res.grid.height)
-    # the re-fly areas are the report's; every footprint's photo is linked into the folder
+    # the re-fly and relief areas are the report's (the hole every keyframe shows and masks out is relief, not
+    # a re-fly area); every footprint's photo is linked into the folder
     report = json.loads((out / "report.json").read_text())
     assert report["files"]["viewer"] == str(out / PAGE)  # written before the report: a finished report, a viewer
     assert [a["along_min_m"] for a in data["refly"]] == [a["along_min_m"] for a in report["uncovered_areas_m"]]
-    assert any(a["along_min_m"] < HOLE[0] + 0.1 and a["along_max_m"] > HOLE[1] - 0.1 for a in data["refly"])
+    assert [a["along_min_m"] for a in data["relief"]] == [a["along_min_m"] for a in report["relief_areas_m"]]
+    assert any(a["along_min_m"] < HOLE[0] + 0.1 and a["along_max_m"] > HOLE[1] - 0.1 for a in data["relief"])
+    assert not any(a["along_min_m"] < HOLE[0] + 0.1 and a["along_max_m"] > HOLE[1] - 0.1 for a in data["refly"])
     assert len(data["keyframes"]) == len(georef["keyframes"]) > 0
     for kf in data["keyframes"]:
         assert (out / kf["image"]).is_file()

@@ -45,7 +45,13 @@ def register(sub) -> None:
     p.add_argument("--global-only", action="store_true", help="no local mesh warps (one homography per keyframe)")
     p.add_argument("--no-poses", action="store_true", help="ignore telemetry (image-only alignment)")
     p.add_argument("--pose-gate-m", type=float, default=defaults.pose_gate_m,
-                   help="reject matches this far from telemetry")
+                   help="reject matches this far from telemetry (default: 4 m, more for cameras far from the wall)")
+    p.add_argument("--gnss-sigma-m", type=float, default=defaults.gnss_sigma_m,
+                   help="how far GNSS absolute position may put the map off (1 sigma per axis; RTK: 0.03); the "
+                        "wall's ends and roof line in view fix it better")
+    p.add_argument("--no-measure-wall", action="store_true",
+                   help="take the wall's distance (the map's scale) and the map's place from the telemetry alone, "
+                        "as before the wall was measured (for comparison)")
     p.add_argument("--stride", type=int, default=1, help="recording input: use every N-th frame")
     p.add_argument("--tile-px", type=int, default=defaults.tile_px, help="render tile size (bounds memory)")
     p.add_argument("--debug-dir", default=None, help="also dump what each stage decided here (docs/STITCH.md)")
@@ -57,6 +63,9 @@ def register(sub) -> None:
 def _config(args) -> StitchConfig:
     if args.mm_per_px is not None and args.mm_per_px <= 0:
         raise CompanionError(f"--mm-per-px {args.mm_per_px} must be positive", "e.g. --mm-per-px 5")
+    if not args.gnss_sigma_m > 0:
+        raise CompanionError(f"--gnss-sigma-m {args.gnss_sigma_m} must be positive",
+                             "give the receiver's absolute accuracy in metres (e.g. 1.5, or 0.03 for RTK)")
     if args.tile_px < 64:
         raise CompanionError(f"--tile-px {args.tile_px} is too small",
                              f"use at least 64 (default {StitchConfig().tile_px})")
@@ -68,6 +77,8 @@ def _config(args) -> StitchConfig:
         local=not args.global_only,
         use_poses=not args.no_poses,
         pose_gate_m=args.pose_gate_m,
+        gnss_sigma_m=args.gnss_sigma_m,
+        measure_wall=not args.no_measure_wall,
         tile_px=args.tile_px,
     )
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, replace
 
@@ -30,8 +31,11 @@ class StitchConfig:
     min_inliers: int = 15
     max_pair_residual_px: float = 8.0  # a pair still this far off after global alignment is an outlier
     # matches/models landing further apart than this on the wall contradict telemetry: loose, because GNSS next
-    # to a wall is off by metres (0.5 m noise on each of two keyframes and a 1.5 m jump: ~3 m between them)
-    pose_gate_m: float = 4.0
+    # to a wall is off by metres (0.5 m noise on each of two keyframes and a 1.5 m jump: ~3 m between them).
+    # None: ``pose_gate(distance)``, which grows with the camera's distance from the wall (attitude noise moves a
+    # keyframe's footprint by distance x angle: 2 degrees at 30 m is 1 m per keyframe)
+    pose_gate_m: float | None = None
+    attitude_sigma_deg: float = 2.0  # how far the telemetry's attitude may be off (one sigma), for that gate
     far_motion_ratio: float = 0.25  # a plane moving less than this fraction of another in a pair is background
     wall_check: bool = True  # cut mask pixels that neighbouring keyframes show are off the wall plane
     use_poses: bool = True
@@ -43,6 +47,9 @@ class StitchConfig:
     # a metre or two that lasts minutes, so it does not average out over a scan (RTK: a few centimetres). The map's
     # placement is this uncertain along (up) unless the keyframes show the wall's ends (roof line: wall_anchor.py)
     gnss_sigma_m: float = 1.5
+    # measure the wall's distance from the images and put the map on the wall's edges (wall_distance.py,
+    # wall_anchor.py); False: scale and place from the telemetry alone, the map before issue 26 (comparisons)
+    measure_wall: bool = True
     local: bool = True  # APAP mesh; False draws each keyframe with its global homography only
     cells: tuple[int, int] = (16, 9)  # Cx x Cy
     rho_px: float | None = None  # Eq. 4 scale; default 10 % of the image width
@@ -58,6 +65,15 @@ class StitchConfig:
     preview_width: int = 3000
     min_uncovered_m2: float = 0.02
     uncovered_cell_m: float = 0.1  # holes are reported on this grid (re-fly planning, not pixel accuracy)
+
+    def pose_gate(self, distance_m: float) -> float:
+        """The telemetry gate on pairs (metres on the wall) for cameras ``distance_m`` from it: ``pose_gate_m``
+        when set; else 4 m (GNSS's noise and jumps between two keyframes) or, further out, 3 m plus three
+        sigmas of two keyframes' attitude error carried to the wall, whichever is larger."""
+        if self.pose_gate_m is not None:
+            return self.pose_gate_m
+        attitude_m = math.sqrt(2.0) * distance_m * math.tan(math.radians(self.attitude_sigma_deg))
+        return max(4.0, 3.0 + 3.0 * attitude_m)
 
     def ransac_threshold_px(self, image_width: int) -> float:
         """The pairwise RANSAC threshold in full-resolution pixels (also the alignment's match sigma)."""

@@ -48,7 +48,7 @@ def lay_out(
     grid, facade_px = map_grid(inp, priors, aligned, cfg)
     targets = _mesh_targets(aligned, inp.camera)
     ransac_px = cfg.ransac_threshold_px(inp.camera.width)
-    max_shift_m = max(cfg.pose_gate_m, 50 * ransac_px * priors.plane_unit_m)
+    max_shift_m = max(cfg.pose_gate(priors.plane_unit_m * inp.camera.focal_px), 50 * ransac_px * priors.plane_unit_m)
     meshes, placed = {}, {}
     for k in progress_bar(aligned.placed, desc="mesh", disable=not progress, leave=False, unit="it"):
         pts, tgt = targets[k] if cfg.local and targets[k][0].size else (np.zeros((0, 2)), np.zeros((0, 2)))

@@ -133,8 +133,13 @@ def draw_scale_bar(image: np.ndarray, m_per_px: float | None, *, label_unit: str
     return np.vstack((image, strip))
 
 
-def annotate_uncovered(preview: np.ndarray, grid: MapGrid, areas: list[UncoveredArea]) -> np.ndarray:
-    """Outlines re-fly areas in red on a (possibly downscaled) preview of the map."""
+REFLY_BGR = (0, 0, 255)  # re-fly areas: red
+RELIEF_BGR = (255, 160, 0)  # relief (seen, not the wall plane): blue
+
+
+def annotate_uncovered(preview: np.ndarray, grid: MapGrid, areas: list[UncoveredArea],
+                       colour: tuple[int, int, int] = REFLY_BGR) -> np.ndarray:
+    """Outlines areas (re-fly areas in red by default) on a (possibly downscaled) preview of the map."""
     out = preview.copy()
     s = preview.shape[1] / grid.width
     for a in areas:
@@ -144,7 +149,7 @@ def annotate_uncovered(preview: np.ndarray, grid: MapGrid, areas: list[Uncovered
             out,
             tuple(int(round(v)) for v in p0),
             tuple(int(round(v)) for v in p1),
-            (0, 0, 255),
+            colour,
             max(1, preview.shape[1] // 800),
         )
     return out

@@ -349,7 +349,7 @@ def register_pairs(
         matching=cfg.matching,
         ransac_px=cfg.ransac_threshold_px(W),
         min_inliers=cfg.min_inliers,
-        pose_gate_m=cfg.pose_gate_m,
+        pose_gate_m=cfg.pose_gate(priors.plane_unit_m * found.input.camera.focal_px),
         far_motion_ratio=cfg.far_motion_ratio,
     )
     corners = np.array([[-W / 2, -H / 2], [W / 2, -H / 2], [W / 2, H / 2], [-W / 2, H / 2]]) / cam.focal_px

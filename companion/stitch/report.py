@@ -7,6 +7,7 @@ grid, coverage and uncovered areas (the re-fly input), exposure gains, per-stage
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -21,7 +22,13 @@ from companion.stitch.config import StitchConfig
 from companion.stitch.geometry import apply_h
 from companion.stitch.inputs import StitchInput
 from companion.stitch.layout import MapLayout
-from companion.stitch.output import UncoveredArea, annotate_uncovered, draw_scale_bar, uncovered_areas
+from companion.stitch.output import (
+    RELIEF_BGR,
+    UncoveredArea,
+    annotate_uncovered,
+    draw_scale_bar,
+    uncovered_areas,
+)
 from companion.stitch.pairs import PairResult
 from companion.stitch.render import PlacedKeyframe
 from companion.stitch.wall_anchor import WallPlacement
@@ -31,11 +38,19 @@ from companion.stitch.wall_distance import WallDistance
 @dataclass(frozen=True)
 class MapCoverage:
     fraction: float  # share of the map's grid (the facade, or the content without telemetry) drawn
-    uncovered: list[UncoveredArea]
+    uncovered: list[UncoveredArea]  # wall no keyframe showed: re-fly areas
+    # wall at least ``RELIEF_VIEWS`` keyframes showed but none kept as the wall plane (the depth mask or the wall
+    # check cut it: a portal, a recess, window glass): a re-fly at the same standoff cannot fill it
+    relief: list[UncoveredArea] = ()
+
+
+RELIEF_VIEWS = 2  # keyframes whose frames must show a place (and all cut it) for it to count as relief
+_VIEWS_MAX_PX = 2000  # the views are counted on a copy of the coverage grid at most this wide
 
 
 def measure_coverage(rendered: RenderedMap, layout: MapLayout, cfg: StitchConfig) -> MapCoverage:
-    """Coverage of the grid, and its holes on a coarse grid (from the preview when the map is only tiles)."""
+    """Coverage of the grid, and its holes on a coarse grid (from the preview when the map is only tiles): the
+    wall no keyframe showed (re-fly areas) apart from the wall keyframes showed but cut (relief)."""
     grid = layout.grid
     if rendered.coverage is not None:
         cov = rendered.coverage
@@ -43,20 +58,35 @@ def measure_coverage(rendered: RenderedMap, layout: MapLayout, cfg: StitchConfig
         cov = np.where(rendered.coverage_preview > 127, 255, 0).astype(np.uint8)
     sc = cov.shape[1] / grid.width
     box = tuple(int(round(v * sc)) for v in layout.facade_px)  # the facade, not the anchoring margin around it
-    holes = uncovered_areas(
-        cov,
-        grid,
-        box,
-        cell_m=cfg.uncovered_cell_m if layout.scale_known else 16 * grid.m_per_px,
-        min_area_m2=cfg.min_uncovered_m2 if layout.scale_known else 0.0,
-    )
+    relief_px = (cov == 0) & (_views(layout, cov.shape, sc) >= RELIEF_VIEWS)
+    holes_cfg = {"cell_m": cfg.uncovered_cell_m if layout.scale_known else 16 * grid.m_per_px,
+                 "min_area_m2": cfg.min_uncovered_m2 if layout.scale_known else 0.0}
+    holes = uncovered_areas(np.where(relief_px, 255, cov).astype(np.uint8), grid, box, **holes_cfg)
+    relief = [a for a in uncovered_areas(np.where(relief_px, 0, 255).astype(np.uint8), grid, box, **holes_cfg)
+              if min(a.along_max_m - a.along_min_m, a.up_max_m - a.up_min_m) >= holes_cfg["cell_m"] / 2]
     x0, y0, x1, y1 = layout.facade_px
     if (x0, y0, x1, y1) == (0, 0, grid.width, grid.height):
         fraction = rendered.covered_px / max(1, grid.width * grid.height)
     else:
         inside = cov[box[1] : box[3], box[0] : box[2]]
         fraction = np.count_nonzero(inside) / max(1, inside.size)
-    return MapCoverage(float(fraction), holes)
+    return MapCoverage(float(fraction), holes, relief)
+
+
+def _views(layout: MapLayout, shape: tuple[int, int], sc: float) -> np.ndarray:
+    """How many placed keyframes' whole frames (mask or not) cover each pixel of a ``shape`` grid (the map's
+    grid scaled by ``sc``): counted on a copy at most ``_VIEWS_MAX_PX`` wide."""
+    down = max(1, int(math.ceil(shape[1] / _VIEWS_MAX_PX)))
+    small = (-(-shape[0] // down), -(-shape[1] // down))
+    count = np.zeros(small, np.uint8)
+    frame = np.zeros(small, np.uint8)
+    for pk in layout.placed.values():
+        m = pk.mesh_px
+        ring = np.vstack((m[0, :], m[1:, -1], m[-1, -2::-1], m[-2:0:-1, 0])) * (sc / down)
+        frame[:] = 0
+        cv2.fillPoly(frame, [np.round(ring).astype(np.int32)], 1)
+        count = cv2.add(count, frame)
+    return cv2.resize(count, (shape[1], shape[0]), interpolation=cv2.INTER_NEAREST) if down > 1 else count
 
 
 def write_map_images(out: Path, rendered: RenderedMap, layout: MapLayout, coverage: MapCoverage) -> dict[str, str]:
@@ -72,7 +102,11 @@ def write_map_images(out: Path, rendered: RenderedMap, layout: MapLayout, covera
     m_per_preview_px = layout.grid.m_per_px / rendered.preview_scale if layout.scale_known else None
     files["preview"] = _write_image(
         out / "map_preview.jpg",
-        draw_scale_bar(annotate_uncovered(rendered.preview, layout.grid, coverage.uncovered), m_per_preview_px),
+        draw_scale_bar(
+            annotate_uncovered(annotate_uncovered(rendered.preview, layout.grid, coverage.relief, RELIEF_BGR),
+                               layout.grid, coverage.uncovered),
+            m_per_preview_px,
+        ),
     )
     return files
 
@@ -123,6 +157,7 @@ class StitchReport:
     coverage_fraction: float
     gains: dict[int, float]
     uncovered_areas_m: list[dict]
+    relief_areas_m: list[dict]  # wall keyframes showed and all cut (portals, recesses, glass): not for a re-fly
     timing_s: dict[str, float]
     files: dict[str, str]
     config: dict
@@ -173,6 +208,7 @@ def build_report(run: StitchRun, coverage: MapCoverage, files: dict[str, str]) -
         coverage_fraction=round(coverage.fraction, 4),
         gains={kfs[k].index: round(float(run.rendered.gains[k]), 4) for k in layout.placed},
         uncovered_areas_m=[a.as_dict() for a in coverage.uncovered],
+        relief_areas_m=[a.as_dict() for a in coverage.relief],
         timing_s=run.timing_s,
         files=files,
         config=asdict(run.config),

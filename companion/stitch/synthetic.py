@@ -159,12 +159,15 @@ def make_spool(
     hole_m: tuple[float, float, float, float] | None = None,
     texture: np.ndarray | None = None,
     errors: TelemetryErrors | None = None,
+    missing_m: tuple[float, float, float, float] | None = None,
 ) -> dict:
     """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views).
 
     ``texture`` (BGR, row 0 = top of the wall) replaces the generated one, e.g. a real photograph of a wall; it
     must cover ``wall`` at ``wall.texture_mm_per_px`` (see :func:`wall_for_texture`). ``errors`` replaces
-    ``pose_noise_m``/``yaw_noise_deg`` with a full GNSS/IMU error model (roll too, and jumps)."""
+    ``pose_noise_m``/``yaw_noise_deg`` with a full GNSS/IMU error model (roll too, and jumps). ``missing_m``
+    (along0, along1, up0, up1): no keyframe whose footprint reaches into this wall rectangle is written, so no
+    keyframe shows it (a re-fly target; ``hole_m`` is instead a patch every keyframe shows and masks out)."""
     out = Path(out_dir)
     (out / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
@@ -179,6 +182,8 @@ def make_spool(
     views, lines = [], []
     for c, al in enumerate(alongs):  # vertical strips, up then down (the planner's 'vertical' pattern)
         for up in ups if c % 2 == 0 else ups[::-1]:
+            if missing_m is not None and _reaches(missing_m, float(al), float(up), fw, fh):
+                continue
             k = len(views)
             yaw_off = float(rng.normal(0, jitter_deg)) if jitter_deg else 0.0
             pitch = float(rng.normal(0, jitter_deg)) if jitter_deg else 0.0
@@ -217,6 +222,12 @@ def make_spool(
     (out / META).write_text(json.dumps(_spool_meta(frame, wall, width, height, hfov_deg, standoff_m), indent=1))
     (out / MANIFEST).write_text("\n".join(lines) + "\n")
     return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}
+
+
+def _reaches(rect: tuple[float, float, float, float], along: float, up: float, fw: float, fh: float) -> bool:
+    """A level camera's footprint (``fw`` x ``fh`` centred at ``along``, ``up``) overlaps ``rect``."""
+    a0, a1, u0, u1 = rect
+    return along - fw / 2 < a1 and along + fw / 2 > a0 and up - fh / 2 < u1 and up + fh / 2 > u0
 
 
 _WALL_START = GeoPoint(37.56650, 126.97800, 30.0)

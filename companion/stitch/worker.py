@@ -94,8 +94,9 @@ class Stitcher:
         priors = self.priors(found)
         pairs = self.pairs(found, priors, out)
         clock.lap("matching")
-        wall = self.wall_distance(found, priors, pairs)
-        priors = self.priors(found, wall)
+        wall = self.wall_distance(found, priors, pairs) if self.config.measure_wall else None
+        if wall is not None and wall.applied:
+            priors = self.priors(found, wall)
         aligned = self.alignment(found, priors, pairs)
         clock.lap("alignment")
         found = self.wall_check(found, aligned, out)
@@ -153,11 +154,11 @@ class Stitcher:
         return replace(found, input=checked.input)
 
     def placement(self, found: KeyframeFeatures, priors: PlanePriors, aligned: AlignedKeyframes,
-                  wall: WallDistance) -> tuple[AlignedKeyframes, WallPlacement | None]:
+                  wall: WallDistance | None) -> tuple[AlignedKeyframes, WallPlacement | None]:
         """The aligned map moved onto the wall's ends and roof line where the keyframes show them
         (``wall_anchor.py``); the anchoring's placement sigma then counts what is left: those edges' sigma, or
         GNSS's absolute error on an axis no edge fixes."""
-        if not priors.use_poses or aligned.anchoring is None:
+        if not priors.use_poses or aligned.anchoring is None or wall is None:
             return aligned, None
         cfg = self.config
         moved, placement = place_on_wall(found.input, aligned, gnss_sigma_m=cfg.gnss_sigma_m,

@@ -88,9 +88,10 @@ def _frame(georef: dict, report: dict) -> dict:
     return {"units": "px", "unit_per_px": 1.0, "left": 0.0, "top": 0.0, "width_px": w, "height_px": h}
 
 
-def _refly_areas(report: dict, frame: dict) -> list[dict]:
-    """The report's uncovered areas as page rectangles [left, right, bottom, top] in page units."""
-    areas = report.get("uncovered_areas_m", [])
+def _refly_areas(report: dict, frame: dict, key: str = "uncovered_areas_m") -> list[dict]:
+    """The report's uncovered areas (or another list of wall rectangles, ``key``: the relief areas) as page
+    rectangles [left, right, bottom, top] in page units."""
+    areas = report.get(key, [])
     if frame["units"] == "m":
         return [{**a, "rect": [a["along_min_m"], a["along_max_m"], a["up_min_m"], a["up_max_m"]]} for a in areas]
     m = report.get("map", {})
@@ -131,6 +132,7 @@ def viewer_data(
         "tiles": {"url": info.url, "size": info.tile_px, "max_zoom": info.max_zoom},
         "coverage": {"fraction": report.get("coverage_fraction"), "overlay": f"{ASSETS}/coverage.png"},
         "refly": _refly_areas(report, frame),
+        "relief": _refly_areas(report, frame, "relief_areas_m"),
         "keyframes": [
             {"index": k["index"], "image": images.get(k["index"]), "corners": k["corners_along_up_m"]}
             for k in georef.get("keyframes", [])

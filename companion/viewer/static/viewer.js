@@ -67,6 +67,12 @@
     return L.rectangle([[r[2], r[0]], [r[3], r[1]]], { color: '#e33', weight: 2, fillOpacity: 0.08 })
       .bindTooltip('re-fly: ' + fmtArea(a), { sticky: true });
   }));
+  // relief: wall the keyframes showed but did not keep as the wall plane (a portal, a recess, glass); no re-fly fills it
+  var relief = L.layerGroup((D.relief || []).map(function (a) {
+    var r = a.rect;
+    return L.rectangle([[r[2], r[0]], [r[3], r[1]]], { color: '#09f', weight: 2, dashArray: '4 3', fillOpacity: 0.05 })
+      .bindTooltip('relief (seen, not the flat wall): ' + fmtArea(a), { sticky: true });
+  }));
   var footprints = L.layerGroup();
   D.keyframes.forEach(function (kf) {
     kf.latlngs = kf.corners.map(function (c) { return [c[1], c[0]]; });
@@ -75,8 +81,10 @@
   });
   coverage.addTo(map);
   refly.addTo(map);
+  relief.addTo(map);
   if (D.keyframes.length <= 30) { footprints.addTo(map); }  // hundreds of outlines hide the wall: off, clicks still work
-  var overlays = { 'uncovered wall (red tint)': coverage, 're-fly areas': refly, 'keyframe footprints': footprints };
+  var overlays = { 'uncovered wall (red tint)': coverage, 're-fly areas': refly, 'relief (blue)': relief,
+    'keyframe footprints': footprints };
   L.control.layers(null, overlays, { collapsed: false, position: 'topright' }).addTo(map);
   if (metres) { L.control.scale({ imperial: false, maxWidth: 200 }).addTo(map); }
 
@@ -235,7 +243,8 @@
     if (D.mm_per_px) { facts.push(D.mm_per_px.toFixed(2) + ' mm/px, ' + F.width_px + ' x ' + F.height_px + ' px'); }
     else { facts.push('scale unknown (no telemetry): lengths in map pixels'); }
     if (D.coverage.fraction !== null && D.coverage.fraction !== undefined) {
-      facts.push('coverage ' + (100 * D.coverage.fraction).toFixed(1) + ' %, ' + D.refly.length + ' re-fly area(s)');
+      facts.push('coverage ' + (100 * D.coverage.fraction).toFixed(1) + ' %, ' + D.refly.length + ' re-fly area(s)' +
+        ((D.relief || []).length ? ', ' + D.relief.length + ' relief area(s)' : ''));
     }
     facts.push(D.keyframes.length ? D.keyframes.length + ' keyframe footprints: click the map to see the photos of a point'
       : 'no keyframe footprints (they need the telemetry poses)');

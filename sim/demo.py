@@ -13,6 +13,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from companion.errors import CompanionError
 from companion.mission import load_mission, plan_scan
 from companion.mission.commands import format_estimates
@@ -25,6 +27,7 @@ from companion.spool.layout import MANIFEST
 DEFAULT_FPS = 10.0
 DEFAULT_WIDTH_PX = 640
 DEFAULT_OUT = Path("out/demo")
+TRUTH_LOG = "truth.jsonl"  # the simulated vehicle's true pose, beside its log (out/demo/sim/)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,7 +45,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", type=Path, help="depth model .onnx (default: the shipped model)")
     p.add_argument("--no-mask", action="store_true", help="skip background removal")
     p.add_argument("--plan-only", action="store_true", help="only plan and write the mission exports")
+    p.add_argument("--gnss-bias", type=_gnss_bias, default=None, metavar="E,N,U",
+                   help="the simulated vehicle's GNSS is off by this much (metres east, north, up), as a non-RTK "
+                        "receiver is for minutes: it flies and reports its estimate, the camera sees the truth "
+                        "(a negative first value: --gnss-bias=-1.5,0,0)")
+    p.add_argument("--gnss-drift", type=float, default=0.0, metavar="M_PER_MIN",
+                   help="and the bias wanders by about this much per minute (seeded random walk)")
+    p.add_argument("--rangefinder", action="store_true",
+                   help="the simulated vehicle has a forward rangefinder (MAVLink DISTANCE_SENSOR)")
     p.set_defaults(func=run_demo)
+
+
+def _gnss_bias(text: str) -> tuple[float, float, float]:
+    try:
+        east, north, up = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--gnss-bias wants EAST,NORTH,UP in metres (e.g. 0,1.5,0), got {text!r}") from None
+    return east, north, up
+
+
+def sim_options_of(args: argparse.Namespace) -> dict:
+    """The simulated vehicle's options the demo's flags ask for (none: the vehicle's GNSS is exact)."""
+    options: dict = {}
+    if args.gnss_bias is not None:
+        options["gnss_bias"] = args.gnss_bias
+    if args.gnss_drift:
+        if args.gnss_drift < 0:
+            raise CompanionError(f"--gnss-drift {args.gnss_drift:g} is negative", "give metres per minute, e.g. 0.5")
+        options["gnss_drift"] = args.gnss_drift
+    if args.rangefinder:
+        options["rangefinder"] = True
+    return options
 
 
 def plan_for_camera(mission_path: Path, fps: float):
@@ -57,16 +91,48 @@ def plan_for_camera(mission_path: Path, fps: float):
 
 @dataclass(frozen=True)
 class DemoFlight:
-    """What the SITL flight with live culling gave: the live scan's result and the simulated camera's counts."""
+    """What the SITL flight with live culling gave: the live scan's result, the simulated camera's counts and the
+    TRUE standoff flown on the scan legs (the simulator's truth: what GNSS-biased telemetry cannot say)."""
 
     scan: object  # companion.onboard.live.LiveScanResult
     camera: dict
+    standoff: dict | None = None  # true_standoff(...)
+
+
+def true_standoff(plan, truth_log: Path) -> dict | None:
+    """The true camera-to-wall distance on the scan legs, from the simulator's truth log: over all legs and over
+    the legs after the first strip (a measured standoff can only be corrected once it has been measured)."""
+    from sim.evaluate_scan import flown_standoff, read_truth_log
+
+    if not truth_log.exists():
+        return None
+    legs = [leg for leg in flown_standoff(plan, read_truth_log(truth_log)) if leg.samples]
+    if not legs:
+        return None
+    later = legs[1:] or legs
+    return {
+        "planned_m": legs[0].planned_m,
+        "median_m": round(float(np.median([leg.median_m for leg in legs])), 3),
+        "first_leg_median_m": round(legs[0].median_m, 3),
+        "after_first_strip_min_m": round(min(leg.min_m for leg in later), 3),
+        "after_first_strip_max_m": round(max(leg.max_m for leg in later), 3),
+        "after_first_strip_worst_error_m": round(max(leg.worst_error_m for leg in later), 3),
+        "legs": len(legs),
+        "meaning": "the simulator's TRUE camera-to-wall distance on the scan legs (telemetry may say otherwise)",
+    }
+
+
+def standoff_line(standoff: dict) -> str:
+    return (f"true standoff on the scan legs: median {standoff['median_m']:.2f} m (plan {standoff['planned_m']:.2f}); "
+            f"after the first strip {standoff['after_first_strip_min_m']:.2f}-"
+            f"{standoff['after_first_strip_max_m']:.2f} m")
 
 
 def run_demo(args: argparse.Namespace) -> int:
     out: Path = args.out
     mission_path = args.mission or demo_mission()
     _check_demo_args(out, args.fps)
+    sim_options_of(args)  # refused before anything is written
     plan = plan_for_camera(mission_path, args.fps)
     written = write_outputs(render_outputs(plan), out / "plan")
     print(format_estimates(plan))
@@ -106,12 +172,13 @@ def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
 
     out: Path = args.out
     with SitlRig(
-        mission_path, log_dir=out / "sim", seed=args.seed, width_px=args.width, fps=args.fps, speedup=args.speedup
+        mission_path, log_dir=out / "sim", seed=args.seed, width_px=args.width, fps=args.fps, speedup=args.speedup,
+        truth_log=out / "sim" / TRUTH_LOG, sim_options=sim_options_of(args),
     ) as rig:
         scan = run_live_scan(plan, rig.url, rig.capture, out / "spool", model=args.model, mask=not args.no_mask,
                              end_action=plan.mission.end_action, progress=True)
     camera = {"fps": args.fps, "width_px": args.width, "renderer": rig.renderer, **(rig.camera_counts() or {})}
-    return DemoFlight(scan, camera)
+    return DemoFlight(scan, camera, true_standoff(plan, out / "sim" / TRUTH_LOG))
 
 
 def _print_flight(plan, demo: DemoFlight, fps: float) -> None:
@@ -132,6 +199,8 @@ def _print_flight(plan, demo: DemoFlight, fps: float) -> None:
               f"(rendering behind simulated time)")
     if demo.scan.capture_error:
         print(f"capture error: {demo.scan.capture_error}")
+    if demo.standoff:
+        print(standoff_line(demo.standoff))
 
 
 def stitch_demo(out: Path):
@@ -158,6 +227,7 @@ def demo_report(plan, demo: DemoFlight, result, *, wall_time_s: float) -> dict:
             "link_losses": len(flight.link_losses),
         },
         "camera": demo.camera,
+        "true_standoff": demo.standoff,
         "culling": st.as_dict(),
         "keyframes": {
             "kept": st.keyframes,
@@ -167,6 +237,8 @@ def demo_report(plan, demo: DemoFlight, result, *, wall_time_s: float) -> dict:
         "map": {
             "files": result.files,
             "mm_per_px": result.mm_per_px,
+            "wall_distance": result.report.get("wall_distance"),
+            "placement": result.report.get("placement"),
             "coverage_fraction": round(result.coverage_fraction, 4),
             "uncovered_areas": len(result.uncovered),
         },

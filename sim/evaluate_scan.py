@@ -81,3 +81,52 @@ def worst(reports: Sequence[LegReport]) -> tuple[float, float]:
     if not reports or any(r.samples == 0 for r in reports):
         return math.nan, math.nan
     return max(r.speed_error for r in reports), max(r.max_yaw_error_deg for r in reports)
+
+
+@dataclass(frozen=True)
+class LegStandoff:
+    """The TRUE camera-to-wall distance while the vehicle flew one scan leg (the simulator's truth, not what its
+    GNSS-biased telemetry says): median, least and most, over the samples whose true position lies on the leg
+    seen face-on (within ``max_cross_m`` of it along and up the wall, whatever its distance)."""
+
+    leg: int
+    planned_m: float
+    median_m: float
+    min_m: float
+    max_m: float
+    samples: int
+
+    @property
+    def worst_error_m(self) -> float:
+        """The largest distance from the plan on this leg (NaN when no sample lay on it)."""
+        return max(abs(self.min_m - self.planned_m), abs(self.max_m - self.planned_m)) if self.samples else math.nan
+
+
+def flown_standoff(plan, poses: Iterable[dict], max_cross_m: float = 0.5) -> list[LegStandoff]:
+    """One :class:`LegStandoff` per scan leg of ``plan`` from true ``poses`` (``--truth-log`` lines: latitude,
+    longitude and altitude of the TRUE position). A leg is matched in the wall's plane only (along, up), so a
+    vehicle flown metres off its standoff by a GNSS bias still counts on the leg it was flying."""
+    rows = [p for p in poses if p.get("in_air", True) and p.get("lat") is not None]
+    out: list[LegStandoff] = []
+    if not rows:
+        return out
+    frame = plan.frame
+    along, dist, up = (np.asarray(v, dtype=float) for v in frame.geodetic_to_facade(
+        np.array([p["lat"] for p in rows]), np.array([p["lon"] for p in rows]),
+        np.array([p["alt_amsl_m"] for p in rows])))
+    for k, (i, j) in enumerate(plan.scan_legs):
+        a, b = plan.waypoints[i], plan.waypoints[j]
+        pa, pb = np.array([a.along_m, a.up_m]), np.array([b.along_m, b.up_m])
+        d = pb - pa
+        length = float(np.linalg.norm(d))
+        u = d / length
+        rel = np.column_stack((along, up)) - pa
+        s = rel @ u
+        cross = np.abs(rel @ np.array([-u[1], u[0]]))
+        on = (cross < max_cross_m) & (s > 0.02 * length) & (s < 0.98 * length) & (dist > 0.3 * a.out_m) \
+            & (dist < 2.0 * a.out_m)
+        ds = dist[on]
+        out.append(LegStandoff(k, float(a.out_m), float(np.median(ds)) if ds.size else math.nan,
+                               float(ds.min()) if ds.size else math.nan, float(ds.max()) if ds.size else math.nan,
+                               int(on.sum())))
+    return out

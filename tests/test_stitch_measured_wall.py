@@ -99,3 +99,18 @@ def test_exact_telemetry_is_left_as_it_is(wall, tmp_path):
     assert report["placement"]["scale_factor"] == pytest.approx(1.0, abs=2e-3)
     assert np.abs(report["placement"]["shift_m"]).max() < 0.02
     assert abs(scale_error) < 0.002 and placement_error < 0.02
+
+
+def test_without_the_measurement_the_bias_scales_the_map_as_before(wall, tmp_path):
+    """``measure_wall=False`` (``--no-measure-wall``) is the map before: the comparison the bench prints."""
+    report, scale_error, _ = _stitch(wall, tmp_path, TelemetryErrors(bias_m=(0.0, -1.0, 0.0)),
+                                     config=StitchConfig(measure_wall=False))
+    assert report["wall_distance"] is None and report["placement"] is None
+    assert scale_error > 0.25  # telemetry says 3 m for a true 4 m: the map a third too large
+
+
+def test_the_pair_gate_grows_with_the_distance_from_the_wall():
+    cfg = StitchConfig()
+    assert cfg.pose_gate(4.0) == 4.0  # at the paper's standoff: as before
+    assert cfg.pose_gate(30.0) > 6.0  # 2 degrees of attitude error on two keyframes at 30 m: ~1.5 m on the wall
+    assert StitchConfig(pose_gate_m=2.5).pose_gate(30.0) == 2.5  # asked for: as asked

@@ -94,9 +94,7 @@ class Stitcher:
         priors = self.priors(found)
         pairs = self.pairs(found, priors, out)
         clock.lap("matching")
-        wall = self.wall_distance(found, priors, pairs) if self.config.measure_wall else None
-        if wall is not None and wall.applied:
-            priors = self.priors(found, wall)
+        wall, priors = self.wall_distance(found, priors, pairs)
         aligned = self.alignment(found, priors, pairs)
         clock.lap("alignment")
         found = self.wall_check(found, aligned, out)
@@ -132,9 +130,15 @@ class Stitcher:
         correction the images measured."""
         return plane_priors(found.input, self.config, wall.out_shift_m if wall is not None else 0.0)
 
-    def wall_distance(self, found: KeyframeFeatures, priors: PlanePriors, pairs: RegisteredPairs) -> WallDistance:
-        """The camera-wall distance measured by the images against the telemetry's relative motion."""
-        return measure_wall_distance(found.input, priors, pairs)
+    def wall_distance(self, found: KeyframeFeatures, priors: PlanePriors,
+                      pairs: RegisteredPairs) -> tuple[WallDistance | None, PlanePriors]:
+        """The camera-wall distance measured by the images against the telemetry's relative motion, and the
+        priors made again at that distance when it differs from the telemetry's (None with ``measure_wall``
+        off: the telemetry's priors as they are)."""
+        if not self.config.measure_wall:
+            return None, priors
+        wall = measure_wall_distance(found.input, priors, pairs)
+        return wall, (self.priors(found, wall) if wall.applied else priors)
 
     def pairs(self, found: KeyframeFeatures, priors: PlanePriors, out: Path) -> RegisteredPairs:
         pairs = register_pairs(found, priors, self.config, out / "cache" / "pairs", progress=self.progress)

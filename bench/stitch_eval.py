@@ -47,6 +47,7 @@ from companion.stitch import StitchConfig, stitch
 from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
 from companion.stitch.inputs import load_recording_input
 from companion.stitch.render import MapGrid
+from companion.stitch.synthetic import TelemetryErrors
 
 NETWORK_FIRST = "-network-first"  # a shipped mask's label with main's first frames (bench/mask_wall_coverage.py)
 
@@ -134,7 +135,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--passes", default=None, help="real-texture passes (comma list) instead of a recording")
     ap.add_argument("--frames", type=int, default=80, help="--passes: rendered frames per pass")
     ap.add_argument("--variants", default="exact,noise,jump,raw,image-only",
-                    help="--passes: telemetry/input variants (image-only: the keyframes with --no-poses)")
+                    help="--passes: telemetry/input variants (image-only: the keyframes with --no-poses; bias-nearer, "
+                         "bias-further: a 1 m GNSS bias along and across the wall plus small noise)")
     ap.add_argument("--masks", default="truth,real-nc",
                     help="--passes: ROI masks: truth, none, or a shipped depth model (sim, real-nc) through the "
                          "onboard Masker with parallax")
@@ -267,6 +269,14 @@ def stitch_with(tree: Path, spool: Path, out: Path, *, no_poses: bool = False) -
     return seconds, json.loads((out / "report.json").read_text())
 
 
+# issue 26: a non-RTK receiver's constant bias (1 m along the wall and 1 m across it, nearer or further) plus
+# small noise on every keyframe (5 cm, 0.3 degrees)
+BIASED = {
+    "bias-nearer": TelemetryErrors(0.05, 0.3, bias_m=(1.0, -1.0, 0.0)),
+    "bias-further": TelemetryErrors(0.05, 0.3, bias_m=(1.0, 1.0, 0.0)),
+}
+
+
 def photo_inputs(variants: list[str], masks: list[str]) -> list[tuple[str, str]]:
     """(variant, mask) pairs to stitch: every variant with every mask, except that raw frames with the truth
     mask would hide the background they are there to test, so raw frames go without a mask instead."""
@@ -293,8 +303,6 @@ def run_photo_passes(args) -> int:
         shipped_masks,
         write_spool,
     )
-
-    from companion.stitch.synthetic import TelemetryErrors
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -336,9 +344,9 @@ def run_photo_passes(args) -> int:
             raw = variant == "raw"
             rp_mask = gated[mask]
             frames = list(range(len(rp.renderer))) if raw else rp_mask.keyframes
-            errors = {"exact": TelemetryErrors(), "image-only": TelemetryErrors()}.get(variant) or (
-                jump_errors(rp, frames, 0.5, 2.0, (args.jump_m, 0.0)) if variant == "jump"
-                else TelemetryErrors(0.5, 2.0))
+            errors = {"exact": TelemetryErrors(), "image-only": TelemetryErrors()}.get(variant) or BIASED.get(
+                variant) or (jump_errors(rp, frames, 0.5, 2.0, (args.jump_m, 0.0)) if variant == "jump"
+                             else TelemetryErrors(0.5, 2.0))
             spool = write_spool(rp, frames, out / name / f"spool-{variant}-{mask}", mask=mask, errors=errors,
                                 model_masks=model_masks.get(mask))
             rows += _stitch_and_score(rp, name, variant, mask, frames, spool, out, tree)
@@ -427,8 +435,9 @@ def photo_table(rows: list[dict]) -> str:
         return "-" if v is None else format(v, fmt)
 
     lines = ["| pass | input | method | SSIM | seams p95 px | seen wall covered | shift median mm | "
-             "background inliers | keyframes placed | pairs | anchor: outvoted / placement sigma | time s |",
-             "|" + "---|" * 12]
+             "background inliers | keyframes placed | pairs | anchor: outvoted / placement sigma | "
+             "scale error | placement error / 2 sigma | time s |",
+             "|" + "---|" * 14]
     for r in rows:
         a = r.get("anchor") or {}
         anchor = f"{len(a.get('outvoted', []))} / {a.get('placement_sigma_m')} m" if a else "-"
@@ -437,7 +446,9 @@ def photo_table(rows: list[dict]) -> str:
                      f"{f(r.get('ssim'), '.3f')} | {f(r.get('seam_p95_px'), '.2f')} | "
                      f"{'-' if cov is None else f'{100 * cov:.1f} %'} | {f(r.get('shift_median_mm'), '.0f')} | "
                      f"{r.get('background_inliers', '-')} | {r.get('connected', '-')} of {r['frames']} | "
-                     f"{r.get('pairs', '-')} of {r.get('pairs_tried', '-')} | {anchor} | {r['time_s']} |")
+                     f"{r.get('pairs', '-')} of {r.get('pairs_tried', '-')} | {anchor} | "
+                     f"{f(r.get('scale_error_percent'), '+.2f')} % | {f(r.get('placement_error_m'), '.3f')} / "
+                     f"{f(2 * a['placement_sigma_m'] if a else None, '.3f')} m | {r['time_s']} |")
     return "\n".join(lines)
 
 

@@ -251,7 +251,8 @@ def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: Wall
     if rectified and image.shape[:2] == truth.image.shape[:2]:
         cov = cv2.bitwise_and(coverage, truth.seen)
         acc = map_accuracy(image, cov, truth.image, truth.grid.m_per_px)
-        out.update(shift_median_mm=acc.get("median_mm"), shift_p95_mm=acc.get("p95_mm"))
+        out.update(shift_median_mm=acc.get("median_mm"), shift_p95_mm=acc.get("p95_mm"), **_scale_and_place(
+            image, truth))
     parts = _map_parts(coverage if coverage is not None else (image.max(axis=2) > 0).astype(np.uint8) * 255)
     scored, drawn_all = [], np.zeros_like(truth.seen)
     for part in parts:
@@ -276,6 +277,19 @@ def score_map(image: np.ndarray | None, coverage: np.ndarray | None, truth: Wall
                coverage=float(np.count_nonzero(cv2.bitwise_and(drawn_all, truth.seen)))
                / max(1, np.count_nonzero(truth.seen)))
     return out
+
+
+def _scale_and_place(image: np.ndarray, truth: WallTruth) -> dict:
+    """A rectified map against the wall photo on the same grid (issue 26): its scale error (the best homography's
+    scale; 0 when the map's mm/px is the truth's) and where its centre lies off the truth (metres)."""
+    H = truth_homography(image, truth.image, equalize=True)
+    if H is None:
+        return {}
+    scale = float(np.sqrt(abs(np.linalg.det(H[:2, :2] / H[2, 2]))))
+    centre = np.array([[truth.grid.width / 2, truth.grid.height / 2]], dtype=float)
+    moved = cv2.perspectiveTransform(centre.reshape(1, 1, 2), H).reshape(2)
+    return {"scale_error_percent": 100.0 * (scale - 1.0),
+            "placement_error_m": float(np.linalg.norm(moved - centre[0]) * truth.grid.m_per_px)}
 
 
 def _map_parts(drawn: np.ndarray, min_share: float = 0.02) -> list[np.ndarray]:

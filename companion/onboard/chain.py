@@ -106,6 +106,10 @@ class ChainStats:
         return d
 
 
+# the gate's wall-motion prediction follows the measured standoff once it is this far off (the flight's tolerance)
+FOLLOW_STANDOFF_M = 0.3
+
+
 def one_line(text: str) -> str:
     """A warning as one log line (an error's "problem / fix:" lines joined), so logs stay one record per line."""
     return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
@@ -267,6 +271,27 @@ class CullChain:
         for message in watch.step(time_s):
             self.warn(message)
         self.stats.standoff = watch.summary()
+        self._follow_standoff(watch.current)
+
+    def _follow_standoff(self, estimate: StandoffEstimate | None) -> None:
+        """The wall's predicted image motion (gate, tracker, cross-check) at the MEASURED standoff once it is off
+        the one predicted from by more than ``FOLLOW_STANDOFF_M`` (and three of its sigmas): flown 1.5 m nearer
+        than planned, the wall moves 1.6x what the plan predicts, the gate finds no wall where the prediction
+        looks and falls back to the telemetry's overlap at the wrong distance. Within the tolerance nothing
+        changes (a flight on plan keeps exactly its keyframes)."""
+        check = self.crosscheck
+        if estimate is None or check is None or check.standoff_m is None:
+            return
+        if abs(estimate.distance_m - check.standoff_m) <= max(FOLLOW_STANDOFF_M, 3.0 * estimate.sigma_m):
+            return
+        log.info("predicting the wall's motion at the measured standoff %.2f m (was %.2f m)", estimate.distance_m,
+                 check.standoff_m)
+        shared = self.gate.predictor is check.predictor
+        self.crosscheck = check = replace(check, standoff_m=round(estimate.distance_m, 3))
+        if shared:
+            self.gate.predictor = check.predictor
+        if self.selection is not None and self.selection.predictor is not None:
+            self.selection.predictor = check.predictor
 
     def _count_processed(self, now: float) -> None:
         st = self.stats

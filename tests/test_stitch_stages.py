@@ -21,6 +21,8 @@ from companion.stitch.pairs import PairSettings, RegisteredPairs, match_pair
 from companion.stitch.priors import PlanePriors
 from companion.stitch.report import StitchReport, StitchRun
 from companion.stitch.synthetic import SyntheticWall, make_spool
+from companion.stitch.wall_anchor import WallPlacement
+from companion.stitch.wall_distance import WallDistance
 
 CONFIG = StitchConfig(cells=(8, 4))
 
@@ -46,12 +48,15 @@ def test_stages_one_by_one_give_typed_frozen_records_and_the_same_map(spool, tmp
     found = st.features(inp, tmp_path)
     priors = st.priors(found)
     pairs = st.pairs(found, priors, tmp_path)
+    wall, priors = st.wall_distance(found, priors, pairs)
     aligned = st.alignment(found, priors, pairs)
     found = st.wall_check(found, aligned, tmp_path)  # every stage of Stitcher.stitch, in its order: none left out
+    aligned, placement = st.placement(found, priors, aligned, wall)
     layout = st.mesh(found, priors, aligned)
     rendered = st.render(found, aligned, layout, tmp_path)
-    records = (found, priors, pairs, aligned, layout, rendered)
-    kinds = (KeyframeFeatures, PlanePriors, RegisteredPairs, AlignedKeyframes, MapLayout, RenderedMap)
+    records = (found, priors, pairs, wall, aligned, placement, layout, rendered)
+    kinds = (KeyframeFeatures, PlanePriors, RegisteredPairs, WallDistance, AlignedKeyframes, WallPlacement, MapLayout,
+             RenderedMap)
     for record, kind in zip(records, kinds, strict=True):
         assert isinstance(record, kind)
         with pytest.raises(dataclasses.FrozenInstanceError):
@@ -60,7 +65,8 @@ def test_stages_one_by_one_give_typed_frozen_records_and_the_same_map(spool, tmp
         pairs.results[0].accepted = False  # the alignment stage marks outliers on copies, never in place
     assert len(found.features) == len(inp.keyframes) and priors.use_poses
     assert len(layout.placed) == len(inp.keyframes)
-    res = st.report(StitchRun(found.input, CONFIG, priors.use_poses, aligned, layout, rendered, {}), tmp_path)
+    res = st.report(StitchRun(found.input, CONFIG, priors.use_poses, aligned, layout, rendered, {}, wall, placement),
+                    tmp_path)
     assert set(res.report) == {f.name for f in dataclasses.fields(StitchReport)}
     _, _, cli_report = debug_run
     # the CLI run (stitch() with the same settings) made the same map

@@ -99,16 +99,21 @@ class WallPlacement:
 
 
 UNKNOWN_SCALE_SIGMA = 0.05  # a map whose scale nothing measured: the telemetry's distance, a few percent
+# how well a mission knows where its wall ends and where its roof line is (from a map or a plan, not a survey):
+# an edge the masks show to a centimetre still places the map only as well as the mission says where it is
+MISSION_SIGMA_M = 0.1
 
 
 def place_on_wall(inp: StitchInput, aligned: AlignedKeyframes, *, gnss_sigma_m: float, search_m: float,
-                  scale_sigma: float | None, internal_m: float = 0.0) -> tuple[AlignedKeyframes, WallPlacement]:
+                  scale_sigma: float | None, internal_m: float = 0.0,
+                  mission_sigma_m: float = MISSION_SIGMA_M) -> tuple[AlignedKeyframes, WallPlacement]:
     """``aligned`` moved onto the wall's own edges where the keyframes show them (see the module docstring);
     ``search_m``: how far from the mission's edge an edge is looked for (the GNSS error it can correct);
     ``scale_sigma``: the map's relative scale uncertainty so far (``WallDistance.scale_sigma``);
     ``internal_m``: how far the map's keyframes may sit off each other inside it (the images against the
     telemetry, ``Anchoring.placement_sigma_m``): the ends fix the map's length, not its inside, so over half the
-    wall this bounds how well the scale is known anywhere on it."""
+    wall this bounds how well the scale is known anywhere on it; ``mission_sigma_m``: how well the mission knows
+    where its wall ends and its roof line are (each edge is that uncertain however sharply the masks show it)."""
     length, height = inp.facade.frame.length_m, inp.facade.height_m
     starts, ends, roofs = _edge_points(inp, aligned)
     found = [
@@ -116,10 +121,12 @@ def place_on_wall(inp: StitchInput, aligned: AlignedKeyframes, *, gnss_sigma_m: 
         _edge("end", length, ends, 0, (0.0, height), search_m, MIN_SPAN_FRACTION * height),
         _edge("roof", height, roofs, 1, (0.0, length), search_m, MIN_SPAN_FRACTION * length),
     ]
-    edges = tuple(e for e in found if e is not None)
+    edges = tuple(replace(e, sigma_m=math.hypot(e.sigma_m, mission_sigma_m)) for e in found if e is not None)
     by_name = {e.name: e for e in edges}
     s_sigma = UNKNOWN_SCALE_SIGMA if scale_sigma is None else scale_sigma
     factor, s_sigma, measured_length, warnings = _scale_from_ends(by_name, length, s_sigma)
+    if warnings:  # the two ends contradict the mission's length: neither is trusted to place the map
+        by_name = {n: e for n, e in by_name.items() if n == "roof"}
     s_sigma = max(s_sigma, internal_m / (length / 2.0))
     shift_a, sigma_a = _along(by_name, factor, s_sigma, length, gnss_sigma_m)
     shift_u, sigma_u = _up(by_name, factor, s_sigma, height, gnss_sigma_m)
@@ -147,8 +154,9 @@ def _scale_from_ends(by_name: dict[str, WallEdge], length: float,
     if abs(error) > 3.0 * math.hypot(scale_sigma, sigma_len):
         return 1.0, scale_sigma, found, (
             f"the wall's ends are {found:.2f} m apart on the map, the mission says {length:.2f} m "
-            f"({100 * error:+.1f} %, the scale is known to {100 * scale_sigma:.1f} %): check the facade's start "
-            "and end in the mission; the map keeps the scale the images measured",)
+            f"({100 * error:+.1f} %, the scale is known to {100 * scale_sigma:.1f} %): the mission's start and end "
+            "are not where the wall ends (or something else ends there); the map keeps the scale the images "
+            "measured and GNSS's place along the wall",)
     gain = scale_sigma**2 / (scale_sigma**2 + sigma_len**2)
     combined = 1.0 / math.sqrt(1.0 / scale_sigma**2 + 1.0 / sigma_len**2)
     return 1.0 / (1.0 + gain * error), combined, found, ()

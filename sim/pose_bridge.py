@@ -173,6 +173,12 @@ class PoseBridge:
             if self.cfg.duration_s is not None and now - start >= self.cfg.duration_s:
                 break
             if self.published == 0:
+                if now - first_ask > self.cfg.timeout_s and self.unstamped:
+                    raise CompanionError(
+                        f"{self.cfg.connect} sent {self.unstamped} SIM_STATE but no ATTITUDE or SYSTEM_TIME in "
+                        f"{self.cfg.timeout_s:g} s: no autopilot clock to time the poses by",
+                        "let the bridge's SET_MESSAGE_INTERVAL for ATTITUDE through (or stream ATTITUDE on this "
+                        "port, ArduPilot: SRn_EXTRA1)")
                 if now - first_ask > self.cfg.timeout_s:
                     raise CompanionError(
                         f"{self.cfg.connect} sent no SIM_STATE in {self.cfg.timeout_s:g} s: not a SITL, or its "

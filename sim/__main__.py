@@ -9,6 +9,8 @@ import sys
 PARTS = {
     "vehicle": "sim.vehicle.cli",
     "camera": "sim.camera.live",
+    "posebridge": "sim.pose_bridge",  # SIM_STATE of a SITL autopilot -> the camera's pose channel
+    "external": "sim.external_rig",  # camera + pose bridge for an external autopilot SITL (real ArduPilot)
 }
 
 

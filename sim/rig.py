@@ -37,6 +37,30 @@ def fly_at_once_with_still_home(mission, sim_options: dict | None = None):
     return mission.model_copy(update={"margins": margins}), {**options, **STILL_HOME}
 
 
+def camera_arguments(mission_path: Path, *, pose_port: int, stream_port: int, width_px: int, fps: float, seed: int,
+                     renderer: str, record_dir: Path | None = None, record_max_out_m: float | None = None
+                     ) -> list[str]:
+    """The ``python -m sim camera`` command line of a rig's camera process (this rig's and sim/external_rig.py's)."""
+    args = [sys.executable, "-m", "sim", "camera", str(mission_path), "--pose-port", str(pose_port),
+            "--stream-port", str(stream_port), "--width", str(width_px), "--fps", str(fps), "--seed", str(seed),
+            "--renderer", renderer]
+    if record_dir is not None:
+        args += ["--record", str(record_dir)]
+        if record_max_out_m is not None:
+            args += ["--record-max-out", str(record_max_out_m)]
+    return args
+
+
+def wait_for_line(proc: subprocess.Popen, log_path: Path, text: str, timeout_s: float) -> bool:
+    """Wait until the child ``proc`` has written ``text`` to its log; False when it exits or time runs out first."""
+    deadline = time.monotonic() + timeout_s
+    while text not in log_path.read_text():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
 class SitlRig:
     def __init__(
         self,
@@ -83,23 +107,16 @@ class SitlRig:
     def start(self) -> SitlRig:
 
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        args = [sys.executable, "-m", "sim", "camera", str(self.mission_path), "--pose-port", str(self.pose_port),
-                "--stream-port", str(self.stream_port), "--width", str(self.width_px), "--fps", str(self.fps),
-                "--seed", str(self.seed), "--renderer", self.renderer]  # fmt: skip
-        if self.record_dir is not None:
-            args += ["--record", str(self.record_dir)]
-            if self.record_max_out_m is not None:
-                args += ["--record-max-out", str(self.record_max_out_m)]
+        args = camera_arguments(self.mission_path, pose_port=self.pose_port, stream_port=self.stream_port,
+                                width_px=self.width_px, fps=self.fps, seed=self.seed, renderer=self.renderer,
+                                record_dir=self.record_dir, record_max_out_m=self.record_max_out_m)
         cam_log_path = self.log_dir / "camera.log"
         self._cam_log = open(cam_log_path, "w")  # noqa: SIM115 (lives as long as the process)
         self.camera = subprocess.Popen(args, stdout=self._cam_log, stderr=subprocess.STDOUT,
                                        env=child_environment())
-        deadline = time.monotonic() + 60.0
-        while "frames on tcp" not in cam_log_path.read_text():
-            if self.camera.poll() is not None or time.monotonic() > deadline:
-                self.stop()
-                raise CompanionError("the simulated camera did not start", f"see {cam_log_path}")
-            time.sleep(0.1)
+        if not wait_for_line(self.camera, cam_log_path, "frames on tcp", 60.0):
+            self.stop()
+            raise CompanionError("the simulated camera did not start", f"see {cam_log_path}")
         home = self.plan.home
         options = with_mission_wall(self.sim_options, self.plan.mission)  # a rangefinder sees this mission's wall
         if self.truth_log is not None:

@@ -46,6 +46,8 @@ _COPTER_INVALID_PARAM = {1: mavlink.MAV_MISSION_INVALID_PARAM1, 2: mavlink.MAV_M
 # Commands ArduPilot stores with a location (AP_Mission::stored_in_location; the ones the simulator flies).
 _COPTER_LOCATED = {mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_LAND}
 _F32 = np.float32
+# The SITL's own truth messages (libraries/SITL/SITL.cpp sim_state_send / simstate_send)
+SIM_STATE_MESSAGES = ("SIM_STATE", "SIMSTATE")
 
 
 def _validate_common(item: mi.MissionItem) -> int | None:
@@ -78,6 +80,9 @@ class Px4:
     # COMMAND_ACK of a refused mode change (Commander::handle_command DO_SET_MODE / MISSION_START)
     mode_refused_result = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
     param_bytewise = True
+    # SIM_STATE / SIMSTATE on request: PX4 SIH has no such stream (its ground truth goes out, if at all, as
+    # HIL_STATE_QUATERNION in the GROUND_TRUTH stream), so the PX4 flavour refuses them as unsupported
+    sim_state = False
     default_rates_hz = {
         "HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "GPS_RAW_INT": 5.0, "GLOBAL_POSITION_INT": 10.0,
         "LOCAL_POSITION_NED": 10.0, "ATTITUDE": 20.0, "ATTITUDE_QUATERNION": 20.0, "HOME_POSITION": 0.5,
@@ -151,6 +156,10 @@ class ArduCopter(Px4):
     autopilot = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
     first_seq = 1
     param_bytewise = False
+    # ArduPilot SITL sends SIM_STATE only when asked (SET_MESSAGE_INTERVAL; no stream group has it) and SIMSTATE
+    # in the EXTRA1 stream (GCS_MAVLink_Parameters.cpp), whose Copter rate SR0_EXTRA1 is 0 by default: so neither
+    # flows until asked, like everything else here
+    sim_state = True
     default_rates_hz = {"HEARTBEAT": 1.0}
     # real ArduCopter 4.7.0-dev SITL refused a 1628-item upload with NO_SPACE, then said "Only 650 items are
     # supported" (MissionItemProtocol::handle_mission_count: ack first, then the text)

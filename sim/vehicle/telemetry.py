@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilo
 
 from companion.attitude import euler_to_quat
 from sim.vehicle import flavours as fl
+from sim.vehicle.model import GRAVITY
 
 log = logging.getLogger(__name__)
 
@@ -157,6 +158,37 @@ class TelemetryStreams:
                                                min(254, int(round((rf.noise_m * 100) ** 2))),
                                                signal_quality=1 if d is None else 100)
 
+    def _truth_attitude(self) -> tuple[float, float, float, float, float, float, float, float, float]:
+        """ArduPilot SITL's attitude fields (SIM::sim_state_send): roll, pitch and yaw in radians from the TRUE
+        state, yaw wrapped the way ArduPilot does (degrees over 180 less 360); the body-frame accelerometer reading
+        of gravity alone (the model keeps no acceleration) and body rates 0 (nor rates)."""
+        st = self.model.state
+        yaw = st.yaw_deg - 360.0 if st.yaw_deg > 180.0 else st.yaw_deg
+        roll, pitch = math.radians(st.roll_deg), math.radians(st.pitch_deg)
+        g = GRAVITY
+        acc = (g * math.sin(pitch), -g * math.sin(roll) * math.cos(pitch), -g * math.cos(roll) * math.cos(pitch))
+        return roll, pitch, math.radians(yaw), *acc, 0.0, 0.0, 0.0
+
+    def _sim_state(self):
+        """SIM_STATE (108) as ArduPilot SITL sends it: the simulator's TRUE state (``model.state``, never the
+        estimate ``nav`` that a GNSS bias moves), with ArduPilot's quirks: ``lat``/``lon`` floats holding
+        degrees * 1e7, the exact position in the int32 extensions ``lat_int``/``lon_int`` (truncated, as
+        ``(int32_t)(lat * 1e7)``), ``alt`` metres AMSL, no standard deviations, NED velocity."""
+        st = self.model.state
+        lat, lon, alt = self.ned_to_geodetic(st.pos)
+        roll, pitch, yaw, ax, ay, az, gx, gy, gz = self._truth_attitude()
+        q = [float(v) for v in euler_to_quat(yaw_deg=st.yaw_deg, pitch_deg=st.pitch_deg, roll_deg=st.roll_deg)]
+        v = st.vel
+        return self.mav.sim_state_encode(*q, roll, pitch, yaw, ax, ay, az, gx, gy, gz, lat * 1e7, lon * 1e7,
+                                         alt, 0.0, 0.0, float(v[0]), float(v[1]), float(v[2]),
+                                         int(lat * 1e7), int(lon * 1e7))
+
+    def _simstate(self):
+        """SIMSTATE (164, ArduPilot dialect) as ArduPilot SITL sends it: true attitude and position (int32 degE7),
+        no altitude."""
+        lat, lon, _ = self.ned_to_geodetic(self.model.state.pos)
+        return self.mav.simstate_encode(*self._truth_attitude(), int(lat * 1e7), int(lon * 1e7))
+
     def _autopilot_version(self):
         caps = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
@@ -173,7 +205,7 @@ class TelemetryStreams:
         "ATTITUDE": "_attitude", "ATTITUDE_QUATERNION": "_attitude_q", "HOME_POSITION": "_home_position",
         "EXTENDED_SYS_STATE": "_extended_sys_state", "BATTERY_STATUS": "_battery_status",
         "MISSION_CURRENT": "_mission_current_msg", "VFR_HUD": "_vfr_hud", "EKF_STATUS_REPORT": "_ekf_status",
-        "DISTANCE_SENSOR": "_distance_sensor",
+        "DISTANCE_SENSOR": "_distance_sensor", "SIM_STATE": "_sim_state", "SIMSTATE": "_simstate",
     }
 
     def send_streams(self) -> None:
@@ -222,6 +254,10 @@ class TelemetryStreams:
             until[name] = self.t + self.stream_rng.uniform(0.25 * stall_s, stall_s)
             next_stall[name] = until[name] + self.stream_rng.exponential(self.cfg.stream_stall_every_s)
 
+    def _known(self, name: str) -> bool:
+        """A message this firmware sends: SIM_STATE / SIMSTATE only from a SITL that has them (flavour)."""
+        return name in self.STREAMS and (name not in fl.SIM_STATE_MESSAGES or self.flavour.sim_state)
+
     def _requested(self, msg_id: int):
         if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return self._autopilot_version()
@@ -230,13 +266,13 @@ class TelemetryStreams:
         if msg_id == mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR and self.rangefinder is None:
             return None
         cls = mavlink.mavlink_map.get(msg_id)
-        if cls is not None and cls.msgname in self.STREAMS:
+        if cls is not None and self._known(cls.msgname):
             return getattr(self, self.STREAMS[cls.msgname])()
         return None
 
     def _set_interval(self, msg_id: int, interval_us: float) -> bool:
         cls = mavlink.mavlink_map.get(msg_id)
-        if cls is None or cls.msgname not in self.STREAMS:
+        if cls is None or not self._known(cls.msgname):
             log.info("message interval for unsupported message %d (%s) refused", msg_id,
                      getattr(cls, "msgname", "unknown"))
             return False

@@ -96,7 +96,8 @@ class StandoffWatch:
             self._off_since = time_s if self._off_since is None else self._off_since
             if not self._warned_off and time_s - self._off_since >= self.hold_s:
                 out.append(f"{line}: off the plan by more than {self.off_m:.1f} m for {self.hold_s:g} s (GNSS bias?); "
-                           "the overlap predictions and the map's scale still assume the planned distance")
+                           "the overlap predictions now use the measured distance, and the stitcher measures the "
+                           "map's scale from the images")
                 self._warned_off = True
         self.warnings += len(out)
         return out

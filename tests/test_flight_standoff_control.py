@@ -1,0 +1,150 @@
+"""The standoff controller's decisions (issue 26: the flight closes the loop on the measured standoff)."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from companion.errors import CompanionError
+from companion.flight.standoff_control import (
+    ABORT,
+    CAPPED,
+    CORRECT,
+    NO_MEASUREMENT,
+    NOT_JUDGED,
+    ON_PLAN,
+    RECOVERED,
+    TOO_CLOSE,
+    Measurement,
+    StandoffController,
+    StandoffSettings,
+    correction_line,
+    rangefinder_measurement,
+)
+
+PLAN = 4.0
+
+
+def _fly(ctl: StandoffController, distance, t0: float, t1: float, leg: int = 3, hz: float = 10.0, noise=0.02,
+         seed=1, sigma=0.03, source="rangefinder") -> list:
+    """Measurements at ``hz`` from t0 to t1 (``distance``: metres or a function of time), a decision after each."""
+    rng = random.Random(seed)
+    decisions = []
+    n = int(round((t1 - t0) * hz))
+    for k in range(n + 1):
+        t = t0 + k / hz
+        d = distance(t) if callable(distance) else distance
+        ctl.observe(Measurement(t, d + rng.gauss(0.0, noise), sigma, source), leg)
+        decisions.append(ctl.decide(t, leg))
+    return decisions
+
+
+def test_no_bias_changes_nothing():
+    ctl = StandoffController(StandoffSettings(PLAN))
+    decisions = _fly(ctl, PLAN, 0.0, 60.0)
+    assert {d.action for d in decisions[5:]} == {ON_PLAN}
+    assert ctl.corrections == [] and ctl.offset_m == 0.0
+
+
+def test_noise_within_the_tolerance_changes_nothing():
+    ctl = StandoffController(StandoffSettings(PLAN, tolerance_m=0.3))
+    decisions = _fly(ctl, PLAN + 0.2, 0.0, 60.0, noise=0.08)
+    assert CORRECT not in {d.action for d in decisions} and ctl.corrections == []
+
+
+def test_too_close_by_1_5_m_for_3_s_gives_one_correction_of_1_5_m_out():
+    ctl = StandoffController(StandoffSettings(PLAN))
+    decisions = _fly(ctl, PLAN - 1.5, 0.0, 2.5)
+    assert CORRECT not in {d.action for d in decisions}  # not for 2.5 s: the hold is 3 s
+    decisions = _fly(ctl, PLAN - 1.5, 2.6, 3.5, seed=2)
+    corrections = [d for d in decisions if d.action == CORRECT]
+    assert corrections, [d.action for d in decisions]
+    first = corrections[0]
+    assert first.shift_out_m == pytest.approx(1.5, abs=0.05)
+    assert first.measured.distance_m == pytest.approx(2.5, abs=0.05)
+    assert correction_line(first, PLAN).startswith("standoff measured 2.5")
+    assert "moving the scan 1.5" in correction_line(first, PLAN) and correction_line(first, PLAN).endswith("m out")
+    ctl.applied(first, first.measured.time_s, leg=3)
+    assert ctl.offset_m == pytest.approx(1.5, abs=0.05)
+    # the vehicle now flies the moved path: on plan, nothing more
+    after = _fly(ctl, PLAN, 4.0, 30.0, leg=4, seed=3)
+    assert CORRECT not in {d.action for d in after} and len(ctl.corrections) == 1
+    summary = ctl.summary()
+    assert summary.corrections[0].shift_out_m == pytest.approx(1.5, abs=0.05)
+    assert [g.leg for g in summary.legs] == [3, 4]
+    assert summary.legs[1].median_m == pytest.approx(PLAN, abs=0.02)
+    assert summary.as_json()["corrections"][0]["kind"] == "correct"
+
+
+def test_one_correction_per_leg_and_a_cap_on_its_size():
+    ctl = StandoffController(StandoffSettings(PLAN, max_correction_m=1.0))
+    decisions = _fly(ctl, PLAN - 1.5, 0.0, 4.0)
+    first = next(d for d in decisions if d.action == CORRECT)
+    assert first.shift_out_m == pytest.approx(1.0)  # capped
+    ctl.applied(first, first.measured.time_s, leg=3)
+    decisions = _fly(ctl, PLAN - 0.5, 4.0, 20.0, seed=4)  # still 0.5 m close on the same leg
+    assert CORRECT not in {d.action for d in decisions} and CAPPED in {d.action for d in decisions}
+    decisions = _fly(ctl, PLAN - 0.5, 20.0, 25.0, leg=4, seed=5)  # the next leg may correct again
+    assert any(d.action == CORRECT and d.shift_out_m == pytest.approx(0.5, abs=0.05) for d in decisions)
+
+
+def test_too_far_moves_in_but_never_past_the_floor():
+    ctl = StandoffController(StandoffSettings(PLAN))
+    d = next(d for d in _fly(ctl, PLAN + 1.0, 0.0, 4.0) if d.action == CORRECT)
+    assert d.shift_out_m == pytest.approx(-1.0, abs=0.05)
+    with pytest.raises(CompanionError):
+        StandoffSettings(PLAN, floor_m=3.8).check()  # a floor above standoff - tolerance cannot be held
+
+
+def test_below_the_floor_backs_off_at_once_and_aborts_unless_it_recovers():
+    settings = StandoffSettings(PLAN, recover_s=5.0)
+    assert settings.floor == pytest.approx(2.4)
+    ctl = StandoffController(settings)
+    decisions = _fly(ctl, 2.0, 0.0, 1.0)
+    back_off = next(d for d in decisions if d.action == TOO_CLOSE)  # within a second, no 3 s hold
+    assert back_off.measured.time_s <= 0.7
+    assert back_off.shift_out_m == pytest.approx(2.0, abs=0.05)
+    ctl.applied(back_off, 0.7, leg=3)
+    # it stays too close (the move did not happen): ends the flight after settle + recover
+    decisions = _fly(ctl, 2.0, 0.8, 9.0, seed=6)
+    assert decisions[-1].action == ABORT or ABORT in {d.action for d in decisions}
+    assert "safety floor" in next(d for d in decisions if d.action == ABORT).reason
+
+    ctl = StandoffController(settings)
+    back_off = next(d for d in _fly(ctl, 2.0, 0.0, 1.0) if d.action == TOO_CLOSE)
+    ctl.applied(back_off, 0.7, leg=3)
+    decisions = _fly(ctl, lambda t: min(PLAN, 2.0 + (t - 0.7)), 0.8, 9.0, seed=7)  # moves out: recovers
+    assert RECOVERED in {d.action for d in decisions} and ABORT not in {d.action for d in decisions}
+    assert ctl.summary().corrections[0].kind == "back off"
+
+
+def test_no_measurement_is_said_never_on_plan():
+    ctl = StandoffController(StandoffSettings(PLAN))
+    assert ctl.decide(10.0, leg=3).action == NO_MEASUREMENT
+    _fly(ctl, PLAN, 10.0, 12.0)
+    assert ctl.decide(12.5, leg=3).action == ON_PLAN
+    assert ctl.decide(14.0, leg=3).action == NO_MEASUREMENT  # the readings stopped
+    assert ctl.decide(14.0, leg=None).action == NOT_JUDGED  # off the scan: not judged at all
+    summary = StandoffController(StandoffSettings(PLAN))
+    summary.decide(1.0, leg=2)
+    assert not summary.summary().measured and summary.summary().unmeasured_legs == (2,)
+    assert "NOT measured" in summary.summary().line()
+
+
+def test_camera_and_rangefinder_combine_by_uncertainty():
+    ctl = StandoffController(StandoffSettings(PLAN))
+    for k in range(40):
+        t = k / 10
+        ctl.observe(Measurement(t, 2.5, 0.03, "rangefinder"), 3)
+        ctl.observe(Measurement(t, 3.5, 0.3, "camera"), 3)  # the camera's sigma is 10x: it weighs 1 %
+    d = ctl.decide(4.0, 3)
+    assert d.action == CORRECT and d.measured.distance_m == pytest.approx(2.51, abs=0.01)
+    assert d.measured.source == "camera+rangefinder"
+
+
+def test_rangefinder_counts_only_facing_the_wall():
+    assert rangefinder_measurement(1.0, 4.0, 10.0, 0.0, facing_deg=0.0).distance_m == pytest.approx(3.94, abs=0.01)
+    assert rangefinder_measurement(1.0, 4.0, 350.0, 0.0, facing_deg=0.0) is not None
+    assert rangefinder_measurement(1.0, 4.0, 20.0, 0.0, facing_deg=0.0) is None
+    assert rangefinder_measurement(1.0, None, 0.0, 0.0, facing_deg=0.0) is None

@@ -87,22 +87,31 @@ async def read_mission_current(vehicle, timeout_s: float = 3.0, want: int | None
 async def start_from_first_item(vehicle, attempts: int = 3, timeout_s: float = 3.0) -> int:
     """Make the first mission item the current one and confirm it from MISSION_CURRENT; raises otherwise."""
     first = first_item_seq(vehicle.autopilot)
-    seen = None
-    for _ in range(attempts):
-        try:
-            await vehicle.mission.set_current_mission_item(first)
-        except Exception as exc:  # older stacks: the command form
-            log.debug("set_current_mission_item failed (%s); sending DO_SET_MISSION_CURRENT", exc)
-            with contextlib.suppress(Exception):
-                await vehicle.command_long(MAV_CMD_DO_SET_MISSION_CURRENT, first)
-        seen = await read_mission_current(vehicle, timeout_s, want=first)
-        if seen == first:
-            log.info("current mission item set to %d (the first) and confirmed by the vehicle", first)
-            return first
+    seen = await set_current_item(vehicle, first, attempts, timeout_s)
+    if seen == first:
+        log.info("current mission item set to %d (the first) and confirmed by the vehicle", first)
+        return first
     what = "no MISSION_CURRENT at all" if seen is None else f"MISSION_CURRENT still says item {seen}"
     raise CompanionError(
         f"the vehicle did not confirm the first mission item as current ({what}): it could resume mid-mission",
         "not starting; check the link and that the vehicle accepts MISSION_SET_CURRENT, then retry")
+
+
+async def set_current_item(vehicle, seq: int, attempts: int = 3, timeout_s: float = 3.0) -> int | None:
+    """Ask for ``seq`` as the current mission item until MISSION_CURRENT says it; returns the last seq seen (None:
+    no MISSION_CURRENT at all). Also used to resume a moved scan at the item it was flying to."""
+    seen = None
+    for _ in range(attempts):
+        try:
+            await vehicle.mission.set_current_mission_item(seq)
+        except Exception as exc:  # older stacks: the command form
+            log.debug("set_current_mission_item failed (%s); sending DO_SET_MISSION_CURRENT", exc)
+            with contextlib.suppress(Exception):
+                await vehicle.command_long(MAV_CMD_DO_SET_MISSION_CURRENT, seq)
+        seen = await read_mission_current(vehicle, timeout_s, want=seq)
+        if seen == seq:
+            return seen
+    return seen
 
 
 async def arm_with_reason(vehicle, texts_since: Callable[[int], list[str]], text_count: Callable[[], int],

@@ -148,3 +148,30 @@ def test_rangefinder_counts_only_facing_the_wall():
     assert rangefinder_measurement(1.0, 4.0, 350.0, 0.0, facing_deg=0.0) is not None
     assert rangefinder_measurement(1.0, 4.0, 20.0, 0.0, facing_deg=0.0) is None
     assert rangefinder_measurement(1.0, None, 0.0, 0.0, facing_deg=0.0) is None
+
+
+def test_a_correction_moves_only_the_standoff_items_ahead_along_the_out_axis():
+    from companion.flight.standoff_loop import ScanLegs
+    from companion.flight.standoff_shift import resume_seq, shifted_items, speeds_in_force
+    from companion.mission import items as mi
+    from tests.sitl import small_demo_plan
+
+    plan = small_demo_plan()
+    for autopilot, first in (("px4", 0), ("ardupilot", 1)):
+        items = plan.mavlink_items(autopilot)
+        legs = ScanLegs.of(plan, items, first)
+        scan = [it.seq for it in items if it.command == mi.MAV_CMD_NAV_WAYPOINT and it.seq in legs.movable]
+        current = sorted(legs.leg_of)[1]  # flying the second scan leg
+        moved = shifted_items(items, legs.movable, current, plan.frame.out_enu, 1.5)
+        assert [(m.seq, m.command, m.z) for m in moved] == [(i.seq, i.command, i.z) for i in items]
+        for old, new in zip(items, moved, strict=True):
+            _, o_old, _ = plan.frame.geodetic_to_facade(old.lat, old.lon, 0.0)
+            _, o_new, _ = plan.frame.geodetic_to_facade(new.lat, new.lon, 0.0)
+            if old.seq in scan and old.seq >= current:
+                assert float(o_new - o_old) == pytest.approx(1.5, abs=0.02)  # 1e-7 deg: about 1 cm
+            else:
+                assert new == old  # take-off, landing, home placeholder, items behind: untouched
+        assert moved[0] == items[0]
+        start = resume_seq(items, current, first)
+        assert start <= current and all(items[s].command != mi.MAV_CMD_NAV_WAYPOINT for s in range(start, current))
+        assert speeds_in_force(items, current)[0][1] == pytest.approx(plan.estimates.scan_speed_m_s)

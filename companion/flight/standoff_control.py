@@ -158,7 +158,8 @@ class StandoffSummary:
             return (f"standoff NOT measured (plan {self.planned_m:.2f} m): no rangefinder reading facing the wall "
                     "and no camera estimate on the scan legs; the distance flown is GNSS's")
         medians = [g.median_m for g in self.legs]
-        moves = ", ".join(f"{c.shift_out_m:+.2f} m" for c in self.corrections) or "none"
+        moves = ", ".join(f"{c.shift_out_m:+.2f} m" + (" (backed off: below the floor)" if c.kind == "back off" else "")
+                          for c in self.corrections) or "none"
         return (f"standoff measured on {len(self.legs)} scan legs by {'+'.join(self.sources)}: median "
                 f"{statistics.median(medians):.2f} m (legs {min(medians):.2f}-{max(medians):.2f} m, plan "
                 f"{self.planned_m:.2f} m); corrections: {moves}"

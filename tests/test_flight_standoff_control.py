@@ -175,3 +175,26 @@ def test_a_correction_moves_only_the_standoff_items_ahead_along_the_out_axis():
         start = resume_seq(items, current, first)
         assert start <= current and all(items[s].command != mi.MAV_CMD_NAV_WAYPOINT for s in range(start, current))
         assert speeds_in_force(items, current)[0][1] == pytest.approx(plan.estimates.scan_speed_m_s)
+
+
+def test_the_cameras_late_estimates_still_decide_and_show_the_recovery():
+    """The chain's estimate arrives up to seconds after its frames (it runs behind the camera) and covers the
+    pairs of its last 5 s: it is current for 5 s, and after a move only counts once its window is past it."""
+    ctl = StandoffController(StandoffSettings(PLAN, recover_s=10.0))
+    lag = 2.5
+    decisions = []
+    for k in range(30):  # estimates of frame times 0..2.9 s, each arriving 2.5 s later
+        t = k / 10
+        ctl.observe(Measurement(t, 2.0, 0.05, "camera"), 3)
+        decisions.append(ctl.decide(t + lag, 3))
+    back_off = next(d for d in decisions if d.action == TOO_CLOSE)
+    assert back_off.measured.source == "camera"
+    ctl.applied(back_off, 3.0 + lag, leg=3)
+    # the move is done by ~7 s; the camera's window holds older pairs until 12.5 s: those do not end the flight
+    outcome = []
+    for k in range(60, 260):
+        t = k / 10
+        d = 2.0 if t < 7.0 else (3.0 if t < 12.5 else PLAN)
+        ctl.observe(Measurement(t, d, 0.05, "camera"), 3)
+        outcome.append(ctl.decide(t + lag, 3).action)
+    assert RECOVERED in outcome and ABORT not in outcome[: outcome.index(RECOVERED)]

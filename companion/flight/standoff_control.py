@@ -59,7 +59,11 @@ class StandoffSettings:
     max_correction_m: float | None = None
     recover_s: float = 15.0
     floor_hold_s: float = 0.5
-    fresh_s: float = 1.0
+    fresh_s: float = 1.0  # a rangefinder reading is current this long
+    # the camera's estimate comes from the frame pairs of its last 5 s (keyframes/standoff.py) and arrives as late
+    # as the chain runs behind the camera: current for longer, and only counted once its window is past a move
+    camera_fresh_s: float = 5.0
+    camera_window_s: float = 5.0
 
     @property
     def floor(self) -> float:
@@ -213,15 +217,25 @@ class StandoffController:
         """One measurement taken on scan leg ``leg`` (facing the wall)."""
         self._log.sources.add(m.source)
         self._log.samples.setdefault(leg, []).append(m.distance_m)
-        if m.time_s < self._settle_until:
+        settled = self._settle_until + (self.s.camera_window_s if self._is_camera(m.source) else 0.0)
+        if m.time_s < settled:
             return
         self._latest[m.source] = m
-        fresh = [s for s in self._latest.values() if m.time_s - s.time_s <= self.s.fresh_s]
-        fused = fuse(fresh, m.time_s)
-        self._history.append(fused)
-        keep_from = m.time_s - self.s.hold_s - self.s.fresh_s
+        ranged = self._latest.get("rangefinder")
+        if self._is_camera(m.source) and ranged is not None and ranged.time_s >= m.time_s - self.s.fresh_s:
+            return  # the rangefinder is current: the camera joins its next readings (fused), not the history alone
+        fresh = [s for s in self._latest.values() if abs(m.time_s - s.time_s) <= self._fresh_limit(s.source)]
+        self._history.append(fuse(fresh, m.time_s))
+        keep_from = m.time_s - self.s.hold_s - self.s.camera_fresh_s
         while self._history and self._history[0].time_s < keep_from:
             self._history.popleft()
+
+    @staticmethod
+    def _is_camera(source: str) -> bool:
+        return "rangefinder" not in source
+
+    def _fresh_limit(self, source: str) -> float:
+        return self.s.camera_fresh_s if self._is_camera(source) else self.s.fresh_s
 
     def decide(self, now_s: float, leg: int | None) -> StandoffDecision:
         if self._recover_deadline is not None:
@@ -232,14 +246,16 @@ class StandoffController:
         self._log.seen.add(leg)
         if now_s < self._settle_until:
             return StandoffDecision(SETTLING)
-        recent = [h for h in self._history if h.time_s >= now_s - self.s.hold_s]
-        if not recent or now_s - recent[-1].time_s > self.s.fresh_s:
+        newest = max(self._history, key=lambda h: h.time_s, default=None)
+        if newest is None or now_s - newest.time_s > self._fresh_limit(newest.source):
             return StandoffDecision(NO_MEASUREMENT, reason="no rangefinder reading facing the wall and no camera "
-                                                           "estimate in the last second")
-        too_close = self._too_close(now_s, recent)
+                                                           "estimate in the last seconds")
+        ref = newest.time_s  # windows end at the newest measurement (the camera's arrive late)
+        recent = sorted((h for h in self._history if h.time_s >= ref - self.s.hold_s), key=lambda h: h.time_s)
+        too_close = self._too_close(ref, recent)
         if too_close is not None:
             return too_close
-        return self._judge(now_s, recent, leg)
+        return self._judge(ref, now_s, recent, leg)
 
     def _too_close(self, now_s: float, recent: list[Measurement]) -> StandoffDecision | None:
         last = [h for h in recent if h.time_s >= now_s - self.s.floor_hold_s]
@@ -252,13 +268,13 @@ class StandoffController:
         return StandoffDecision(TOO_CLOSE, self._summary(last, now_s), shift,
                                 f"below the safety floor of {self.s.floor:.2f} m")
 
-    def _judge(self, now_s: float, recent: list[Measurement], leg: int) -> StandoffDecision:
-        measured = self._summary(recent, now_s)
+    def _judge(self, ref_s: float, now_s: float, recent: list[Measurement], leg: int) -> StandoffDecision:
+        measured = self._summary(recent, ref_s)
         errors = [self.s.planned_m - h.distance_m for h in recent]
         error = statistics.median(errors)
         if abs(error) <= self.s.tolerance_m:
             return StandoffDecision(ON_PLAN, measured)
-        if recent[0].time_s > now_s - self.s.hold_s + min(0.25, self.s.hold_s / 4):
+        if recent[0].time_s > ref_s - self.s.hold_s + min(0.25, self.s.hold_s / 4):
             return StandoffDecision(MEASURING, measured, reason=f"off the plan for less than {self.s.hold_s:g} s")
         half = self.s.tolerance_m / 2
         if not (all(e > half for e in errors) or all(e < -half for e in errors)):
@@ -278,11 +294,13 @@ class StandoffController:
         return Measurement(now_s, median, min(h.sigma_m for h in samples), samples[-1].source)
 
     def _recovering(self, now_s: float) -> StandoffDecision:
-        recent = [h for h in self._history if h.time_s >= max(self._settle_until, now_s - self.s.floor_hold_s)]
-        if recent and now_s - recent[-1].time_s <= self.s.fresh_s and all(h.distance_m >= self.s.floor
-                                                                           for h in recent):
+        since = [h for h in self._history if h.time_s >= self._settle_until]
+        newest = max(since, key=lambda h: h.time_s, default=None)
+        recent = [h for h in since if newest is not None and h.time_s >= newest.time_s - self.s.floor_hold_s]
+        if (newest is not None and now_s - newest.time_s <= self._fresh_limit(newest.source)
+                and all(h.distance_m >= self.s.floor for h in recent)):
             self._recover_deadline = None
-            return StandoffDecision(RECOVERED, self._summary(recent, now_s))
+            return StandoffDecision(RECOVERED, self._summary(recent, newest.time_s))
         if now_s > self._recover_deadline:
             self._recover_deadline = None
             last = self._summary(recent, now_s) if recent else None
@@ -305,7 +323,8 @@ class StandoffController:
         self._last_correction_s = now_s
         self._corrected_legs.add(leg)
         if decision.action == TOO_CLOSE:
-            self._recover_deadline = now_s + self.s.settle_s + self.s.recover_s
+            late = self.s.camera_window_s if self._is_camera(m.source) else 0.0  # the camera sees the move later
+            self._recover_deadline = now_s + self.s.settle_s + self.s.recover_s + late
         return correction
 
     def summary(self) -> StandoffSummary:

@@ -98,3 +98,38 @@ def test_without_a_bias_no_correction_is_made(plan, tmp_path):
     # within the tolerance (the simulator's approach leaves the first leg 0.2-0.3 m near): nothing to correct
     assert all(abs(g.median_m - plan.mission.standoff_m) < 0.3 for g in result.standoff.legs), result.standoff
     assert all(r.get("standoff_offset_m") == 0.0 for r in rows if "standoff_offset_m" in r)
+
+
+def test_the_camera_alone_measures_and_corrects_the_standoff(tmp_path):
+    """No rangefinder: live culling of the simulated camera (``companion fly --sitl --capture sim``) measures the
+    standoff from the wall's image motion; the flight backs off from 2.3 m (the bias plus the approach) and flies
+    the rest of the scan within 0.3 m of the plan (truth log). About 30-40 s at speed-up 2."""
+    from companion.mission import load_mission, plan_scan
+    from companion.onboard.live import run_live_scan
+    from sim.rig import SitlRig
+    from tests.small_wall import small_wall_scan_at_once
+
+    mission, still_home = small_wall_scan_at_once(tmp_path)
+    plan = plan_scan(load_mission(mission))
+    oe, on = plan.frame.out_enu
+    truth = tmp_path / "truth.jsonl"
+    rig = SitlRig(mission, log_dir=tmp_path / "logs", speedup=2, fps=3, truth_log=truth,
+                  sim_options={**still_home, "gnss_bias": (round(BIAS_M * oe, 4), round(BIAS_M * on, 4), 0.0)})
+    with rig:
+        res = run_live_scan(rig.plan, rig.url, rig.capture, tmp_path / "spool", progress=False, handle_signals=False,
+                            end_action="land", flight_timeout_s=600)
+    flight = res.flight
+    assert flight.completed, flight.problem
+    assert flight.standoff.sources == ("camera",) and len(flight.standoff_corrections) >= 1, flight.standoff
+    first = flight.standoff_corrections[0]
+    assert first.source == "camera" and first.shift_out_m == pytest.approx(BIAS_M, abs=0.45)
+    rows = read_telemetry_log(res.telemetry_log)
+    standoffs = _true_standoffs(plan, read_truth_log(truth), rows)
+    next_leg = next(r["t_boot_s"] for r in rows if r.get("t_boot_s") is not None and r["t_boot_s"] > first.time_s
+                    and r["mission_item"] > first.leg)
+    before = [o for t, o in standoffs if t < first.time_s]
+    after = [o for t, o in standoffs if t >= next_leg]
+    print(f"camera only: true standoff before: median {statistics.median(before):.2f} m; after: "
+          f"{min(after):.2f}-{max(after):.2f} m (median {statistics.median(after):.2f})")
+    assert statistics.median(before) == pytest.approx(plan.mission.standoff_m - BIAS_M, abs=0.45)
+    assert len(after) > 100 and all(abs(o - plan.mission.standoff_m) <= 0.3 for o in after), (min(after), max(after))

@@ -42,9 +42,10 @@ def _fly(plan, tmp_path, bias_m: float, autopilot: str = "px4", **fly_options):
     return result, read_truth_log(truth), read_telemetry_log(telemetry)
 
 
-def _true_standoffs(plan, truth: list[dict], rows: list[dict], autopilot: str = "px4") -> list[tuple[float, float]]:
-    """(autopilot time, true distance out from the wall) on the scan legs: truth rows whose time falls where the
-    telemetry says the vehicle flew to a scan-leg item."""
+def _true_standoffs(plan, truth: list[dict], rows: list[dict], autopilot: str = "px4",
+                    with_climb: bool = False) -> list[tuple]:
+    """(autopilot time, true distance out from the wall[, true vertical speed]) on the scan legs: truth rows whose
+    time falls where the telemetry says the vehicle flew to a scan-leg item."""
     legs = ScanLegs.of(plan, plan.mavlink_items(autopilot), first_item_seq(autopilot)).leg_of
     rows = [r for r in rows if r.get("t_boot_s") is not None]
     times = [r["t_boot_s"] for r in rows]
@@ -56,7 +57,7 @@ def _true_standoffs(plan, truth: list[dict], rows: list[dict], autopilot: str = 
         k = min(bisect.bisect_left(times, t), len(times) - 1)
         if rows[k]["mission_item"] in legs and rows[k].get("flight_mode") == "MISSION":
             _, o, _ = plan.frame.geodetic_to_facade(p["lat"], p["lon"], p["alt_amsl_m"])
-            out.append((t, float(o)))
+            out.append((t, float(o), abs(p["vd_m_s"])) if with_climb else (t, float(o)))
     return out
 
 
@@ -88,6 +89,9 @@ def test_a_gnss_bias_toward_the_wall_is_measured_and_corrected(plan, tmp_path, a
           f"{min(after):.2f}-{max(after):.2f} m (median {statistics.median(after):.2f})")
     assert statistics.median(before) == pytest.approx(plan.mission.standoff_m - BIAS_M, abs=0.45)
     assert all(abs(o - plan.mission.standoff_m) <= 0.3 for o in after), (min(after), max(after))
+    # the scan speed survives the move (it is sent again: ArduCopter's AUTO restarts from WPNAV_SPEED_UP/DN)
+    climbs = [v for t, _, v in _true_standoffs(plan, truth, rows, autopilot, with_climb=True) if t >= next_leg]
+    assert statistics.median(v for v in climbs if v > 0.2) == pytest.approx(plan.estimates.scan_speed_m_s, rel=0.15)
 
 
 def test_without_a_bias_no_correction_is_made(plan, tmp_path):

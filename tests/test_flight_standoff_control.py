@@ -85,8 +85,8 @@ def test_one_correction_per_leg_and_a_cap_on_its_size():
     ctl.applied(first, first.measured.time_s, leg=3)
     decisions = _fly(ctl, PLAN - 0.5, 4.0, 20.0, seed=4)  # still 0.5 m close on the same leg
     assert CORRECT not in {d.action for d in decisions} and CAPPED in {d.action for d in decisions}
-    decisions = _fly(ctl, PLAN - 0.5, 20.0, 25.0, leg=4, seed=5)  # the next leg may correct again
-    assert any(d.action == CORRECT and d.shift_out_m == pytest.approx(0.5, abs=0.05) for d in decisions)
+    decisions = _fly(ctl, PLAN + 0.5, 20.0, 25.0, leg=4, seed=5)  # the next leg may correct again (in, this time)
+    assert any(d.action == CORRECT and d.shift_out_m == pytest.approx(-0.5, abs=0.05) for d in decisions)
 
 
 def test_too_far_moves_in_but_never_past_the_floor():
@@ -198,3 +198,15 @@ def test_the_cameras_late_estimates_still_decide_and_show_the_recovery():
         ctl.observe(Measurement(t, d, 0.05, "camera"), 3)
         outcome.append(ctl.decide(t + lag, 3).action)
     assert RECOVERED in outcome and ABORT not in outcome[: outcome.index(RECOVERED)]
+
+
+def test_the_total_move_is_capped_too():
+    ctl = StandoffController(StandoffSettings(PLAN, max_correction_m=2.0))
+    d = next(d for d in _fly(ctl, PLAN - 1.5, 0.0, 4.0) if d.action == CORRECT)
+    ctl.applied(d, 4.0, leg=3)
+    d = next(d for d in _fly(ctl, PLAN - 1.5, 10.0, 14.0, leg=4) if d.action == CORRECT)  # still near: 0.5 more
+    assert d.shift_out_m == pytest.approx(0.5, abs=0.05)
+    ctl.applied(d, 14.0, leg=4)
+    decisions = _fly(ctl, PLAN - 1.0, 20.0, 30.0, leg=5)
+    assert CORRECT not in {d.action for d in decisions} and CAPPED in {d.action for d in decisions}
+    assert "per leg" in ctl.summary().line()

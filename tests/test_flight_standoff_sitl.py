@@ -104,6 +104,15 @@ def test_without_a_bias_no_correction_is_made(plan, tmp_path):
     assert all(r.get("standoff_offset_m") == 0.0 for r in rows if "standoff_offset_m" in r)
 
 
+def test_below_the_floor_without_correction_the_flight_ends(plan, tmp_path):
+    """--no-standoff-correction: the standoff is measured and reported only; under the safety floor (2.3 m against
+    2.4 m) the flight still ends: pause, return to launch, landed, ``aborted='standoff'`` with the reason."""
+    result, _, rows = _fly(plan, tmp_path, BIAS_M, standoff=StandoffOptions(correct=False))
+    assert not result.completed and result.aborted == "standoff", result
+    assert "TOO CLOSE: standoff measured 2." in result.problem and "--no-standoff-correction" in result.problem
+    assert result.landed and result.disarmed and result.standoff_corrections == []
+    assert all(r.get("standoff_offset_m") in (None, 0.0) for r in rows)  # the scan was never moved
+
 def test_the_camera_alone_measures_and_corrects_the_standoff(tmp_path):
     """No rangefinder: live culling of the simulated camera (``companion fly --sitl --capture sim``) measures the
     standoff from the wall's image motion; the flight backs off from 2.3 m (the bias plus the approach) and flies

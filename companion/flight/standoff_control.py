@@ -164,9 +164,10 @@ class StandoffSummary:
         medians = [g.median_m for g in self.legs]
         moves = ", ".join(f"{c.shift_out_m:+.2f} m" + (" (backed off: below the floor)" if c.kind == "back off" else "")
                           for c in self.corrections) or "none"
+        per_leg = ", ".join(f"{g.leg}: {g.median_m:.2f}" for g in self.legs)
         return (f"standoff measured on {len(self.legs)} scan legs by {'+'.join(self.sources)}: median "
-                f"{statistics.median(medians):.2f} m (legs {min(medians):.2f}-{max(medians):.2f} m, plan "
-                f"{self.planned_m:.2f} m); corrections: {moves}"
+                f"{statistics.median(medians):.2f} m (plan {self.planned_m:.2f} m; per leg, named by the item it "
+                f"flies to: {per_leg}); corrections: {moves}"
                 + (f"; {len(self.unmeasured_legs)} legs unmeasured" if self.unmeasured_legs else ""))
 
 
@@ -283,8 +284,13 @@ class StandoffController:
             return StandoffDecision(CAPPED, measured, reason="one correction per scan leg")
         if now_s - self._last_correction_s < self.s.min_interval_s:
             return StandoffDecision(CAPPED, measured, reason=f"corrections at least {self.s.min_interval_s:g} s apart")
-        shift = max(-self.s.max_correction, min(self.s.max_correction, error))
+        cap = self.s.max_correction
+        shift = max(-cap, min(cap, error))
+        shift = max(-cap - self.offset_m, min(cap - self.offset_m, shift))  # the total move is capped too
         shift = max(shift, self.s.floor + self.s.tolerance_m - measured.distance_m)  # never in past the floor
+        if abs(shift) <= self.s.tolerance_m / 2:
+            return StandoffDecision(CAPPED, measured, reason=f"the scan is already moved {self.offset_m:+.2f} m, "
+                                                             f"the most it may be ({cap:g} m)")
         return StandoffDecision(CORRECT, measured, shift)
 
     @staticmethod

@@ -258,15 +258,15 @@ class StandoffController:
             return too_close
         return self._judge(ref, now_s, recent, leg)
 
-    def _too_close(self, now_s: float, recent: list[Measurement]) -> StandoffDecision | None:
-        last = [h for h in recent if h.time_s >= now_s - self.s.floor_hold_s]
-        if not last or recent[0].time_s > now_s - self.s.floor_hold_s:
+    def _too_close(self, ref_s: float, recent: list[Measurement]) -> StandoffDecision | None:
+        last = [h for h in recent if h.time_s >= ref_s - self.s.floor_hold_s]
+        if not last or recent[0].time_s > ref_s - self.s.floor_hold_s:
             return None  # not yet measured for floor_hold_s
         if not all(h.distance_m < self.s.floor for h in last):
             return None
         median = statistics.median(h.distance_m for h in last)
         shift = min(self.s.planned_m - median, self.s.max_correction)
-        return StandoffDecision(TOO_CLOSE, self._summary(last, now_s), shift,
+        return StandoffDecision(TOO_CLOSE, self._summary(last, ref_s), shift,
                                 f"below the safety floor of {self.s.floor:.2f} m")
 
     def _judge(self, ref_s: float, now_s: float, recent: list[Measurement], leg: int) -> StandoffDecision:
@@ -295,7 +295,7 @@ class StandoffController:
 
     @staticmethod
     def _summary(samples: list[Measurement], now_s: float) -> Measurement:
-        """The median distance of ``samples``, with the sigma of its best sample (a conservative figure)."""
+        """The median distance of ``samples`` with the sigma of one of them (the median of several is no worse)."""
         median = statistics.median(h.distance_m for h in samples)
         return Measurement(now_s, median, min(h.sigma_m for h in samples), samples[-1].source)
 

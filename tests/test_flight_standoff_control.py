@@ -210,3 +210,87 @@ def test_the_total_move_is_capped_too():
     decisions = _fly(ctl, PLAN - 1.0, 20.0, 30.0, leg=5)
     assert CORRECT not in {d.action for d in decisions} and CAPPED in {d.action for d in decisions}
     assert "per leg" in ctl.summary().line()
+
+
+class _MissionCurrent:
+    def __init__(self, seq: int):
+        self.fields_json = f'{{"seq": {seq}}}'
+
+
+class _FakeVehicle:
+    """The plugins fly_moved_scan uses, keeping what they were asked; MISSION_CURRENT says ``reports(seq_set)``."""
+
+    def __init__(self, autopilot: str, reports):
+        from types import SimpleNamespace
+
+        self.autopilot, self.calls, self.stored, self.current = autopilot, [], [], None
+
+        async def pause_mission():
+            self.calls.append("pause")
+
+        async def upload_mission(raw):
+            self.calls.append("upload")
+            self.stored = list(raw)
+
+        async def download_mission():  # in the firmware's stored form, as the simulator keeps it
+            from companion.flight.upload import from_raw, to_raw
+            from sim.vehicle.flavours import copter_stored_item
+
+            got = from_raw(self.stored)
+            return to_raw([got[0], *(copter_stored_item(it) for it in got[1:])])
+
+        async def set_current_mission_item(seq):
+            self.calls.append(f"current {seq}")
+            self.current = seq
+
+        async def start_mission():
+            self.calls.append("start")
+
+        async def statustexts():
+            return
+            yield
+
+        async def messages(name):
+            for _ in range(50):
+                await asyncio.sleep(0.01)
+                if self.current is not None:
+                    yield _MissionCurrent(reports(self.current))
+
+        self.mission = SimpleNamespace(pause_mission=pause_mission, upload_mission=upload_mission,
+                                       download_mission=download_mission, start_mission=start_mission,
+                                       set_current_mission_item=set_current_mission_item)
+        self.telemetry = SimpleNamespace(subscribe_status_text=statustexts)
+        self.direct = SimpleNamespace(subscribe_message=messages)
+
+    async def command_long(self, command, *params):
+        self.calls.append(f"command {command} {params}")
+        return 0
+
+
+import asyncio  # noqa: E402 (the fakes above need it only when run)
+
+
+def test_moving_the_scan_pauses_uploads_sets_the_item_it_flew_to_and_resumes():
+    from companion.flight.standoff_loop import ScanLegs
+    from companion.flight.standoff_shift import fly_moved_scan, shifted_items
+    from companion.mission import items as mi
+    from tests.sitl import small_demo_plan
+
+    plan = small_demo_plan()
+    items = plan.mavlink_items("ardupilot")
+    legs = ScanLegs.of(plan, items, 1)
+    target = sorted(legs.leg_of)[1]
+    moved = shifted_items(items, legs.movable, target, plan.frame.out_enu, 1.5)
+    # ArduPilot: set to the CONDITION_YAW before the waypoint, MISSION_CURRENT reports the waypoint (its NAV command)
+    vehicle = _FakeVehicle("ardupilot", lambda seq: seq + 1 if items[seq].command != mi.MAV_CMD_NAV_WAYPOINT else seq)
+    asyncio.run(fly_moved_scan(vehicle, moved, target, 1))
+    calls = [c for c in vehicle.calls if not c.startswith("command 512")]  # REQUEST_MESSAGE(MISSION_CURRENT)
+    assert calls[:4] == ["pause", "upload", f"current {target - 1}", "start"], calls
+    assert items[target - 1].command == mi.MAV_CMD_CONDITION_YAW
+    assert any(c.startswith(f"command {mi.MAV_CMD_DO_CHANGE_SPEED}") for c in calls[4:])
+    assert [it.x for it in vehicle.stored] == [it.x for it in moved]
+    # a vehicle that says another item is not resumed
+    stuck = _FakeVehicle("ardupilot", lambda seq: 1)
+    with pytest.raises(CompanionError, match="did not confirm item"):
+        asyncio.run(fly_moved_scan(stuck, moved, target, 1))
+    assert "start" not in stuck.calls

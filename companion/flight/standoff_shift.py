@@ -10,7 +10,8 @@ flight code already does on the ground:
      moved by the correction along the wall's out axis (same count, seq, commands and altitudes: only lat/lon
      change; ArduPilot's seq-0 home placeholder is never moved) and verify it by download, as before take-off;
   3. set the current item to the one the vehicle was flying to (from the DO/CONDITION items just before it, so
-     ArduCopter's CONDITION_YAW and a speed change there run again) and read it back from MISSION_CURRENT;
+     ArduCopter's CONDITION_YAW and a speed change there run again) and read it back from MISSION_CURRENT (that
+     item, or the waypoint itself: ArduPilot reports its current NAV command);
   4. resume the mission (``start_mission``: PX4 Mission mode, ArduCopter AUTO, which resumes at the current
      command with MIS_RESTART 0, the default);
   5. send the scan's speeds again as commands (DO_CHANGE_SPEED of each type in force at that item): a mode change
@@ -82,8 +83,9 @@ async def fly_moved_scan(vehicle, items: Sequence[mi.MissionItem], target_seq: i
     async with StatusTexts(vehicle.telemetry) as texts:
         await upload_and_verify(vehicle.mission, items, vehicle.autopilot, texts=texts)
     resume = resume_seq(items, target_seq, first_seq)
-    seen = await set_current_item(vehicle, resume)
-    if seen != resume:
+    # ArduPilot reports its current NAV command in MISSION_CURRENT: set to a DO item, it says the waypoint after it
+    seen = await set_current_item(vehicle, resume, also=(target_seq,))
+    if seen not in (resume, target_seq):
         raise CompanionError(f"the vehicle did not confirm item {resume} as current after moving the scan "
                              f"(MISSION_CURRENT: {seen})", "the flight ends: check the link and the vehicle")
     try:

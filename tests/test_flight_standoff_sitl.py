@@ -109,7 +109,8 @@ def test_below_the_floor_without_correction_the_flight_ends(plan, tmp_path):
     2.4 m) the flight still ends: pause, return to launch, landed, ``aborted='standoff'`` with the reason."""
     result, _, rows = _fly(plan, tmp_path, BIAS_M, standoff=StandoffOptions(correct=False))
     assert not result.completed and result.aborted == "standoff", result
-    assert "TOO CLOSE: standoff measured 2." in result.problem and "--no-standoff-correction" in result.problem
+    assert "standoff measured 2." in result.problem and "below the safety floor of 2.40 m" in result.problem
+    assert "--no-standoff-correction" in result.problem and "moving" not in result.problem
     assert result.landed and result.disarmed and result.standoff_corrections == []
     assert all(r.get("standoff_offset_m") in (None, 0.0) for r in rows)  # the scan was never moved
 

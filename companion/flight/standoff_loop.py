@@ -135,8 +135,10 @@ class StandoffLoop:
         elif d.action in (sc.CORRECT, sc.TOO_CLOSE) and self.options.correct:
             return await self._move(vehicle, d, current_seq, leg)
         elif d.action == sc.TOO_CLOSE:  # not correcting, and below the safety floor: the flight ends
-            return (f"{sc.correction_line(d, self.controller.s.planned_m)}: not correcting "
-                    "(--no-standoff-correction), so the flight ends")
+            m, s = d.measured, self.controller.s
+            return (f"standoff measured {m.distance_m:.2f} +- {m.sigma_m:.2f} m ({m.source}), below the safety floor "
+                    f"of {s.floor:.2f} m (plan {s.planned_m:.2f}): not correcting (--no-standoff-correction), so the "
+                    "flight ends")
         elif d.action == sc.CORRECT:
             self._say_once("off", leg, f"standoff measured {d.measured.distance_m:.2f} m (plan "
                                        f"{self.controller.s.planned_m:.2f}): not correcting (--no-standoff-correction)")

@@ -294,3 +294,12 @@ def test_moving_the_scan_pauses_uploads_sets_the_item_it_flew_to_and_resumes():
     with pytest.raises(CompanionError, match="did not confirm item"):
         asyncio.run(fly_moved_scan(stuck, moved, target, 1))
     assert "start" not in stuck.calls
+
+
+def test_a_back_off_the_camera_cannot_confirm_in_time_ends_the_flight_and_says_why():
+    ctl = StandoffController(StandoffSettings(PLAN, recover_s=5.0))
+    back_off = next(d for d in _fly(ctl, 2.0, 0.0, 1.0, source="camera", sigma=0.05) if d.action == TOO_CLOSE)
+    ctl.applied(back_off, 1.0, leg=3)
+    outcome = [ctl.decide(t / 10, 3) for t in range(10, 200)]  # the chain stalled: no estimate after the move
+    abort = next(d for d in outcome if d.action == ABORT)
+    assert "no measurement since" in abort.reason and "s old (the camera chain running behind?)" in abort.reason

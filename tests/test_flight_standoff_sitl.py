@@ -129,9 +129,12 @@ def test_the_camera_alone_measures_and_corrects_the_standoff(tmp_path):
     truth = tmp_path / "truth.jsonl"
     rig = SitlRig(mission, log_dir=tmp_path / "logs", speedup=2, fps=3, truth_log=truth,
                   sim_options={**still_home, "gnss_bias": (round(BIAS_M * oe, 4), round(BIAS_M * on, 4), 0.0)})
+    # the chain runs behind the camera (on a loaded 2-core machine 40 s of camera time, twice that in autopilot
+    # seconds at speed-up 2): the measurement that shows the back-off worked may come after the 15 s a flight waits
+    # for it, which ends the flight (as it should on a vehicle); this test is about the correction, so it waits longer
     with rig:
         res = run_live_scan(rig.plan, rig.url, rig.capture, tmp_path / "spool", progress=False, handle_signals=False,
-                            end_action="land", flight_timeout_s=600)
+                            end_action="land", flight_timeout_s=600, standoff=StandoffOptions(recover_s=300.0))
     flight = res.flight
     assert flight.completed, flight.problem
     assert flight.standoff.sources == ("camera",) and len(flight.standoff_corrections) >= 1, flight.standoff

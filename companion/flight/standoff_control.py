@@ -62,7 +62,7 @@ class StandoffSettings:
     fresh_s: float = 1.0  # a rangefinder reading is current this long
     # the camera's estimate comes from the frame pairs of its last 5 s (keyframes/standoff.py) and arrives as late
     # as the chain runs behind the camera: current for longer, and only counted once its window is past a move
-    camera_fresh_s: float = 5.0
+    camera_fresh_s: float = 10.0
     camera_window_s: float = 5.0
 
     @property
@@ -213,11 +213,13 @@ class StandoffController:
         self._corrected_legs: set[int] = set()
         self._recover_deadline: float | None = None
         self._log = _LegLog()
+        self._newest_seen_s: float | None = None  # the newest measurement's time, whether it counted or not
 
     def observe(self, m: Measurement, leg: int) -> None:
         """One measurement taken on scan leg ``leg`` (facing the wall)."""
         self._log.sources.add(m.source)
         self._log.samples.setdefault(leg, []).append(m.distance_m)
+        self._newest_seen_s = max(m.time_s, self._newest_seen_s if self._newest_seen_s is not None else m.time_s)
         settled = self._settle_until + (self.s.camera_window_s if self._is_camera(m.source) else 0.0)
         if m.time_s < settled:
             return
@@ -303,14 +305,15 @@ class StandoffController:
         since = [h for h in self._history if h.time_s >= self._settle_until]
         newest = max(since, key=lambda h: h.time_s, default=None)
         recent = [h for h in since if newest is not None and h.time_s >= newest.time_s - self.s.floor_hold_s]
-        if (newest is not None and now_s - newest.time_s <= self._fresh_limit(newest.source)
-                and all(h.distance_m >= self.s.floor for h in recent)):
-            self._recover_deadline = None
+        if newest is not None and all(h.distance_m >= self.s.floor for h in recent):
+            self._recover_deadline = None  # measured after the move (however late it arrived): back above the floor
             return StandoffDecision(RECOVERED, self._summary(recent, newest.time_s))
         if now_s > self._recover_deadline:
             self._recover_deadline = None
             last = self._summary(recent, now_s) if recent else None
             said = f"still {last.distance_m:.2f} m" if last else "no measurement since"
+            if last is None and self._newest_seen_s is not None:
+                said += f"; the newest is {now_s - self._newest_seen_s:.0f} s old (the camera chain running behind?)"
             return StandoffDecision(ABORT, last, reason=f"not back above the safety floor of {self.s.floor:.2f} m "
                                                         f"{self.s.recover_s:g} s after backing off ({said})")
         return StandoffDecision(BACKING_OFF)

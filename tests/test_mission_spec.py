@@ -178,3 +178,12 @@ def test_missing_depth_model_names_the_field(tmp_path, demo):
         load_mission(path)
     assert "depth_model" in exc.value.problem and "nope.onnx" in exc.value.problem
     assert "relative to the mission file" in exc.value.fix
+
+
+def test_min_distance_is_optional_and_must_be_below_the_standoff(demo):
+    assert parse_mission(demo).min_distance_m is None
+    demo["min_distance_m"] = 3.0
+    assert parse_mission(demo).min_distance_m == 3.0
+    demo["min_distance_m"] = 3.9  # standoff 4: within the tolerance of it
+    err = _error(demo)
+    assert "min_distance_m must be below standoff_m" in err.problem and "min_distance_m below the standoff" in err.fix

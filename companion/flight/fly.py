@@ -25,7 +25,7 @@ import contextlib
 import logging
 import signal
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +44,8 @@ from companion.flight.limits import FLIGHT_DEFAULTS
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
 from companion.flight.simulator import simulator_parameters
+from companion.flight.standoff_control import StandoffCorrection, StandoffSummary
+from companion.flight.standoff_loop import StandoffLoop, StandoffOptions, settings_for
 from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item, start_with_reason
 from companion.flight.status_texts import StatusTexts
 from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
@@ -51,6 +53,7 @@ from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
 from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S
 from companion.mission.firmware import flight_parameters as firmware_flight_parameters
+from companion.records import StandoffEstimate
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +77,8 @@ class FlightResult:
     """What happened. ``completed``: every mission item was reached and the vehicle ended landed + disarmed.
 
     ``aborted``: 'signal', 'timeout', 'failsafe' (landed early), 'reboot' (the autopilot restarted), 'link' (silent
-    longer than the limit), 'home' (the autopilot moved home so low that a waypoint ahead nears the ground) or
+    longer than the limit), 'home' (the autopilot moved home so low that a waypoint ahead nears the ground),
+    'standoff' (measured below the safety floor and not recovered, or a correction that could not be made) or
     None; ``problem`` says it in words for a person."""
 
     completed: bool
@@ -94,6 +98,14 @@ class FlightResult:
     waypoints_reached: int = 0
     parameter_changes: list[ParamChange] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    # the standoff measured on the scan legs and the corrections made (None: not a scan plan, or not watched)
+    standoff: StandoffSummary | None = None
+    standoff_corrections: list[StandoffCorrection] = field(default_factory=list)
+
+
+def _down_and_disarmed(state: Mapping) -> bool:
+    """Landed and disarmed: nothing to correct any more."""
+    return state.get("armed") is False and state.get("in_air") is False
 
 
 def mission_items_for(plan, autopilot: str) -> list[mi.MissionItem]:
@@ -125,7 +137,8 @@ class _Supervisor:
     def __init__(self, vehicle: Vehicle, items: Sequence[mi.MissionItem], rec: TelemetryRecorder, *,
                  link_loss_s: float, flight_timeout_s: float, end_action: str, progress: bool,
                  link_dead_s: float = 60.0, stop_wait_s: float = 180.0, first_seq: int = 0,
-                 telemetry_rate_hz: float | None = None, home_watch: HomeWatch | None = None):
+                 telemetry_rate_hz: float | None = None, home_watch: HomeWatch | None = None,
+                 standoff: StandoffLoop | None = None):
         self.v = vehicle
         self.items = items
         self.rec = rec
@@ -149,6 +162,7 @@ class _Supervisor:
         self.home = home_watch if home_watch is not None else HomeWatch(items)
         self.takeoff_boot_s: float | None = None  # the autopilot's time since boot when it was first seen flying
         self.home_latlon_before_arming: tuple[float, float] | None = None
+        self.standoff = standoff
 
     def on_signal(self) -> None:
         self.signal_count += 1
@@ -248,6 +262,8 @@ class _Supervisor:
                         airborne = True
                     if await self._home_moved_too_low(current, airborne):
                         return "home"
+                    if airborne and await self._standoff_failed(current):
+                        return "standoff"
                     if not airborne:
                         reason = self._start_refused(refusal_seen, now)
                         if reason is not None:
@@ -304,6 +320,17 @@ class _Supervisor:
         if low is None:
             return False
         self._fail(low.problem(self.home.min_clearance_m))
+        await self._rtl_and_wait(timeout_s=self.stop_wait_s)
+        return True
+
+    async def _standoff_failed(self, current_seq: int) -> bool:
+        """The standoff loop's step (measure, correct); when it ends the flight: pause, RTL, wait for the landing."""
+        if self.standoff is None or _down_and_disarmed(self.rec.state):
+            return False
+        problem = await self.standoff.step(self.v, current_seq)
+        if problem is None:
+            return False
+        self._fail(problem)
         await self._rtl_and_wait(timeout_s=self.stop_wait_s)
         return True
 
@@ -491,6 +518,17 @@ async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: f
     return wanted, warnings, first_seq, bool(simulated)
 
 
+def standoff_loop_for(plan, items, first_seq: int, options: StandoffOptions, rec: TelemetryRecorder,
+                      camera: Callable[[], StandoffEstimate | None] | None) -> StandoffLoop | None:
+    """The standoff loop of a ScanPlan's flight (none for a bare item list: no wall to measure), fed the
+    recorder's rows."""
+    if not hasattr(plan, "frame"):
+        return None
+    loop = StandoffLoop(plan, items, first_seq, options, clock=lambda: rec.boot_time_s, camera=camera)
+    rec.row_hook = loop.on_row
+    return loop
+
+
 def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str, is_sih: bool) -> HomeWatch:
     """The flight's home watch: PX4 moves home for 120 s after take-off (ArduPilot keeps it where it armed); a
     ScanPlan holds above the wall until then at its settle waypoint; PX4 SIH gets home put back after it."""
@@ -553,7 +591,9 @@ def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, p
         duration_s=duration_s, telemetry_samples=rec.samples,
         link_losses=sup.link_losses, telemetry_log=Path(telemetry_log) if telemetry_log else None,
         status_texts=list(rec.status_texts), problem=problem, waypoints_total=sup.progress.total,
-        waypoints_reached=sup.progress.done, parameter_changes=list(params.applied), warnings=warnings)
+        waypoints_reached=sup.progress.done, parameter_changes=list(params.applied), warnings=warnings,
+        standoff=sup.standoff.summary() if sup.standoff is not None else None,
+        standoff_corrections=list(sup.standoff.controller.corrections) if sup.standoff is not None else [])
 
 
 async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
@@ -567,7 +607,9 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                       end_action: str = FLIGHT_DEFAULTS.end_action, progress: bool = True, handle_signals: bool = True,
                       stop_wait_s: float = FLIGHT_DEFAULTS.stop_wait_s,
                       flight_parameters: Mapping[str, float] | None = None,
-                      lost_link_action: str | None = None, return_alt: str | float | None = None) -> FlightResult:
+                      lost_link_action: str | None = None, return_alt: str | float | None = None,
+                      standoff: StandoffOptions | None = None,
+                      camera_standoff: Callable[[], StandoffEstimate | None] | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
     The parameters a ScanPlan needs on this firmware (``companion.mission.firmware.flight_parameters``: PX4's
@@ -576,12 +618,19 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     ``flight_parameters``: further autopilot parameters to set for this flight only (restored afterwards, also after an
     error or Ctrl-C); ``lost_link_action`` ('rtl'/'land') and ``return_alt`` (metres or 'auto': the plan's transit
     altitude or wall top + margin) set the lost-link failsafe the same way.
+    ``standoff``: how the flight holds the measured standoff on a ScanPlan's scan legs (default
+    ``StandoffOptions()``: corrected, tolerance 0.3 m, floor = the mission's ``min_distance_m`` or 60 %); the
+    measurements are the forward rangefinder's (DISTANCE_SENSOR in the telemetry rows) and ``camera_standoff()``'s
+    (the live chain's ``CullChain.standoff``). Without either the flight says the standoff was not measured.
 
     Returns when the vehicle is landed and disarmed, or supervision ended (stop request, timeout, restart, dead
     link: ``aborted`` and ``problem`` say which). Raises CompanionError for anything that prevents the flight from
     starting, including a start the vehicle refuses.
     """
     _check_flight_options(end_action, link_loss_s, link_dead_s, stop_wait_s)
+    standoff = standoff if standoff is not None else StandoffOptions()
+    if hasattr(plan, "frame"):
+        settings_for(plan, standoff)  # refuse an impossible tolerance or floor before anything connects
     vehicle = await connect(connect_url, timeout_s=connect_timeout_s, autopilot=autopilot)
     loop = asyncio.get_running_loop()
     installed: list[int] = []
@@ -595,10 +644,11 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
         async with FlightParameters(vehicle.param, wanted) as params, \
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None,
                                   planned_gimbal=PlannedGimbal.from_items(items)) as rec:
+            loop_ = standoff_loop_for(plan, items, first_seq, standoff, rec, camera_standoff)
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,
                               end_action=end_action, progress=progress, link_dead_s=link_dead_s,
                               stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz,
-                              home_watch=home_watch_for(plan, items, vehicle.autopilot, is_sih))
+                              home_watch=home_watch_for(plan, items, vehicle.autopilot, is_sih), standoff=loop_)
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):

@@ -17,7 +17,7 @@ import asyncio
 import contextlib
 import json
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 
 from companion.errors import CompanionError
 from companion.flight.stream_listener import StreamListener
@@ -56,15 +56,18 @@ async def select_arming_mode(vehicle) -> bool:
     return result == MAV_RESULT_ACCEPTED
 
 
-async def read_mission_current(vehicle, timeout_s: float = 3.0, want: int | None = None) -> int | None:
-    """The seq of the vehicle's next MISSION_CURRENT (or the first one equal to ``want``) within ``timeout_s``."""
+async def read_mission_current(vehicle, timeout_s: float = 3.0,
+                               want: int | Collection[int] | None = None) -> int | None:
+    """The seq of the vehicle's next MISSION_CURRENT (or the first one equal to ``want``, or in it) within
+    ``timeout_s``."""
     seen: list[int] = []
+    wanted = None if want is None else ({want} if isinstance(want, int) else set(want))
 
     async def _watch():
         async for msg in vehicle.direct.subscribe_message("MISSION_CURRENT"):
             with contextlib.suppress(ValueError, TypeError, KeyError):
                 seen.append(int(json.loads(msg.fields_json)["seq"]))
-                if want is None or seen[-1] == want:
+                if wanted is None or seen[-1] in wanted:
                     return
 
     async def _ask():  # MISSION_CURRENT may stream slowly (ArduPilot: only once requested): ask for one now
@@ -87,22 +90,33 @@ async def read_mission_current(vehicle, timeout_s: float = 3.0, want: int | None
 async def start_from_first_item(vehicle, attempts: int = 3, timeout_s: float = 3.0) -> int:
     """Make the first mission item the current one and confirm it from MISSION_CURRENT; raises otherwise."""
     first = first_item_seq(vehicle.autopilot)
-    seen = None
-    for _ in range(attempts):
-        try:
-            await vehicle.mission.set_current_mission_item(first)
-        except Exception as exc:  # older stacks: the command form
-            log.debug("set_current_mission_item failed (%s); sending DO_SET_MISSION_CURRENT", exc)
-            with contextlib.suppress(Exception):
-                await vehicle.command_long(MAV_CMD_DO_SET_MISSION_CURRENT, first)
-        seen = await read_mission_current(vehicle, timeout_s, want=first)
-        if seen == first:
-            log.info("current mission item set to %d (the first) and confirmed by the vehicle", first)
-            return first
+    seen = await set_current_item(vehicle, first, attempts, timeout_s)
+    if seen == first:
+        log.info("current mission item set to %d (the first) and confirmed by the vehicle", first)
+        return first
     what = "no MISSION_CURRENT at all" if seen is None else f"MISSION_CURRENT still says item {seen}"
     raise CompanionError(
         f"the vehicle did not confirm the first mission item as current ({what}): it could resume mid-mission",
         "not starting; check the link and that the vehicle accepts MISSION_SET_CURRENT, then retry")
+
+
+async def set_current_item(vehicle, seq: int, attempts: int = 3, timeout_s: float = 3.0,
+                           also: Collection[int] = ()) -> int | None:
+    """Ask for ``seq`` as the current mission item until MISSION_CURRENT says it (or one of ``also``); returns the
+    last seq seen (None: no MISSION_CURRENT at all). Also used to resume a moved scan at the item it was flying to."""
+    seen = None
+    accept = {seq, *also}
+    for _ in range(attempts):
+        try:
+            await vehicle.mission.set_current_mission_item(seq)
+        except Exception as exc:  # older stacks: the command form
+            log.debug("set_current_mission_item failed (%s); sending DO_SET_MISSION_CURRENT", exc)
+            with contextlib.suppress(Exception):
+                await vehicle.command_long(MAV_CMD_DO_SET_MISSION_CURRENT, seq)
+        seen = await read_mission_current(vehicle, timeout_s, want=accept)
+        if seen in accept:
+            return seen
+    return seen
 
 
 async def arm_with_reason(vehicle, texts_since: Callable[[int], list[str]], text_count: Callable[[], int],

@@ -23,7 +23,7 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
@@ -139,6 +139,8 @@ class TelemetryRecorder:
         self._pending: deque[tuple] = deque()  # latest raw GLOBAL_POSITION_INT; once it flows, rows come from it
         # forward DISTANCE_SENSOR readings: (autopilot s, monotonic s, metres or None when outside min/max)
         self._ranges: deque[tuple[float, float, float | None]] = deque(maxlen=_RANGE_KEEP)
+        # sees every row's pose JSON before it is written and returns keys to add to it (the standoff loop)
+        self.row_hook: Callable[[dict], dict] | None = None
 
     async def __aenter__(self) -> TelemetryRecorder:
         if self.path is not None:
@@ -317,7 +319,7 @@ class TelemetryRecorder:
 
     def _write_row(self, t_boot, lat, lon, alt, rel, vel) -> None:
         self.samples += 1
-        if self._file is None:
+        if self._file is None and self.row_hook is None:
             return
         st = self.state
         att = _attitude_at(self._prev_att, self._raw_att, t_boot)
@@ -328,17 +330,23 @@ class TelemetryRecorder:
         pose = pose_json(time_s=t_boot, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=rel, roll_deg=roll,
                          pitch_deg=pitch, yaw_deg=yaw, velocity_ned_m_s=vel, mission_item=st["mission_item"],
                          range_forward_m=self._range_at(t_boot), **self._gimbal())
-        self._file.write(json.dumps(self._row(pose)) + "\n")
+        self._emit(pose)
 
     def _row(self, pose: dict) -> dict:
         st = self.state
+        extra = self.row_hook(pose) if self.row_hook is not None else {}
         return {"t_wall": round(time.time(), 4), **pose, "mission_total": st["mission_total"],
-                "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"]}
+                "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"], **extra}
+
+    def _emit(self, pose: dict) -> None:
+        row = self._row(pose)
+        if self._file is not None:
+            self._file.write(json.dumps(row) + "\n")
 
     def _write(self, p) -> None:
         self.samples += 1
         st = self.state
-        if self._file is None:
+        if self._file is None and self.row_hook is None:
             return
         pose = pose_json(
             time_s=st.get("t_boot_s"), lat=_num(p.latitude_deg), lon=_num(p.longitude_deg),
@@ -347,7 +355,7 @@ class TelemetryRecorder:
             velocity_ned_m_s=(st.get("vn_m_s"), st.get("ve_m_s"), st.get("vd_m_s")), mission_item=st["mission_item"],
             range_forward_m=self._range_at(None), **self._gimbal(),
         )
-        self._file.write(json.dumps(self._row(pose)) + "\n")
+        self._emit(pose)
 
 
 def read_telemetry_log(path: Path) -> list[dict]:

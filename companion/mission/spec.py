@@ -9,13 +9,14 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, ValidationInfo, field_validator, model_validator
 
 from companion.errors import CompanionError
 from companion.resources import SHIPPED_MODEL_FILES
 
 # Below this standoff a gust or a GPS glitch can put the propellers into the wall.
 MIN_SAFE_STANDOFF_M = 2.0
+STANDOFF_HOLD_TOLERANCE_M = 0.3  # the flight's default standoff tolerance (companion.flight.standoff_control)
 
 
 class _Strict(BaseModel):
@@ -110,6 +111,9 @@ class Mission(_Strict):
     facade: Facade
     standoff_m: float = Field(gt=0.0, le=100.0)
     allow_unsafe_standoff: bool = False
+    # The closest the drone may truly come to the wall in flight, as measured (forward rangefinder, camera): below
+    # it the flight backs off and ends unless the measurement recovers. None: 60 % of the standoff.
+    min_distance_m: float | None = Field(default=None, gt=0.0)
     overlap: float = Field(gt=0.0, lt=1.0)
     side_overlap: float = Field(default=0.60, ge=0.1, le=0.95)
     camera: Camera
@@ -139,6 +143,15 @@ class Mission(_Strict):
             raise ValueError("overlap must be between 0.50 and 0.95 (the paper uses 0.80)")
         return v
 
+    @field_validator("min_distance_m")
+    @classmethod
+    def _floor_below_standoff(cls, v: float | None, info: ValidationInfo) -> float | None:
+        standoff = info.data.get("standoff_m")
+        if v is not None and standoff is not None and v >= standoff - STANDOFF_HOLD_TOLERANCE_M:
+            raise ValueError(f"min_distance_m must be below standoff_m - {STANDOFF_HOLD_TOLERANCE_M} m (the flight "
+                             f"holds the standoff within that); {v} m with a standoff of {standoff} m leaves no room")
+        return v
+
     @model_validator(mode="after")
     def _safe_standoff(self) -> Mission:
         if self.standoff_m < MIN_SAFE_STANDOFF_M and not self.allow_unsafe_standoff:
@@ -151,6 +164,7 @@ class Mission(_Strict):
 
 _FIELD_FIXES = {
     "overlap": "use a fraction between 0.50 and 0.95, e.g. overlap: 0.80",
+    "min_distance_m": "set min_distance_m below the standoff (e.g. 60 % of it), or leave it out for that default",
     "standoff_m": f"use a standoff of at least {MIN_SAFE_STANDOFF_M} m (the paper flies at 4 m)",
     "camera": "check the camera block: width_px, height_px, hfov_deg (5..170), fps, exposure_s (seconds); optional "
     "make, model, sensor_width_mm, calibration",

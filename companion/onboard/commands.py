@@ -9,6 +9,7 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from companion.flight.limits import FlightLimits
+from companion.flight.standoff_loop import StandoffOptions
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
 from companion.plugins import SitlRequest
@@ -54,6 +55,16 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--end-action", choices=["rtl", "land"], default=FlightLimits.end_action,
                    help="if the mission ends in the air: return to launch or land there")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    standoff = p.add_argument_group("standoff held by measurement (forward rangefinder, or the camera with --capture)")
+    standoff.add_argument("--standoff-tolerance", type=float, default=StandoffOptions.tolerance_m, metavar="M",
+                          help="correct the scan when the measured standoff is off the plan by more than this for "
+                               "3 s (metres)")
+    standoff.add_argument("--standoff-floor", type=float, metavar="M",
+                          help="safety floor: measured below it the vehicle backs off and the flight ends unless it "
+                               "recovers (default: the mission's min_distance_m, else 60 %% of the standoff)")
+    standoff.add_argument("--no-standoff-correction", action="store_true",
+                          help="measure and report the standoff only; never move the scan (below the floor the "
+                               "flight still ends)")
     p.add_argument("--sitl", action="store_true",
                    help="start the simulated vehicle (python -m sim vehicle) on a free port, fly, stop it")
     p.add_argument("--speedup", type=float, default=SitlRequest.speedup, help="with --sitl: simulator speed-up")
@@ -131,7 +142,9 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
         link_loss_s=args.link_loss, flight_timeout_s=args.timeout, end_action=args.end_action,
         progress=not args.no_progress, link_dead_s=args.link_dead, stop_wait_s=args.stop_wait,
         lost_link_action=args.lost_link_action, return_alt=args.return_alt,
-        flight_parameters=flight_parameters(args.set_param) or None)
+        flight_parameters=flight_parameters(args.set_param) or None,
+        standoff=StandoffOptions(correct=not args.no_standoff_correction, tolerance_m=args.standoff_tolerance,
+                                 floor_m=args.standoff_floor))
     return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,
                       telemetry_log=args.telemetry_log, telemetry_rate_hz=args.rate, capture=args.capture,
                       spool_dir=args.out, model=args.model, mask=not args.no_mask, parallax=not args.no_parallax,

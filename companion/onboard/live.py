@@ -162,6 +162,8 @@ def run_live_scan(
         source.close()
         raise
     runner = LiveRunner(source, chain, backlog)
+    # the standoff the chain measures from the images feeds the flight's standoff loop (issue 26)
+    fly_kwargs.setdefault("camera_standoff", lambda: chain.standoff)
     flight = _fly_while_culling(plan, connect_url, telemetry_log, fly_kwargs, tailer=tailer, runner=runner,
                                 source=source, paced=paced, camera_component=camera_component)
     return _report(flight, chain, runner, out, telemetry_log, capture, paced)

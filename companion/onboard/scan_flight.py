@@ -94,7 +94,8 @@ def _fly(plan, url: str, capture: str | None, request: ScanFlight) -> ScanFlight
 
 
 def flight_summary(result) -> str:
-    """One line for a person: how far it got, how it ended, every link loss (open ones said so)."""
+    """A line for a person: how far it got, how it ended, every link loss (open ones said so); then, for a scan,
+    a line with the standoff measured on the scan legs and the corrections made (or that it was not measured)."""
     state = "landed" if result.landed else "NOT landed"
     state += ", disarmed" if result.disarmed else ", still ARMED"
     open_losses = sum(1 for loss in result.link_losses if not loss.closed)
@@ -105,7 +106,8 @@ def flight_summary(result) -> str:
             f"{result.telemetry_samples} telemetry samples, {losses}"
             + (f", stopped by {result.aborted}" if result.aborted else "")
             + ("; parameters set for this flight only: "
-               + ", ".join(c.name for c in result.parameter_changes) if result.parameter_changes else ""))
+               + ", ".join(c.name for c in result.parameter_changes) if result.parameter_changes else "")
+            + (f"\n{result.standoff.line()}" if getattr(result, "standoff", None) is not None else ""))
 
 
 def culling_summary(stats, spool_dir: Path | None = None) -> str:

@@ -151,8 +151,9 @@ class CommandHandler:
             self.set_mode(fl.LAND)
             return self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
-            if p[1] > 0:
-                self.cruise_m_s = min(float(p[1]), self.limits.max_speed_h_m_s)
+            # the mission item's rules: ArduCopter's command handler takes types 2/3 as climb/descent speed too
+            # (GCS_MAVLINK_Copter::handle_MAV_CMD_DO_CHANGE_SPEED), PX4 any type as the cruise speed
+            self._mission_change_speed(_int(p[0]), p[1])
             return self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_DO_SET_HOME:
             accepted = self.set_home(p[0] >= 0.5, p[6])

@@ -1,0 +1,358 @@
+"""Is the scan at its planned distance from the wall? Decisions from measured standoffs (issue 26, "measure the wall").
+
+The autopilot flies its GNSS estimate; a non-RTK receiver is off by a slowly varying bias of 1-2 m, so a scan
+planned at 4 m can truly fly at 2.5 m while every log says 4. A forward rangefinder (DISTANCE_SENSOR, orientation
+0) and the camera chain (``CullChain.standoff``) measure the true distance; this module decides what to do with
+those measurements. It is pure (no I/O, no clock): the flight feeds it measurements stamped with the autopilot's
+time and asks for a decision; ``standoff_loop.py`` acts on it.
+
+Why the rules look like this:
+  * only scan legs are judged (the caller passes a leg id, None elsewhere): take-off, transit and landing are not at
+    the standoff, and the rangefinder misses the wall when the vehicle does not face it;
+  * a correction needs ``hold_s`` of consistent measurement (every sample off on the same side, the median beyond
+    the tolerance): one noisy reading, a passing tree or a window must not move the path; within the tolerance
+    nothing is ever done, so a vehicle without bias flies exactly the plan;
+  * below the safety floor the flight does not wait for the hold: it backs off at once and ends unless the
+    measurement recovers within ``recover_s``;
+  * no measurement is a decision of its own (``NO_MEASUREMENT``), never "on plan";
+  * corrections are capped: one per leg, ``min_interval_s`` apart, at most ``max_correction_m`` each, and never
+    bringing the expected true standoff below the floor.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+
+from companion.errors import CompanionError
+
+RANGEFINDER_SIGMA_M = 0.03  # a laser rangefinder's noise (the simulator's: 2 cm; covariance 4 cm^2)
+FACING_LIMIT_DEG = 15.0  # a rangefinder reading counts only when the vehicle faces the wall within this
+DEFAULT_FLOOR_FRACTION = 0.6  # safety floor: 60 % of the planned standoff unless the mission sets min_distance_m
+
+ON_PLAN = "on plan"
+CORRECT = "correct"
+TOO_CLOSE = "too close"
+NO_MEASUREMENT = "no measurement"
+MEASURING = "measuring"  # measured, not yet for long enough (or not consistently) to act
+CAPPED = "capped"  # off the plan, but the correction cap says not now
+NOT_JUDGED = "not judged"  # not on a scan leg
+SETTLING = "settling"  # right after a correction: the vehicle is moving to the new path
+BACKING_OFF = "backing off"  # too close, moved out, waiting for the measurement to recover
+RECOVERED = "recovered"
+ABORT = "abort"  # too close and not recovered in time: the flight ends
+
+
+@dataclass(frozen=True)
+class StandoffSettings:
+    """The plan's standoff and how closely the flight holds it. ``floor_m`` None: 60 % of the standoff;
+    ``max_correction_m`` None: the standoff itself (a bigger error is not a GNSS bias)."""
+
+    planned_m: float
+    tolerance_m: float = 0.3
+    floor_m: float | None = None
+    hold_s: float = 3.0
+    settle_s: float = 2.0
+    min_interval_s: float = 5.0
+    max_correction_m: float | None = None
+    recover_s: float = 15.0
+    floor_hold_s: float = 0.5
+    fresh_s: float = 1.0  # a rangefinder reading is current this long
+    # the camera's estimate comes from the frame pairs of its last 5 s (keyframes/standoff.py) and arrives as late
+    # as the chain runs behind the camera: current for longer, and only counted once its window is past a move
+    camera_fresh_s: float = 10.0
+    camera_window_s: float = 5.0
+
+    @property
+    def floor(self) -> float:
+        return self.floor_m if self.floor_m is not None else DEFAULT_FLOOR_FRACTION * self.planned_m
+
+    @property
+    def max_correction(self) -> float:
+        return self.max_correction_m if self.max_correction_m is not None else self.planned_m
+
+    def check(self) -> StandoffSettings:
+        """Refuse settings no flight can hold; returns itself."""
+        if not self.tolerance_m > 0:
+            raise CompanionError(f"the standoff tolerance must be positive, got {self.tolerance_m} m",
+                                 "give --standoff-tolerance in metres, e.g. 0.3")
+        if not 0 < self.floor < self.planned_m - self.tolerance_m:
+            raise CompanionError(
+                f"the standoff floor {self.floor:g} m must be above 0 and below the planned standoff minus the "
+                f"tolerance ({self.planned_m:g} - {self.tolerance_m:g} m)",
+                "give --standoff-floor (or the mission's min_distance_m) below the standoff, e.g. 60 % of it")
+        for name in ("hold_s", "recover_s", "fresh_s"):
+            if not getattr(self, name) > 0:
+                raise CompanionError(f"standoff {name} must be positive", f"give {name} in seconds")
+        return self
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """A measured camera-to-wall distance (horizontal, along the wall's normal) at autopilot time ``time_s``."""
+
+    time_s: float
+    distance_m: float
+    sigma_m: float
+    source: str  # 'rangefinder', 'camera', or both joined by '+' when fused
+
+
+@dataclass(frozen=True)
+class StandoffDecision:
+    action: str
+    measured: Measurement | None = None
+    shift_out_m: float = 0.0  # CORRECT / TOO_CLOSE: move the remaining scan this far out (negative: in)
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class StandoffCorrection:
+    """One move of the remaining scan across the wall, for the log, the result and the summary."""
+
+    time_s: float  # autopilot time of the decision
+    leg: int
+    kind: str  # 'correct' or 'back off'
+    measured_m: float
+    sigma_m: float
+    source: str
+    planned_m: float
+    shift_out_m: float
+    offset_out_m: float  # the scan's total shift out from the plan after this one
+
+    def as_json(self) -> dict:
+        return {k: (round(v, 3) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class LegStandoff:
+    leg: int
+    median_m: float
+    samples: int
+
+
+@dataclass(frozen=True)
+class StandoffSummary:
+    """What the flight measured: the standoff per scan leg (median), legs without a measurement, the corrections."""
+
+    planned_m: float
+    tolerance_m: float
+    floor_m: float
+    sources: tuple[str, ...]
+    legs: tuple[LegStandoff, ...]
+    unmeasured_legs: tuple[int, ...]
+    corrections: tuple[StandoffCorrection, ...]
+    offset_out_m: float
+
+    @property
+    def measured(self) -> bool:
+        return bool(self.legs)
+
+    def as_json(self) -> dict:
+        return {"planned_m": self.planned_m, "tolerance_m": self.tolerance_m, "floor_m": round(self.floor_m, 3),
+                "sources": list(self.sources), "offset_out_m": round(self.offset_out_m, 3),
+                "legs": [{"leg": g.leg, "median_m": round(g.median_m, 3), "samples": g.samples} for g in self.legs],
+                "unmeasured_legs": list(self.unmeasured_legs),
+                "corrections": [c.as_json() for c in self.corrections]}
+
+    def line(self) -> str:
+        """One line for a person: the measured standoff per leg and the corrections."""
+        if not self.legs:
+            return (f"standoff NOT measured (plan {self.planned_m:.2f} m): no rangefinder reading facing the wall "
+                    "and no camera estimate on the scan legs; the distance flown is GNSS's")
+        medians = [g.median_m for g in self.legs]
+        moves = ", ".join(f"{c.shift_out_m:+.2f} m" + (" (backed off: below the floor)" if c.kind == "back off" else "")
+                          for c in self.corrections) or "none"
+        per_leg = ", ".join(f"{g.leg}: {g.median_m:.2f}" for g in self.legs)
+        return (f"standoff measured on {len(self.legs)} scan legs by {'+'.join(self.sources)}: median "
+                f"{statistics.median(medians):.2f} m (plan {self.planned_m:.2f} m; per leg, named by the item it "
+                f"flies to: {per_leg}); corrections: {moves}"
+                + (f"; {len(self.unmeasured_legs)} legs unmeasured" if self.unmeasured_legs else ""))
+
+
+def correction_line(decision: StandoffDecision, planned_m: float) -> str:
+    """The status line of one correction: ``standoff measured 2.52 +- 0.03 m (plan 4.00): moving the scan 1.48 m
+    out``."""
+    m = decision.measured
+    direction = "out" if decision.shift_out_m >= 0 else "in"
+    head = "TOO CLOSE: " if decision.action == TOO_CLOSE else ""
+    return (f"{head}standoff measured {m.distance_m:.2f} +- {m.sigma_m:.2f} m (plan {planned_m:.2f}, {m.source}): "
+            f"moving the scan {abs(decision.shift_out_m):.2f} m {direction}")
+
+
+def fuse(samples: list[Measurement], time_s: float) -> Measurement | None:
+    """Inverse-variance mean of the sources' latest samples (each source once)."""
+    if not samples:
+        return None
+    weights = [1.0 / max(s.sigma_m, 1e-3) ** 2 for s in samples]
+    total = sum(weights)
+    distance = sum(w * s.distance_m for w, s in zip(weights, samples, strict=True)) / total
+    return Measurement(time_s, distance, 1.0 / math.sqrt(total), "+".join(sorted(s.source for s in samples)))
+
+
+@dataclass
+class _LegLog:
+    samples: dict[int, list[float]] = field(default_factory=dict)
+    seen: set[int] = field(default_factory=set)
+    sources: set[str] = field(default_factory=set)
+
+
+class StandoffController:
+    """Feed ``observe(measurement, leg)`` (judged samples only), ask ``decide(now_s, leg)``; after acting on a
+    CORRECT or TOO_CLOSE decision call ``applied``. ``offset_m``: the total shift out applied so far."""
+
+    def __init__(self, settings: StandoffSettings):
+        self.s = settings.check()
+        self.offset_m = 0.0
+        self.corrections: list[StandoffCorrection] = []
+        self._latest: dict[str, Measurement] = {}
+        self._history: deque[Measurement] = deque()
+        self._settle_until = -math.inf
+        self._last_correction_s = -math.inf
+        self._corrected_legs: set[int] = set()
+        self._recover_deadline: float | None = None
+        self._log = _LegLog()
+        self._newest_seen_s: float | None = None  # the newest measurement's time, whether it counted or not
+
+    def observe(self, m: Measurement, leg: int) -> None:
+        """One measurement taken on scan leg ``leg`` (facing the wall)."""
+        self._log.sources.add(m.source)
+        self._log.samples.setdefault(leg, []).append(m.distance_m)
+        self._newest_seen_s = max(m.time_s, self._newest_seen_s if self._newest_seen_s is not None else m.time_s)
+        settled = self._settle_until + (self.s.camera_window_s if self._is_camera(m.source) else 0.0)
+        if m.time_s < settled:
+            return
+        self._latest[m.source] = m
+        ranged = self._latest.get("rangefinder")
+        if self._is_camera(m.source) and ranged is not None and ranged.time_s >= m.time_s - self.s.fresh_s:
+            return  # the rangefinder is current: the camera joins its next readings (fused), not the history alone
+        fresh = [s for s in self._latest.values() if abs(m.time_s - s.time_s) <= self._fresh_limit(s.source)]
+        self._history.append(fuse(fresh, m.time_s))
+        keep_from = m.time_s - self.s.hold_s - self.s.camera_fresh_s
+        while self._history and self._history[0].time_s < keep_from:
+            self._history.popleft()
+
+    @staticmethod
+    def _is_camera(source: str) -> bool:
+        return "rangefinder" not in source
+
+    def _fresh_limit(self, source: str) -> float:
+        return self.s.camera_fresh_s if self._is_camera(source) else self.s.fresh_s
+
+    def decide(self, now_s: float, leg: int | None) -> StandoffDecision:
+        if self._recover_deadline is not None:
+            return self._recovering(now_s)
+        if leg is None:
+            self._history.clear()
+            return StandoffDecision(NOT_JUDGED)
+        self._log.seen.add(leg)
+        if now_s < self._settle_until:
+            return StandoffDecision(SETTLING)
+        newest = max(self._history, key=lambda h: h.time_s, default=None)
+        if newest is None or now_s - newest.time_s > self._fresh_limit(newest.source):
+            return StandoffDecision(NO_MEASUREMENT, reason="no rangefinder reading facing the wall and no camera "
+                                                           "estimate in the last seconds")
+        ref = newest.time_s  # windows end at the newest measurement (the camera's arrive late)
+        recent = sorted((h for h in self._history if h.time_s >= ref - self.s.hold_s), key=lambda h: h.time_s)
+        too_close = self._too_close(ref, recent)
+        if too_close is not None:
+            return too_close
+        return self._judge(ref, now_s, recent, leg)
+
+    def _too_close(self, ref_s: float, recent: list[Measurement]) -> StandoffDecision | None:
+        last = [h for h in recent if h.time_s >= ref_s - self.s.floor_hold_s]
+        if not last or recent[0].time_s > ref_s - self.s.floor_hold_s:
+            return None  # not yet measured for floor_hold_s
+        if not all(h.distance_m < self.s.floor for h in last):
+            return None
+        median = statistics.median(h.distance_m for h in last)
+        shift = min(self.s.planned_m - median, self.s.max_correction)
+        return StandoffDecision(TOO_CLOSE, self._summary(last, ref_s), shift,
+                                f"below the safety floor of {self.s.floor:.2f} m")
+
+    def _judge(self, ref_s: float, now_s: float, recent: list[Measurement], leg: int) -> StandoffDecision:
+        measured = self._summary(recent, ref_s)
+        errors = [self.s.planned_m - h.distance_m for h in recent]
+        error = statistics.median(errors)
+        if abs(error) <= self.s.tolerance_m:
+            return StandoffDecision(ON_PLAN, measured)
+        if recent[0].time_s > ref_s - self.s.hold_s + min(0.25, self.s.hold_s / 4):
+            return StandoffDecision(MEASURING, measured, reason=f"off the plan for less than {self.s.hold_s:g} s")
+        half = self.s.tolerance_m / 2
+        if not (all(e > half for e in errors) or all(e < -half for e in errors)):
+            return StandoffDecision(MEASURING, measured, reason="the measurements disagree")
+        if leg in self._corrected_legs:
+            return StandoffDecision(CAPPED, measured, reason="one correction per scan leg")
+        if now_s - self._last_correction_s < self.s.min_interval_s:
+            return StandoffDecision(CAPPED, measured, reason=f"corrections at least {self.s.min_interval_s:g} s apart")
+        cap = self.s.max_correction
+        shift = max(-cap, min(cap, error))
+        shift = max(-cap - self.offset_m, min(cap - self.offset_m, shift))  # the total move is capped too
+        shift = max(shift, self.s.floor + self.s.tolerance_m - measured.distance_m)  # never in past the floor
+        if abs(shift) <= self.s.tolerance_m / 2:
+            return StandoffDecision(CAPPED, measured, reason=f"the scan is already moved {self.offset_m:+.2f} m, "
+                                                             f"the most it may be ({cap:g} m)")
+        return StandoffDecision(CORRECT, measured, shift)
+
+    @staticmethod
+    def _summary(samples: list[Measurement], now_s: float) -> Measurement:
+        """The median distance of ``samples`` with the sigma of one of them (the median of several is no worse)."""
+        median = statistics.median(h.distance_m for h in samples)
+        return Measurement(now_s, median, min(h.sigma_m for h in samples), samples[-1].source)
+
+    def _recovering(self, now_s: float) -> StandoffDecision:
+        since = [h for h in self._history if h.time_s >= self._settle_until]
+        newest = max(since, key=lambda h: h.time_s, default=None)
+        recent = [h for h in since if newest is not None and h.time_s >= newest.time_s - self.s.floor_hold_s]
+        if newest is not None and all(h.distance_m >= self.s.floor for h in recent):
+            self._recover_deadline = None  # measured after the move (however late it arrived): back above the floor
+            return StandoffDecision(RECOVERED, self._summary(recent, newest.time_s))
+        if now_s > self._recover_deadline:
+            self._recover_deadline = None
+            last = self._summary(recent, now_s) if recent else None
+            said = f"still {last.distance_m:.2f} m" if last else "no measurement since"
+            if last is None and self._newest_seen_s is not None:
+                said += f"; the newest is {now_s - self._newest_seen_s:.0f} s old (the camera chain running behind?)"
+            return StandoffDecision(ABORT, last, reason=f"not back above the safety floor of {self.s.floor:.2f} m "
+                                                        f"{self.s.recover_s:g} s after backing off ({said})")
+        return StandoffDecision(BACKING_OFF)
+
+    def applied(self, decision: StandoffDecision, now_s: float, leg: int) -> StandoffCorrection:
+        """The vehicle flies the moved scan now: record it, forget the measurements of the old path."""
+        self.offset_m += decision.shift_out_m
+        m = decision.measured
+        correction = StandoffCorrection(now_s, leg, "back off" if decision.action == TOO_CLOSE else "correct",
+                                        m.distance_m, m.sigma_m, m.source, self.s.planned_m, decision.shift_out_m,
+                                        self.offset_m)
+        self.corrections.append(correction)
+        self._history.clear()
+        self._latest.clear()
+        self._settle_until = now_s + self.s.settle_s
+        self._last_correction_s = now_s
+        self._corrected_legs.add(leg)
+        if decision.action == TOO_CLOSE:
+            late = self.s.camera_window_s if self._is_camera(m.source) else 0.0  # the camera sees the move later
+            self._recover_deadline = now_s + self.s.settle_s + self.s.recover_s + late
+        return correction
+
+    def summary(self) -> StandoffSummary:
+        legs = tuple(LegStandoff(leg, statistics.median(v), len(v)) for leg, v in sorted(self._log.samples.items()))
+        unmeasured = tuple(sorted(self._log.seen - set(self._log.samples)))
+        return StandoffSummary(self.s.planned_m, self.s.tolerance_m, self.s.floor, tuple(sorted(self._log.sources)),
+                               legs, unmeasured, tuple(self.corrections), self.offset_m)
+
+
+def rangefinder_measurement(time_s: float | None, range_m: float | None, yaw_deg: float | None,
+                            pitch_deg: float | None, facing_deg: float,
+                            limit_deg: float = FACING_LIMIT_DEG) -> Measurement | None:
+    """A forward rangefinder reading as the horizontal distance to the wall, or None: no reading, or the vehicle
+    not facing the wall within ``limit_deg`` (the ray then meets the wall obliquely, or misses it)."""
+    if time_s is None or range_m is None or yaw_deg is None:
+        return None
+    off = (yaw_deg - facing_deg + 180.0) % 360.0 - 180.0
+    if abs(off) > limit_deg:
+        return None
+    tilt = math.radians(pitch_deg or 0.0)
+    return Measurement(time_s, range_m * math.cos(math.radians(off)) * math.cos(tilt), RANGEFINDER_SIGMA_M,
+                       "rangefinder")

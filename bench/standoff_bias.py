@@ -33,6 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from companion.flight.standoff_loop import StandoffOptions  # noqa: E402
 from companion.resources import demo_mission  # noqa: E402
 from companion.spool.reader import load_spool  # noqa: E402
 from companion.stitch import StitchConfig, stitch  # noqa: E402
@@ -70,6 +71,8 @@ def map_errors(result, texture: np.ndarray, tex_mm: float, wall_h: float) -> dic
 
 
 def run_condition(name: str, args, plan, mission_path: Path) -> dict:
+    """One demo flight under condition ``name`` (``--no-correction``: the flight does not move the scan), its
+    spool stitched with and without the wall measured."""
     (along, out, up), drift = CONDITIONS[name]
     bias = enu_bias(plan.frame, along, out, up)
     demo_args = argparse.Namespace(out=args.out / name, seed=args.seed, width=args.width, fps=args.fps,
@@ -77,7 +80,8 @@ def run_condition(name: str, args, plan, mission_path: Path) -> dict:
                                    gnss_bias=bias if any(bias) else None, gnss_drift=drift,
                                    rangefinder=args.rangefinder)
     t0 = time.monotonic()
-    demo = fly_demo(plan, mission_path, demo_args)
+    demo = fly_demo(plan, mission_path, demo_args,
+                    standoff=StandoffOptions(correct=not args.no_correction) if args.no_correction else None)
     flight_s = time.monotonic() - t0
     cull = json.loads((args.out / name / "spool" / "cull_report.json").read_text())
     scene = Scene.build(plan.frame.length_m, float(plan.mission.facade.height_m), seed=args.seed)
@@ -101,7 +105,7 @@ def _corrections(flight) -> list:
     """The flight's standoff corrections as plain records."""
     out = []
     for c in getattr(flight, "standoff_corrections", None) or []:
-        out.append(c.as_dict() if hasattr(c, "as_dict") else c)
+        out.append(c.as_json() if hasattr(c, "as_json") else c)
     return out
 
 
@@ -128,6 +132,8 @@ def main() -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--conditions", default="none,towards,away", help=f"comma list of {', '.join(CONDITIONS)}")
     p.add_argument("--rangefinder", action="store_true", help="the vehicle also has a forward rangefinder")
+    p.add_argument("--no-correction", action="store_true",
+                   help="the flight measures but does not move the scan (the flight before issue 26's loop)")
     p.add_argument("--fps", type=float, default=10.0)
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--speedup", type=float, default=1.0)
@@ -141,7 +147,8 @@ def main() -> int:
     plan = plan_for_camera(mission_path, args.fps)
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, python {platform.python_version()}; "
           f"demo mission, camera {args.width} px @ {args.fps:g} fps, speed-up {args.speedup:g}, rangefinder "
-          f"{'on' if args.rangefinder else 'off'}; simulator figures")
+          f"{'on' if args.rangefinder else 'off'}, flight correction {'off' if args.no_correction else 'on'}; "
+          "simulator figures")
     rows = []
     for name in names:
         rows.append(run_condition(name, args, plan, mission_path))

@@ -165,8 +165,9 @@ def _check_demo_args(out: Path, fps: float) -> None:
         raise CompanionError(f"--fps {fps:g} is not a frame rate", "give a positive rate, e.g. --fps 10")
 
 
-def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
-    """Start the SITL rig, fly the plan culling the simulated camera's frames into ``out/spool``, stop the rig."""
+def fly_demo(plan, mission_path: Path, args: argparse.Namespace, **fly_kwargs) -> DemoFlight:
+    """Start the SITL rig, fly the plan culling the simulated camera's frames into ``out/spool``, stop the rig
+    (``fly_kwargs`` go to the flight, e.g. ``standoff=StandoffOptions(correct=False)``)."""
     from companion.onboard.live import run_live_scan
     from sim.rig import SitlRig
 
@@ -176,7 +177,8 @@ def fly_demo(plan, mission_path: Path, args: argparse.Namespace) -> DemoFlight:
         truth_log=out / "sim" / TRUTH_LOG, sim_options=sim_options_of(args),
     ) as rig:
         scan = run_live_scan(plan, rig.url, rig.capture, out / "spool", model=args.model, mask=not args.no_mask,
-                             end_action=plan.mission.end_action, progress=True)
+                             end_action=plan.mission.end_action, progress=True,
+                             **{k: v for k, v in fly_kwargs.items() if v is not None})
     camera = {"fps": args.fps, "width_px": args.width, "renderer": rig.renderer, **(rig.camera_counts() or {})}
     return DemoFlight(scan, camera, true_standoff(plan, out / "sim" / TRUTH_LOG))
 
@@ -199,6 +201,8 @@ def _print_flight(plan, demo: DemoFlight, fps: float) -> None:
               f"(rendering behind simulated time)")
     if demo.scan.capture_error:
         print(f"capture error: {demo.scan.capture_error}")
+    if flight.standoff is not None:
+        print(flight.standoff.line())
     if demo.standoff:
         print(standoff_line(demo.standoff))
 
@@ -225,6 +229,7 @@ def demo_report(plan, demo: DemoFlight, result, *, wall_time_s: float) -> dict:
             "disarmed": flight.disarmed,
             "duration_s": round(flight.duration_s, 1),
             "link_losses": len(flight.link_losses),
+            "standoff": flight.standoff.as_json() if flight.standoff is not None else None,
         },
         "camera": demo.camera,
         "true_standoff": demo.standoff,

@@ -73,6 +73,9 @@ def cull_recorded_flight(request: OfflineCull) -> OfflineCullResult:
             bar.set_postfix(keyframes=chain.stats.keyframes)
         chain.finish()
     chain.stats.capture.corrupt = source.stats.corrupt
+    chain.stats.capture.corrupt_files = list(source.stats.corrupt_files)
+    if source.stats.corrupt_files:
+        chain.stats.warnings.append(_corrupt_warning(request.video, source.stats.corrupt_files))
     write_atomic(request.spool_dir / CULL_REPORT, json.dumps(chain.stats.as_dict(), indent=1), durable=True)
     empty = explain_empty_cull(chain.stats, tagger)
     if empty is None:
@@ -80,6 +83,12 @@ def cull_recorded_flight(request: OfflineCull) -> OfflineCullResult:
     problem = CompanionError(f"culling {request.video} kept no keyframe: {empty.problem}",
                              _empty_cull_fix(empty, request))
     return OfflineCullResult(chain.stats, problem)
+
+
+def _corrupt_warning(video: str, files: list[str]) -> str:
+    """One warning naming the corrupt frames skipped (the first few; cull_report.json's corrupt_files has more)."""
+    shown = "; ".join(files[:5]) + (f"; and {len(files) - 5} more" if len(files) > 5 else "")
+    return f"{len(files)} corrupt frame(s) in {video} skipped, not culled: {shown}"
 
 
 def _empty_cull_fix(empty: EmptyCull, request: OfflineCull) -> str:

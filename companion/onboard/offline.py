@@ -11,9 +11,9 @@ from pathlib import Path
 from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, buffer_from_log
+from companion.capture.telemetry_file import load_telemetry_file
 from companion.errors import CompanionError
 from companion.files import write_atomic
-from companion.flight.telemetry_log import read_telemetry_log
 from companion.onboard.chain import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.setup import build_chain
@@ -48,13 +48,8 @@ class OfflineCullResult:
 
 def cull_recorded_flight(request: OfflineCull) -> OfflineCullResult:
     """Cull every frame into the spool and write ``cull_report.json`` beside it."""
-    if not request.telemetry_log.is_file():
-        raise CompanionError(f"telemetry log {request.telemetry_log} does not exist",
-                             "pass the --telemetry-log of the flight")
-    rows = read_telemetry_log(request.telemetry_log)
+    rows = load_telemetry_file(request.telemetry_log)  # every line checked: a wrong file names its line and the fix
     buffer = buffer_from_log(rows)
-    if len(buffer) == 0:
-        raise CompanionError(f"telemetry log {request.telemetry_log} holds no usable samples", "check the file")
     camera_to_autopilot = ClockMap(fixed_offset_s=-request.time_offset_s)
     tagger = FrameTagger(buffer, camera_to_autopilot)
     # EXIF capture times: video time -> autopilot boot time -> Unix time from the log's t_wall beside t_boot_s

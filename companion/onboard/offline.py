@@ -88,7 +88,8 @@ def _cull(request: OfflineCull, source, tagger: FrameTagger, wall_clock: Telemet
             chain.process(frame)
             bar.update(1)
             bar.set_postfix(keyframes=chain.stats.keyframes)
-        chain.finish()
+        chain.finish()  # spools the keyframe the gate still held: the bar's last line counts it too
+        bar.set_postfix(keyframes=chain.stats.keyframes)
     chain.stats.capture.corrupt = source.stats.corrupt
     chain.stats.capture.corrupt_files = list(source.stats.corrupt_files)
     if source.stats.corrupt_files:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -82,3 +83,39 @@ def read_jsonl(path: str | Path, *, skip_bad: bool = True) -> list[dict]:
                 if not skip_bad:
                     raise
     return rows
+
+
+class NewOutput:
+    """What a command is about to create in its output ``folder``, so that a failed run takes back exactly that:
+    the folder itself when this run made it, else only the entries of its top level that were not there before
+    (a user's own files, and files this run overwrote, stay). Why: a failed `cull --out` or `export colmap` left
+    empty or half-made folders behind, which the next run, or the user, took for results."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        self.existed = self.folder.exists()
+        self.before = set(self.folder.iterdir()) if self.existed and self.folder.is_dir() else set()
+
+    def remove_created(self) -> None:
+        if not self.existed:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            return
+        if not self.folder.is_dir():
+            return
+        for entry in set(self.folder.iterdir()) - self.before:
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry, ignore_errors=True)
+            else:
+                entry.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def removed_on_failure(folder: str | Path) -> Iterator[Path]:
+    """Run a command's writes into ``folder``; if they raise (an error, Ctrl-C), what they created there is removed
+    (:class:`NewOutput`) and the exception goes on."""
+    output = NewOutput(folder)
+    try:
+        yield output.folder
+    except BaseException:
+        output.remove_created()
+        raise

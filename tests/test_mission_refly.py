@@ -233,4 +233,41 @@ def test_map_edge_sliver_is_left_out_unless_asked_for(tmp_path):
     refly = plan_refly(load_mission(DEMO), map_dir)
     assert len(refly.groups) == 1 and refly.groups[0].areas[0].along_min_m == 3.0
     assert len(refly.skipped) == 1 and "2.0 cm thin" in refly.skipped[0]
-    assert len(plan_refly(load_mission(DEMO), map_dir, min_size_m=0.0).groups) == 2
+    assert len(plan_refly(load_mission(DEMO), map_dir, min_size_m=0.0, min_area_m2=0.0).groups) == 2
+
+
+def test_seam_sliver_and_small_patch_are_reported_not_flown(tmp_path, capsys):
+    # the case: a seam 0.1 m wide down the wall (0.75 m2) gave two full-height strips 0.13 m apart
+    seam = {"along_min_m": 10.0, "along_max_m": 10.1, "up_min_m": 2.0, "up_max_m": 9.5, "area_m2": 0.75}
+    patch = {"along_min_m": 15.0, "along_max_m": 15.4, "up_min_m": 5.0, "up_max_m": 5.4, "area_m2": 0.16}
+    map_dir = _write_map(tmp_path / "map", [seam, patch])
+    refly = plan_refly(load_mission(DEMO), map_dir)
+    assert refly.plan is None and "nothing to re-fly" in refly.message
+    assert refly.skipped == (
+        "along 10.00..10.10 m, up 2.00..9.50 m: only 10.0 cm thin, under the 20 cm minimum (a sliver)",
+        "along 15.00..15.40 m, up 5.00..5.40 m: only 0.16 m2, under the 0.25 m2 minimum",
+    )
+    flown = plan_refly(load_mission(DEMO), map_dir, min_size_m=0.0, min_area_m2=0.0)
+    assert flown.plan is not None and not flown.skipped  # asked for: flown
+    out = tmp_path / "out"
+    assert main(["plan", str(DEMO), "--refly", str(map_dir), "--out", str(out), "--refly-min-size-m", "0.05",
+                 "--refly-min-area-m2", "0.1"]) == 0
+    printed = capsys.readouterr().out
+    assert "re-fly of 2 uncovered area(s)" in printed and out.exists()
+
+
+def test_printed_metres_have_no_negative_zero_and_a_mm_clip_is_no_note(tmp_path, capsys):
+    extent = scan_extent(load_mission(DEMO), plan_scan(load_mission(DEMO)).frame.length_m)
+    top = extent.up_max_m
+    areas = [
+        {"along_min_m": -2.004, "along_max_m": 1.0, "up_min_m": 12.0, "up_max_m": top + 0.004, "area_m2": 6.0},
+        {"along_min_m": 20.0, "along_max_m": 21.0, "up_min_m": 12.0, "up_max_m": top + 0.5, "area_m2": 2.5},
+        {"along_min_m": -0.004, "along_max_m": 0.05, "up_min_m": 0.0, "up_max_m": 3.0, "area_m2": 0.16},
+    ]
+    map_dir = _write_map(tmp_path / "map", areas)
+    refly = plan_refly(load_mission(DEMO), map_dir)
+    assert len(refly.notes) == 1 and refly.notes[0].startswith("along 20.00..21.00 m"), refly.notes  # 4 mm: said not
+    assert refly.skipped[0].startswith("along 0.00..0.05 m"), refly.skipped
+    assert main(["plan", str(DEMO), "--refly", str(map_dir), "--out", str(tmp_path / "out")]) == 0
+    printed = capsys.readouterr().out
+    assert "-0.00" not in printed and "along 0.00..0.05 m" in printed, printed

@@ -185,8 +185,11 @@ def test_cull_that_places_no_frame_is_an_error_with_the_offset_to_use(tmp_path, 
     err = capsys.readouterr().err
     assert "kept no keyframe" in err and "all 25 frames are older than the first telemetry sample" in err, err
     assert "t = 0.00 .. 2.40 s" in err and "t = 50.00 .. 52.90 s" in err and "--time-offset 50.00" in err
-    assert (tmp_path / "spool" / CULL_REPORT).exists()
+    assert not (tmp_path / "spool").exists()  # nothing kept: the spool folder this run made is removed
     assert main([*args, "--time-offset", "50"]) == 0  # the suggested fix works
+    printed = capsys.readouterr()
+    kept = int(printed.out.split(" keyframes in ")[0].split("-> ")[-1])
+    assert kept > 0 and printed.err.strip().splitlines()[-1].endswith(f"keyframes={kept}]"), printed.err
 
 
 def test_times_csv_must_cover_every_image(tmp_path):

@@ -128,7 +128,13 @@ def test_geojson_is_rfc7946_two_d_with_heights_as_properties(planned):
     for f, wp in zip(pts, plan.waypoints, strict=True):
         assert f["properties"]["alt_amsl_m"] == pytest.approx(plan.home.alt_amsl_m + wp.rel_alt_m, abs=1e-3)
     path = next(f for f in doc["features"] if f["properties"]["name"] == "scan path")
-    assert len(path["properties"]["alt_amsl_m"]) == len(path["geometry"]["coordinates"]) == len(plan.waypoints)
+    assert len(path["properties"]["vertex_alt_amsl_m"]) == len(path["geometry"]["coordinates"]) == len(plan.waypoints)
+    assert path["properties"]["vertex_rel_alt_m"] == [pytest.approx(wp.rel_alt_m, abs=1e-3) for wp in plan.waypoints]
+    kinds: dict[str, set[str]] = {}  # one JSON type per property name: GIS tools type a field once per layer
+    for f in doc["features"]:
+        for key, value in f["properties"].items():
+            kinds.setdefault(key, set()).add("number" if isinstance(value, int | float) else type(value).__name__)
+    assert {k: v for k, v in kinds.items() if len(v) > 1} == {}
 
 
 def test_geojson_opens_in_gdal(planned, tmp_path):
@@ -141,6 +147,10 @@ def test_geojson_opens_in_gdal(planned, tmp_path):
     out = subprocess.run([ogrinfo, "-ro", "-al", "-so", str(path)], capture_output=True, text=True, check=True).stdout
     assert f"Feature Count: {len(json.loads(path.read_text())['features'])}" in out
     assert "WGS 84" in out
+    fields = dict(line.split(": ", 1) for line in out.splitlines() if line.endswith(")") and ": " in line)
+    # a point's height is a number; the path's per-vertex heights are lists under their own names
+    assert fields["alt_amsl_m"].startswith("Real (") and fields["rel_alt_m"].startswith("Real (")
+    assert fields["vertex_alt_amsl_m"].startswith("RealList (")
 
 
 def test_kml_altitudes_are_the_mission_frame_above_sea_level(planned):

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
+from companion.image_files import read_image_file
 from companion.records import EncodedFrame, Frame
 
 log = logging.getLogger(__name__)
@@ -29,6 +30,7 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp"}
 class SourceStats:
     delivered: int = 0
     corrupt: int = 0
+    corrupt_files: list[str] = field(default_factory=list)  # "NAME: why" per corrupt file (image folders name them)
     stalls: int = 0
     notes: list[str] = field(default_factory=list)  # things the user should hear about (warnings)
     ended: str | None = None  # set when a recording reached its own end (not a camera that stopped delivering)
@@ -191,13 +193,15 @@ class ImageFolderSource(FrameSource):
 
     def __iter__(self) -> Iterator[Frame]:
         for index, path in enumerate(self.files):
-            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            if not _usable(image):
+            # the shared decode path: a JPEG cut short is refused here, never culled (nor a parallax reference)
+            read = read_image_file(path, cv2.IMREAD_COLOR, reject_blank=True)
+            if not read.ok:
                 self.stats.corrupt += 1
-                log.warning("skipping unreadable image %s", path.name)
+                self.stats.corrupt_files.append(read.describe())
+                log.warning("skipping corrupt image %s in %s", read.describe(), self.folder)
                 continue
             self.stats.delivered += 1
-            yield Frame(index=index, capture_time_s=self.time_of(index, path), image=image)
+            yield Frame(index=index, capture_time_s=self.time_of(index, path), image=read.image)
         self.stats.ended = f"image folder {self.name} ended after {self.stats.delivered} frames"
 
 

@@ -21,7 +21,9 @@ import numpy as np
 
 from companion.errors import CompanionError
 from companion.files import write_atomic
+from companion.image_files import read_image_file
 
+_Masks = Iterator[tuple[int, np.ndarray | None, bool, bool]]  # (index, mask or None, no near surface, parallax)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 
 
@@ -64,8 +66,18 @@ def _write_png(path: Path, mask: np.ndarray) -> None:
     write_atomic(path, buf.tobytes())
 
 
-def _read(path: Path) -> np.ndarray | None:
-    return cv2.imread(str(path), cv2.IMREAD_COLOR)
+class _PhotoReader:
+    """Reads photos through the shared decode path (companion/image_files.py), so a JPEG cut short is refused
+    (not masked, never a --sequence parallax neighbour) and remembers why each unreadable one was."""
+
+    def __init__(self) -> None:
+        self.problems: dict[Path, str] = {}
+
+    def __call__(self, path: Path) -> np.ndarray | None:
+        read = read_image_file(path, cv2.IMREAD_COLOR)
+        if not read.ok:
+            self.problems[path] = read.problem or "unreadable"
+        return read.image
 
 
 def _checked_out_dir(out_dir: str | Path, paths: list[Path]) -> Path:
@@ -82,12 +94,12 @@ def _checked_out_dir(out_dir: str | Path, paths: list[Path]) -> Path:
     return out
 
 
-def _single_photo_masks(paths: list[Path], masker) -> Iterator[tuple[int, np.ndarray | None, bool, bool]]:
+def _single_photo_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks:
     """(index, mask or None when unreadable, no near surface, judged by parallax) from the network alone."""
     from companion.records import Frame, TaggedFrame
 
     for n, path in enumerate(paths):
-        image = _read(path)
+        image = read(path)
         if image is None:
             yield n, None, False, False
             continue
@@ -95,11 +107,11 @@ def _single_photo_masks(paths: list[Path], masker) -> Iterator[tuple[int, np.nda
         yield n, (roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)), roi.empty, False
 
 
-def _sequence_masks(paths: list[Path], masker) -> Iterator[tuple[int, np.ndarray | None, bool, bool]]:
+def _sequence_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks:
     """The same from the network and the pass's parallax (companion/depth/sequence.py)."""
     from companion.depth.sequence import mask_sequence
 
-    for n, m in mask_sequence(paths, masker, _read):
+    for n, m in mask_sequence(paths, masker, read):
         yield (n, None, False, False) if m is None else (n, m.mask, m.no_near_surface, m.parallax)
 
 
@@ -120,7 +132,8 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
     out = _checked_out_dir(out_dir, paths)
     out.mkdir(parents=True, exist_ok=True)
     masker = masker or Masker()
-    masks = _sequence_masks(paths, masker) if sequence else _single_photo_masks(paths, masker)
+    reader = _PhotoReader()
+    masks = (_sequence_masks if sequence else _single_photo_masks)(paths, masker, reader)
     results: list[PhotoMask] = []
     unreadable: list[Path] = []
     for n, mask, no_near_surface, by_parallax in masks:
@@ -135,7 +148,7 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
         if on_mask is not None:
             on_mask(result)
     if unreadable:
-        names = ", ".join(str(p) for p in unreadable)
+        names = "; ".join(f"{p}: {reader.problems.get(p, 'unreadable')}" for p in unreadable)
         raise CompanionError(
             f"{len(unreadable)} of {len(paths)} photos could not be read as images: {names}",
             f"check that they are complete JPEG/PNG/TIFF files and rerun on them; the masks of the other "

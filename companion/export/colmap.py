@@ -28,7 +28,8 @@ import numpy as np
 import pymap3d
 
 from companion.errors import CompanionError
-from companion.files import read_jsonl, write_atomic
+from companion.files import read_jsonl, removed_on_failure, write_atomic
+from companion.image_files import read_image_file
 from companion.spool.layout import MANIFEST, META
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,7 @@ class ColmapWorkspace:
     names: tuple[str, ...]  # image file names, in capture order
     positions_llh: tuple[tuple[float, float, float], ...]  # telemetry lat, lon, alt AMSL per image (nan: none)
     true_focal_px: float | None  # spool.json's K (the mission camera or its calibration)
+    left_out: tuple[str, ...] = ()  # "NAME: why" for keyframes whose image is missing or damaged (not given COLMAP)
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,7 @@ class ColmapResult:
     centres_within_m: int  # registered keyframes within MISPLACED_M of their telemetry position
     misplaced: tuple[str, ...]  # registered, but further than MISPLACED_M from the telemetry
     model_dir: str
+    left_out: tuple[str, ...] = ()  # the workspace's: keyframes not given to COLMAP (image missing or damaged)
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
@@ -87,17 +90,19 @@ def write_workspace(spool: Path, out: Path, *, masks: bool = False) -> ColmapWor
     if out.resolve() == spool.resolve():
         raise CompanionError("the COLMAP workspace would be written into the spool itself",
                              "choose another --out folder")
+    usable, left_out = _readable_keyframes(spool, entries)
+    if not usable:
+        raise CompanionError(f"none of the {len(entries)} keyframe images of {spool} can be read: "
+                             f"{'; '.join(left_out[:5])}",
+                             "check the spool's files (a card pulled mid-write cuts JPEGs short); cull again")
     images = out / "images"
     images.mkdir(parents=True, exist_ok=True)
     mask_dir = out / "masks" if masks else None
     if mask_dir is not None:
         mask_dir.mkdir(exist_ok=True)
     names, positions = [], []
-    for entry in entries:
+    for entry in usable:
         src = spool / entry["image"]
-        if not src.exists():
-            log.warning("keyframe %s is in the manifest but its image is missing: left out", entry["image"])
-            continue
         _link_or_copy(src, images / src.name)
         if mask_dir is not None:
             mask = spool / entry["mask"]
@@ -111,7 +116,23 @@ def write_workspace(spool: Path, out: Path, *, masks: bool = False) -> ColmapWor
         camera = json.loads((spool / META).read_text(encoding="utf-8")).get("camera") or {}
         if camera.get("K"):
             true_focal = float(camera["K"][0][0])
-    return ColmapWorkspace(out, images, mask_dir, tuple(names), tuple(positions), true_focal)
+    return ColmapWorkspace(out, images, mask_dir, tuple(names), tuple(positions), true_focal, tuple(left_out))
+
+
+def _readable_keyframes(spool: Path, entries: list[dict]) -> tuple[list[dict], list[str]]:
+    """The manifest entries whose image reads through the shared decode path (companion/image_files.py), and
+    "NAME: why" for the others. Why: COLMAP decodes a JPEG cut short to grey without a word, or fails to read a
+    missing one, and the keyframe then shows up only as "not registered" (exit 1, no reason). Decoded at 1/8 size
+    (libjpeg scales in the DCT): the check costs a few ms per keyframe."""
+    usable, left_out = [], []
+    for entry in entries:
+        read = read_image_file(spool / entry["image"], cv2.IMREAD_REDUCED_GRAYSCALE_8)
+        if read.ok:
+            usable.append(entry)
+        else:
+            left_out.append(read.describe())
+            log.warning("keyframe image %s left out of the COLMAP workspace", read.describe())
+    return usable, left_out
 
 
 def _pycolmap():
@@ -208,15 +229,20 @@ def reconstruct(workspace: ColmapWorkspace, *, hold_intrinsics: bool = True,
         centres_within_m=0 if errors is None else int((errors <= MISPLACED_M).sum()),
         misplaced=() if errors is None else tuple(n for n, e in zip(names, errors, strict=True) if e > MISPLACED_M),
         model_dir=str(sparse / str(key)),
+        left_out=workspace.left_out,
     )
 
 
 def export_colmap(spool: Path, out: Path, *, masks: bool = False, run: bool = True, hold_intrinsics: bool = True,
                   max_runtime_s: float | None = None) -> tuple[ColmapWorkspace, ColmapResult | None]:
-    """``companion export colmap``: write the workspace and (``run``) reconstruct it, with ``colmap_report.json``."""
-    workspace = write_workspace(spool, out, masks=masks)
-    if not run:
-        return workspace, None
-    result = reconstruct(workspace, hold_intrinsics=hold_intrinsics, max_runtime_s=max_runtime_s)
-    write_atomic(workspace.root / REPORT, json.dumps(asdict(result), indent=1))
+    """``companion export colmap``: write the workspace and (``run``) reconstruct it, with ``colmap_report.json``.
+    A run that fails removes what it created in ``out`` (companion.files.removed_on_failure)."""
+    if run:
+        _pycolmap()  # missing: said before anything is written
+    with removed_on_failure(out):
+        workspace = write_workspace(spool, out, masks=masks)
+        if not run:
+            return workspace, None
+        result = reconstruct(workspace, hold_intrinsics=hold_intrinsics, max_runtime_s=max_runtime_s)
+        write_atomic(workspace.root / REPORT, json.dumps(asdict(result), indent=1))
     return workspace, result

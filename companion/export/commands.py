@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from companion.export.colmap import MISPLACED_M, REPORT, export_colmap
@@ -30,6 +31,9 @@ def run_export_colmap(args: argparse.Namespace) -> int:
                                       hold_intrinsics=not args.refine_intrinsics)
     print(f"COLMAP workspace: {workspace.root} ({len(workspace.names)} keyframes in images/"
           f"{', masks in masks/' if workspace.masks else ''})")
+    if workspace.left_out:
+        print(f"warning: {len(workspace.left_out)} keyframe(s) left out, their image missing or damaged: "
+              f"{'; '.join(workspace.left_out)}", file=sys.stderr)
     if result is None:
         return 0
     focal = f"focal {result.focal_px:.1f} px"
@@ -45,4 +49,11 @@ def run_export_colmap(args: argparse.Namespace) -> int:
     if result.unregistered:
         print(f"not registered: {', '.join(result.unregistered)}")
     print(f"report: {workspace.root / REPORT}")
-    return 0 if not result.unregistered else 1
+    if not result.unregistered:
+        return 0
+    # a result, not a user's mistake (exit 1, the workspace kept), but said the way every failure is
+    print(f"error: {len(result.unregistered)} of {result.keyframes} keyframes did not register in COLMAP's model: "
+          f"{', '.join(result.unregistered)}\n  fix: check that they overlap their neighbours (the spool's "
+          "cull_report.json names gaps); without --masks if it was given, without --refine-intrinsics if it was",
+          file=sys.stderr)
+    return 1

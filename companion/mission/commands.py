@@ -8,7 +8,7 @@ from pathlib import Path
 
 from companion.mission.exports import flight_parameters_by_autopilot, render_outputs, write_outputs
 from companion.mission.planner import ScanPlan, plan_scan
-from companion.mission.refly import MIN_AREA_SIZE_M, refly_to_dir
+from companion.mission.refly import MIN_AREA_M2, MIN_AREA_SIZE_M, format_region, refly_to_dir
 from companion.mission.spec import load_mission
 from companion.resources import mission_argument, shipped_missions
 
@@ -30,8 +30,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=MIN_AREA_SIZE_M,
         metavar="M",
-        help=f"with --refly: leave out uncovered areas thinner than this (default {MIN_AREA_SIZE_M} m: map-edge "
-        "slivers); 0 flies every area",
+        help=f"with --refly: leave out uncovered areas thinner than this (default {MIN_AREA_SIZE_M} m: slivers "
+        "along the map's edges and seams); 0 (with --refly-min-area-m2 0) flies every area",
+    )
+    p.add_argument(
+        "--refly-min-area-m2",
+        type=float,
+        default=MIN_AREA_M2,
+        metavar="M2",
+        help=f"with --refly: leave out uncovered areas smaller than this (default {MIN_AREA_M2} m2: a patch not "
+        "worth strips and PX4's home-settle hold)",
     )
     p.set_defaults(func=run_plan)
 
@@ -80,18 +88,15 @@ def run_plan(args: argparse.Namespace) -> int:
 
 
 def run_refly(args: argparse.Namespace) -> int:
-    refly, written = refly_to_dir(args.mission, args.refly, args.out, min_size_m=args.refly_min_size_m)
+    refly, written = refly_to_dir(args.mission, args.refly, args.out, min_size_m=args.refly_min_size_m,
+                                  min_area_m2=args.refly_min_area_m2)
     for line in (*refly.notes, *(f"left out: {s}" for s in refly.skipped)):
         print(f"  note: {line}")
     print(refly.message)
     if refly.plan is None:
         return 0
     for k, g in enumerate(refly.groups):
-        r = g.region
-        print(
-            f"  group {k + 1}: {len(g.areas)} area(s), frames over along {r.along_min_m:.2f}..{r.along_max_m:.2f} m, "
-            f"up {r.up_min_m:.2f}..{r.up_max_m:.2f} m"
-        )
+        print(f"  group {k + 1}: {len(g.areas)} area(s), frames over {format_region(g.region)}")
     print(format_estimates(refly.plan))
     print(f"wrote {len(written)} files to {args.out}")
     return 0

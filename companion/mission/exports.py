@@ -194,7 +194,8 @@ def _geofence_ring(plan: ScanPlan, vertices: int = 72) -> list[list[float]]:
 
 def geojson_text(plan: ScanPlan) -> str:
     """GeoJSON per RFC 7946: 2-D positions (its heights would be ellipsoidal; ours are above mean sea level, as
-    MAVLink's), heights as properties; polygon exteriors counter-clockwise (right-hand rule)."""
+    MAVLink's), heights as properties, one JSON type per property name (GIS tools type a field once for the whole
+    layer); polygon exteriors counter-clockwise (right-hand rule)."""
     m = plan.mission
     wall = _wall_corners(plan)
     feats = [
@@ -213,8 +214,10 @@ def geojson_text(plan: ScanPlan) -> str:
             "type": "Feature",
             "properties": {
                 "name": "scan path",
-                "alt_amsl_m": [round(_mission_amsl_m(plan, wp.rel_alt_m), 3) for wp in plan.waypoints],
-                "rel_alt_m": [round(wp.rel_alt_m, 3) for wp in plan.waypoints],
+                # per vertex, under their own names: a list under the points' alt_amsl_m made GDAL type that
+                # field RealList for every feature (one type per property name)
+                "vertex_alt_amsl_m": [round(_mission_amsl_m(plan, wp.rel_alt_m), 3) for wp in plan.waypoints],
+                "vertex_rel_alt_m": [round(wp.rel_alt_m, 3) for wp in plan.waypoints],
             },
             "geometry": {"type": "LineString", "coordinates": [[wp.lon, wp.lat] for wp in plan.waypoints]},
         },
@@ -262,7 +265,7 @@ def geojson_text(plan: ScanPlan) -> str:
         {
             "type": "FeatureCollection",
             "heights": "2-D positions; alt_amsl_m is above mean sea level (home altitude + rel_alt_m, the mission's "
-            "frame), rel_alt_m above home",
+            "frame), rel_alt_m above home; the scan path's per vertex: vertex_alt_amsl_m, vertex_rel_alt_m",
             "features": feats,
         },
         indent=1,

@@ -32,9 +32,16 @@ GEOREF_JSON = "map_georef.json"  # written by companion.stitch.output (read-only
 # How far the map's wall anchor may sit from the mission's wall before the map is taken for another wall:
 # the anchor comes from the same mission file, so anything beyond GNSS-survey noise means a different wall.
 WALL_MATCH_TOLERANCE_M = 1.0
-# Areas thinner than this are slivers where the map's pixel edge misses the wall edge by rounding (the stitcher's
-# cells are 10 cm, so a real hole is never thinner than a cell): not worth a flight; listed as left out.
-MIN_AREA_SIZE_M = 0.05
+# The rule for what is worth a flight: an uncovered area is flown when its narrow side is at least MIN_AREA_SIZE_M
+# and its area at least MIN_AREA_M2; anything smaller is listed as left out, not flown. Why: thinner areas are
+# slivers (the map's edge missing the wall's by rounding, a seam between strips a few cells wide; the stitcher's
+# cells are 10 cm, so 20 cm is two cells) and a re-fly for one costs whole strips (a 0.1 m x 7.5 m seam gave two
+# full-height strips 0.13 m apart) plus PX4's home-settle hold (116 s); a smaller patch than 0.5 m x 0.5 m is
+# better looked at in the keyframes around it.
+MIN_AREA_SIZE_M = 0.2
+MIN_AREA_M2 = 0.25
+# A clip to the scan extent by less than this (below the stitcher's 10 cm cells) is rounding, not worth a note.
+CLIP_NOTE_M = 0.05
 _STITCH_FIX = "make the map with `companion stitch SPOOL --out MAPDIR` and give that MAPDIR to --refly"
 
 
@@ -221,13 +228,37 @@ def group_areas(areas: list[WallRegion], margins: tuple[float, float], extent: W
     return sorted(out, key=lambda g: g.region.along_min_m)
 
 
-def _fmt(r: WallRegion) -> str:
-    return f"along {r.along_min_m:.2f}..{r.along_max_m:.2f} m, up {r.up_min_m:.2f}..{r.up_max_m:.2f} m"
+def metres(v: float) -> str:
+    """``v`` to the centimetre, never "-0.00" (a wall edge at -0.001 m is the edge)."""
+    return f"{round(v, 2) + 0.0:.2f}"
 
 
-def plan_refly(mission: Mission, map_dir: str | Path, *, min_size_m: float = MIN_AREA_SIZE_M) -> ReflyPlan:
+def format_region(r: WallRegion) -> str:
+    return (f"along {metres(r.along_min_m)}..{metres(r.along_max_m)} m, "
+            f"up {metres(r.up_min_m)}..{metres(r.up_max_m)} m")
+
+
+def _too_small(a: WallRegion, min_size_m: float, min_area_m2: float) -> str | None:
+    """Why ``a`` is not worth a flight (see MIN_AREA_SIZE_M), or None."""
+    thin = min(a.along_max_m - a.along_min_m, a.up_max_m - a.up_min_m)
+    area = (a.along_max_m - a.along_min_m) * (a.up_max_m - a.up_min_m)
+    if thin < min_size_m:
+        return f"only {100 * thin:.1f} cm thin, under the {100 * min_size_m:g} cm minimum (a sliver)"
+    if area < min_area_m2:
+        return f"only {area:.2f} m2, under the {min_area_m2:g} m2 minimum"
+    return None
+
+
+def _clipped_by(a: WallRegion, clipped: WallRegion) -> float:
+    return max(abs(x - y) for x, y in zip((a.along_min_m, a.along_max_m, a.up_min_m, a.up_max_m),
+                                          (clipped.along_min_m, clipped.along_max_m, clipped.up_min_m,
+                                           clipped.up_max_m), strict=True))
+
+
+def plan_refly(mission: Mission, map_dir: str | Path, *, min_size_m: float = MIN_AREA_SIZE_M,
+               min_area_m2: float = MIN_AREA_M2) -> ReflyPlan:
     """Plans the re-fly of ``map_dir``'s uncovered areas with ``mission``'s standoff, overlap, camera and rules;
-    areas thinner than ``min_size_m`` (along or up) are left out and listed."""
+    areas thinner than ``min_size_m`` (along or up) or smaller than ``min_area_m2`` are left out and listed."""
     gaps = read_map_gaps(map_dir)
     frame = wall_frame(mission)
     check_same_wall(gaps, mission, frame)
@@ -238,22 +269,23 @@ def plan_refly(mission: Mission, map_dir: str | Path, *, min_size_m: float = MIN
     margins = overlap_margins(mission)
     reachable, skipped = [], []
     for a in gaps.areas:
-        thin = min(a.along_max_m - a.along_min_m, a.up_max_m - a.up_min_m)
-        if thin < min_size_m:
-            skipped.append(f"{_fmt(a)}: only {100 * thin:.1f} cm thin, under the {100 * min_size_m:g} cm minimum")
+        small = _too_small(a, min_size_m, min_area_m2)
+        if small is not None:
+            skipped.append(f"{format_region(a)}: {small}")
             continue
         clipped = _clip(a, extent)
         if clipped is None:
             why = (
-                f"below the lowest frame edge ({extent.up_min_m:.2f} m; margins.bottom_clearance_m="
+                f"below the lowest frame edge ({metres(extent.up_min_m)} m; margins.bottom_clearance_m="
                 f"{mission.margins.bottom_clearance_m} m): lower the clearance or inspect it from the ground"
                 if a.up_max_m <= extent.up_min_m
                 else "outside the wall and its margins"
             )
-            skipped.append(f"{_fmt(a)}: {why}")
+            skipped.append(f"{format_region(a)}: {why}")
             continue
-        if clipped != a:
-            notes.append(f"{_fmt(a)}: only {_fmt(clipped)} can be flown (scan extent {_fmt(extent)})")
+        if _clipped_by(a, clipped) >= CLIP_NOTE_M:
+            notes.append(f"{format_region(a)}: only {format_region(clipped)} can be flown "
+                         f"(scan extent {format_region(extent)})")
         reachable.append(clipped)
     coverage = f" (coverage {100 * gaps.coverage_fraction:.1f} %)" if gaps.coverage_fraction is not None else ""
     if not reachable:
@@ -277,11 +309,12 @@ def plan_refly(mission: Mission, map_dir: str | Path, *, min_size_m: float = MIN
 
 
 def refly_to_dir(
-    mission_path: Path, map_dir: Path, out: Path, *, min_size_m: float = MIN_AREA_SIZE_M
+    mission_path: Path, map_dir: Path, out: Path, *, min_size_m: float = MIN_AREA_SIZE_M,
+    min_area_m2: float = MIN_AREA_M2,
 ) -> tuple[ReflyPlan, list[Path]]:
     """Plans the re-fly and writes its exports to ``out`` (all or none); nothing is written when there is nothing
     to re-fly."""
-    refly = plan_refly(load_mission(mission_path), map_dir, min_size_m=min_size_m)
+    refly = plan_refly(load_mission(mission_path), map_dir, min_size_m=min_size_m, min_area_m2=min_area_m2)
     if refly.plan is None:
         return refly, []
     files = render_outputs(refly.plan)  # everything rendered before anything is written

@@ -29,6 +29,9 @@ from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 log = logging.getLogger(__name__)
 
 
+CORRUPT_NAMED = 100  # corrupt files named in the cull report (the count says how many there were)
+
+
 @dataclass
 class CaptureCounters:
     """Counted by the capture thread alone (``LiveRunner``, or the offline cull's single thread): the chain's worker
@@ -36,6 +39,7 @@ class CaptureCounters:
 
     skipped_backlog: int = 0  # dropped before processing because the CPU could not keep up
     corrupt: int = 0
+    corrupt_files: list[str] = field(default_factory=list)  # "NAME: why" for the corrupt files a source named
 
 
 @dataclass
@@ -96,7 +100,8 @@ class ChainStats:
         return self.frames_processed + self.capture.skipped_backlog
 
     def as_dict(self) -> dict:
-        d = {"frames_in": self.frames_in, "skipped_backlog": self.skipped_backlog, "corrupt": self.corrupt}
+        d = {"frames_in": self.frames_in, "skipped_backlog": self.skipped_backlog, "corrupt": self.corrupt,
+             "corrupt_files": self.capture.corrupt_files[:CORRUPT_NAMED]}
         d.update({k: v for k, v in self.__dict__.items()
                   if k not in ("warnings", "notes", "capture", "undecodable")})
         span = (self.last_frame_wall_s or 0) - (self.first_frame_wall_s or 0)

@@ -176,6 +176,8 @@ def run_cull(args: argparse.Namespace) -> int:
         f"({stats['corrupt']} corrupt, {stats['dropped_no_roi']} without ROI, {stats['stale_pose']} without pose, "
         f"{stats['before_telemetry']} not placed in the telemetry)"
     )
+    if stats["corrupt_files"]:
+        print(f"corrupt frames skipped: {', '.join(stats['corrupt_files'])}")
     if result.no_keyframes is not None:
         raise result.no_keyframes
     return 0

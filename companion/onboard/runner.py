@@ -195,6 +195,7 @@ class LiveRunner:
             self.chain.warn(f"camera {self.source.name} failed: {exc}")
         finally:
             self.chain.stats.capture.corrupt = self.source.stats.corrupt
+            self.chain.stats.capture.corrupt_files = list(self.source.stats.corrupt_files)
             self.queue.put_end()
 
     def _work_loop(self) -> None:

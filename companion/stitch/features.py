@@ -21,6 +21,7 @@ from PIL import Image
 
 from companion.errors import CompanionError
 from companion.files import atomic_path
+from companion.image_files import TRUNCATED, UNDECODABLE, read_image_file
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
 from companion.progress import progress_bar
 from companion.stitch.config import STITCH_FEATURES, StitchConfig, worker_count
@@ -38,23 +39,17 @@ class Features:
 
 
 def read_image(path: Path, flags: int, what: str) -> np.ndarray:
-    """Decodes an image file, refusing a damaged one. A JPEG cut short (a torn write, a bad card) still decodes
-    in OpenCV, with grey filled in below the cut, so the end-of-image marker after the last scan is checked."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise CompanionError(f"cannot read {what} {path} ({exc.strerror})", "check that the file is there") from exc
-    if data[:2] == b"\xff\xd8":
-        last_scan = data.rfind(b"\xff\xda")
-        if last_scan < 0 or data.find(b"\xff\xd9", last_scan) < 0:
-            raise CompanionError(
-                f"{what} {path} is truncated (the JPEG ends before its end-of-image marker)",
-                "the file was cut short while it was written; the map is made without it",
-            )
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
-    if img is None:
+    """Decodes an image file, refusing a damaged one (a JPEG cut short decodes in OpenCV with grey below the cut):
+    the shared decode path of companion/image_files.py, its reason raised in the stitcher's words."""
+    read = read_image_file(path, flags)
+    if read.ok:
+        return read.image
+    if read.problem == TRUNCATED:
+        raise CompanionError(f"{what} {path} is {TRUNCATED}",
+                             "the file was cut short while it was written; the map is made without it")
+    if read.problem == UNDECODABLE:
         raise CompanionError(f"cannot decode {what} {path}", "the spool must write complete JPEG or PNG files")
-    return img
+    raise CompanionError(f"{what} {path} {read.problem}", "check that the file is there")
 
 
 _REDUCED_GREY = {1: cv2.IMREAD_GRAYSCALE, 2: cv2.IMREAD_REDUCED_GRAYSCALE_2, 4: cv2.IMREAD_REDUCED_GRAYSCALE_4}

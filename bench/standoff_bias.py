@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -89,7 +90,10 @@ def run_condition(name: str, args, plan, mission_path: Path) -> dict:
     texture = scene.texture.full_image(tex_mm)
     maps = {}
     for label, cfg in (("measured", StitchConfig()), ("telemetry", StitchConfig(measure_wall=False))):
-        res = stitch(load_spool(args.out / name / "spool"), args.out / name / f"map-{label}", cfg, progress=False)
+        dest = args.out / name / f"map-{label}"
+        if label == "telemetry":  # the same spool and settings: the features and pairs are the first map's
+            shutil.copytree(args.out / name / "map-measured" / "cache", dest / "cache", dirs_exist_ok=True)
+        res = stitch(load_spool(args.out / name / "spool"), dest, cfg, progress=False)
         maps[label] = {**map_errors(res, texture, tex_mm, float(plan.mission.facade.height_m)),
                        "mm_per_px": res.mm_per_px, "wall_distance": res.report.get("wall_distance"),
                        "anchored_by": (res.report.get("placement") or {}).get("anchored_by")}

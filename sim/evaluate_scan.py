@@ -103,17 +103,26 @@ class LegStandoff:
 
 
 def flown_standoff(plan, poses: Iterable[dict], max_cross_m: float = 0.5) -> list[LegStandoff]:
-    """One :class:`LegStandoff` per scan leg of ``plan`` from true ``poses`` (``--truth-log`` lines: latitude,
-    longitude and altitude of the TRUE position). A leg is matched in the wall's plane only (along, up), so a
-    vehicle flown metres off its standoff by a GNSS bias still counts on the leg it was flying."""
+    """One :class:`LegStandoff` per scan leg of ``plan`` from true ``poses`` (``--truth-log`` lines). Which leg a
+    sample is on is decided where the vehicle THOUGHT it was (the estimate's ``nav_*`` keys: it flies its
+    estimate along the planned leg, a GNSS bias or not), in the wall's plane only (along, up: a standoff
+    correction moves the path across the wall); its distance from the wall is the TRUE position's. Lines without
+    the estimate (an older log) are matched by the true position."""
     rows = [p for p in poses if p.get("in_air", True) and p.get("lat") is not None]
     out: list[LegStandoff] = []
     if not rows:
         return out
     frame = plan.frame
-    along, dist, up = (np.asarray(v, dtype=float) for v in frame.geodetic_to_facade(
-        np.array([p["lat"] for p in rows]), np.array([p["lon"] for p in rows]),
-        np.array([p["alt_amsl_m"] for p in rows])))
+
+    def facade(prefix: str):
+        keys = [prefix + k for k in ("lat", "lon", "alt_amsl_m")]
+        if prefix and not all(k in rows[0] for k in keys):
+            keys = ["lat", "lon", "alt_amsl_m"]
+        return (np.asarray(v, dtype=float) for v in frame.geodetic_to_facade(
+            *(np.array([p[k] for p in rows], dtype=float) for k in keys)))
+
+    _, dist, _ = facade("")
+    along, _, up = facade("nav_")
     for k, (i, j) in enumerate(plan.scan_legs):
         a, b = plan.waypoints[i], plan.waypoints[j]
         pa, pb = np.array([a.along_m, a.up_m]), np.array([b.along_m, b.up_m])

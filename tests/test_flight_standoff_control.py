@@ -15,6 +15,7 @@ from companion.flight.standoff_control import (
     NOT_JUDGED,
     ON_PLAN,
     RECOVERED,
+    SETTLING,
     TOO_CLOSE,
     Measurement,
     StandoffController,
@@ -83,10 +84,27 @@ def test_one_correction_per_leg_and_a_cap_on_its_size():
     first = next(d for d in decisions if d.action == CORRECT)
     assert first.shift_out_m == pytest.approx(1.0)  # capped
     ctl.applied(first, first.measured.time_s, leg=3)
-    decisions = _fly(ctl, PLAN - 0.5, 4.0, 20.0, seed=4)  # still 0.5 m close on the same leg
-    assert CORRECT not in {d.action for d in decisions} and CAPPED in {d.action for d in decisions}
-    decisions = _fly(ctl, PLAN + 0.5, 20.0, 25.0, leg=4, seed=5)  # the next leg may correct again (in, this time)
+    decisions = _fly(ctl, PLAN - 0.5, 4.0, 20.0, seed=4)  # still 0.5 m close on the same leg: on its way out
+    assert {d.action for d in decisions} == {SETTLING}
+    decisions = _fly(ctl, PLAN + 0.5, 20.0, 27.0, leg=4, seed=5)  # the next leg may correct again (in, this time)
     assert any(d.action == CORRECT and d.shift_out_m == pytest.approx(-0.5, abs=0.05) for d in decisions)
+
+
+def test_what_is_measured_on_the_way_to_the_moved_path_moves_nothing():
+    """The scan moved 1.5 m out on leg 3; the vehicle flies a straight line to the moved waypoint at that leg's
+    end, so on the rest of leg 3 it is between the two paths (3.3 m, say). Counted, that made a second correction
+    of +0.5 m on the next leg (the camera's 5 s window still held it) and a third of -0.5 m after it, the demo
+    flown 4.5 m from the wall for a strip. Nothing is judged until the vehicle is on the moved path; a camera
+    estimate counts once its window is wholly past the arrival."""
+    ctl = StandoffController(StandoffSettings(PLAN))
+    d = next(d for d in _fly(ctl, PLAN - 1.5, 0.0, 4.0, source="camera") if d.action == CORRECT)
+    ctl.applied(d, 4.0, leg=3)
+    decisions = _fly(ctl, lambda t: 2.5 + 1.5 * (t - 4.0) / 20.0, 4.1, 24.0, source="camera")  # the diagonal
+    assert {d.action for d in decisions} == {SETTLING}
+    late = _fly(ctl, 3.3, 24.1, 26.0, leg=4, source="camera")  # the estimate still mixing in the diagonal's
+    after = _fly(ctl, PLAN, 26.1, 40.0, leg=4, source="camera")
+    assert CORRECT not in {d.action for d in late + after} and ON_PLAN in {d.action for d in after}
+    assert len(ctl.corrections) == 1
 
 
 def test_too_far_moves_in_but_never_past_the_floor():
@@ -204,10 +222,10 @@ def test_the_total_move_is_capped_too():
     ctl = StandoffController(StandoffSettings(PLAN, max_correction_m=2.0))
     d = next(d for d in _fly(ctl, PLAN - 1.5, 0.0, 4.0) if d.action == CORRECT)
     ctl.applied(d, 4.0, leg=3)
-    d = next(d for d in _fly(ctl, PLAN - 1.5, 10.0, 14.0, leg=4) if d.action == CORRECT)  # still near: 0.5 more
+    d = next(d for d in _fly(ctl, PLAN - 1.5, 10.0, 18.0, leg=4) if d.action == CORRECT)  # still near: 0.5 more
     assert d.shift_out_m == pytest.approx(0.5, abs=0.05)
-    ctl.applied(d, 14.0, leg=4)
-    decisions = _fly(ctl, PLAN - 1.0, 20.0, 30.0, leg=5)
+    ctl.applied(d, 18.0, leg=4)
+    decisions = _fly(ctl, PLAN - 1.0, 20.0, 32.0, leg=5)
     assert CORRECT not in {d.action for d in decisions} and CAPPED in {d.action for d in decisions}
     assert "per leg" in ctl.summary().line()
 

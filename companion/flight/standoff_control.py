@@ -214,6 +214,9 @@ class StandoffController:
         self._recover_deadline: float | None = None
         self._log = _LegLog()
         self._newest_seen_s: float | None = None  # the newest measurement's time, whether it counted or not
+        # the leg being flown when the scan was moved: the vehicle reaches the moved path only at that leg's end
+        # (it flies a straight line to the moved waypoint), so what is measured on it is neither path
+        self._moving_leg: int | None = None
 
     def observe(self, m: Measurement, leg: int) -> None:
         """One measurement taken on scan leg ``leg`` (facing the wall)."""
@@ -247,6 +250,10 @@ class StandoffController:
             self._history.clear()
             return StandoffDecision(NOT_JUDGED)
         self._log.seen.add(leg)
+        if self._moving_leg is not None:
+            if leg == self._moving_leg:
+                return StandoffDecision(SETTLING)
+            self._arrived(now_s)
         if now_s < self._settle_until:
             return StandoffDecision(SETTLING)
         newest = max(self._history, key=lambda h: h.time_s, default=None)
@@ -318,8 +325,18 @@ class StandoffController:
                                                         f"{self.s.recover_s:g} s after backing off ({said})")
         return StandoffDecision(BACKING_OFF)
 
+    def _arrived(self, now_s: float) -> None:
+        """The vehicle left the leg it was on when the scan moved: it is on the moved path now. Only what is
+        measured from ``settle_s`` on counts (a camera estimate once its whole window is past this)."""
+        self._moving_leg = None
+        self._history.clear()
+        self._latest.clear()
+        self._settle_until = now_s + self.s.settle_s
+
     def applied(self, decision: StandoffDecision, now_s: float, leg: int) -> StandoffCorrection:
-        """The vehicle flies the moved scan now: record it, forget the measurements of the old path."""
+        """The vehicle flies the moved scan now: record it, forget the measurements of the old path. Nothing is
+        judged again until it reaches the moved path (the end of this leg); backing off from too close, the
+        measurements on the way out still tell whether it is back above the floor."""
         self.offset_m += decision.shift_out_m
         m = decision.measured
         correction = StandoffCorrection(now_s, leg, "back off" if decision.action == TOO_CLOSE else "correct",
@@ -328,7 +345,8 @@ class StandoffController:
         self.corrections.append(correction)
         self._history.clear()
         self._latest.clear()
-        self._settle_until = now_s + self.s.settle_s
+        self._settle_until = now_s + self.s.settle_s if decision.action == TOO_CLOSE else math.inf
+        self._moving_leg = leg
         self._last_correction_s = now_s
         self._corrected_legs.add(leg)
         if decision.action == TOO_CLOSE:

@@ -90,6 +90,8 @@ class PoseBridge:
         self.home: Home | None = None
         self.yaw_deg: float | None = None
         self.published = 0
+        self.same_clock = 0  # SIM_STATEs left out: the clock had not moved since the last pose
+        self._stamped: float | None = None  # the time of the last pose made
         self.unstamped = 0  # SIM_STATEs dropped: no clock message seen yet
         self._stop = False
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -143,9 +145,15 @@ class PoseBridge:
             if self.t_s is None:
                 self.unstamped += 1
                 return None
+            if self.t_s == self._stamped:
+                # no clock message since the last pose (a loaded autopilot sent two SIM_STATEs in a row): a second
+                # pose at the same time would give the camera's interpolation a zero interval
+                self.same_clock += 1
+                return None
             pose = pose_from_sim_state(msg.to_dict(), t_s=self.t_s, gimbal=self.gimbal, home=self.home)
             if pose is not None:
                 self.yaw_deg = pose["yaw_deg"]
+                self._stamped = self.t_s
             return pose
         if kind == "GIMBAL_DEVICE_ATTITUDE_STATUS":
             self.gimbal = gimbal_from_device_status(msg.to_dict(), self.yaw_deg) or self.gimbal

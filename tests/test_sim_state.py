@@ -103,6 +103,8 @@ def test_the_bridge_stamps_sim_state_with_the_latest_autopilot_clock():
         assert pose["t_s"] == 4.02 and pose["home"]["alt_amsl_m"] == 30.0
         assert (pose["gimbal_pitch_deg"], pose["gimbal_yaw_deg"]) == (0.0, 0.0)  # level and forward by default
         bridge.handle(_msg("MOUNT_STATUS", pointing_a=-3000, pointing_c=0))
+        assert bridge.handle(sim_state) is None and bridge.same_clock == 1  # the clock has not moved: no 2nd pose
+        bridge.handle(_msg("ATTITUDE", time_boot_ms=4040))
         assert bridge.handle(sim_state)["gimbal_pitch_deg"] == -30.0
         other = _msg("SIM_STATE", **_fields())
         other._header = mavlink.MAVLink_header(other.id, srcSystem=7, srcComponent=1)

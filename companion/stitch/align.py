@@ -182,20 +182,19 @@ def global_alignment(
 
 def pair_graph(pairs, to_norm: np.ndarray) -> list[tuple[int, int, np.ndarray, int]]:
     """Accepted pairs as graph edges: (i, j, homography image-normalised i -> j, inliers)."""
-    return _pair_observations(pairs, to_norm)[0]
+    from_norm = np.linalg.inv(to_norm)
+    edges = []
+    for r in pairs:
+        if r.accepted:
+            Hn = to_norm @ r.H @ from_norm
+            edges.append((r.i, r.j, Hn / Hn[2, 2], r.inliers))
+    return edges
 
 
 def _pair_observations(pairs: list[PairResult], to_norm: np.ndarray):
-    """Accepted pairs as graph edges (normalised homography, inlier count) and as matched point sets."""
-    from_norm = np.linalg.inv(to_norm)
-    edges, obs = [], []
-    for r in pairs:
-        if not r.accepted:
-            continue
-        Hn = to_norm @ r.H @ from_norm
-        edges.append((r.i, r.j, Hn / Hn[2, 2], r.inliers))
-        obs.append(_Observation(r.i, r.j, apply_h(to_norm, r.pts_i), apply_h(to_norm, r.pts_j)))
-    return edges, obs
+    """Accepted pairs as graph edges (``pair_graph``) and as matched point sets."""
+    obs = [_Observation(r.i, r.j, apply_h(to_norm, r.pts_i), apply_h(to_norm, r.pts_j)) for r in pairs if r.accepted]
+    return pair_graph(pairs, to_norm), obs
 
 
 def _seeds(n: int, priors, edges, reference: np.ndarray) -> dict[int, np.ndarray]:

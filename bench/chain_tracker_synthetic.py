@@ -1,5 +1,5 @@
 """Today's chain and the tracker chain side by side on a camera that really delivers 30 fps at 1280x720: a scan leg
-along a synthetic wall (``companion.keyframes.synthetic.WallScene``: textured wall, far background, exact poses and
+along a synthetic wall (``evaluation.keyframes.synthetic.WallScene``: textured wall, far background, exact poses and
 true overlap), rendered ahead of time, JPEG-encoded, and replayed in real time through the live runner.
 
     python bench/chain_tracker_synthetic.py [--fps 30] [--width 1280] [--speed 1.0] [--length 24] [--speedup 1]
@@ -41,13 +41,13 @@ from companion.depth.masker import Masker  # noqa: E402
 from companion.depth.parallax import SequenceParallax  # noqa: E402
 from companion.keyframes.gate import GateConfig, KeyframeGate  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 from companion.onboard.chain import CullChain  # noqa: E402
 from companion.onboard.runner import MEASURE_ALL_BACKLOG, TRACKED_BACKLOG, LiveRunner  # noqa: E402
 from companion.onboard.tracked import MeasureSchedule  # noqa: E402
 from companion.onboard.working import WorkingCopy  # noqa: E402
 from companion.records import EncodedFrame, Frame  # noqa: E402
 from companion.spool import KeyframeSpool  # noqa: E402
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 
 STANDOFF_M, UP_M = 4.0, 5.0
 

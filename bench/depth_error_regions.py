@@ -79,11 +79,13 @@ VALIDATION = {
 
 def validation_spec(name: str, frames: int, background_frames: int):
     """The PhotoPass of one validation pass (training-split photos only: a figure on them is never a held-out one)."""
-    from companion.depth.realdata import facade_mask, list_real_photos, load_image
+    from checkout import use_checkout_shared_data
+
+    from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
     from sim.camera.photo_scene import PhotoPass, PhotoTexture
 
     wall_name, width_m, bg_name, distance_m, strips = VALIDATION[name]
-    photos = {p.image.name: p for p in list_real_photos()}
+    photos = {p.image.name: p for p in list_real_photos(use_checkout_shared_data())}
     for n in (wall_name, bg_name):
         if photos[n].split != "train":
             raise SystemExit(f"{n} is held out: validation passes use training photos only")

@@ -18,6 +18,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from checkout import use_checkout_shared_data
+
 import companion.depth.parallax as parallax_module  # noqa: E402
 from companion.depth.masker import Masker  # noqa: E402
 from companion.depth.parallax import PARALLAX_RULES, SequenceParallax  # noqa: E402
@@ -50,7 +52,8 @@ def main() -> None:
     args = ap.parse_args()
     seen = _far_share_spy()
     for name in args.passes:
-        spec = build_pass(RECIPES[name], frames=args.frames, background_frames=args.background_frames)
+        spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                          frames=args.frames, background_frames=args.background_frames)
         renderer = PhotoPassRenderer(spec)
         maskers = [Masker("sim", parallax=SequenceParallax(spec.camera.hfov_deg, PARALLAX_RULES[rule]))
                    for rule in args.rules]

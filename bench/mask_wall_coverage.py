@@ -42,6 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 def render(name: str, frames: int, width: int):
     """The pass's renderer as bench/stitch_eval.py builds it (no gate yet)."""
+    from checkout import use_checkout_shared_data
     from stitch_photo_passes import RenderedPass
 
     from sim.camera.model import CameraModel
@@ -50,7 +51,8 @@ def render(name: str, frames: int, width: int):
 
     background_frames = max(2, round(frames * 22 / 250))
     if name in RECIPES:
-        spec = build_pass(RECIPES[name], frames=frames, background_frames=background_frames)
+        spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                          frames=frames, background_frames=background_frames)
     else:  # a validation pass of training-split photos (bench/depth_error_regions.py): rules are chosen there
         spec = validation_spec(name, frames, background_frames)
     cam = spec.camera

@@ -20,15 +20,15 @@ import numpy as np
 
 from companion.matching import match_descriptors
 from companion.ransac import ransac_homography
-from companion.stitch.evaluate import (
+from companion.stitch.render import MapGrid
+from evaluation.stitch.evaluate import (
     EVALUATION_MATCHING,
     map_accuracy,
     register_to_truth,
     truth_homography,
     truth_on_grid,
 )
-from companion.stitch.render import MapGrid
-from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
+from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
 
 
 @dataclass(frozen=True)
@@ -46,11 +46,14 @@ class RenderedPass:
 
 def render_pass(name: str, frames: int, width: int) -> RenderedPass:
     """Renders the pass and runs our gate on it (truth masks, exact telemetry) for the keyframes."""
+    from checkout import use_checkout_shared_data
+
     from sim.camera.model import CameraModel
     from sim.camera.photo_passes import RECIPES, build_pass
     from sim.camera.photo_scene import PhotoPassRenderer
 
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=max(2, round(frames * 22 / 250)))
+    spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                      frames=frames, background_frames=max(2, round(frames * 22 / 250)))
     cam = spec.camera
     spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
     renderer = PhotoPassRenderer(spec)
@@ -66,10 +69,10 @@ def gate_pass(rp: RenderedPass, masks: dict[int, np.ndarray | None] | None) -> R
     the spools of a shipped mask hold the keyframes the chain keeps with that mask."""
     from gate_photo_passes import PhotoPassRecording  # beside this script
 
-    from companion.keyframes.evaluate import evaluate_gate, telemetry_poses
     from companion.keyframes.features import FeatureConfig
     from companion.keyframes.gate import GateConfig
-    from companion.keyframes.synthetic import SITE
+    from evaluation.keyframes.evaluate import evaluate_gate, telemetry_poses
+    from evaluation.keyframes.synthetic import SITE
 
     rec = PhotoPassRecording(rp.renderer)
     cfg = GateConfig(rth=0.80, features=FeatureConfig(long_side_px=max(640, rp.spec.camera.width)))

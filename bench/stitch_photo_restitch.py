@@ -31,11 +31,14 @@ SCORES = ("ssim", "coverage", "background_inliers", "connected", "shift_median_m
 
 def scene(name: str, frames: int, width: int) -> RenderedPass:
     """The pass's renderer (no gate: the keyframes are the spool's), as stitch_eval rendered it."""
+    from checkout import use_checkout_shared_data
+
     from sim.camera.model import CameraModel
     from sim.camera.photo_passes import RECIPES, build_pass
     from sim.camera.photo_scene import PhotoPassRenderer
 
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=max(2, round(frames * 22 / 250)))
+    spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                      frames=frames, background_frames=max(2, round(frames * 22 / 250)))
     cam = spec.camera
     spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
     return RenderedPass(name, spec, PhotoPassRenderer(spec), [], [], [], [])

@@ -15,9 +15,9 @@ from companion.capture.sources import ImageFolderSource
 from companion.cli import main
 from companion.errors import CompanionError
 from companion.image_files import TRUNCATED, jpeg_truncated, read_image_file
-from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.spool.layout import CULL_REPORT
 from companion.stitch.features import read_image
+from evaluation.keyframes.synthetic import render, sweep, textured_wall
 
 FIXTURES = Path(__file__).parent / "depth_fixtures"
 

@@ -145,7 +145,7 @@ def ornate_entry() -> PhotoPassRenderer:
 
 def _pose(frame, standoff_m: float) -> Pose:
     """The frame's camera as telemetry reports it (exact; the parallax baselines are relative motion)."""
-    from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
+    from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     wall = wall_frame(SyntheticWall(length_m=12.0, height_m=3.0))
     row = reported_pose(np.random.default_rng(0), wall, (frame.along_m, standoff_m, frame.up_m, 0.0, 0.0),

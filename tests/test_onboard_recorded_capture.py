@@ -21,11 +21,11 @@ from companion.capture.sources import ImageFolderSource, open_source
 from companion.capture.telemetry import TelemetryBuffer
 from companion.cli import main
 from companion.errors import CompanionError
-from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.mission import load_mission, plan_scan
 from companion.onboard.live import NoKeyframesError, TelemetryLogTailer, run_live_scan
 from companion.records import Pose
 from companion.spool.layout import CULL_REPORT, MANIFEST
+from evaluation.keyframes.synthetic import render, sweep, textured_wall
 
 SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 

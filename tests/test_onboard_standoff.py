@@ -14,7 +14,6 @@ from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.cli import main
 from companion.keyframes import FeatureConfig, GateConfig, KeyframeGate
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall
 from companion.mission import load_mission
 from companion.onboard.chain import ChainStats, CullChain
 from companion.onboard.crosscheck import OverlapCrossCheck
@@ -23,6 +22,7 @@ from companion.onboard.setup import scan_scope
 from companion.onboard.standoff_watch import StandoffWatch
 from companion.spool import KeyframeSpool
 from companion.spool.layout import CULL_REPORT, MANIFEST
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall
 
 W, H = 320, 180
 PLAN = 4.0

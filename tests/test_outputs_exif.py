@@ -304,7 +304,7 @@ def test_pycolmap_registers_every_keyframe_with_the_exif_focal(tmp_path):
 
     from companion.geo import FacadeFrame, GeoPoint
     from companion.stitch.inputs import CameraModel
-    from companion.stitch.synthetic import SyntheticWall, make_texture, view
+    from evaluation.stitch.synthetic import SyntheticWall, make_texture, view
 
     w, h, hfov = 640, 360, 70.0
     wall = SyntheticWall(length_m=6.0, height_m=3.0)

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import cv2
 
-from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.progress import progress_bar
+from evaluation.keyframes.synthetic import render, sweep, textured_wall
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -19,7 +19,7 @@ from companion.errors import CompanionError
 from companion.spool.layout import MANIFEST
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.features import read_image
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 WALL = SyntheticWall(length_m=12.0, height_m=4.0, seed=5)
 TRUNCATED, GARBAGE, MISSING, BAD_MASK = 5, 11, 17, 23

@@ -14,7 +14,7 @@ import pytest
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect
-from companion.stitch.synthetic import make_spool, wall_for_texture
+from evaluation.stitch.synthetic import make_spool, wall_for_texture
 
 ROOT = Path(__file__).resolve().parents[1]
 PHOTO = ROOT.parent / "shared" / "data" / "real-uav-facade" / "DJI_0977_rgb.JPG"

@@ -13,11 +13,11 @@ from companion.cli import main
 from companion.errors import CompanionError
 from companion.spool.layout import CLOSED, MANIFEST
 from companion.stitch import StitchConfig, load_input, stitch
-from companion.stitch.evaluate import map_accuracy, truth_on_grid
 from companion.stitch.features import Features
 from companion.stitch.follow import follow
 from companion.stitch.pairs import PairSettings, match_pair
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.evaluate import map_accuracy, truth_on_grid
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 WALL = SyntheticWall(length_m=8.0, height_m=4.0)
 HOLE = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: masked as background in every keyframe

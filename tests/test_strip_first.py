@@ -33,7 +33,7 @@ from companion.onboard.tracked import MeasureSchedule
 from companion.records import Frame, Pose, TaggedFrame
 from companion.spool import KeyframeSpool
 from companion.spool.layout import CLOSED, MANIFEST
-from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
+from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
 STANDOFF_M = 4.0
 

@@ -26,10 +26,10 @@ from companion.cli import main
 from companion.stitch import load_input, stitch
 from companion.stitch.output import tiles_vrt
 from companion.stitch.render import MapGrid
-from companion.stitch.synthetic import SyntheticWall, make_spool
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
 from companion.viewer.tiles import MapReader, halve, halve_weighted, max_zoom_for
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 WALL = SyntheticWall(length_m=8.0, height_m=4.0)
 HOLE = (3.6, 4.4, 1.6, 2.4)

@@ -37,7 +37,6 @@ import numpy as np
 
 from companion.depth.masker import Masker
 from companion.depth.parallax import (
-    PARALLAX_RULES,
     ParallaxParams,
     camera_translation,
     carried_wall,
@@ -51,6 +50,7 @@ from companion.depth.parallax import (
     wall_depth_of,
 )
 from companion.depth.session import DepthSession
+from evaluation.depth.parallax_rules import PARALLAX_RULES
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a script

@@ -22,8 +22,9 @@ from checkout import use_checkout_shared_data
 
 import companion.depth.parallax as parallax_module  # noqa: E402
 from companion.depth.masker import Masker  # noqa: E402
-from companion.depth.parallax import PARALLAX_RULES, SequenceParallax  # noqa: E402
+from companion.depth.parallax import SequenceParallax  # noqa: E402
 from companion.records import Frame, TaggedFrame  # noqa: E402
+from evaluation.depth.parallax_rules import PARALLAX_RULES  # noqa: E402
 from sim.camera.photo_passes import RECIPES, build_pass  # noqa: E402
 from sim.camera.photo_scene import PhotoPassRenderer  # noqa: E402
 from tests.test_mask_wall import _pose  # noqa: E402

@@ -98,10 +98,11 @@ def mask_pass(rp, model: str, rules: list[str]):
     from stitch_photo_passes import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     from companion.depth.masker import Masker
-    from companion.depth.parallax import PARALLAX_RULES, SequenceParallax
+    from companion.depth.parallax import SequenceParallax
     from companion.depth.parallax_first import LaterReference, judged_alone, reference_mark
     from companion.depth.session import DepthSession
     from companion.records import Frame, Pose, TaggedFrame
+    from evaluation.depth.parallax_rules import PARALLAX_RULES
 
     spec = rp.spec
     session = DepthSession(model)
@@ -250,7 +251,7 @@ def _picture(path: Path, image, truth, mask, entry) -> None:
 
 
 def main() -> None:
-    from companion.depth.parallax import PARALLAX_RULES
+    from evaluation.depth.parallax_rules import PARALLAX_RULES
     from sim.camera.photo_passes import DEFAULT_PASSES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

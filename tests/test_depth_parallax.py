@@ -345,7 +345,8 @@ def test_a_strip_of_wall_the_flow_calls_far_is_kept_by_the_wall_plane_check():
     dropped."""
     import cv2
 
-    from companion.depth.parallax import PARALLAX_RULES, dense_flow, depth_from_flow
+    from companion.depth.parallax import dense_flow, depth_from_flow
+    from evaluation.depth.parallax_rules import PARALLAX_RULES
 
     cam = CameraModel(width=1920, height=1080, hfov_deg=69.0)  # the pass as the bench renders it
     r = _training_photo_pass(cam)

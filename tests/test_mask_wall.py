@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from companion.depth.masker import Masker
-from companion.depth.parallax import PARALLAX_RULES, ParallaxParams, ParallaxResult, SequenceParallax, plain_vote
+from companion.depth.parallax import ParallaxParams, ParallaxResult, SequenceParallax, plain_vote
 from companion.records import Frame, Pose, TaggedFrame
+from evaluation.depth.parallax_rules import PARALLAX_RULES
 from sim.camera.model import CameraModel
 from sim.camera.photo_passes import RECIPES, build_pass
 from sim.camera.photo_scene import PhotoPassRenderer

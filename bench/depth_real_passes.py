@@ -89,13 +89,12 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
 def facade_pose(index: int, position: np.ndarray):
     """The exact telemetry pose (``companion.records.Pose``) of a photo pass's camera at facade (along, out, up),
     facing the wall with the gimbal level: what the onboard masker reads (its parallax baselines are relative)."""
-    from companion.records import Pose
     from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     along, out, up = (float(v) for v in position)
     frame = wall_frame(SyntheticWall(length_m=12.0, height_m=3.0))  # any wall: only its site and heading matter
-    row = reported_pose(np.random.default_rng(0), frame, (along, out, up, 0.0, 0.0), TelemetryErrors(), index)
-    return Pose.from_json({**row, "t_boot_s": index / 10.0})
+    return reported_pose(np.random.default_rng(0), frame, (along, out, up, 0.0, 0.0), TelemetryErrors(), index,
+                         time_s=index / 10.0)
 
 
 def _parallax_maskers(sessions: dict[str, DepthSession], rules: list[str], params: dict, fx: float, width: int,

@@ -101,7 +101,7 @@ def mask_pass(rp, model: str, rules: list[str]):
     from companion.depth.parallax import SequenceParallax
     from companion.depth.parallax_first import LaterReference, judged_alone, reference_mark
     from companion.depth.session import DepthSession
-    from companion.records import Frame, Pose, TaggedFrame
+    from companion.records import Frame, TaggedFrame
     from evaluation.depth.parallax_rules import PARALLAX_RULES
 
     spec = rp.spec
@@ -119,8 +119,9 @@ def mask_pass(rp, model: str, rules: list[str]):
     for i in range(len(rp.renderer)):
         f = rp.renderer.render(i)
         truth[i] = f.roi_mask > 0
-        row = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
-        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), Pose.from_json({**row, "t_boot_s": i / 10.0}))
+        pose = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i,
+                             time_s=i / 10.0)
+        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), pose)
         for rule in rules:
             recorders[rule].last = "sure"
             mark = reference_mark(maskers[rule])

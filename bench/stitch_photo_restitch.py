@@ -46,7 +46,7 @@ def scene(name: str, frames: int, width: int) -> RenderedPass:
 
 def restitch(rp: RenderedPass, spool: Path, old: Path, dest: Path, *, image_only: bool) -> dict:
     lines = (spool / "manifest.jsonl").read_text().splitlines()
-    frames = [json.loads(line)["source_frame"] for line in lines if line.strip()]
+    frames = [json.loads(line)["index"] for line in lines if line.strip()]  # the pass's frames (write_spool)
     for sub in ("features", "pairs"):
         if (old / "cache" / sub).is_dir() and not (dest / "cache" / sub).exists():
             shutil.copytree(old / "cache" / sub, dest / "cache" / sub)

@@ -149,9 +149,8 @@ def _pose(frame, standoff_m: float) -> Pose:
     from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     wall = wall_frame(SyntheticWall(length_m=12.0, height_m=3.0))
-    row = reported_pose(np.random.default_rng(0), wall, (frame.along_m, standoff_m, frame.up_m, 0.0, 0.0),
-                        TelemetryErrors(), frame.index)
-    return Pose.from_json({**row, "t_boot_s": frame.index / 10.0})
+    return reported_pose(np.random.default_rng(0), wall, (frame.along_m, standoff_m, frame.up_m, 0.0, 0.0),
+                         TelemetryErrors(), frame.index, time_s=frame.index / 10.0)
 
 
 def _masked(masker: Masker, frame, standoff_m: float):

@@ -55,9 +55,9 @@ def ornate():
     renders, poses = [], []
     for i in range(8):
         f = renderer.render(i)
-        row = reported_pose(None, facade, (f.along_m, STANDOFF_M, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
         renders.append(f)
-        poses.append(Pose.from_json({**row, "t_boot_s": i / 10.0}))
+        poses.append(reported_pose(None, facade, (f.along_m, STANDOFF_M, f.up_m, 0.0, 0.0), TelemetryErrors(), i,
+                                   time_s=i / 10.0))
     return spec, renders, poses
 
 

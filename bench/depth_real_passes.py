@@ -29,11 +29,11 @@ import numpy as np
 
 from companion.depth.masker import Masker
 from companion.depth.parallax import ParallaxParams
-from companion.depth.roi import ROI_RULES
 from companion.depth.session import DEFAULT_MODEL, DepthSession
 from companion.depth.visual import save_visual
 from evaluation.depth.evaluate import MaskEval, frame_eval
 from evaluation.depth.parallax_rules import PARALLAX_RULES
+from evaluation.depth.roi_rules import ROI_RULES
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -94,7 +94,8 @@ def parse_recipe(text: str) -> PassRecipe:
 
 def build_pass(recipe: PassRecipe, *, root: Path | None = None, frames: int = 250, background_frames: int = 22,
                background_distance_m: float | None = None) -> PhotoPass:
-    """The :class:`PhotoPass` of a recipe (wall photo with its facade labels as alpha, background photo)."""
+    """The :class:`PhotoPass` of a recipe (wall photo with its facade labels as alpha, background photo), its photos
+    from the shared data folder ``root`` (None: ``$COMPANION_SHARED_DATA``, ``evaluation.shared_data``)."""
     photos = list_real_photos(shared_data_root(root))
     wall = _texture(_find(recipe.wall_photo, photos), recipe.wall_width_m)
     background = _texture(_find(recipe.background_photo, photos), 1.0)

@@ -11,8 +11,8 @@ import pytest
 
 from companion.cli import main
 from companion.errors import CompanionError
-from companion.records import Frame, Keyframe
-from companion.spool.layout import CLOSED, MANIFEST
+from companion.records import Frame, Keyframe, Pose
+from companion.spool.layout import MANIFEST, META
 from companion.spool.writer import KeyframeSpool
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.features import Features
@@ -198,20 +198,29 @@ def test_blank_keyframes_without_telemetry_are_refused(tmp_path):
         stitch(load_input(tmp_path / "spool"), tmp_path / "out", progress=False)
 
 
+def _keyframes_of(spool_dir) -> list[Keyframe]:
+    """The keyframes of a spool, to be spooled again (a flight's keyframes arriving one by one)."""
+    lines = [json.loads(x) for x in (spool_dir / MANIFEST).read_text().splitlines()]
+    return [Keyframe(Frame(x["index"], x["capture_time_s"], cv2.imread(str(spool_dir / x["image"]))),
+                     Pose.from_json(x["pose"]), cv2.imread(str(spool_dir / x["mask"]), cv2.IMREAD_GRAYSCALE))
+            for x in lines]
+
+
 def test_follow_mode_updates_as_keyframes_arrive(spool, tmp_path):
     d, _ = spool
-    live = tmp_path / "live"
-    shutil.copytree(d, live)
-    lines = (d / MANIFEST).read_text().splitlines(keepends=True)
-    (live / MANIFEST).write_text("".join(lines[:4]))
+    keyframes = _keyframes_of(d)
+    live = KeyframeSpool(tmp_path / "live", meta=json.loads((d / META).read_text()))
+    for kf in keyframes[:4]:
+        live.append(kf)
     updates = []
 
-    def fake_sleep(_):
-        (live / MANIFEST).write_text("".join(lines))
-        (live / CLOSED).touch()
+    def fake_sleep(_):  # the rest of the flight, then its end
+        for kf in keyframes[4:]:
+            live.append(kf)
+        live.close()
 
-    last = follow(live, tmp_path / "out", poll_s=0, sleep=fake_sleep, on_update=updates.append)
-    assert [len(u.report["keyframes_used"]) for u in updates] == [4, len(lines)]
+    last = follow(live.dir, tmp_path / "out", poll_s=0, sleep=fake_sleep, on_update=updates.append)
+    assert [len(u.report["keyframes_used"]) for u in updates] == [4, len(keyframes)]
     assert last is updates[-1]
 
 

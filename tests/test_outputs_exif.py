@@ -234,7 +234,7 @@ def test_cull_dates_images_from_the_telemetry_wall_clock(tmp_path):
                 "pitch_deg": 0.0, "yaw_deg": 0.0, "mission_item": 3,
             }) + "\n")
     out = tmp_path / "spool"
-    args = ["cull", str(frames), "--telemetry", str(log), "--out", str(out), "--no-mask", "--fps", "10",
+    args = ["cull", str(frames), "--telemetry", str(log), "--out", str(out), "--no-mask", "--no-mission", "--fps", "10",
             "--time-offset", "50"]
     assert main(args) == 0
     for line in (out / MANIFEST).read_text().splitlines():

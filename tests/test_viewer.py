@@ -24,9 +24,10 @@ import pytest
 
 from companion.cli import main
 from companion.stitch import load_input, stitch
-from companion.stitch.output import tiles_vrt
+from companion.stitch.output import UncoveredArea, tiles_vrt
 from companion.stitch.render import MapGrid
 from companion.stitch.synthetic import SyntheticWall, make_spool
+from companion.stitch.unscaled import area_px
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
 from companion.viewer.tiles import MapReader, halve, halve_weighted, max_zoom_for
@@ -328,12 +329,14 @@ def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
     cv2.imwrite(str(tmp_path / "map.png"), bgra)
     georef = {"scale_known": False, "geotransform": None, "size_px": [w, h], "keyframes": []}
     (tmp_path / "map_georef.json").write_text(json.dumps(georef))
-    hole = {"along_min_m": along0 + 199.5 * s, "along_max_m": along0 + 299.5 * s}
-    hole |= {"up_min_m": up_top - 149.5 * s, "up_max_m": up_top - 99.5 * s, "area_m2": 0.5}
+    hole = area_px(UncoveredArea(along0 + 199.5 * s, along0 + 299.5 * s, up_top - 149.5 * s, up_top - 99.5 * s, 0.5),
+                   MapGrid(along0, up_top, s, w, h))
+    assert hole == {"x_min_px": 200, "x_max_px": 300, "y_min_px": 100, "y_max_px": 150, "area_px2": 5000}
+    why = "the spool has no spool.json"
     report = {
-        "coverage_fraction": 0.97,
-        "uncovered_areas_m": [hole],
-        "map": {"width_px": w, "height_px": h, "along_m": [along0, along0 + w * s], "up_m": [up_top - h * s, up_top]},
+        "coverage_fraction": 0.97, "uncovered_areas_m": None, "uncovered_areas_px": [hole],
+        "scale_unknown": {"why": why, "fix": "cull with --mission"},
+        "map": {"width_px": w, "height_px": h, "along_m": None, "up_m": None},
     }
     (tmp_path / "report.json").write_text(json.dumps(report))
     write_viewer(tmp_path)
@@ -341,3 +344,4 @@ def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
     assert data["frame"]["units"] == "px" and data["mm_per_px"] is None and data["keyframes"] == []
     left, right, bottom, top = data["refly"][0]["rect"]  # page units: x right, y up (= minus the map row)
     assert [left, right, -top, -bottom] == pytest.approx([200, 300, 100, 150])
+    assert data["scale_note"] == why  # the panel says why there is no scale, not "no telemetry"

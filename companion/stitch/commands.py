@@ -9,6 +9,7 @@ from companion.errors import CompanionError
 from companion.stitch import view_command
 from companion.stitch.follow import follow
 from companion.stitch.inputs import load_input
+from companion.stitch.unscaled import ScaleNote, area_text
 from companion.stitch.worker import StitchConfig, StitchResult, stitch
 
 
@@ -96,8 +97,13 @@ def _print(res: StitchResult) -> None:
         f"{r['pairs_tried']} accepted ({r['pairs_affine_fallback']} affine)"
     )
     print(f"coverage: {100 * res.coverage_fraction:.1f} %, {len(res.uncovered)} uncovered area(s)")
-    for a in res.uncovered[:10]:
-        print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
+    if r.get("scale_unknown"):
+        for a in r["uncovered_areas_px"][:10]:
+            print(f"  {area_text(a)}")
+        print(f"warning: {ScaleNote(**r['scale_unknown']).text()}")
+    else:
+        for a in res.uncovered[:10]:
+            print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
     print(f"report: {res.files['report']}")
     print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 

@@ -6,6 +6,7 @@ import argparse
 import json
 
 from companion.errors import CompanionError
+from companion.files import removed_on_failure
 from companion.stitch import view_command
 from companion.stitch.follow import follow
 from companion.stitch.inputs import load_input
@@ -124,7 +125,8 @@ def run(args) -> int:
             raise CompanionError("no map was made: fewer than 2 keyframes arrived", "check that the gate is running")
     else:
         inp = load_input(args.spool, **({"stride": args.stride} if args.stride != 1 else {}))
-        res = stitch(inp, args.out, cfg, progress=not args.quiet, debug_dir=args.debug_dir)
+        with removed_on_failure(args.out):  # a failed stitch leaves no empty or half-made map folder
+            res = stitch(inp, args.out, cfg, progress=not args.quiet, debug_dir=args.debug_dir)
     _print(res)
     if args.quiet:
         print(json.dumps({"coverage": res.coverage_fraction, "mm_per_px": res.mm_per_px}))

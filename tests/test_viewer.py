@@ -277,6 +277,16 @@ def test_page_from_file_draws_the_map_tiles(page, mapped):
         _find_on_screen(screen, truth["texture"], along, up, m_per_screen_px)
 
 
+def test_the_info_panel_leaves_the_whole_map_in_view(page):
+    """The first view fits the map beside the info panel, not under it (issue 29: it hid the wall's right end and
+    its re-fly areas)."""
+    right_px, panel_left = page.evaluate(
+        "() => { const v = companionViewer, b = v.bounds, m = v.map.getContainer().getBoundingClientRect();"
+        " const p = v.map.latLngToContainerPoint([b.getNorth(), b.getEast()]);"
+        " return [p.x, document.querySelector('.viewer-info').getBoundingClientRect().left - m.left]; }")
+    assert right_px <= panel_left, (right_px, panel_left)
+
+
 def test_click_on_the_wall_opens_the_keyframe_that_shows_it(page, mapped):
     out = mapped[0]
     kf = _data(out)["keyframes"][len(_data(out)["keyframes"]) // 2]

@@ -268,5 +268,10 @@
   };
   info.addTo(map);
 
-  map.fitBounds(bounds);
+  // The whole wall in view beside the info panel, not under it (its right end and re-fly areas were hidden); in a
+  // narrow window the panel may cover up to half the width, and it folds away with a click on its title.
+  var panelWidth = info.getContainer().offsetWidth;
+  var pad = Math.min(panelWidth + 20, map.getSize().x / 2);
+  map.fitBounds(bounds, { paddingTopLeft: [10, 10], paddingBottomRight: [pad, 10] });  // Leaflet's two corners
+  api.fitPaddingPx = pad;
 })();

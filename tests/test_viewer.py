@@ -333,13 +333,13 @@ def test_measured_distance_between_two_landmarks_is_the_wall_distance(page, mapp
 
 def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
     """Stitched without telemetry: no geotransform, no footprints; the re-fly areas land on their map pixels."""
-    s, along0, up_top, w, h = 0.01, -2.0, 3.0, 600, 300  # plane units per pixel, pixel-centre origin, size
+    s, along0, up_top, w, h = 0.01, -2.0, 3.0, 600, 300  # plane units per pixel, the map's corner, size
     bgra = np.full((h, w, 4), 200, np.uint8)
     bgra[100:150, 200:300] = 0  # the hole
     cv2.imwrite(str(tmp_path / "map.png"), bgra)
     georef = {"scale_known": False, "geotransform": None, "size_px": [w, h], "keyframes": []}
     (tmp_path / "map_georef.json").write_text(json.dumps(georef))
-    hole = area_px(UncoveredArea(along0 + 199.5 * s, along0 + 299.5 * s, up_top - 149.5 * s, up_top - 99.5 * s, 0.5),
+    hole = area_px(UncoveredArea(along0 + 200 * s, along0 + 300 * s, up_top - 150 * s, up_top - 100 * s, 0.5),
                    MapGrid(along0, up_top, s, w, h))
     assert hole == {"x_min_px": 200, "x_max_px": 300, "y_min_px": 100, "y_max_px": 150, "area_px2": 5000}
     why = "the spool has no spool.json"

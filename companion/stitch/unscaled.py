@@ -43,14 +43,14 @@ def scale_note(inp: StitchInput, use_poses_asked: bool) -> ScaleNote:
 
 
 def area_px(area: UncoveredArea, grid: MapGrid) -> dict:
-    """An area of the map in map pixels: x right, y down, 0 at the map image's top-left corner (the grid's
-    coordinates are pixel centres, hence the half pixel)."""
+    """An area of the map in map image pixels: x right, y down, from the image's top-left corner (the areas are
+    cut along pixel edges: ``output.uncovered_areas``)."""
     s = grid.m_per_px
     return {
-        "x_min_px": round((area.along_min_m - grid.along0_m) / s + 0.5, 1),
-        "x_max_px": round((area.along_max_m - grid.along0_m) / s + 0.5, 1),
-        "y_min_px": round((grid.up_top_m - area.up_max_m) / s + 0.5, 1),
-        "y_max_px": round((grid.up_top_m - area.up_min_m) / s + 0.5, 1),
+        "x_min_px": round((area.along_min_m - grid.along0_m) / s, 1),
+        "x_max_px": round((area.along_max_m - grid.along0_m) / s, 1),
+        "y_min_px": round((grid.up_top_m - area.up_max_m) / s, 1),
+        "y_max_px": round((grid.up_top_m - area.up_min_m) / s, 1),
         "area_px2": round(area.area_m2 / (s * s)),
     }
 

@@ -37,6 +37,10 @@ def find_cull_mission(video: str, mission: Path | None, *, allow_none: bool = Fa
         return CullMission(Path(mission), "--mission")
     if allow_none:
         return CullMission(None, "--no-mission")
+    if "://" not in video and not Path(video).exists():  # said first: no mission could be found for it anyway
+        raise CompanionError(f"{video} does not exist",
+                             "give the recorded flight's video file or image folder (a `companion record` "
+                             "recording's: REC/frames)")
     meta_path = recording_meta_path(Path(video))
     if meta_path is not None:
         return CullMission(mission_of_recording(meta_path), str(meta_path))

@@ -85,6 +85,11 @@ def _config(args) -> StitchConfig:
     )
 
 
+def _m(value: float) -> str:
+    """Metres to the cm, never "-0.00" (a cell edge a hair below the wall base)."""
+    return f"{round(value, 2) + 0.0:.2f}"
+
+
 def _print(res: StitchResult) -> None:
     r = res.report
     for w in r.get("warnings", []):
@@ -104,7 +109,7 @@ def _print(res: StitchResult) -> None:
         print(f"warning: {ScaleNote(**r['scale_unknown']).text()}")
     else:
         for a in res.uncovered[:10]:
-            print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
+            print(f"  along {_m(a.along_min_m)}..{_m(a.along_max_m)} m, up {_m(a.up_min_m)}..{_m(a.up_max_m)} m")
     print(f"report: {res.files['report']}")
     print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 

@@ -17,12 +17,9 @@ from companion.spool.layout import MANIFEST, META
 SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    rec = tmp_path_factory.mktemp("cullmission") / "rec"
-    assert main(["record", str(SMALL_WALL), "--out", str(rec), "--fast", "--width", "320", "--max-frames", "40",
-                 "--stride", "8"]) == 0
-    return rec
+@pytest.fixture
+def recording(small_recording) -> Path:
+    return small_recording  # conftest.py: small-wall, 24 frames of 320 px
 
 
 def test_a_recording_culls_with_its_own_mission(recording, tmp_path, capsys):

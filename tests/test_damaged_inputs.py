@@ -2,8 +2,8 @@
 (`error:` and `fix:` lines, exit 2, nothing left in the output folder) or a named skip (exit 0, the file named),
 never a traceback.
 
-One small recording (320 px, 24 frames) culled once gives the spool (6 keyframes), its first 12 frames the frames to
-cull, and the telemetry; every case damages its own copy.
+One small recording (conftest.py: 320 px, 24 frames) culled once gives the spool (6 keyframes), its first 12
+frames the frames to cull, and the telemetry; every case damages its own copy.
 """
 
 from __future__ import annotations
@@ -34,11 +34,9 @@ class Inputs:
 
 
 @pytest.fixture(scope="module")
-def good(tmp_path_factory) -> Inputs:
+def good(tmp_path_factory, small_recording) -> Inputs:
     root = tmp_path_factory.mktemp("damaged")
-    rec = root / "rec"
-    assert main(["record", str(SMALL_WALL), "--out", str(rec), "--fast", "--width", "320", "--max-frames", "24",
-                 "--stride", "8"]) == 0
+    rec = small_recording
     assert main(["cull", str(rec / "frames"), "--telemetry", str(rec / "telemetry.jsonl"), "--out",
                  str(root / "spool"), "--mission", str(SMALL_WALL), "--no-mask"]) == 0
     frames = root / "frames"  # the first 12 frames are enough to cull (and cheaper)

@@ -145,11 +145,12 @@ CASES = {
     "cull: zero-byte telemetry": Case(lambda t, g: _cull(t, g, telemetry=_telemetry(t, g, lambda ls: "")), "empty"),
     "cull: telemetry that is not there": Case(lambda t, g: _cull(t, g, telemetry=t / "flight.jsonl"), "flight.jsonl"),
     "cull: a mission with a word for a number": Case(
-        lambda t, g: _cull(t, g, mission=_mission(t, "standoff_m: 4.0", "standoff_m: far")), "standoff_m"),
+        lambda t, g: _cull(t, g, mission=_mission(t, "standoff_m: 4.0", "standoff_m: far")),
+        "fix: write 'standoff_m' as a number"),
     # planning from a mission file
     "plan: a mission with a list for a number": Case(
         lambda t, g: ["plan", str(_mission(t, "standoff_m: 4.0", "standoff_m: [4, 5]")), "--out", str(t / "out")],
-        "standoff_m"),
+        "fix: write 'standoff_m' as a number"),
     "plan: a mission that is not YAML": Case(
         lambda t, g: ["plan", str(_mission(t, "standoff_m: 4.0", "standoff_m: {4.0")), "--out", str(t / "out")],
         "not valid YAML"),

@@ -160,7 +160,7 @@ CASES = {
     "stitch: a keyframe cut short": Case(
         lambda t, g: _stitch(t, g, lambda d, kfs: _cut(d / kfs[2]["image"])), "skipped", skip=True),
     "stitch: a zero-byte keyframe": Case(
-        lambda t, g: _stitch(t, g, lambda d, kfs: _empty(d / kfs[4]["image"])), "skipped", skip=True),
+        lambda t, g: _stitch(t, g, lambda d, kfs: _empty(d / kfs[4]["image"])), "an empty file (0 bytes", skip=True),
     "stitch: a mask of the wrong size": Case(lambda t, g: _stitch(t, g, _wrong_size_mask), "mask", skip=True),
     "stitch: a manifest line of garbage": Case(lambda t, g: _stitch(t, g, _bad_manifest_line), "manifest.jsonl:3",
                                               skip=True),

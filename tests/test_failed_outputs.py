@@ -100,6 +100,7 @@ def test_a_failed_cull_removes_the_spool_folder_it_created(tmp_path, capsys):
            "pitch_deg": 0.0, "yaw_deg": 0.0}
     log.write_text("".join(json.dumps({**row, "t_boot_s": i / 10}) + "\n" for i in range(5)))
     out = tmp_path / "spool"
-    assert main(["cull", str(tmp_path / "missing.mp4"), "--telemetry", str(log), "--out", str(out), "--no-mask"]) == 2
+    assert main(["cull", str(tmp_path / "missing.mp4"), "--telemetry", str(log), "--out", str(out),
+                 "--no-mask", "--no-mission"]) == 2
     assert "missing.mp4" in capsys.readouterr().err
     assert not out.exists()

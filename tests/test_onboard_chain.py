@@ -138,6 +138,7 @@ def test_cull_cli_on_image_folder(tmp_path):
         "--out",
         str(out),
         "--no-mask",
+        "--no-mission",
         "--fps",
         "10",
         "--time-offset",

@@ -10,6 +10,7 @@ from pathlib import Path
 from companion.errors import CompanionError
 from companion.flight.limits import FlightLimits
 from companion.flight.standoff_loop import StandoffOptions
+from companion.onboard.mission_source import find_cull_mission
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
 from companion.plugins import SitlRequest
@@ -93,7 +94,10 @@ def _register_cull(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--telemetry", type=Path, required=True, help="telemetry log (JSON lines from companion fly)")
     p.add_argument("--out", type=Path, required=True, help="keyframe spool directory (resumable)")
     p.add_argument("--mission", type=mission_argument,
-                   help="mission YAML: overlap threshold, camera and facade for the spool")
+                   help="mission YAML the flight flew: overlap threshold, camera and facade, the map's scale "
+                        "(found in a `companion record` recording's meta.json; otherwise required)")
+    p.add_argument("--no-mission", action="store_true",
+                   help="cull without a mission: the spool has no camera identity or scale, its map is in pixels")
     p.add_argument("--model", type=Path, help="depth model (.onnx); default: the shipped model")
     p.add_argument("--no-mask", action="store_true", help="skip background removal (whole frame is ROI)")
     p.add_argument("--no-parallax", action="store_true",
@@ -166,8 +170,11 @@ def run_fly(args: argparse.Namespace) -> int:
 
 
 def run_cull(args: argparse.Namespace) -> int:
+    mission = find_cull_mission(args.video, args.mission, allow_none=args.no_mission)
+    if mission.path is not None and mission.found_in != "--mission":
+        print(f"mission: {mission.path} (the recording's, from {mission.found_in})", file=sys.stderr)
     request = OfflineCull(video=args.video, telemetry_log=args.telemetry, spool_dir=args.out,
-                          mission_path=args.mission, model=args.model, mask=not args.no_mask,
+                          mission_path=mission.path, model=args.model, mask=not args.no_mask,
                           parallax=not args.no_parallax, time_offset_s=args.time_offset, fps=args.fps)
     result = cull_recorded_flight(request)
     stats = result.stats.as_dict()

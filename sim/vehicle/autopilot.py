@@ -30,7 +30,7 @@ from sim.vehicle import rangefinder as rf
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
-from sim.vehicle.firmware import FirmwareRules, lost_link_action
+from sim.vehicle.firmware import FirmwareRules, link_loss_after_s, lost_link_action, lost_link_ignored
 from sim.vehicle.gnss_bias import GnssBias, ned_to_enu
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
@@ -545,10 +545,11 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.set_mode(fl.RTL)
         if self.last_gcs_wall is None or self.link_failsafe:
             return
-        timeout = self.param("COM_DL_LOSS_T" if self.flavour.name == "px4" else "FS_GCS_TIMEOUT", 10.0)
+        timeout = link_loss_after_s(self.flavour.name, self.params)
         action = lost_link_action(self.flavour.name, self.params)
         if (time.monotonic() - self.last_gcs_wall > timeout and action is not None
-                and self.mode not in (fl.RTL, fl.LAND)):
+                and self.mode not in (fl.RTL, fl.LAND) and not lost_link_ignored(self.flavour.name, self.params,
+                                                                                 self.mode)):
             self.link_failsafe = True
             log.warning("data link lost for more than %.0f s: %s", timeout, action)
             self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Data link lost: failsafe {action}")

@@ -50,6 +50,7 @@ class Vehicle:
     autopilot: str  # 'px4' or 'ardupilot'
     system_id: int
     param: ParamAsync | None = None
+    own_system_id: int = 245  # the companion's MAVLink system id (mavsdk's ground-station default)
 
     async def command_long(self, command: int, *params: float) -> int:
         """Send a COMMAND_LONG through mavlink_direct; returns the MAV_RESULT of its final ACK."""
@@ -103,8 +104,10 @@ async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto")
         kind = await system.autopilot_type()
         autopilot = "ardupilot" if kind == Autopilot.ARDUPILOT else "px4"
     vehicle = Vehicle(mavsdk, system, TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system),
-                      MavlinkDirectAsync(system), autopilot, await system.get_system_id(), ParamAsync(system))
-    log.info("connected to %s autopilot (system %d) on %s", autopilot, vehicle.system_id, url)
+                      MavlinkDirectAsync(system), autopilot, await system.get_system_id(), ParamAsync(system),
+                      own_system_id=int(cfg.system_id))
+    log.info("connected to %s autopilot (system %d) on %s as system %d", autopilot, vehicle.system_id, url,
+             vehicle.own_system_id)
     return vehicle
 
 

@@ -41,8 +41,10 @@ from companion.flight.connection import (
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
 from companion.flight.home_watch import HomeWatch, settle_item_seq
 from companion.flight.limits import FLIGHT_DEFAULTS
+from companion.flight.link_watch import link_watch_overrides
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
+from companion.flight.restore import restore_before_flight
 from companion.flight.simulator import simulator_parameters
 from companion.flight.standoff_control import StandoffCorrection, StandoffSummary
 from companion.flight.standoff_loop import StandoffLoop, StandoffOptions, settings_for
@@ -458,6 +460,8 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
         return {}, [text]
     overrides = failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt,
                                    need=need, current=settings)
+    if lost_link_action is not None:  # the failsafe must count the companion's heartbeats (link_watch.py)
+        overrides.update(await link_watch_overrides(vehicle))
     log.info("lost-link failsafe: %s=%d (%s); return altitude %s = %g m", settings.names.link_action,
              settings.link_action, settings.link_action_text, settings.names.return_alt, settings.return_alt_m)
     warnings = []
@@ -609,7 +613,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                       flight_parameters: Mapping[str, float] | None = None,
                       lost_link_action: str | None = None, return_alt: str | float | None = None,
                       standoff: StandoffOptions | None = None,
-                      camera_standoff: Callable[[], StandoffEstimate | None] | None = None) -> FlightResult:
+                      camera_standoff: Callable[[], StandoffEstimate | None] | None = None,
+                      state_dir: Path | str | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
     The parameters a ScanPlan needs on this firmware (``companion.mission.firmware.flight_parameters``: PX4's
@@ -622,6 +627,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     ``StandoffOptions()``: corrected, tolerance 0.3 m, floor = the mission's ``min_distance_m`` or 60 %); the
     measurements are the forward rangefinder's (DISTANCE_SENSOR in the telemetry rows) and ``camera_standoff()``'s
     (the live chain's ``CullChain.standoff``). Without either the flight says the standoff was not measured.
+    ``state_dir``: where the parameter journal lives (``param_journal.state_dir``); whatever an earlier run left
+    changed on this vehicle is restored first, and every change this flight makes is journaled before it is made.
 
     Returns when the vehicle is landed and disarmed, or supervision ended (stop request, timeout, restart, dead
     link: ``aborted`` and ``problem`` say which). Raises CompanionError for anything that prevents the flight from
@@ -636,12 +643,13 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     installed: list[int] = []
     sup: _Supervisor | None = None
     try:
+        journal = await restore_before_flight(vehicle, state_dir)  # before anything else (restore.py)
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
         wanted, warnings, first_seq, is_sih = await _prepare_vehicle(
             vehicle, plan, items, health_timeout_s=health_timeout_s, flight_parameters=flight_parameters,
             lost_link_action=lost_link_action, return_alt=return_alt)
-        async with FlightParameters(vehicle.param, wanted) as params, \
+        async with FlightParameters(vehicle.param, wanted, journal) as params, \
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None,
                                   planned_gimbal=PlannedGimbal.from_items(items)) as rec:
             loop_ = standoff_loop_for(plan, items, first_seq, standoff, rec, camera_standoff)

@@ -21,6 +21,7 @@ from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from companion.errors import CompanionError
+from companion.flight.mavsdk_log import route_mavsdk_log
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +87,7 @@ def _ack_result(ack) -> int:
 
 async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto") -> Vehicle:
     """Open ``url`` (e.g. ``udp://:14540``, ``tcpout://127.0.0.1:5760``) and wait for an autopilot heartbeat."""
+    route_mavsdk_log()  # mavsdk's lines as whole logging records, not spliced into ours
     cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     mavsdk = Mavsdk(cfg)
     try:

@@ -105,6 +105,22 @@ class FlightResult:
     standoff_corrections: list[StandoffCorrection] = field(default_factory=list)
 
 
+_SIGNAL_SOURCES = {"SIGINT": "Ctrl-C", "SIGTERM": "kill or a service manager"}
+
+
+def stop_request_text(signum: int | None, count: int) -> str:
+    """The log line for a stop request, naming the signal (SIGINT, SIGTERM: never a bare number, which read as
+    signal 1, SIGHUP, when it was the first request) and what the companion does about it."""
+    try:
+        name = signal.Signals(signum).name if signum is not None else "a stop request"
+    except ValueError:
+        name = f"signal {signum}"
+    source = f" ({_SIGNAL_SOURCES[name]})" if name in _SIGNAL_SOURCES else ""
+    if count <= 1:
+        return f"stop requested by {name}{source}: pausing, then returning to launch"
+    return f"stop requested again by {name}{source}: no longer waiting for the landing"
+
+
 def _down_and_disarmed(state: Mapping) -> bool:
     """Landed and disarmed: nothing to correct any more."""
     return state.get("armed") is False and state.get("in_air") is False
@@ -166,10 +182,10 @@ class _Supervisor:
         self.home_latlon_before_arming: tuple[float, float] | None = None
         self.standoff = standoff
 
-    def on_signal(self) -> None:
+    def on_signal(self, signum: int | None = None) -> None:
         self.signal_count += 1
         self.signalled.set()
-        log.warning("stop requested (signal %d): pausing, then returning to launch", self.signal_count)
+        log.warning("%s", stop_request_text(signum, self.signal_count))
 
     @property
     def problem(self) -> str | None:
@@ -427,7 +443,6 @@ class _Supervisor:
                 log.info("landed and disarmed after RTL")
                 return
             if self.signal_count >= 2:
-                log.warning("second stop request: not waiting for the landing")
                 return
             if self.rec.reboot is not None:
                 self._fail(self.rec.reboot)
@@ -660,7 +675,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-                        loop.add_signal_handler(sig, sup.on_signal)
+                        loop.add_signal_handler(sig, sup.on_signal, sig)
                         installed.append(sig)
             await sup.read_home_before_arming()
             await _arm_and_start(vehicle, rec, first_seq)

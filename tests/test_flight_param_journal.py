@@ -167,3 +167,35 @@ def test_px4_link_loss_exceptions_in_auto_modes_are_cleared_for_the_flight():
     assert asyncio.run(link_watch_overrides(_Vehicle(_Params({"COM_DLL_EXCEPT": 7}), "px4"))) == \
         {"COM_DLL_EXCEPT": 4.0}
     assert asyncio.run(link_watch_overrides(_Vehicle(_Params({}), "px4"))) == {}
+
+
+def test_fly_restores_before_anything_else_and_refuses_to_fly_while_it_cannot(monkeypatch):
+    from companion.flight import fly
+    from companion.mission import items as mi
+
+    calls = []
+
+    class _Connected:
+        autopilot = "ardupilot"
+
+        def close(self):
+            calls.append("close")
+
+    async def connected(*args, **kwargs):
+        return _Connected()
+
+    async def cannot_restore(vehicle, state):
+        calls.append(f"restore from {state}")
+        raise CompanionError("a previous run left parameters changed ... RTL_ALT (set it back to 1500)", "fix")
+
+    async def anything_else(*args, **kwargs):
+        calls.append("something else")
+
+    monkeypatch.setattr(fly, "connect", connected)
+    monkeypatch.setattr(fly, "restore_before_flight", cannot_restore)
+    monkeypatch.setattr(fly, "request_rates", anything_else)
+    monkeypatch.setattr(fly, "_prepare_vehicle", anything_else)
+    items = [mi.MissionItem(0, 6, mi.MAV_CMD_NAV_TAKEOFF, 1, 1, 0, 0, 0, 0, 1, 1, 12.0)]
+    with pytest.raises(CompanionError, match="RTL_ALT"):
+        asyncio.run(fly.fly_mission(items, "udp://:1", handle_signals=False, state_dir="/tmp/s"))
+    assert calls == ["restore from /tmp/s", "close"]

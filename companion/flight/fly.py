@@ -112,13 +112,13 @@ def stop_request_text(signum: int | None, count: int) -> str:
     """The log line for a stop request, naming the signal (SIGINT, SIGTERM: never a bare number, which read as
     signal 1, SIGHUP, when it was the first request) and what the companion does about it."""
     try:
-        name = signal.Signals(signum).name if signum is not None else "a stop request"
+        name = signal.Signals(signum).name if signum is not None else None
     except ValueError:
         name = f"signal {signum}"
-    source = f" ({_SIGNAL_SOURCES[name]})" if name in _SIGNAL_SOURCES else ""
+    by = f" by {name}" + (f" ({_SIGNAL_SOURCES[name]})" if name in _SIGNAL_SOURCES else "") if name else ""
     if count <= 1:
-        return f"stop requested by {name}{source}: pausing, then returning to launch"
-    return f"stop requested again by {name}{source}: no longer waiting for the landing"
+        return f"stop requested{by}: pausing, then returning to launch"
+    return f"stop requested again{by}: no longer waiting for the landing"
 
 
 def _down_and_disarmed(state: Mapping) -> bool:

@@ -113,8 +113,18 @@ def test_another_vehicle_on_the_same_system_id_keeps_its_journal(tmp_path):
     outcome = asyncio.run(restore_left_parameters(vehicle, tmp_path, ME))
     assert outcome.journal is None and vehicle.param.writes == [] and other.path.exists()
     assert "uid 00000000000007d0" in outcome.other_vehicles[0]
-    # a vehicle reporting no uid is matched on its system id
-    assert VehicleIdentity(1, None).same_vehicle(other.vehicle) and not ME.same_vehicle(other.vehicle)
+    assert not ME.same_vehicle(other.vehicle) and not ME.maybe_same_vehicle(other.vehicle)
+
+
+def test_a_vehicle_that_reports_no_uid_is_not_given_a_journal_that_has_one(tmp_path):
+    """Every vehicle ships as system 1: a simulator's journal must not be restored onto a real vehicle that did not
+    send its uid in time, nor a vehicle's own journal ignored: the flight is refused, naming the file."""
+    ParamJournal(tmp_path, ME, "ardupilot").record("WP_YAW_BEHAVIOR", 2, 0, True)
+    vehicle = _Vehicle(_Params({"WP_YAW_BEHAVIOR": 0}))
+    with pytest.raises(CompanionError, match="may belong to this vehicle") as err:
+        asyncio.run(restore_left_parameters(vehicle, tmp_path, VehicleIdentity(1, None)))
+    assert "WP_YAW_BEHAVIOR" in err.value.problem and vehicle.param.writes == []
+    assert VehicleIdentity(1, None).same_vehicle(VehicleIdentity(1, None))
 
 
 def test_a_refused_set_is_not_left_in_the_journal(tmp_path):

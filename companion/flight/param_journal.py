@@ -61,10 +61,14 @@ class VehicleIdentity:
         return f"system {self.system_id}" + (f", uid {self.uid}" if self.uid else ", no uid reported")
 
     def same_vehicle(self, other: VehicleIdentity) -> bool:
-        """Same system id, and the same uid where both know one (a vehicle that reports none matches on its id)."""
-        if self.system_id != other.system_id:
-            return False
-        return self.uid is None or other.uid is None or self.uid == other.uid
+        """Same system id and same uid (or neither reports one)."""
+        return self.system_id == other.system_id and self.uid == other.uid
+
+    def maybe_same_vehicle(self, other: VehicleIdentity) -> bool:
+        """Same system id, and only one of the two has a uid: it cannot be told whether this is the vehicle (every
+        vehicle ships as system 1; a simulator's journal must not be restored onto a real vehicle that did not
+        answer in time, nor a vehicle's own journal ignored)."""
+        return self.system_id == other.system_id and (self.uid is None) != (other.uid is None)
 
 
 @dataclass(frozen=True)

@@ -113,11 +113,19 @@ class RestoreOutcome:
 
 
 def _journals_of(directory: Path, identity: VehicleIdentity) -> tuple[list[Journal], list[str]]:
-    """This vehicle's journals, and a description of the other vehicles' (kept for when they connect)."""
+    """This vehicle's journals, and a description of the other vehicles' (kept for when they connect). Refuses
+    when a journal may or may not be this vehicle's (same system id, a uid on one side only)."""
     mine, others = [], []
     for journal in journals_in(directory):
         if journal.vehicle.same_vehicle(identity):
             mine.append(journal)
+        elif journal.vehicle.maybe_same_vehicle(identity):
+            raise CompanionError(
+                f"the parameter journal {journal.path} ({journal.vehicle.text()}) may belong to this vehicle "
+                f"({identity.text()}): it lists {', '.join(e.name for e in journal.entries)} as left changed, and "
+                "without both uids it cannot be told whether this is the same vehicle",
+                "connect again (the uid comes with AUTOPILOT_VERSION, asked for at connection); if it is another "
+                "vehicle, restore that one with `companion restore`, or delete the file after checking its values")
         else:
             others.append(f"{journal.vehicle.text()}: {', '.join(e.name for e in journal.entries)} ({journal.path})")
     return mine, others

@@ -24,6 +24,8 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 
+from mavsdk.asyncio.plugins.mavlink_direct import MavlinkMessage
+
 from companion.errors import CompanionError
 from companion.flight.connection import Vehicle
 from companion.flight.param_journal import (
@@ -40,7 +42,7 @@ log = logging.getLogger(__name__)
 
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_ID_AUTOPILOT_VERSION = 148
-IDENTITY_TIMEOUT_S = 3.0
+IDENTITY_TIMEOUT_S = 5.0  # a vehicle that answers at all answers within a second; asked three times
 
 
 def uid_text(fields: dict) -> str | None:
@@ -63,11 +65,15 @@ async def vehicle_identity(vehicle: Vehicle, timeout_s: float = IDENTITY_TIMEOUT
                 fields.update(json.loads(msg.fields_json))
                 return
 
-    async def _ask():
-        for _ in range(2):
+    async def _ask():  # fire and forget: a request waiting for its ACK would outlive a mavsdk closed under it
+        fields = {"target_system": vehicle.system_id, "target_component": 1, "command": MAV_CMD_REQUEST_MESSAGE,
+                  "confirmation": 0, "param1": float(MSG_ID_AUTOPILOT_VERSION)}
+        fields.update({f"param{i}": 0.0 for i in range(2, 8)})
+        request = MavlinkMessage("COMMAND_LONG", 0, 0, vehicle.system_id, 1, json.dumps(fields))
+        for _ in range(3):
             with contextlib.suppress(Exception):
-                await vehicle.command_long(MAV_CMD_REQUEST_MESSAGE, MSG_ID_AUTOPILOT_VERSION)
-            await asyncio.sleep(timeout_s / 2)
+                await vehicle.direct.send_message(request)
+            await asyncio.sleep(timeout_s / 3)
 
     asker = asyncio.create_task(_ask())
     try:

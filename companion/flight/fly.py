@@ -601,7 +601,8 @@ def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, p
     total = len(items)
     problem = sup.problem
     if params.restore_failures:
-        text = "parameters not restored: " + ", ".join(params.restore_failures)
+        text = ("parameters not restored: " + ", ".join(params.restore_failures) + " (kept in the parameter "
+                "journal: the next `companion fly` or `companion restore --connect URL` puts them back)")
         problem = f"{problem}; {text}" if problem else text
     return FlightResult(
         completed=reason is None and problem is None and landed and disarmed and sup.max_reached >= total,

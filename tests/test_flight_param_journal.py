@@ -209,3 +209,23 @@ def test_fly_restores_before_anything_else_and_refuses_to_fly_while_it_cannot(mo
     with pytest.raises(CompanionError, match="RTL_ALT"):
         asyncio.run(fly.fly_mission(items, "udp://:1", handle_signals=False, state_dir="/tmp/s"))
     assert calls == ["restore from /tmp/s", "close"]
+
+
+def test_the_restore_lets_copter_clear_its_gcs_failsafe_before_disabling_it(tmp_path, monkeypatch, caplog):
+    """The killed run's failsafe is still on: Copter clears it only at a counted heartbeat while FS_GCS_ENABLE is
+    on, and refuses to arm in it. So one heartbeat period passes before anything is restored, then the failsafe
+    is disabled before the GCS id goes back (newest first, as a flight restores)."""
+    import logging
+
+    from companion.flight import restore
+
+    monkeypatch.setattr(restore, "HEARTBEAT_PERIOD_WAIT_S", 0.01)
+    caplog.set_level(logging.INFO, logger="companion.flight.restore")
+    vehicle = _Vehicle(_Params({"WP_YAW_BEHAVIOR": 2, "MAV_GCS_SYSID": 255, "FS_GCS_ENABLE": 0}))
+    _killed_flight(vehicle.param, {"WP_YAW_BEHAVIOR": 0.0, "MAV_GCS_SYSID": 245.0, "FS_GCS_ENABLE": 1.0},
+                   ParamJournal(tmp_path, ME, "ardupilot"))
+    vehicle.param.writes.clear()
+    asyncio.run(restore_left_parameters(vehicle, tmp_path, ME))
+    said = [r.getMessage() for r in caplog.records]
+    assert said[0].startswith("waiting 0.0 s for the vehicle to count a heartbeat from the companion")
+    assert [name for name, _ in vehicle.param.writes] == ["FS_GCS_ENABLE", "MAV_GCS_SYSID", "WP_YAW_BEHAVIOR"]

@@ -89,3 +89,28 @@ def test_px4_ignores_a_lost_link_in_mission_with_com_dll_except(monkeypatch):
         assert _mode_after(v, [], wall_s=0.8) == fl.MISSION
     finally:
         v.close()
+
+
+def test_copter_refuses_to_arm_until_the_companions_first_counted_heartbeat_clears_a_stale_failsafe():
+    """The next flight after a killed one: MAV_GCS_SYSID put back to 255 first, so the companion's heartbeats went
+    uncounted for a while, then set to 245 again. Real Copter marks the loss while disarmed (no action), refuses to
+    arm while it is on ("PreArm: GCS failsafe on", AP_Arming_Copter::gcs_failsafe_check) and clears it at the next
+    counted heartbeat. The sim cleared the failsafe on arming and went to RTL at take-off."""
+    v = _vehicle(autopilot="ardupilot", gps_ready_after_s=0.0)
+    try:
+        v.params.update(FS_GCS_ENABLE=1, FS_GCS_TIMEOUT=0.3)
+        v.handle(_from(255))  # a GCS seen, then only the uncounted 245 for longer than the timeout
+        assert _mode_after(v, [_from(245)], wall_s=0.6) != fl.RTL and v.link_failsafe
+        v.params["MAV_GCS_SYSID"] = 245
+        v.set_mode(fl.GUIDED)
+        assert v.arm() == "PreArm: GCS failsafe on" and not v.armable_now()
+        _mode_after(v, [_from(245)], wall_s=0.1)  # the companion's next heartbeat, now counted
+        assert not v.link_failsafe
+        items = [mi.MissionItem(0, 0, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0, 0, 0, 0, 0, 0, 0.0)] + [
+            dataclasses.replace(it, seq=it.seq + 1) for it in _mission()]
+        v._on_new_mission(items)
+        assert v.arm() is None and v.set_mode(fl.MISSION) is None
+        _run_until(v, lambda: v.model.state.pos[2] < -3.0)
+        assert _mode_after(v, [_from(245)], wall_s=0.3) == fl.MISSION
+    finally:
+        v.close()

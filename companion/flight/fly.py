@@ -41,7 +41,7 @@ from companion.flight.connection import (
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
 from companion.flight.home_watch import HomeWatch, settle_item_seq
 from companion.flight.limits import FLIGHT_DEFAULTS
-from companion.flight.link_watch import link_watch_overrides
+from companion.flight.link_watch import link_watch_overrides, until_heartbeat_counted
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
 from companion.flight.restore import restore_before_flight
@@ -475,8 +475,8 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
         return {}, [text]
     overrides = failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt,
                                    need=need, current=settings)
-    if lost_link_action is not None:  # the failsafe must count the companion's heartbeats (link_watch.py)
-        overrides.update(await link_watch_overrides(vehicle))
+    if lost_link_action is not None:  # the failsafe must count the companion's heartbeats (link_watch.py); set
+        overrides = {**await link_watch_overrides(vehicle), **overrides}  # before it is enabled, restored after
     log.info("lost-link failsafe: %s=%d (%s); return altitude %s = %g m", settings.names.link_action,
              settings.link_action, settings.link_action_text, settings.names.return_alt, settings.return_alt_m)
     warnings = []
@@ -679,6 +679,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                         loop.add_signal_handler(sig, sup.on_signal, sig)
                         installed.append(sig)
             await sup.read_home_before_arming()
+            await until_heartbeat_counted(params.applied)  # link_watch.py: no arming in a stale GCS failsafe
             await _arm_and_start(vehicle, rec, first_seq)
             sup.t0 = time.monotonic()
             reason = await sup.run()

@@ -29,7 +29,9 @@ transmitter, mode changes and commands from the ground station are not affected.
 
 from __future__ import annotations
 
+import asyncio
 import logging
+from collections.abc import Sequence
 
 from companion.errors import CompanionError
 from companion.flight.connection import Vehicle
@@ -41,6 +43,7 @@ ARDUPILOT_GCS_SYSID = ("MAV_GCS_SYSID", "SYSID_MYGCS")  # 4.7 on, then older fir
 ARDUPILOT_GCS_SYSID_HI = "MAV_GCS_SYSID_HI"
 PX4_DLL_EXCEPT = "COM_DLL_EXCEPT"
 PX4_DLL_EXCEPT_AUTO_BITS = 0b11  # bit 0 Mission, bit 1 other auto modes (commander_params.c)
+HEARTBEAT_PERIOD_WAIT_S = 1.5  # mavsdk sends a heartbeat every second: one has been counted after this
 
 
 def watched_by_ardupilot(companion_id: int, gcs_id: int, gcs_id_hi: int | None) -> bool:
@@ -88,3 +91,12 @@ async def link_watch_overrides(vehicle: Vehicle) -> dict[str, float]:
     log.info("%s=%s ignores a lost link in Mission/auto modes: %d for this flight", PX4_DLL_EXCEPT,
              exceptions.text(), cleared)
     return {PX4_DLL_EXCEPT: float(cleared)}
+
+
+async def until_heartbeat_counted(applied: Sequence) -> None:
+    """After the GCS id was changed for the flight, wait one heartbeat period before arming. Why: ArduCopter's GCS
+    failsafe keeps one "last seen" time; when the companion's heartbeats were not counted for a while (the id put
+    back to 255 by the restore of a killed run, then set again), the failsafe is on, without action while
+    disarmed, until the next counted heartbeat clears it; Copter refuses to arm in it ("GCS failsafe on")."""
+    if any(change.name in ARDUPILOT_GCS_SYSID for change in applied):
+        await asyncio.sleep(HEARTBEAT_PERIOD_WAIT_S)

@@ -28,6 +28,7 @@ from mavsdk.asyncio.plugins.mavlink_direct import MavlinkMessage
 
 from companion.errors import CompanionError
 from companion.flight.connection import Vehicle
+from companion.flight.link_watch import ARDUPILOT_GCS_SYSID, HEARTBEAT_PERIOD_WAIT_S
 from companion.flight.param_journal import (
     JOURNAL_DIR,
     Journal,
@@ -169,15 +170,28 @@ async def restore_left_parameters(vehicle: Vehicle, directory: Path, identity: V
     if not journals:
         return RestoreOutcome(identity, None, other_vehicles=tuple(others))
     outcome: dict[str, list[str]] = {"restored": [], "already_back": [], "changed_since": [], "failed": []}
+    await _let_the_failsafe_see_the_companion(journals)
     for journal in journals:
         names = ", ".join(e.name for e in journal.entries)
         log.warning("a previous run left parameters changed on this vehicle (%s; journal %s): restoring them "
                     "before anything else: %s", identity.text(), journal.path, names or "none")
         store = ParamJournal(directory, journal.vehicle, journal.autopilot)
-        for entry in journal.entries:
-            await _restore_entry(vehicle, store, entry, outcome)
+        for entry in reversed(journal.entries):  # newest first, as a flight restores: a failsafe is disabled
+            await _restore_entry(vehicle, store, entry, outcome)  # before the GCS id it watches goes back
     return RestoreOutcome(identity, journals[-1].path, other_vehicles=tuple(others),
                           **{k: tuple(v) for k, v in outcome.items()})
+
+
+async def _let_the_failsafe_see_the_companion(journals: list[Journal]) -> None:
+    """A killed run that made the companion the GCS left ArduCopter's GCS failsafe on (that is how it returned).
+    Copter clears it only at a counted heartbeat while FS_GCS_ENABLE is on (``Copter::failsafe_gcs_check``
+    returns early when disabled) and refuses to arm while it is on ("PreArm: GCS failsafe on"). So before
+    FS_GCS_ENABLE goes back to 0, one heartbeat period passes with MAV_GCS_SYSID still the companion's: the
+    companion's heartbeat is counted and the failsafe cleared; disabled first, it would stay on for good."""
+    if any(e.name in ARDUPILOT_GCS_SYSID for journal in journals for e in journal.entries):
+        log.info("waiting %.1f s for the vehicle to count a heartbeat from the companion (it clears the GCS "
+                 "failsafe the killed run left on) before restoring", HEARTBEAT_PERIOD_WAIT_S)
+        await asyncio.sleep(HEARTBEAT_PERIOD_WAIT_S)
 
 
 def journal_directory(state: str | Path | None = None) -> Path:

@@ -63,6 +63,7 @@ FAILSAFE_DEFAULTS = {
 # Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
 GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
 COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
+COPTER_PREARM_GCS_FAILSAFE = "PreArm: GCS failsafe on"  # AP_Arming_Copter::gcs_failsafe_check
 # Wall seconds from (re)boot until the autopilot has initialised. Real ArduCopter 4.7 SITL (-w, wiped storage): its
 # first words ("ArduPilot Ready") came about 1 s after the first heartbeat at speed-up 1 and at 5 alike, so the
 # start-up is wall time (storage and sensor set-up), not simulated time. PX4 SITL answers from its first heartbeat.
@@ -194,12 +195,14 @@ class FirmwareRules:
         return self.t >= self.gps_ready_after_s
 
     def prearm_refusal(self) -> str | None:
-        """The firmware's refusal text: the estimator not using GPS yet, or (PX4) Mission mode without a valid
-        mission, which PX4 does not arm in."""
+        """The firmware's refusal text: the estimator not using GPS yet, (PX4) Mission mode without a valid
+        mission, which PX4 does not arm in, or (ArduCopter) its GCS failsafe on."""
         if not self.position_ready:
             return COPTER_PREARM_NO_POSITION if self.flavour.name == "ardupilot" else "Preflight Fail: No position"
         if self.flavour.name == "px4" and self.mode == fl.MISSION and (not self.mission or self.mission_refused):
             return "Arming denied: no valid mission"
+        if self.flavour.name == "ardupilot" and self.link_failsafe:
+            return COPTER_PREARM_GCS_FAILSAFE
         return None
 
     def armable_now(self) -> bool:
@@ -390,6 +393,7 @@ class FirmwareRules:
         self.mission_prev = None
         self.mission_refused = False
         self.link_failsafe = self.battery_failsafe = False
+        self.last_gcs_wall = None  # a restarted firmware has seen no GCS yet (Copter: gcs_last_seen_ms 0)
         self.battery = Battery()
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due = {}

@@ -1,7 +1,8 @@
 """A companion killed with SIGKILL mid-scan (issue 31), end to end over MAVLink against the ArduCopter-flavoured
 simulator: with ``--lost-link-action rtl`` the vehicle returns within its failsafe timeout (FS_GCS_TIMEOUT, 5 s:
 the simulator counts only its GCS id's heartbeats, as real ArduCopter does), and ``companion restore`` puts every
-parameter the killed run changed back to its value before the run, read back over MAVLink."""
+parameter the killed run changed back to its value before the run, read back over MAVLink, and leaves the vehicle
+armable (the GCS failsafe the kill left on cleared before FS_GCS_ENABLE goes back to 0)."""
 
 from __future__ import annotations
 
@@ -16,8 +17,9 @@ import pytest
 from pymavlink import mavutil
 
 from companion.flight import read_telemetry_log
-from companion.flight.connection import connect
+from companion.flight.connection import connect, request_rates, wait_healthy
 from companion.flight.parameters import read_parameter
+from companion.flight.start import select_arming_mode
 from companion.mission import load_mission, plan_scan
 from tests.sitl import ROOT, SitlVehicle, still_home_demo
 
@@ -27,11 +29,16 @@ COPTER_RTL = 6
 FS_GCS_TIMEOUT_S = 5.0
 
 
-def _read(url: str) -> dict[str, float]:
+def _read(url: str, *, armable: bool = False) -> dict[str, float]:
+    """The parameters over MAVLink; ``armable``: also wait (15 s at most) until the vehicle could arm again."""
     async def go():
         vehicle = await connect(url, timeout_s=60)
         try:
-            return {name: (await read_parameter(vehicle.param, name)).value for name in CHANGED}
+            values = {name: (await read_parameter(vehicle.param, name)).value for name in CHANGED}
+            if armable:  # a GCS failsafe left on refuses arming ("PreArm: GCS failsafe on")
+                await request_rates(vehicle, 2.0)
+                await wait_healthy(vehicle, 15.0, when_only_armable_missing=lambda: select_arming_mode(vehicle))
+            return values
         finally:
             vehicle.close()
 
@@ -95,5 +102,5 @@ def test_killed_companion_vehicle_returns_and_restore_puts_every_parameter_back(
                                  capture_output=True, text=True, env=env, timeout=120)
         assert restore.returncode == 0, restore.stdout + restore.stderr
         assert f"restored {len(CHANGED)}" in restore.stdout, restore.stdout + restore.stderr
-        assert _read(v.url) == before
+        assert _read(v.url, armable=True) == before  # and the kill's failsafe cleared: the next flight can arm
     assert not list((state / "parameter-journal").glob("*.json"))

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.flight.commands import STATE_DIR_HELP
 from companion.flight.limits import FlightLimits
 from companion.flight.standoff_loop import StandoffOptions
 from companion.onboard.mission_source import find_cull_mission
@@ -50,6 +51,8 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
                         "the plan's transit altitude or wall top + roof margin; restored after")
     p.add_argument("--set-param", action="append", default=[], metavar="NAME=VALUE",
                    help="set an autopilot parameter for this flight only (restored after; repeatable)")
+    p.add_argument("--state-dir", type=Path, help=STATE_DIR_HELP + "; a run's changes are journaled there and "
+                   "what an interrupted run left is restored before the flight")
     p.add_argument("--timeout", type=float, default=FlightLimits.flight_timeout_s,
                    help="RTL if the flight takes longer (seconds)")
     p.add_argument("--rate", type=float, default=FlightLimits.telemetry_rate_hz, help="telemetry rate to request, Hz")
@@ -146,7 +149,7 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
         link_loss_s=args.link_loss, flight_timeout_s=args.timeout, end_action=args.end_action,
         progress=not args.no_progress, link_dead_s=args.link_dead, stop_wait_s=args.stop_wait,
         lost_link_action=args.lost_link_action, return_alt=args.return_alt,
-        flight_parameters=flight_parameters(args.set_param) or None,
+        flight_parameters=flight_parameters(args.set_param) or None, state_dir=args.state_dir,
         standoff=StandoffOptions(correct=not args.no_standoff_correction, tolerance_m=args.standoff_tolerance,
                                  floor_m=args.standoff_floor))
     return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,

@@ -5,7 +5,7 @@
 Each pass (100 frames at the pass's camera, 12 past the wall's end, as bench/depth_real_passes.py) is masked in
 capture order by the onboard ``Masker`` (shipped ``sim`` model + parallax) once per rule set, with exact telemetry.
 Prints every frame where the two differ: the frame's true wall share, its trusted far share, and the background
-kept and wall lost (shares of the frame) under each rule set. docs/DEPTH.md "A far speck" quotes it.
+kept and wall lost (shares of the frame) under each rule set. docs/DEPTH.md "A far speck" names it.
 """
 
 from __future__ import annotations

@@ -89,7 +89,7 @@ class ParallaxParams:
     drop_max_untrusted_kept: float = 0.10
     min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
     max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
-    # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
+    # Off by default (measured, docs/DEPTH.md "Tried and off"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
     # this frame still shows. Where it covers at least ``wall_in_view_min_share`` of the frame, the frame is kept

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from checkout import use_checkout_shared_data
 
 from companion.depth.masker import Masker
 from companion.depth.photomask import mask_photos
@@ -29,7 +30,8 @@ from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
 
 def render_pass(name: str, frames: int, background_frames: int, width: int, folder: Path) -> list[np.ndarray]:
     """The pass's photos written as PNG files in capture order; their truth masks."""
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=background_frames)
+    spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                      frames=frames, background_frames=background_frames)
     spec = dataclasses.replace(spec, camera=CameraModel(width=width, height=width * 9 // 16, hfov_deg=69.0))
     renderer = PhotoPassRenderer(spec)
     truths = []

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from companion.stitch import StitchConfig, load_input, stitch
-from companion.stitch.evaluate import truth_homography, truth_on_grid
 from companion.stitch.geometry import apply_h
-from companion.stitch.synthetic import TelemetryErrors, make_spool, wall_for_texture
+from evaluation.stitch.evaluate import truth_homography, truth_on_grid
+from evaluation.stitch.synthetic import TelemetryErrors, make_spool, wall_for_texture
 
 ROOT = Path(__file__).resolve().parents[1]
 PHOTO = ROOT.parent / "shared" / "data" / "real-facades" / "facades" / "strecha_entry-P10" / "images"

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
-from companion.files import write_atomic
+from companion.files import NewOutput, write_atomic
 from companion.image_files import read_image_file
 
 _Masks = Iterator[tuple[int, np.ndarray | None, bool, bool]]  # (index, mask or None, no near surface, parallax)
@@ -130,6 +130,7 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
 
     paths = expand_images(images)
     out = _checked_out_dir(out_dir, paths)
+    output = NewOutput(out)
     out.mkdir(parents=True, exist_ok=True)
     masker = masker or Masker()
     reader = _PhotoReader()
@@ -149,9 +150,12 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
             on_mask(result)
     if unreadable:
         names = "; ".join(f"{p}: {reader.problems.get(p, 'unreadable')}" for p in unreadable)
+        written = f"the masks of the other {len(results)} photos were written to {out}"
+        if not results:  # nothing written: no empty folder left behind to be taken for a result
+            output.remove_created()
+            written = "no mask was written"
         raise CompanionError(
             f"{len(unreadable)} of {len(paths)} photos could not be read as images: {names}",
-            f"check that they are complete JPEG/PNG/TIFF files and rerun on them; the masks of the other "
-            f"{len(results)} photos were written to {out}",
+            f"check that they are complete JPEG/PNG/TIFF files and rerun on them; {written}",
         )
     return results

@@ -139,12 +139,12 @@ class _Window:
 
 def measure_wall_distance(inp: StitchInput, priors: PlanePriors, pairs: RegisteredPairs) -> WallDistance:
     """The wall distance the accepted pairs measure (see the module's docstring)."""
+    if not priors.use_poses:  # no poses, or no wall to measure them against (a spool without spool.json)
+        return WallDistance(0.0, None, None, 0.0, 0, 0, "no telemetry poses on a known wall")
     told = [kf.pose for kf in inp.keyframes if kf.pose is not None]
     telemetry = {k: camera_distance_to_wall(kf.pose, inp.facade) for k, kf in enumerate(inp.keyframes)
                  if kf.pose is not None}
     telemetry_m = float(np.median(list(telemetry.values()))) if told else 0.0
-    if not priors.use_poses:
-        return WallDistance(telemetry_m, None, None, 0.0, 0, 0, "no telemetry poses")
     fits = _part_fits(priors, pairs, inp.camera, telemetry)
     if not fits:
         return WallDistance(telemetry_m, None, None, 0.0, 0, 0,

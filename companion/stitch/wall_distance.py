@@ -187,7 +187,7 @@ def _windows(fit: _PartFit, floor_m: float) -> list[_Window]:
     n = len(fit.positions)
     if lay is None or n < 2 * MIN_KEYFRAMES:
         return []
-    size = min(WINDOW_KEYFRAMES, n)
+    size = min(WINDOW_KEYFRAMES, max(2 * MIN_KEYFRAMES, n // 3))  # a short pass still gets three windows
     starts = sorted({*range(0, n - size + 1, max(size // 2, 1)), n - size})
     out = []
     for a in starts:

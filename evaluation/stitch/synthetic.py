@@ -50,10 +50,16 @@ class TelemetryErrors:
     # a non-RTK receiver's slowly varying error, constant over a pass: (along, out, up) metres added to every
     # reported position (out negative: the telemetry puts the camera nearer the wall than it was)
     bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # ... which is not constant over a flight: it wanders by a metre over minutes. Added to the bias per keyframe
+    # position, so keyframe k is reported with bias_m + k * drift_m_per_keyframe
+    drift_m_per_keyframe: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def jump_at(self, k: int) -> tuple[float, float]:
         first, stop = self.jump_keyframes
         return self.jump_m if first <= k < stop else (0.0, 0.0)
+
+    def bias_at(self, k: int) -> tuple[float, float, float]:
+        return tuple(b + k * d for b, d in zip(self.bias_m, self.drift_m_per_keyframe, strict=True))
 
 
 def wall_for_texture(texture: np.ndarray, mm_per_px: float, seed: int = 0) -> SyntheticWall:
@@ -271,7 +277,7 @@ def reported_pose(rng, frame: FacadeFrame, true_pose, errors: TelemetryErrors, k
     na, no, nu = rng.normal(0, errors.noise_m, 3) if errors.noise_m else (0.0, 0.0, 0.0)
     dy, dp, dr = rng.normal(0, errors.noise_deg, 3) if errors.noise_deg else (0.0, 0.0, 0.0)
     ja, ju = errors.jump_at(k)
-    ba, bo, bu = errors.bias_m
+    ba, bo, bu = errors.bias_at(k)
     position = (along + na + ja + ba, out + no + bo, up + nu + ju + bu)
     return _pose(frame, position, float(dr), pitch + float(dp), frame.yaw_facing_wall_deg + yaw_off + float(dy),
                  float(k) if time_s is None else time_s)

@@ -89,6 +89,11 @@ class ParallaxParams:
     drop_max_untrusted_kept: float = 0.10
     min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
     max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
+    # The 8-60 cm window above is for a wall this far away. What DIS must track is the wall's image motion,
+    # f x baseline / standoff, so with the standoff known (the mission's) the window scales with standoff / this:
+    # sparse stills 13-31 m from the wall, 2-5 m apart, move the wall about as much as 0.3-1.5 m at 4 m (issue 27).
+    # At the paper's 4 m nothing changes. None: the fixed window whatever the standoff (the rule before).
+    baseline_standoff_m: float | None = 4.0
     # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
@@ -603,15 +608,25 @@ def _reaching_border(region: np.ndarray) -> np.ndarray:
     return reach[labels]
 
 
+def baseline_window(params: ParallaxParams, standoff_m: float | None) -> tuple[float, float]:
+    """(min, max) baseline in metres for a wall ``standoff_m`` away (``ParallaxParams.baseline_standoff_m``): the
+    fixed 8-60 cm without a standoff or with the scaling off."""
+    if params.baseline_standoff_m is None or standoff_m is None or not standoff_m > 0:
+        return params.min_baseline_m, params.max_baseline_m
+    scale = standoff_m / params.baseline_standoff_m
+    return params.min_baseline_m * scale, params.max_baseline_m * scale
+
+
 def pick_reference(positions: list[np.ndarray], current: np.ndarray,
-                   params: ParallaxParams | None = None) -> int | None:
-    """Index (into ``positions``, oldest first) of the latest earlier camera position at least ``min_baseline_m``
-    from ``current`` and at most ``max_baseline_m``; None when there is none (hover, first frames)."""
-    p = params or ParallaxParams()
+                   params: ParallaxParams | None = None, standoff_m: float | None = None) -> int | None:
+    """Index (into ``positions``, oldest first) of the latest earlier camera position at least the window's
+    minimum (:func:`baseline_window`) from ``current`` and at most its maximum; None when there is none (hover,
+    first frames, stills farther apart than the flow tracks)."""
+    low, high = baseline_window(params or ParallaxParams(), standoff_m)
     for k in range(len(positions) - 1, -1, -1):
         d = float(np.linalg.norm(np.asarray(current, float) - np.asarray(positions[k], float)))
-        if d >= p.min_baseline_m:
-            return k if d <= p.max_baseline_m else None
+        if d >= low:
+            return k if d <= high else None
     return None
 
 
@@ -638,7 +653,8 @@ class SequenceParallax:
     """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
 
     Keeps grey working copies of the last few frames; each frame to be masked is compared with the latest one at
-    least ``min_baseline_m`` away. Returns None (the network alone decides) without a pose, while hovering, or at
+    least the baseline window's minimum away (``min_baseline_m``, scaled by the standoff: :func:`baseline_window`).
+    Returns None (the network alone decides) without a pose, while hovering, or at
     the start of a pass. The onboard chain masks only the frames around a keyframe decision (about two per
     keyframe, a metre apart), so it also shows the masker every frame it tracks (:meth:`remember`, a resize and
     no flow): that is what gives the masked frame a reference a few centimetres back. ``standoff_m`` (the
@@ -683,13 +699,17 @@ class SequenceParallax:
         fx = (frame_shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
         return carried_wall(self._kept[0], self._enu(pose), R, fx, frame_shape[1], self.params)
 
+    def baseline_window(self) -> tuple[float, float]:
+        """The baseline window (metres) for this pass's standoff (:func:`baseline_window`)."""
+        return baseline_window(self.params, self.standoff_m)
+
     def remember(self, image: np.ndarray, pose) -> None:
         """Keep a frame as a possible reference without judging it (frames closer than a quarter of the minimum
         baseline to the last one kept add nothing and are skipped)."""
         if pose is None:
             return
         pos = self._enu(pose)
-        if self._history and np.linalg.norm(pos - self._history[-1][1]) < self.params.min_baseline_m / 4:
+        if self._history and np.linalg.norm(pos - self._history[-1][1]) < self.baseline_window()[0] / 4:
             return
         self._push(_grey(image, self.params.work_width), pos, image.shape)
 
@@ -702,7 +722,7 @@ class SequenceParallax:
             return None
         pos = self._enu(pose)
         grey = _grey(image, self.params.work_width)
-        k = pick_reference([h[1] for h in self._history], pos, self.params)
+        k = pick_reference([h[1] for h in self._history], pos, self.params, self.standoff_m)
         result = None
         if k is not None and self._history[k][2] == image.shape:
             yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level

@@ -6,6 +6,7 @@ command does, once per photo alone and once as a sequence (parallax between neig
 
     python bench/mask_sequence.py                                   # 4 passes, 80 frames, 960 px, sim + real-nc
     python bench/mask_sequence.py --passes ornate-entry --frames 24 --background-frames 6 --width 640 --models sim
+    python bench/mask_sequence.py --models sim --width 640 --spacing 3 --standoff 13 --rules yes,before-align
 """
 
 from __future__ import annotations
@@ -22,9 +23,15 @@ import cv2
 import numpy as np
 
 from companion.depth.masker import Masker
+from companion.depth.parallax import ParallaxParams
 from companion.depth.photomask import mask_photos
 from sim.camera.photo_passes import DEFAULT_PASSES, RECIPES, build_pass
 from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
+
+# --sequence rule sets compared side by side: the shipped rules, and the rules before issue 27 (no alignment of
+# photos whose dominant motion is beyond DIS's reach)
+SEQUENCE_RULES = {"yes": ParallaxParams(),
+                  "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"))}
 
 
 def pass_spec(name: str, frames: int, background_frames: int, width: int, standoff_m: float = 4.0,
@@ -92,12 +99,14 @@ def main() -> None:
                     help="camera distance to the wall in metres (the wall is scaled by standoff / 4 m)")
     ap.add_argument("--spacing", type=float, default=None,
                     help="stills this many metres apart along each strip (overrides --frames)")
+    ap.add_argument("--rules", type=lambda t: [r for r in t.split(",") if r], default=["yes"],
+                    help=f"--sequence rule sets beside the photos alone: {', '.join(SEQUENCE_RULES)}")
     args = ap.parse_args()
     print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     spacing = f"stills {args.spacing} m apart" if args.spacing else f"{args.frames} frames per pass"
     print(f"{spacing} ({args.background_frames} past the wall's end), {args.width} px wide, "
           f"{args.standoff} m from the wall")
-    print("\n| pass | model | --sequence | error mean / p95 | wall-only frames | background-only dropped | "
+    print("\n| pass | model | --sequence (rules) | error mean / p95 | wall-only frames | background-only dropped | "
           "frames with wall dropped | s |")
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
@@ -108,11 +117,12 @@ def main() -> None:
                                  args.spacing)
             for model in [m.strip() for m in args.models.split(",") if m.strip()]:
                 masker = Masker(model)
-                for sequence in (False, True):
+                for rule in [None, *args.rules]:
                     t0 = time.perf_counter()
-                    out = Path(tmp) / f"{name}-{Path(model).stem}-{sequence}"
-                    results = mask_photos([folder], out, masker, sequence=sequence)
-                    print(f"| {name} | {model} | {'yes' if sequence else 'no'} | {score(results, truths)} | "
+                    out = Path(tmp) / f"{name}-{Path(model).stem}-{rule}"
+                    results = mask_photos([folder], out, masker, sequence=rule is not None,
+                                          sequence_params=SEQUENCE_RULES.get(rule))
+                    print(f"| {name} | {model} | {rule or 'no'} | {score(results, truths)} | "
                           f"{time.perf_counter() - t0:.0f} |", flush=True)
 
 

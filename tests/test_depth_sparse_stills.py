@@ -65,3 +65,36 @@ def test_stills_3_m_apart_25_m_from_the_wall_are_judged_by_parallax(stills):
     truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     assert par.near[truth].mean() > 0.6 and par.far[~truth].mean() > 0.6
     assert not par.all_background
+
+
+def test_sequence_of_stills_3_m_apart_13_m_out_keeps_every_photo_with_wall(tmp_path):
+    """``companion mask --sequence`` on stills 3 m apart 13 m from the wall: the wall moves 39 of the flow's 240
+    px between neighbours, which DIS alone lost (photos showing wall dropped as background); measured around the
+    pass's dominant motion, every photo with wall keeps it (and no fewer background-only photos are dropped)."""
+    from companion.depth.masker import Masker
+    from companion.depth.photomask import mask_photos
+
+    standoff, spacing = 13.0, 3.0
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 38.95)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    spec = PhotoPass("stills", wall, bg, standoff_m=standoff, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
+                     frames=round(39.0 / spacing) + 4, background_frames=4)
+    renderer = PhotoPassRenderer(spec)
+    truths = []
+    for i in range(len(renderer)):
+        frame = renderer.render(i)
+        cv2.imwrite(str(tmp_path / f"IMG_{i:04d}.png"), frame.image)
+        truths.append(frame.roi_mask > 0)
+    masker = Masker()
+
+    def dropped(params) -> tuple[int, int]:
+        out = tmp_path / f"out-{params.sequence_align_share}"
+        results = mask_photos(sorted(tmp_path.glob("IMG_*.png")), out, masker, sequence=True, sequence_params=params)
+        assert all(r.by_parallax for r in results)
+        wall_dropped = sum(r.no_near_surface for r, t in zip(results, truths, strict=True) if t.any())
+        background_dropped = sum(r.no_near_surface for r, t in zip(results, truths, strict=True) if not t.any())
+        return wall_dropped, background_dropped
+
+    before = dropped(ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf")))
+    now = dropped(ParallaxParams())
+    assert before[0] > 0 and now[0] == 0 and now[1] >= before[1]

@@ -94,6 +94,17 @@ class ParallaxParams:
     # sparse stills 13-31 m from the wall, 2-5 m apart, move the wall about as much as 0.3-1.5 m at 4 m (issue 27).
     # At the paper's 4 m nothing changes. None: the fixed window whatever the standoff (the rule before).
     baseline_standoff_m: float | None = 4.0
+    # ``companion mask --sequence`` (no telemetry): where two neighbouring photos' dominant motion (phase
+    # correlation of the working copies) exceeds this share of the working width, the flow is measured around it
+    # (``dense_flow(..., prior=...)``): DIS's fast preset lost the wall of stills 3 m apart 13 m out (39 of 240 px:
+    # 0-5 % of the frame trusted, walls dropped as background). 0.1: about the 60 cm at 4 m the window above
+    # allows (26 px), so the passes it was tuned on are unchanged. None: never (the rule before).
+    sequence_align_share: float | None = 0.1
+    sequence_align_min_response: float = 0.2  # phase correlation peak below this: no dominant motion to trust
+    # ... and where the pass's wall moves more than this share of the working width between neighbours (stills 3 m
+    # apart 4 m out move it half the frame: aligned or not, parallax made the masks worse than the network alone
+    # on the validation passes, 25-29 % -> 57-76 % error), parallax is not used: the network alone decides
+    sequence_max_share: float = 0.3
     # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
@@ -259,22 +270,33 @@ class DenseFlow:
     cur: np.ndarray | None = None
 
 
-def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxParams | None = None) -> DenseFlow:
-    """DIS optical flow both ways between two frames of the same camera, at ``params.work_width``."""
+def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxParams | None = None,
+               prior: tuple[int, int] | None = None) -> DenseFlow:
+    """DIS optical flow both ways between two frames of the same camera, at ``params.work_width``; ``prior``: a
+    shift (work pixels) the flow is measured around (:func:`dense_flow_grey`)."""
     p = params or ParallaxParams()
     if ref_image.shape != cur_image.shape:
         raise CompanionError(f"frames differ in size: {ref_image.shape} vs {cur_image.shape}",
                              "compare frames of the same camera")
-    return dense_flow_grey(_grey(ref_image, p.work_width), _grey(cur_image, p.work_width), cur_image.shape[1], p)
+    return dense_flow_grey(_grey(ref_image, p.work_width), _grey(cur_image, p.work_width), cur_image.shape[1], p,
+                           prior)
 
 
 def dense_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int,
-                    params: ParallaxParams | None = None) -> DenseFlow:
-    """:func:`dense_flow` of two grey working copies (``work_width`` wide) of frames ``frame_width`` wide."""
+                    params: ParallaxParams | None = None, prior: tuple[int, int] | None = None) -> DenseFlow:
+    """:func:`dense_flow` of two grey working copies (``work_width`` wide) of frames ``frame_width`` wide.
+
+    ``prior`` (whole work pixels, None: none): the reference is first moved by it and DIS measures the rest. DIS's
+    fast preset loses a wall moving much more than a tenth of the frame (stills metres apart); moved by the
+    pass's dominant motion, what is left for it is small (companion/depth/sequence.py)."""
     p = params or ParallaxParams()
+    dx, dy = prior or (0, 0)
+    moved = ref if not (dx or dy) else cv2.warpAffine(
+        ref, np.float32([[1, 0, dx], [0, 1, dy]]), (ref.shape[1], ref.shape[0]),
+        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)  # moved(x) = ref(x + d)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-    fwd = dis.calc(cur, ref, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
-    bwd = dis.calc(ref, cur, None)
+    fwd = dis.calc(cur, moved, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
+    bwd = dis.calc(moved, cur, None)
     h, w = cur.shape
     xx, yy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     back = cv2.remap(bwd, xx + fwd[..., 0], yy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -282,6 +304,8 @@ def dense_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int,
     gx = cv2.Sobel(cur, cv2.CV_32F, 1, 0, ksize=3) / 4.0
     gy = cv2.Sobel(cur, cv2.CV_32F, 0, 1, ksize=3) / 4.0
     texture = cv2.boxFilter(np.hypot(gx, gy), -1, (7, 7))
+    fwd[..., 0] += dx
+    fwd[..., 1] += dy
     tx, ty = xx + fwd[..., 0], yy + fwd[..., 1]
     inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # tracked to a point inside the reference
     trusted = (texture >= p.min_texture) & (fb_err <= p.max_fb_error_px) & inside

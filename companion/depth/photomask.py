@@ -110,11 +110,11 @@ def _single_photo_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks
         yield n, (roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)), roi.empty, False
 
 
-def _sequence_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks:
+def _sequence_masks(paths: list[Path], masker, read: _PhotoReader, params=None) -> _Masks:
     """The same from the network and the pass's parallax (companion/depth/sequence.py)."""
     from companion.depth.sequence import mask_sequence
 
-    for n, m in mask_sequence(paths, masker, read):
+    for n, m in mask_sequence(paths, masker, read, params):
         yield (n, None, False, False) if m is None else (n, m.mask, m.no_near_surface, m.parallax)
 
 
@@ -131,7 +131,7 @@ def _bounded(mask: np.ndarray, no_near_surface: bool, path: Path, bound: Bound |
 
 def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
                 on_mask: Callable[[PhotoMask], None] | None = None, *, sequence: bool = False,
-                bound: Bound | None = None) -> list[PhotoMask]:
+                bound: Bound | None = None, sequence_params=None) -> list[PhotoMask]:
     """Mask each photo with the depth masker (default: the shipped model) and write ``<stem>_mask.png``.
 
     ``sequence``: the photos are one pass along the wall in capture order; the motion parallax between
@@ -139,7 +139,8 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
     (companion/depth/sequence.py; docs/DEPTH.md says what it changes).
 
     ``bound``: where each photo can show the wall (``companion.depth.photo_pose.photo_bound`` with a mission):
-    everything outside it is cut from the mask; a photo it gives no bound keeps its mask.
+    everything outside it is cut from the mask; a photo it gives no bound keeps its mask. ``sequence_params``: the
+    parallax rules of ``sequence`` (``companion.depth.parallax.ParallaxParams``; default: the shipped ones).
 
     Raises CompanionError before writing anything when two photos would get the same mask name or ``out_dir``
     is a file, and after writing every readable photo's mask when some photos could not be read.
@@ -151,7 +152,8 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
     out.mkdir(parents=True, exist_ok=True)
     masker = masker or Masker()
     reader = _PhotoReader()
-    masks = (_sequence_masks if sequence else _single_photo_masks)(paths, masker, reader)
+    masks = _sequence_masks(paths, masker, reader, sequence_params) if sequence else \
+        _single_photo_masks(paths, masker, reader)
     results: list[PhotoMask] = []
     unreadable: list[Path] = []
     for n, mask, no_near_surface, by_parallax in masks:

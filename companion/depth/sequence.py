@@ -23,7 +23,7 @@ trained on metric depth (the shipped ones), and a scene that is static between n
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -43,6 +43,10 @@ class PassMotion:
     direction: np.ndarray  # unit (x, y): how the image content moves from one photo to the next (work pixels)
     scale_px_m: float  # focal length (work pixels) x baseline between neighbouring photos (metres)
     pairs: int  # pairs that measured the scale
+    # the wall's dominant motion between neighbours (work pixels, the median of the pairs aligned by
+    # :func:`dominant_prior`), None when no pair needed aligning: a pair whose own dominant motion is the
+    # background's (the wall entering or leaving the view) is measured around it too (:func:`pass_flow`)
+    wall_shift: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -84,9 +88,10 @@ def _pair_measure(flow: DenseFlow, network_near: np.ndarray, network_depth_m: np
     return direction, float(np.median(network_depth_m[near][moving] * along[moving]))
 
 
-def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None]) -> PassMotion | None:
+def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None],
+                shifts: Sequence[tuple[int, int]] = ()) -> PassMotion | None:
     """The pass's direction (median of the pairs') and scale (median of the pairs that measured one); None when no
-    pair measured a scale (the network alone decides every photo)."""
+    pair measured a scale (the network alone decides every photo). ``shifts``: the priors of the aligned pairs."""
     measured = [s for s in scales if s is not None]
     moving = [d for d in directions if d is not None]
     if not measured or not moving:
@@ -95,7 +100,37 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
     norm = float(np.hypot(*d))
     if norm < 1e-6:
         return None
-    return PassMotion(d / norm, float(np.median(measured)), len(measured))
+    wall_shift = tuple(int(round(v)) for v in np.median(np.array(shifts), axis=0)) if shifts else None
+    return PassMotion(d / norm, float(np.median(measured)), len(measured), wall_shift)
+
+
+def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
+    """The flow of one pair for deciding a photo: around its own dominant motion, and where the pass's wall motion
+    differs from that (the wall entering or leaving the view, the background dominating the pair) also around the
+    wall's, each pixel taking the first of the two that it can trust."""
+    own = dominant_prior(ref, cur, params)
+    flow = dense_flow(ref, cur, params, own)
+    if wall_shift is None or np.hypot(*np.subtract(wall_shift, own or (0, 0))) < params.sequence_align_share * \
+            params.work_width / 2:
+        return flow
+    other = dense_flow(ref, cur, params, wall_shift)
+    use = ~flow.trusted & other.trusted
+    merged = np.where(use[..., None], other.flow, flow.flow)
+    return replace(flow, flow=merged, trusted=flow.trusted | other.trusted)
+
+
+def dominant_prior(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[int, int] | None:
+    """The two photos' dominant image motion (work pixels, ``cur(x) ~ ref(x + d)``) when it is large enough that
+    DIS should measure around it (``ParallaxParams.sequence_align_share``); None otherwise."""
+    if params.sequence_align_share is None:
+        return None
+    size = _work_size(cur, params)
+    grey = [cv2.resize(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) if im.ndim == 3 else im, size,
+                       interpolation=cv2.INTER_AREA).astype(np.float32) for im in (ref, cur)]
+    (dx, dy), response = cv2.phaseCorrelate(grey[1], grey[0], cv2.createHanningWindow(size, cv2.CV_32F))
+    if response < params.sequence_align_min_response or np.hypot(dx, dy) < params.sequence_align_share * size[0]:
+        return None
+    return round(dx), round(dy)
 
 
 def _work_size(image: np.ndarray, params: ParallaxParams) -> tuple[int, int]:
@@ -139,17 +174,25 @@ class SequenceMasker:
         networks: dict[int, NetworkMask] = {}
         directions: list[np.ndarray | None] = []
         scales: list[float | None] = []
+        shifts: list[tuple[int, int]] = []
         previous: np.ndarray | None = None
         for i, image in images:
             if image is None:
                 continue
             networks[i], near, depth = self._network(image)
             if previous is not None and previous.shape == image.shape:
-                direction, scale = _pair_measure(dense_flow(previous, image, self.params), near, depth, self.params)
+                prior = dominant_prior(previous, image, self.params)
+                shifts += [prior] if prior is not None else []
+                direction, scale = _pair_measure(dense_flow(previous, image, self.params, prior), near, depth,
+                                                 self.params)
                 directions.append(direction)
                 scales.append(scale)
             previous = image
-        return networks, pass_motion(directions, scales)
+        motion = pass_motion(directions, scales, shifts)
+        if motion is not None and motion.wall_shift is not None and \
+                np.hypot(*motion.wall_shift) > self.params.sequence_max_share * self.params.work_width:
+            return networks, None  # stills too far apart for the flow: the network alone decides
+        return networks, motion
 
     def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
                motion: PassMotion | None) -> SequenceMask:
@@ -158,7 +201,9 @@ class SequenceMasker:
         net_mask = network.mask()
         if motion is None or neighbour is None or neighbour.shape != image.shape:
             return SequenceMask(net_mask, network.empty, False)
-        flow = dense_flow(neighbour, image, self.params)
+        wall_shift = motion.wall_shift if forward or motion.wall_shift is None else \
+            (-motion.wall_shift[0], -motion.wall_shift[1])
+        flow = pass_flow(neighbour, image, self.params, wall_shift)
         sign = 1.0 if forward else -1.0
         fx = float(image.shape[1])  # any focal length: the scale was measured in the same units, so it cancels
         baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)

@@ -102,3 +102,16 @@ def test_mask_photos_cuts_outside_the_bound_and_leaves_photos_without_a_pose(tmp
     assert results[tagged.name].bounded and 0.2 < (cut > 0).mean() < 0.75 and cut[0].max() == 0
     assert not results[plain.name].bounded and results[plain.name].roi_fraction == 1.0
     assert results[past_end.name].no_near_surface
+
+
+def test_companion_mask_with_a_mission_bounds_tagged_photos(tmp_path, wall, capsys):
+    from companion.cli import main
+
+    photo = _tagged_photo(tmp_path, wall, "DJI")
+    mission = str(ROOT / "missions" / "demo-facade.yaml")
+    assert main(["mask", str(photo), "--out", str(tmp_path / "m"), "--mission", mission, "--standoff", "20"]) == 0
+    assert "(wall bound)" in capsys.readouterr().out
+    import cv2
+
+    mask = cv2.imread(str(tmp_path / "m" / f"{photo.stem}_mask.png"), cv2.IMREAD_UNCHANGED)
+    assert not mask[:20].any() and not mask[:, -60:].any()  # above the roof, beyond the wall's end

@@ -157,7 +157,8 @@ def cmd_mask(args) -> int:
     print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
     if args.sequence and not any(m.by_parallax for m in results):
         print("--sequence: no neighbouring photos showed usable motion, so the network alone decided every mask "
-              "(photos of one pass along the wall, in capture order, are needed)")
+              "(photos of one pass along the wall, in capture order, are needed; stills whose wall moves more than "
+              "0.3 of the frame between neighbours are too far apart for the flow)")
     return 0
 
 

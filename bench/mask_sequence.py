@@ -31,7 +31,9 @@ from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
 # --sequence rule sets compared side by side: the shipped rules, and the rules before issue 27 (no alignment of
 # photos whose dominant motion is beyond DIS's reach)
 SEQUENCE_RULES = {"yes": ParallaxParams(),
-                  "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"))}
+                  "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"),
+                                                 sequence_wall_depth=False),
+                  "no-wall-depth": ParallaxParams(sequence_wall_depth=False)}
 
 
 def pass_spec(name: str, frames: int, background_frames: int, width: int, standoff_m: float = 4.0,

@@ -88,13 +88,14 @@ def test_sequence_of_stills_3_m_apart_13_m_out_keeps_every_photo_with_wall(tmp_p
     masker = Masker()
 
     def dropped(params) -> tuple[int, int]:
-        out = tmp_path / f"out-{params.sequence_align_share}"
+        out = tmp_path / f"out-{params.sequence_align_share}-{params.sequence_wall_depth}"
         results = mask_photos(sorted(tmp_path.glob("IMG_*.png")), out, masker, sequence=True, sequence_params=params)
         assert all(r.by_parallax for r in results)
         wall_dropped = sum(r.no_near_surface for r, t in zip(results, truths, strict=True) if t.any())
         background_dropped = sum(r.no_near_surface for r, t in zip(results, truths, strict=True) if not t.any())
         return wall_dropped, background_dropped
 
-    before = dropped(ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf")))
+    before = dropped(ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"),
+                                    sequence_wall_depth=False))
     now = dropped(ParallaxParams())
     assert before[0] > 0 and now[0] == 0 and now[1] >= before[1]

@@ -105,6 +105,10 @@ class ParallaxParams:
     # apart 4 m out move it half the frame: aligned or not, parallax made the masks worse than the network alone
     # on the validation passes, 25-29 % -> 57-76 % error), parallax is not used: the network alone decides
     sequence_max_share: float = 0.3
+    # ``--sequence``: a photo its own flow would drop as all background is judged again with the wall-plane check
+    # at the pass's wall depth (``sequence.PassMotion.wall_depth``): a sliver of wall at the frame's edge is too
+    # little for the flow to measure the wall's depth, so the check never ran there. False: the rule before.
+    sequence_wall_depth: bool = True
     # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall

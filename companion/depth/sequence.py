@@ -47,6 +47,10 @@ class PassMotion:
     # :func:`dominant_prior`), None when no pair needed aligning: a pair whose own dominant motion is the
     # background's (the wall entering or leaving the view) is measured around it too (:func:`pass_flow`)
     wall_shift: tuple[int, int] | None = None
+    # the wall's depth in the pass's units (scale / the wall's motion on pairs the network reads as mostly near),
+    # for the wall-plane check of a photo whose own flow shows too little wall to measure it (a sliver at the
+    # frame's edge); None when no pair measured it or ``ParallaxParams.sequence_wall_depth`` is off
+    wall_depth: float | None = None
 
 
 @dataclass(frozen=True)
@@ -89,9 +93,10 @@ def _pair_measure(flow: DenseFlow, network_near: np.ndarray, network_depth_m: np
 
 
 def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None],
-                shifts: Sequence[tuple[int, int]] = ()) -> PassMotion | None:
+                shifts: Sequence[tuple[int, int]] = (), wall_motions: Sequence[float] = ()) -> PassMotion | None:
     """The pass's direction (median of the pairs') and scale (median of the pairs that measured one); None when no
-    pair measured a scale (the network alone decides every photo). ``shifts``: the priors of the aligned pairs."""
+    pair measured a scale (the network alone decides every photo). ``shifts``: the priors of the aligned pairs;
+    ``wall_motions``: the dominant motion (work pixels) of pairs the network reads as mostly near."""
     measured = [s for s in scales if s is not None]
     moving = [d for d in directions if d is not None]
     if not measured or not moving:
@@ -101,7 +106,9 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
     if norm < 1e-6:
         return None
     wall_shift = tuple(int(round(v)) for v in np.median(np.array(shifts), axis=0)) if shifts else None
-    return PassMotion(d / norm, float(np.median(measured)), len(measured), wall_shift)
+    scale = float(np.median(measured))
+    wall_depth = scale / float(np.median(wall_motions)) if wall_motions and np.median(wall_motions) > 0 else None
+    return PassMotion(d / norm, scale, len(measured), wall_shift, wall_depth)
 
 
 def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
@@ -119,16 +126,25 @@ def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shi
     return replace(flow, flow=merged, trusted=flow.trusted | other.trusted)
 
 
-def dominant_prior(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[int, int] | None:
-    """The two photos' dominant image motion (work pixels, ``cur(x) ~ ref(x + d)``) when it is large enough that
-    DIS should measure around it (``ParallaxParams.sequence_align_share``); None otherwise."""
-    if params.sequence_align_share is None:
-        return None
+def dominant_motion(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[float, float, float]:
+    """The two photos' dominant image motion (work pixels, ``cur(x) ~ ref(x + d)``) by phase correlation of the
+    working copies, and the correlation peak (near 1: one motion fills the frame)."""
     size = _work_size(cur, params)
     grey = [cv2.resize(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) if im.ndim == 3 else im, size,
                        interpolation=cv2.INTER_AREA).astype(np.float32) for im in (ref, cur)]
     (dx, dy), response = cv2.phaseCorrelate(grey[1], grey[0], cv2.createHanningWindow(size, cv2.CV_32F))
-    if response < params.sequence_align_min_response or np.hypot(dx, dy) < params.sequence_align_share * size[0]:
+    return float(dx), float(dy), float(response)
+
+
+def dominant_prior(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams,
+                   motion: tuple[float, float, float] | None = None) -> tuple[int, int] | None:
+    """:func:`dominant_motion` (or the one given) when it is large enough that DIS should measure around it
+    (``ParallaxParams.sequence_align_share``); None otherwise."""
+    if params.sequence_align_share is None:
+        return None
+    dx, dy, response = motion or dominant_motion(ref, cur, params)
+    if response < params.sequence_align_min_response or \
+            np.hypot(dx, dy) < params.sequence_align_share * params.work_width:
         return None
     return round(dx), round(dy)
 
@@ -175,20 +191,25 @@ class SequenceMasker:
         directions: list[np.ndarray | None] = []
         scales: list[float | None] = []
         shifts: list[tuple[int, int]] = []
+        wall_motions: list[float] = []
         previous: np.ndarray | None = None
         for i, image in images:
             if image is None:
                 continue
             networks[i], near, depth = self._network(image)
             if previous is not None and previous.shape == image.shape:
-                prior = dominant_prior(previous, image, self.params)
+                dominant = dominant_motion(previous, image, self.params)
+                prior = dominant_prior(previous, image, self.params, dominant)
                 shifts += [prior] if prior is not None else []
+                if self.params.sequence_wall_depth and dominant[2] >= self.params.sequence_align_min_response \
+                        and near.mean() >= 0.5:
+                    wall_motions.append(float(np.hypot(dominant[0], dominant[1])))
                 direction, scale = _pair_measure(dense_flow(previous, image, self.params, prior), near, depth,
                                                  self.params)
                 directions.append(direction)
                 scales.append(scale)
             previous = image
-        motion = pass_motion(directions, scales, shifts)
+        motion = pass_motion(directions, scales, shifts, wall_motions)
         if motion is not None and motion.wall_shift is not None and \
                 np.hypot(*motion.wall_shift) > self.params.sequence_max_share * self.params.work_width:
             return networks, None  # stills too far apart for the flow: the network alone decides
@@ -208,7 +229,10 @@ class SequenceMasker:
         fx = float(image.shape[1])  # any focal length: the scale was measured in the same units, so it cancels
         baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)
         translation = np.array([*(sign * baseline_m * motion.direction), 0.0])
-        mask, dropped = fuse_with_network(net_mask, depth_from_flow(flow, translation, fx, self.params), image=image)
+        par = depth_from_flow(flow, translation, fx, self.params)
+        if par.all_background and motion.wall_depth is not None:  # too little wall of its own: the pass's
+            par = depth_from_flow(flow, translation, fx, self.params, motion.wall_depth)
+        mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)
 
 

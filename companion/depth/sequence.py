@@ -230,7 +230,7 @@ class SequenceMasker:
         baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)
         translation = np.array([*(sign * baseline_m * motion.direction), 0.0])
         par = depth_from_flow(flow, translation, fx, self.params)
-        if par.all_background and motion.wall_depth is not None:  # too little wall of its own: the pass's
+        if par.all_background and motion.wall_depth is not None and motion.wall_shift is None:  # the pass's
             par = depth_from_flow(flow, translation, fx, self.params, motion.wall_depth)
         mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)

@@ -107,11 +107,11 @@ class ParallaxParams:
     sequence_max_share: float = 0.3
     # ``--sequence``: a photo its own flow would drop as all background is judged again with the wall-plane check
     # at the pass's wall depth (``sequence.PassMotion.wall_depth``): a sliver of wall at the frame's edge is too
-    # little for the flow to measure the wall's depth, so the check never ran there. Only in a pass that needed no
-    # alignment (``sequence_align_share``): on the validation passes at 0.5 m it dropped 1 and 0 photos with wall
-    # (3 and 8 before) at no cost, but at 3 m spacing 13 m out one background-only photo of six was kept (5 of 6,
-    # under the 90 % bar), and on the held-out passes there 16 of 32 dropped instead of 31 (seen before this
-    # restriction was made: docs/DEPTH.md). False: the rule before.
+    # little for the flow to measure the wall's depth, so the check never ran there. Only in a pass whose wall moves
+    # less than ``sequence_align_share`` of the width between neighbours: on the validation passes at 0.5 m it
+    # dropped 1 and 0 photos with wall (3 and 8 before) at no cost, but at 3 m spacing 13 m out one
+    # background-only photo of six was kept (5 of 6, under the 90 % bar), and on the held-out passes there 16 of 32
+    # dropped instead of 31 (seen before this restriction was made: docs/DEPTH.md). False: the rule before.
     sequence_wall_depth: bool = True
     # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera

@@ -51,6 +51,7 @@ class PassMotion:
     # for the wall-plane check of a photo whose own flow shows too little wall to measure it (a sliver at the
     # frame's edge); None when no pair measured it or ``ParallaxParams.sequence_wall_depth`` is off
     wall_depth: float | None = None
+    wall_motion_px: float | None = None  # that dominant motion (work pixels)
 
 
 @dataclass(frozen=True)
@@ -107,8 +108,9 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
         return None
     wall_shift = tuple(int(round(v)) for v in np.median(np.array(shifts), axis=0)) if shifts else None
     scale = float(np.median(measured))
-    wall_depth = scale / float(np.median(wall_motions)) if wall_motions and np.median(wall_motions) > 0 else None
-    return PassMotion(d / norm, scale, len(measured), wall_shift, wall_depth)
+    wall_motion = float(np.median(wall_motions)) if wall_motions else None
+    wall_depth = scale / wall_motion if wall_motion else None
+    return PassMotion(d / norm, scale, len(measured), wall_shift, wall_depth, wall_motion)
 
 
 def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
@@ -230,7 +232,8 @@ class SequenceMasker:
         baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)
         translation = np.array([*(sign * baseline_m * motion.direction), 0.0])
         par = depth_from_flow(flow, translation, fx, self.params)
-        if par.all_background and motion.wall_depth is not None and motion.wall_shift is None:  # the pass's
+        if par.all_background and motion.wall_depth is not None and \
+                motion.wall_motion_px < (self.params.sequence_align_share or 0.0) * self.params.work_width:
             par = depth_from_flow(flow, translation, fx, self.params, motion.wall_depth)
         mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)

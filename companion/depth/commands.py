@@ -234,10 +234,15 @@ def register(subparsers) -> None:
     p.add_argument("--sequence", action="store_true",
                    help="the photos are one pass along the wall in capture order (folders: sorted by name): "
                         "motion parallax between neighbours corrects each mask (docs/DEPTH.md)")
+    _add_mask_telemetry_options(p)
+    p.set_defaults(func=cmd_mask)
+
+
+def _add_mask_telemetry_options(p) -> None:
+    """``companion mask``'s geometry options (issue 27): the mission's wall and the standoff."""
     p.add_argument("--mission", default=None,
                    help="mission YAML of the wall the photos show: photos with a pose in their tags (EXIF GPS, DJI "
                         "gimbal XMP) are masked only inside the wall's projection (docs/DEPTH.md)")
     p.add_argument("--standoff", type=float, default=None,
                    help="the camera's distance to the wall in metres: what the network puts well beyond it is "
                         "background (docs/DEPTH.md)")
-    p.set_defaults(func=cmd_mask)

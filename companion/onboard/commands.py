@@ -9,6 +9,7 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from companion.flight.limits import FlightLimits
+from companion.flight.sitl_profile import load_sitl_profile
 from companion.flight.standoff_loop import StandoffOptions
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
@@ -49,6 +50,10 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
                         "the plan's transit altitude or wall top + roof margin; restored after")
     p.add_argument("--set-param", action="append", default=[], metavar="NAME=VALUE",
                    help="set an autopilot parameter for this flight only (restored after; repeatable)")
+    p.add_argument("--sitl-profile", type=Path, metavar="FILE",
+                   help="a simulator's accommodations, never for a real vehicle: parameters set for the flight and "
+                        "home put back after the autopilot's correction window (PX4 SIH: sim/sitl/px4-sih.yaml, "
+                        "docs/FLIGHT.md)")
     p.add_argument("--timeout", type=float, default=FlightLimits.flight_timeout_s,
                    help="RTL if the flight takes longer (seconds)")
     p.add_argument("--rate", type=float, default=FlightLimits.telemetry_rate_hz, help="telemetry rate to request, Hz")
@@ -143,6 +148,7 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
         progress=not args.no_progress, link_dead_s=args.link_dead, stop_wait_s=args.stop_wait,
         lost_link_action=args.lost_link_action, return_alt=args.return_alt,
         flight_parameters=flight_parameters(args.set_param) or None,
+        sitl_profile=load_sitl_profile(args.sitl_profile) if args.sitl_profile is not None else None,
         standoff=StandoffOptions(correct=not args.no_standoff_correction, tolerance_m=args.standoff_tolerance,
                                  floor_m=args.standoff_floor))
     return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from sim.camera.recording import resolve_mission
-from sim.rig import SitlRig, fly_at_once_with_still_home
+from sim.rig import SitlRig, fly_at_once_with_still_home, sitl_profile_for
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 
     with rig:
         result = fly_mission_sync(plan, rig.url, telemetry_log=out / "telemetry.jsonl", progress=progress,
                                   end_action=mission.end_action, flight_timeout_s=flight_timeout_s,
-                                  handle_signals=False)
+                                  handle_signals=False, sitl_profile=sitl_profile_for(autopilot))
     meta_p = out / "meta.json"
     if not meta_p.exists():
         raise CompanionError("the camera wrote no recording", f"see {out / 'camera.log'}")

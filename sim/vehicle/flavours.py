@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
@@ -46,6 +47,8 @@ _COPTER_INVALID_PARAM = {1: mavlink.MAV_MISSION_INVALID_PARAM1, 2: mavlink.MAV_M
 # Commands ArduPilot stores with a location (AP_Mission::stored_in_location; the ones the simulator flies).
 _COPTER_LOCATED = {mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_LAND}
 _F32 = np.float32
+# The profiles a flight on each flavour passes to `companion fly --sitl-profile` (companion/flight/sitl_profile.py)
+SITL_PROFILES = Path(__file__).resolve().parents[1] / "sitl"
 # The SITL's own truth messages (libraries/SITL/SITL.cpp sim_state_send / simstate_send)
 SIM_STATE_MESSAGES = ("SIM_STATE", "SIMSTATE")
 
@@ -103,6 +106,9 @@ class Px4:
         "EKF2_ACC_NOISE": 0.35, "EKF2_GYR_NOISE": 0.015, "EKF2_BARO_NOISE": 3.5,
     }
     waypoint_reached_m: float | None = None  # None: the item's acceptance radius (param2), else NAV_ACC_RAD
+    # what this flavour's flights ask `companion fly` for (SIH's estimator noise, home put back): the simulator
+    # boots as PX4 SIH does, so it needs what real SIH needs (sim/sitl/px4-sih.yaml); None: nothing
+    sitl_profile: Path | None = SITL_PROFILES / "px4-sih.yaml"
 
     def custom_mode(self, mode: str) -> int:
         main, sub = _PX4_MODES[mode]
@@ -176,6 +182,7 @@ class ArduCopter(Px4):
     # Copter keeps no acceptance radius per waypoint; its S-curve target reaches the waypoint and the vehicle trails
     # it by a few decimetres before the next leg starts.
     waypoint_reached_m = 0.3
+    sitl_profile = None  # ArduCopter SITL takes the companion's flight as a real Copter does
 
     def custom_mode(self, mode: str) -> int:
         return _COPTER_MODES[mode]

@@ -226,7 +226,8 @@ def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_p
 @pytest.mark.sitl
 def test_a_real_px4_home_moved_too_low_ends_the_flight_at_the_hold_above_the_wall(demo_items, tmp_path):
     """PX4 without a SITL profile (a real vehicle, or the simulator flown as one: the companion detects no simulator
-    and never puts home back) moves home 1.2 m down while the vehicle holds above the wall: when the window is over the flight ends there, with RTL and a clear error, before any strip.
+    and never puts home back) moves home 1.2 m down while the vehicle holds above the wall: when the window is over
+    the flight ends there, with RTL and a clear error, before any strip.
     Before (no hold, the move ended the scan when it came), the vehicle had started its first strip.
 
     Speed-up 5, not 20: the hold ends 2 s of autopilot time after the window (``planner.HOME_SETTLE_SLACK_S`` less

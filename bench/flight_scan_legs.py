@@ -17,7 +17,7 @@ from pathlib import Path
 
 from companion.flight import fly_mission_sync
 from companion.mission import load_mission, plan_scan
-from companion.mission.firmware import flight_parameters
+from companion.mission.autopilot import flight_parameters
 from sim.evaluate_scan import read_truth_log, scan_leg_reports, worst
 from sim.process import SimulatorProcess
 

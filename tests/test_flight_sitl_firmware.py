@@ -13,7 +13,7 @@ import pytest
 
 from companion.flight import fly_mission_sync
 from companion.mission import load_mission, plan_scan
-from companion.mission.firmware import flight_parameters
+from companion.mission.autopilot import flight_parameters
 from sim.evaluate_scan import read_truth_log, scan_leg_reports, worst
 from tests.sitl import ROOT, SitlVehicle
 

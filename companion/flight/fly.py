@@ -52,8 +52,7 @@ from companion.flight.status_texts import StatusTexts
 from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
-from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S
-from companion.mission.firmware import flight_parameters as firmware_flight_parameters
+from companion.mission.autopilot import Autopilot, autopilot_for
 from companion.records import StandoffEstimate
 
 log = logging.getLogger(__name__)
@@ -472,10 +471,10 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
     return overrides, warnings
 
 
-def plan_flight_parameters(plan, autopilot: str) -> dict[str, float]:
+def plan_flight_parameters(plan, autopilot: str | Autopilot) -> dict[str, float]:
     """The parameters a ScanPlan needs on ``autopilot`` for its flight; none for a bare list of items."""
     if hasattr(plan, "mavlink_items"):
-        return firmware_flight_parameters(plan, autopilot)
+        return autopilot_for(autopilot).flight_parameters(plan)
     return {}
 
 
@@ -533,23 +532,23 @@ def standoff_loop_for(plan, items, first_seq: int, options: StandoffOptions, rec
     return loop
 
 
-def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str, restore_home: bool = False) -> HomeWatch:
-    """The flight's home watch: PX4 moves home for 120 s after take-off (ArduPilot keeps it where it armed); a
-    ScanPlan holds above the wall until then at its settle waypoint; ``restore_home`` (a SITL profile's, asked for)
-    puts home back after it."""
-    px4 = autopilot == "px4"
+def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str | Autopilot,
+                   restore_home: bool = False) -> HomeWatch:
+    """The flight's home watch: the autopilot's correction window (PX4 moves home for 120 s after take-off;
+    ArduPilot keeps it where it armed); a ScanPlan holds above the wall until then at its settle waypoint;
+    ``restore_home`` (a SITL profile's, asked for) puts home back after it."""
+    window_s = autopilot_for(autopilot).home_correction_window_s
     settle = -1
-    if px4 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
+    if window_s > 0 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
         settle = settle_item_seq(items, plan.settle_waypoint_index)
-    return HomeWatch(items, window_s=PX4_HOME_CORRECTION_WINDOW_S if px4 else 0.0, settle_seq=settle,
-                     restore=px4 and restore_home)
+    return HomeWatch(items, window_s=window_s, settle_seq=settle, restore=window_s > 0 and restore_home)
 
 
 async def _arm_and_start(vehicle: Vehicle, rec: TelemetryRecorder, first_seq: int) -> None:
     """Arm from a mode that allows it (quoting the firmware's refusal) and start the mission; disarm if refused."""
     if not await select_arming_mode(vehicle):
         log.warning("the vehicle did not confirm the switch to %s before arming",
-                    "GUIDED" if vehicle.autopilot == "ardupilot" else "Hold")
+                    autopilot_for(vehicle.autopilot).arming_mode.name)
     await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
     log.info("armed; starting the mission at item %d", first_seq)
     try:
@@ -618,9 +617,9 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                       sitl_profile: SitlProfile | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
-    The parameters a ScanPlan needs on this firmware (``companion.mission.firmware.flight_parameters``: PX4's
-    climb/descent speed = the vertical scan speed, ArduCopter's WP_YAW_BEHAVIOR = 0) are always set for the flight
-    and restored afterwards.
+    The parameters a ScanPlan needs on this firmware (its home's ``flight_parameters``, ``companion.mission.autopilot``:
+    PX4's climb/descent speed = the vertical scan speed, ArduCopter's WP_YAW_BEHAVIOR = 0) are always set for the
+    flight and restored afterwards.
     ``flight_parameters``: further autopilot parameters to set for this flight only (restored afterwards, also after an
     error or Ctrl-C); ``lost_link_action`` ('rtl'/'land') and ``return_alt`` (metres or 'auto': the plan's transit
     altitude or wall top + margin) set the lost-link failsafe the same way.

@@ -11,6 +11,7 @@ from companion.errors import CompanionError
 from companion.flight.limits import FlightLimits
 from companion.flight.sitl_profile import load_sitl_profile
 from companion.flight.standoff_loop import StandoffOptions
+from companion.mission.autopilot import DEFAULT_FLAVOUR, Flavour
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
 from companion.plugins import SitlRequest
@@ -28,7 +29,7 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", default=FlightLimits.connect_url,
                    help="MAVLink address: udp://:14540 (PX4 SITL), tcpout://127.0.0.1:5760 (ArduPilot SITL), "
                         "serial:///dev/ttyACM0:921600")
-    p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
+    p.add_argument("--autopilot", choices=["auto", *(str(f) for f in Flavour)], default="auto",
                    help="autopilot behaviour to expect (auto: from its heartbeat); with --sitl also the simulator's")
     p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
     p.add_argument("--connect-timeout", type=float, default=FlightLimits.connect_timeout_s,
@@ -138,7 +139,7 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
     sitl = None
     if args.sitl:
         sitl = SitlRequest(
-            mission_path=args.mission, autopilot="ardupilot" if args.autopilot == "ardupilot" else "px4",
+            mission_path=args.mission, autopilot=str(DEFAULT_FLAVOUR if args.autopilot == "auto" else args.autopilot),
             speedup=args.speedup, options=sim_options(args.sim_arg),
             camera_fps=args.sim_fps if args.capture == SIM_CAPTURE else None, camera_width_px=args.sim_width,
             log_dir=args.out / "sim" if args.capture == SIM_CAPTURE and args.out is not None else None)

@@ -105,6 +105,9 @@ class VehicleConfig:
     # a number moves it once by that much (up positive; 0: never) home_shift_after_takeoff_s (simulated) after take-off
     home_shift_after_takeoff_s: float | None = None
     home_shift_m: float | None = None
+    # the MAV_AUTOPILOT its HEARTBEAT names (None: the flavour's): a vehicle that is neither PX4 nor ArduPilot, for
+    # the companion's refusal of a firmware it does not know
+    heartbeat_autopilot: int | None = None
     limits: Limits = field(default_factory=Limits)
 
 

@@ -48,8 +48,10 @@ class TelemetryStreams:
         status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
         if self.link_failsafe or self.battery_failsafe:
             status = mavlink.MAV_STATE_CRITICAL
-        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, self.flavour.autopilot, base,
-                                         self.flavour.custom_mode(self.mode), status)
+        named = self.cfg.heartbeat_autopilot
+        autopilot = self.flavour.autopilot if named is None else named
+        custom = self.flavour.custom_mode(self.mode)
+        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, autopilot, base, custom, status)
 
     def _sys_status(self):
         health = SENSORS

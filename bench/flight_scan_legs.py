@@ -1,6 +1,6 @@
 """Heading and speed on the scan legs of the demo mission, per autopilot flavour, with and without the parameters
-``firmware.flight_parameters`` lists (set by the companion, as in a user's flight), through the simulator process +
-mavsdk + companion.flight.
+``flight_parameters`` (``companion.mission.autopilot``) lists (set by the companion, as in a user's flight),
+through the simulator process + mavsdk + companion.flight.
 
 Simulator figures (the simulator's PX4 / ArduCopter flavours), judged from its truth log: worst relative speed
 error along a scan leg (middle 60 % of each leg), worst heading error against wall-facing (whole leg), and how far

@@ -22,6 +22,7 @@ from pathlib import Path
 from companion.errors import CompanionError
 from sim.camera.recording import resolve_mission
 from sim.rig import SitlRig, fly_at_once_with_still_home, sitl_profile_for
+from sim.vehicle.flavours import FLAVOURS
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--width", type=int, default=640, help="camera working width, px")
     p.add_argument("--fps", type=float, default=5.0, help="recorded frame rate in simulated time")
     p.add_argument("--speedup", type=float, default=2.0, help="simulated seconds per wall second")
-    p.add_argument("--autopilot", choices=["px4", "ardupilot"], default="px4")
+    p.add_argument("--autopilot", choices=sorted(FLAVOURS), default="px4")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:

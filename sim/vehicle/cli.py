@@ -153,7 +153,7 @@ def firmware_config(args: argparse.Namespace) -> dict:
 def _check_home_shift(args: argparse.Namespace) -> None:
     """An explicit home move is PX4's, within its window, and says how far; ``--home-shift-m 0`` alone keeps home."""
     shift_at, shift_m = args.home_shift_after_takeoff, args.home_shift_m
-    if args.autopilot != "px4" and (shift_at is not None or shift_m):
+    if not FLAVOURS[args.autopilot].moves_home_in_flight and (shift_at is not None or shift_m):
         raise CompanionError(f"--home-shift-m / --home-shift-after-takeoff with --autopilot {args.autopilot}: only "
                              "PX4 moves home in flight (ArduCopter keeps it where it armed)",
                              "use --autopilot px4, or leave both options out")

@@ -49,30 +49,10 @@ from sim.vehicle.tasks import Hold
 
 log = logging.getLogger(__name__)
 
-# Real defaults (PX4 main 2026-03: commander/navigator params; ArduCopter 4.7: Parameters.cpp / notes).
-FAILSAFE_DEFAULTS = {
-    "px4": {"NAV_DLL_ACT": 0, "COM_DL_LOSS_T": 10, "RTL_RETURN_ALT": 30.0, "COM_DISARM_PRFLT": 10.0,
-            "GF_MAX_HOR_DIST": 0.0},
-    "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500},
-}
-# Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
-GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
-COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
-# Wall seconds from (re)boot until the autopilot has initialised. Real ArduCopter 4.7 SITL (-w, wiped storage): its
-# first words ("ArduPilot Ready") came about 1 s after the first heartbeat at speed-up 1 and at 5 alike, so the
-# start-up is wall time (storage and sensor set-up), not simulated time. PX4 SITL answers from its first heartbeat.
-INIT_WALL_S = {"px4": 0.0, "ardupilot": 1.0}
-COPTER_READY_TEXT = "ArduPilot Ready"
-
-
 def lost_link_action(flavour: str, params: dict) -> str | None:
-    """What the firmware does when the ground link is lost in a mission: 'rtl', 'land', 'hold' or None (flies on).
-
-    PX4 NAV_DLL_ACT: 0 disabled, 1 hold, 2 return, 3 land, 5 terminate, 6 disarm. ArduCopter FS_GCS_ENABLE:
-    0 disabled, 1 RTL, 2 continue in AUTO, 3/4 SmartRTL (RTL here), 5 land, 6 DO_LAND_START or RTL, 7 brake/land."""
-    if flavour == "px4":
-        return {1: "hold", 2: "rtl", 3: "land"}.get(int(params.get("NAV_DLL_ACT", 0)))
-    return {1: "rtl", 3: "rtl", 4: "rtl", 5: "land", 6: "rtl", 7: "land"}.get(int(params.get("FS_GCS_ENABLE", 0)))
+    """What the firmware ``flavour`` does when the ground link is lost in a mission: 'rtl', 'land', 'hold' or None
+    (flies on); each flavour's ``lost_link_action`` says how its parameter reads."""
+    return fl.FLAVOURS[flavour]().lost_link_action(params)
 
 
 def _same_items(a: list, b: list) -> bool:
@@ -92,11 +72,11 @@ class FirmwareRules:
     """Mixed into SimVehicle: the start/stop behaviours above, each in its own method."""
 
     def _init_firmware_rules(self) -> None:
-        self.params.update(FAILSAFE_DEFAULTS[self.flavour.name])
+        self.params.update(self.flavour.failsafe_defaults)
         if self.cfg.geofence_max_dist_m is not None:
             self.params["GF_MAX_HOR_DIST"] = float(self.cfg.geofence_max_dist_m)
         delay = self.cfg.gps_ready_after_s
-        self.gps_ready_after_s = GPS_READY_AFTER_S[self.flavour.name] if delay is None else float(delay)
+        self.gps_ready_after_s = self.flavour.gps_ready_after_s if delay is None else float(delay)
         self.boot_count = 0
         self.mission_refused = False
         self.armed_at: float | None = None
@@ -108,7 +88,7 @@ class FirmwareRules:
         self.home_alt_shift_m = 0.0  # how far PX4 has moved home's altitude from the take-off ground (up positive)
         self._home_shift_done = False  # the scheduled move happened (a later DO_SET_HOME does not undo the schedule)
         self.manual_home = False  # home set by DO_SET_HOME at a given altitude: PX4 keeps it at the next arming
-        modelled = self.flavour.name == "px4" and self.cfg.home_shift_m is None
+        modelled = self.flavour.moves_home_in_flight and self.cfg.home_shift_m is None
         # its own random draws (seed + 5): the other faults keep their sequences
         self.home_correction = Px4HomeCorrection(np.random.default_rng(self.cfg.seed + 5)) if modelled else None
         self._load_storage()
@@ -121,7 +101,7 @@ class FirmwareRules:
 
     def begin_boot(self) -> None:
         """The autopilot process starts (``run()``) or restarts (``reboot()``)."""
-        init_s = INIT_WALL_S[self.flavour.name] if self.cfg.init_s is None else float(self.cfg.init_s)
+        init_s = self.flavour.init_wall_s if self.cfg.init_s is None else float(self.cfg.init_s)
         if init_s <= 0:
             return
         if self._init_until_wall is None:
@@ -135,8 +115,8 @@ class FirmwareRules:
             return
         self._init_until_wall = None
         self.missions.max_items = self._mission_capacity
-        if self.flavour.name == "ardupilot":
-            self.statustext(mavlink.MAV_SEVERITY_INFO, COPTER_READY_TEXT)
+        if self.flavour.ready_text is not None:
+            self.statustext(mavlink.MAV_SEVERITY_INFO, self.flavour.ready_text)
         log.info("initialised")
 
     # --- estimator readiness (ArduCopter: 35-40 s after boot) -----------------------------------------
@@ -148,8 +128,9 @@ class FirmwareRules:
         """The firmware's refusal text: the estimator not using GPS yet, or (PX4) Mission mode without a valid
         mission, which PX4 does not arm in."""
         if not self.position_ready:
-            return COPTER_PREARM_NO_POSITION if self.flavour.name == "ardupilot" else "Preflight Fail: No position"
-        if self.flavour.name == "px4" and self.mode == fl.MISSION and (not self.mission or self.mission_refused):
+            return self.flavour.no_position_text
+        if (self.flavour.refuses_arming_without_valid_mission and self.mode == fl.MISSION
+                and (not self.mission or self.mission_refused)):
             return "Arming denied: no valid mission"
         return None
 
@@ -160,13 +141,14 @@ class FirmwareRules:
     # --- current item kept across an identical upload (PX4) ------------------------------------------
     def keeps_current_on_upload(self, new_items: list) -> bool:
         """PX4 keeps the current item when the new mission equals the stored one (and it is inside the mission)."""
-        return (self.flavour.name == "px4" and bool(self.mission) and _same_items(self.mission, new_items)
+        return (self.flavour.keeps_current_on_identical_upload and bool(self.mission)
+                and _same_items(self.mission, new_items)
                 and 0 <= self.mission_seq < len(new_items))
 
     # --- storage across a restart of the simulator process (PX4 dataman) -----------------------------
     def _load_storage(self) -> None:
         path = self.cfg.storage
-        if path is None or not Path(path).exists() or self.flavour.name != "px4":
+        if path is None or not Path(path).exists() or not self.flavour.persistent_storage:
             return
         data = json.loads(Path(path).read_text())
         items = [mi.MissionItem(**d) for d in data.get("mission", [])]
@@ -177,7 +159,7 @@ class FirmwareRules:
 
     def save_storage(self) -> None:
         path = self.cfg.storage
-        if path is None or self.flavour.name != "px4":
+        if path is None or not self.flavour.persistent_storage:
             return
         data = {"mission": [it.__dict__ for it in self.mission], "current": self.mission_seq}
         Path(path).write_text(json.dumps(data, allow_nan=True))
@@ -186,7 +168,7 @@ class FirmwareRules:
     def geofence_violation(self) -> int | None:
         """1-based number of the first positional item beyond GF_MAX_HOR_DIST from home, as PX4 reports it."""
         limit = float(self.params.get("GF_MAX_HOR_DIST", 0.0))
-        if self.flavour.name != "px4" or limit <= 0:
+        if not self.flavour.checks_geofence_at_start or limit <= 0:
             return None
         h = self.cfg.home
         for i, it in enumerate(self.mission):
@@ -277,7 +259,7 @@ class FirmwareRules:
     def on_arm_home(self) -> None:
         """PX4 sets home at the vehicle when it arms, unless home was set by hand (Commander: ``manual_home``); its
         correction window starts again at the next take-off."""
-        if self.flavour.name != "px4":
+        if not self.flavour.moves_home_in_flight:
             return
         if not self.manual_home:
             self.home_alt_shift_m = 0.0
@@ -334,7 +316,7 @@ class FirmwareRules:
         self.took_off = False
         self.landed_since = None
         self.armed_at = None
-        self.mode = fl.HOLD if self.flavour.name == "px4" else fl.POSCTL
+        self.mode = self.flavour.boot_mode
         self.task = Hold(self.model.state.pos)
         self.yaw_target = None
         self.mission_task = None
@@ -345,7 +327,7 @@ class FirmwareRules:
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due = {}
         self._held, self._stall_until, self._next_stall = {}, {}, {}  # a new boot: no stream is held back
-        if self.flavour.name != "px4":
+        if not self.flavour.keeps_current_on_reboot:
             self.mission_seq = self.flavour.first_seq
         self.begin_boot()
         log.warning("autopilot booted again (boot %d): mission of %d items, current item %d", self.boot_count + 1,

@@ -197,9 +197,8 @@ class TelemetryStreams:
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
         caps |= (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.flavour.param_bytewise
                  else mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
-        version = (1 << 24) | (15 << 16) | (0 << 8) | 255 if self.flavour.name == "px4" else (4 << 24) | (6 << 16) | 255
-        return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11,
-                                                 1000 + self.cfg.seed)
+        return self.mav.autopilot_version_encode(caps, self.flavour.sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
+                                                 0x26AC, 0x11, 1000 + self.cfg.seed)
 
     STREAMS = {
         "HEARTBEAT": "_heartbeat", "SYS_STATUS": "_sys_status", "GPS_RAW_INT": "_gps_raw",

@@ -37,7 +37,11 @@ _HOMES = _discover()
 # the flavours as named in files and on the command line (the enum's values): Flavour.PX4 == "px4"
 Flavour = StrEnum("Flavour", {name.upper(): name for name in _HOMES})
 Flavour.__doc__ = "An autopilot flavour as files and the command line name it; ``autopilot_for`` gives its home."
-_BY_NUMBER = {home.mav_autopilot: home for home in _HOMES.values()}
+# the heartbeat's number -> the first home that claims it (a release of the same firmware with other mission
+# semantics shares its number: it is chosen by name, --autopilot, until it is told apart by its version)
+_BY_NUMBER: dict[int, Autopilot] = {}
+for _home in _HOMES.values():
+    _BY_NUMBER.setdefault(_home.mav_autopilot, _home)
 DEFAULT_FLAVOUR = Flavour("px4")  # what a plan exports for when no autopilot is named
 
 

@@ -1,6 +1,6 @@
 """Heading and speed on the scan legs of the demo mission, per autopilot flavour, with and without the parameters
-``firmware.flight_parameters`` lists (set by the companion, as in a user's flight), through the simulator process +
-mavsdk + companion.flight.
+``flight_parameters`` (``companion.mission.autopilot``) lists (set by the companion, as in a user's flight),
+through the simulator process + mavsdk + companion.flight.
 
 Simulator figures (the simulator's PX4 / ArduCopter flavours), judged from its truth log: worst relative speed
 error along a scan leg (middle 60 % of each leg), worst heading error against wall-facing (whole leg), and how far
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from companion.flight import fly_mission_sync
 from companion.mission import load_mission, plan_scan
-from companion.mission.firmware import flight_parameters
+from companion.mission.autopilot import flight_parameters
 from sim.evaluate_scan import read_truth_log, scan_leg_reports, worst
 from sim.process import SimulatorProcess
 

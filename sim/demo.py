@@ -169,7 +169,7 @@ def fly_demo(plan, mission_path: Path, args: argparse.Namespace, **fly_kwargs) -
     """Start the SITL rig, fly the plan culling the simulated camera's frames into ``out/spool``, stop the rig
     (``fly_kwargs`` go to the flight, e.g. ``standoff=StandoffOptions(correct=False)``)."""
     from companion.onboard.live import run_live_scan
-    from sim.rig import SitlRig
+    from sim.rig import SitlRig, sitl_profile_for
 
     out: Path = args.out
     with SitlRig(
@@ -178,6 +178,7 @@ def fly_demo(plan, mission_path: Path, args: argparse.Namespace, **fly_kwargs) -
     ) as rig:
         scan = run_live_scan(plan, rig.url, rig.capture, out / "spool", model=args.model, mask=not args.no_mask,
                              end_action=plan.mission.end_action, progress=True,
+                             sitl_profile=sitl_profile_for(rig.autopilot),
                              **{k: v for k, v in fly_kwargs.items() if v is not None})
     camera = {"fps": args.fps, "width_px": args.width, "renderer": rig.renderer, **(rig.camera_counts() or {})}
     return DemoFlight(scan, camera, true_standoff(plan, out / "sim" / TRUTH_LOG))

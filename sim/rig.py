@@ -18,11 +18,20 @@ import time
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.flight.sitl_profile import SitlProfile, load_sitl_profile
 from sim.process import SimulatorProcess, child_environment, free_port, terminate, with_mission_wall
+from sim.vehicle.flavours import FLAVOURS
 
 # The simulator told to keep home where the vehicle armed (by default its PX4 flavour moves home for 120 s after
 # take-off, as real PX4 SIH does: sim/vehicle/home_drift.py).
 STILL_HOME = {"home_shift_m": 0}
+
+
+def sitl_profile_for(autopilot: str) -> SitlProfile | None:
+    """What a flight on the simulator's ``autopilot`` flavour asks ``companion fly`` for (``--sitl-profile``): the
+    PX4 flavour boots as PX4 SIH does, so its flights ask what real SIH needs; None for a flavour that needs none."""
+    path = FLAVOURS[str(autopilot)].sitl_profile
+    return load_sitl_profile(path) if path is not None else None
 
 
 def fly_at_once_with_still_home(mission, sim_options: dict | None = None):

@@ -10,6 +10,8 @@ from companion.errors import CompanionError
 from companion.mission import firmware as fw
 from companion.mission import items as mi
 from companion.mission import load_mission, plan_scan
+from companion.mission.autopilot import autopilot_for, flight_parameters
+from companion.mission.autopilot.ardupilot import whole_seconds
 from tests.test_flight_verify_real import REAL, load_items
 
 ROOT = fw.__file__.rsplit("/companion/", 1)[0]
@@ -23,7 +25,7 @@ def plan(request):
 
 def test_ardupilot_items_hold_no_nan_copter_refuses(plan):
     items = plan.mavlink_items("ardupilot")
-    assert fw.ardupilot_param_refusal(items) is None
+    assert autopilot_for("ardupilot").param_refusal(items) is None
     assert not any(math.isnan(p) for it in items for p in (it.param1, it.param2, it.param3, it.param4))
     gimbal = next(it for it in items if it.command == mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW)
     assert gimbal.param3 == gimbal.param4 == 0.0
@@ -35,18 +37,18 @@ def test_the_recorded_refusal_is_the_one_the_rule_finds():
         path = REAL / "ardupilot-copter-4.7.0-dev" / f"{mission}.planned.json"
         if not path.exists():
             pytest.skip("recorded real-firmware data not found")
-        refusal = fw.ardupilot_param_refusal(load_items(path))
+        refusal = autopilot_for("ardupilot").param_refusal(load_items(path))
         assert (refusal.seq, refusal.command, refusal.param) == (2, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, 3)
         assert "item 2 (DO_GIMBAL_MANAGER_PITCHYAW) has param3" in refusal.describe()
 
 
 def test_nan_where_ardupilot_allows_it_is_not_a_refusal():
     it = mi.MissionItem(1, 6, mi.MAV_CMD_NAV_TAKEOFF, 0, 1, 0.0, 0.0, 0.0, math.nan, 1, 1, 10.0)
-    assert fw.ardupilot_param_refusal([it]) is None
+    assert autopilot_for("ardupilot").param_refusal([it]) is None
     bad = mi.MissionItem(1, 6, mi.MAV_CMD_NAV_TAKEOFF, 0, 1, math.nan, 0.0, 0.0, 0.0, 1, 1, 10.0)
-    assert fw.ardupilot_param_refusal([bad]).param == 1
+    assert autopilot_for("ardupilot").param_refusal([bad]).param == 1
     inf = mi.MissionItem(1, 6, mi.MAV_CMD_NAV_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, math.inf, 1, 1, 10.0)
-    assert fw.ardupilot_param_refusal([inf]).param == 4  # inf is refused even where NaN is allowed
+    assert autopilot_for("ardupilot").param_refusal([inf]).param == 4  # inf is refused even where NaN is allowed
 
 
 def test_copter_holds_are_whole_seconds_rounded_up(plan):
@@ -58,7 +60,7 @@ def test_copter_holds_are_whole_seconds_rounded_up(plan):
     assert {it.param1 for it in px4 if it is not settle} == {0.0, 0.5}
     assert {it.param1 for it in ap} == {0.0, 1.0}  # the 0.5 s settle is kept as 1 s, never dropped
     assert all((a.param1 > 0) == (p.param1 > 0) for a, p in zip(ap, px4, strict=True) if p is not settle)
-    assert fw.whole_seconds(2.0) == 2.0 and fw.whole_seconds(0.0) == 0.0
+    assert whole_seconds(2.0) == 2.0 and whole_seconds(0.0) == 0.0
 
 
 def test_copter_faces_the_wall_with_condition_yaw_before_every_waypoint(plan):
@@ -70,7 +72,7 @@ def test_copter_faces_the_wall_with_condition_yaw_before_every_waypoint(plan):
             before = items[k - 1]
             assert before.command == mi.MAV_CMD_CONDITION_YAW, k
             assert before.param1 == pytest.approx(yaw) and before.param4 == 0.0  # absolute heading
-    assert fw.flight_parameters(plan, "ardupilot") == {"WP_YAW_BEHAVIOR": 0.0}
+    assert flight_parameters(plan, "ardupilot") == {"WP_YAW_BEHAVIOR": 0.0}
 
 
 def test_px4_keeps_the_yaw_in_the_waypoint(plan):
@@ -96,7 +98,7 @@ def test_copter_gets_the_scan_speed_for_climb_and_descent_too(plan):
 def test_px4_gets_horizontal_speed_items_and_vertical_speed_parameters(plan):
     speeds = _speed_items(plan.mavlink_items("px4"))
     assert {t for t, _ in speeds} == {fw.SPEED_TYPE_GROUND}  # PX4 would read type 2/3 as horizontal speed
-    params = fw.flight_parameters(plan, "px4")
+    params = flight_parameters(plan, "px4")
     v = plan.estimates.scan_speed_m_s
     if plan.mission.pattern == "vertical":
         assert params == {"MPC_Z_V_AUTO_UP": pytest.approx(v, abs=1e-3), "MPC_Z_V_AUTO_DN": pytest.approx(v, abs=1e-3),
@@ -108,7 +110,7 @@ def test_px4_gets_horizontal_speed_items_and_vertical_speed_parameters(plan):
 def test_horizontal_strips_need_no_px4_parameters():
     m = load_mission(f"{ROOT}/missions/demo-facade.yaml")
     plan = plan_scan(m.model_copy(update={"pattern": "horizontal"}))
-    assert fw.flight_parameters(plan, "px4") == {}
+    assert flight_parameters(plan, "px4") == {}
 
 
 def test_a_fast_vertical_scan_also_raises_px4s_descent_cap():
@@ -116,7 +118,7 @@ def test_a_fast_vertical_scan_also_raises_px4s_descent_cap():
     plan = plan_scan(m.model_copy(update={"motion_blur_budget_px": 3.0}))
     v = plan.estimates.scan_speed_m_s
     assert 1.5 < v < 3.0
-    params = fw.flight_parameters(plan, "px4")
+    params = flight_parameters(plan, "px4")
     assert params["MPC_Z_V_AUTO_DN"] == params["MPC_Z_VEL_MAX_DN"] == pytest.approx(v, abs=1e-3)
     assert "MPC_Z_VEL_MAX_UP" not in params  # 3 m/s default already allows it
 
@@ -126,13 +128,13 @@ def test_a_vertical_scan_speed_px4_cannot_take_is_refused_with_a_fix():
     plan = plan_scan(m.model_copy(update={"motion_blur_budget_px": 0.3}))
     assert plan.estimates.scan_speed_m_s < 0.5
     with pytest.raises(CompanionError) as err:
-        fw.flight_parameters(plan, "px4")
+        flight_parameters(plan, "px4")
     assert "MPC_Z_V_AUTO_UP range 0.5..8" in err.value.problem and "pattern: horizontal" in err.value.fix
 
 
 def test_unknown_autopilot_is_refused(plan):
     with pytest.raises(CompanionError):
-        fw.flight_parameters(plan, "inav")
+        flight_parameters(plan, "inav")
     with pytest.raises(CompanionError):
         plan.mavlink_items("inav")
 
@@ -146,7 +148,7 @@ def test_plan_summary_lists_the_flight_parameters_or_why_not():
     m = load_mission(f"{ROOT}/missions/demo-facade.yaml")
     plan = plan_scan(m)
     summary = json.loads(summary_json(plan))["flight_parameters"]
-    assert summary == {"px4": fw.flight_parameters(plan, "px4"), "ardupilot": {"WP_YAW_BEHAVIOR": 0.0}}
+    assert summary == {"px4": flight_parameters(plan, "px4"), "ardupilot": {"WP_YAW_BEHAVIOR": 0.0}}
     slow = plan_scan(m.model_copy(update={"motion_blur_budget_px": 0.3}))
     summary = json.loads(summary_json(slow))["flight_parameters"]
     assert "MPC_Z_V_AUTO_UP range" in summary["px4"]["error"] and summary["px4"]["fix"]

@@ -24,7 +24,7 @@ from sim.vehicle.autopilot import SimVehicle, VehicleConfig
 from tests.sitl import ROOT
 
 DEMO = ROOT / "missions/demo-facade.yaml"
-REAL_FMU = "CAL_ACC0_ID=2490378,CAL_GYRO0_ID=2490378,SYS_AUTOSTART=4001"  # ICM-42688-P on SPI 1, a quad X airframe
+PX4_SIH_PROFILE = ROOT / "sim/sitl/px4-sih.yaml"
 
 
 @pytest.fixture(scope="module")
@@ -207,13 +207,14 @@ def test_a_put_back_the_vehicle_ignores_is_given_up_and_the_watch_decides(demo_i
 
 @pytest.mark.sitl
 def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_planned(demo_items, tmp_path):
-    """PX4 SIH (the simulator's PX4 flavour boots with SIH's markers): the vehicle holds above the wall until PX4's
-    window is over, then home is put back where it was at arming, and every strip bottom is flown 1.55 m above the
-    true ground. Before, the flight ended (exit 1) with RTL and no scan."""
-    proc, out = _fly_demo_with_home_moved(tmp_path)
+    """Asked for (``--sitl-profile sim/sitl/px4-sih.yaml``, as for PX4 SIH): the vehicle holds above the wall until
+    PX4's window is over, then home is put back where it was at arming, and every strip bottom is flown 1.55 m above
+    the true ground. Without the profile the flight ends (exit 1) with RTL and no scan (the next test)."""
+    proc, out = _fly_demo_with_home_moved(tmp_path, "--sitl-profile", str(PX4_SIH_PROFILE))
     assert proc.returncode == 0, out[-4000:]
     assert "window is over: home moved 1 time in it (each at debug level, -v) and is now -1.20 m" in out, out[-4000:]
-    assert "PX4 SIH: home is back at 30.00 m AMSL" in out and "home handed back to the vehicle" in out, out[-4000:]
+    assert "SITL profile: home is back at 30.00 m AMSL" in out and "home handed back to the vehicle" in out, \
+        out[-4000:]
     assert "mission complete" in out, out[-4000:]
     heights = _true_heights_by_item(tmp_path)
     bottoms = [it.seq for it in demo_items if it.command == mi.MAV_CMD_NAV_WAYPOINT and it.z < 2.0]
@@ -224,20 +225,22 @@ def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_p
 
 @pytest.mark.sitl
 def test_a_real_px4_home_moved_too_low_ends_the_flight_at_the_hold_above_the_wall(demo_items, tmp_path):
-    """A real PX4 (a real IMU and airframe: home is never put back) moves home 1.2 m down while the vehicle holds
-    above the wall: when the window is over the flight ends there, with RTL and a clear error, before any strip.
+    """PX4 without a SITL profile (a real vehicle, or the simulator flown as one: the companion detects no simulator
+    and never puts home back) moves home 1.2 m down while the vehicle holds above the wall: when the window is over
+    the flight ends there, with RTL and a clear error, before any strip.
     Before (no hold, the move ended the scan when it came), the vehicle had started its first strip.
 
     Speed-up 5, not 20: the hold ends 2 s of autopilot time after the window (``planner.HOME_SETTLE_SLACK_S`` less
     ``home_watch.SETTLE_SLACK_S``), and the companion polls every 0.1 s of wall time, as on a real vehicle. At 20x a
     poll is 2 s of autopilot time, the whole margin: in a CI run beside other tests the companion saw the window's
     end late and the vehicle had reached its first scan waypoint. At 5x the margin is 4 polls."""
-    proc, out = _fly_demo_with_home_moved(tmp_path, "--sim-arg", f"params={REAL_FMU}", speedup=5.0)
+    proc, out = _fly_demo_with_home_moved(tmp_path, speedup=5.0)
     assert proc.returncode == 1, out[-4000:]
     assert "window is over: home moved 1 time in it (each at debug level, -v) and is now -1.20 m" in out, out[-4000:]
     assert "0.35 m above the take-off ground" in out and "raise the strip bottoms" in out, out[-4000:]
     assert "stopped by home" in out and "mission NOT complete" in out, out[-4000:]
     assert "landed and disarmed after RTL" in out and "put home back" not in out, out[-4000:]
+    assert "SITL profile" not in out and "EKF2" not in out, out[-4000:]  # nothing a simulator needs, unasked
     assert "parameter MPC_Z_V_AUTO_DN restored to 1.5" in out, out[-4000:]  # what it set for the flight is restored
     settle = settle_item_seq(demo_items, plan_scan(load_mission(DEMO)).settle_waypoint_index)
     flown = [r["mission_item"] for r in read_telemetry_log(tmp_path / "t.jsonl") if r["in_air"]]

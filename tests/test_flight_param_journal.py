@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import pytest
 
 from companion.errors import CompanionError
-from companion.flight.link_watch import link_watch_overrides, watched_by_ardupilot
+from companion.flight.link_watch import link_watch_overrides, watched_by_gcs_id
 from companion.flight.param_journal import ParamJournal, VehicleIdentity, state_dir
 from companion.flight.parameters import FlightParameters
 from companion.flight.restore import refuse_unless_restored, restore_left_parameters, uid_text
@@ -159,9 +159,9 @@ def test_uid_from_autopilot_version():
 
 
 def test_ardupilot_failsafe_is_made_to_watch_the_companions_heartbeats():
-    assert not watched_by_ardupilot(245, 255, 0)  # as shipped: only 255 counts
-    assert watched_by_ardupilot(245, 245, 0) and watched_by_ardupilot(245, 240, 250)
-    assert not watched_by_ardupilot(245, 250, 255)
+    assert not watched_by_gcs_id(245, 255, 0)  # as shipped: only 255 counts
+    assert watched_by_gcs_id(245, 245, 0) and watched_by_gcs_id(245, 240, 250)
+    assert not watched_by_gcs_id(245, 250, 255)
     new = _Vehicle(_Params({"MAV_GCS_SYSID": 255, "MAV_GCS_SYSID_HI": 0}))
     assert asyncio.run(link_watch_overrides(new)) == {"MAV_GCS_SYSID": 245.0}
     old = _Vehicle(_Params({"SYSID_MYGCS": 255}))  # before 4.7

@@ -3,8 +3,8 @@ judged from the simulator's truth log the way real firmware is judged: on every 
 of wall-facing and the speed along the leg (vertical on these strips) within 15 % of the plan.
 
 The simulator boots with the firmware's defaults (PX4 climbs at 3 m/s, Copter faces the next waypoint); the flight
-code must set what ``firmware.flight_parameters`` lists for the flight and restore it afterwards. Speed-up 25: about
-300 simulated seconds per flight.
+code must set what ``flight_parameters`` (``companion.mission.autopilot``) lists for the flight and restore it
+afterwards. Speed-up 25: about 300 simulated seconds per flight.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pytest
 
 from companion.flight import fly_mission_sync
 from companion.mission import load_mission, plan_scan
-from companion.mission.firmware import flight_parameters
+from companion.mission.autopilot import flight_parameters
 from sim.evaluate_scan import read_truth_log, scan_leg_reports, worst
 from tests.sitl import ROOT, SitlVehicle
 

@@ -179,8 +179,8 @@ def test_px4_holds_above_the_wall_until_its_home_has_settled():
     transit point above the first strip so that, flown as fast as PX4 can, the scan starts no earlier than
     margins.home_settle_s after take-off. The bottom strip stays where the camera still sees the wall's base (a
     1.5 m higher strip bottom would leave the wall's bottom 1.5 m unseen). ArduCopter keeps home where it armed."""
+    from companion.mission.autopilot.px4 import PX4_HOME_CORRECTION_WINDOW_S, PX4_MAX_CLIMB_M_S
     from companion.mission.commands import format_estimates
-    from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S, PX4_MAX_CLIMB_M_S
 
     m = load_mission(DEMO)
     plan = plan_scan(m)

@@ -16,6 +16,7 @@ from companion.geo import GeoPoint
 from companion.mission import firmware as fw
 from companion.mission import items as mi
 from companion.mission import load_mission, plan_scan
+from companion.mission.autopilot import flight_parameters
 from sim.evaluate_scan import scan_leg_reports, worst
 from sim.vehicle import flavours as fl
 from sim.vehicle.autopilot import SimVehicle, VehicleConfig
@@ -195,7 +196,7 @@ def test_px4_climbs_at_its_auto_speeds_unless_the_parameters_are_set(small_plan)
     default = scan_leg_reports(small_plan, fly_in_process(small_plan, "px4", items))
     v = small_plan.estimates.scan_speed_m_s
     assert all(r.median_speed_m_s > 1.3 for r in default)  # MPC_Z_V_AUTO_UP 3 / _DN 1.5, not DO_CHANGE_SPEED
-    params = fw.flight_parameters(small_plan, "px4")
+    params = flight_parameters(small_plan, "px4")
     tuned = scan_leg_reports(small_plan, fly_in_process(small_plan, "px4", items, params))
     speed_error, yaw_error = worst(tuned)
     assert speed_error < 0.15 and yaw_error < 3.0, tuned
@@ -207,7 +208,7 @@ def test_px4_strips_end_where_planned_only_with_nav_mc_alt_rad_set_for_the_fligh
     before their ends. The speed parameters alone leave that (the simulator turns about 0.25 m early on these legs);
     the plan's NAV_MC_ALT_RAD (its 0.3 m acceptance radius) brings every strip's end to within 0.15 m."""
     items = small_plan.mavlink_items("px4")
-    params = fw.flight_parameters(small_plan, "px4")
+    params = flight_parameters(small_plan, "px4")
     assert params["NAV_MC_ALT_RAD"] == 0.3
     speeds_only = {k: v for k, v in params.items() if k != "NAV_MC_ALT_RAD"}
     before = scan_leg_reports(small_plan, fly_in_process(small_plan, "px4", items, speeds_only))

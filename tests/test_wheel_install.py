@@ -42,7 +42,8 @@ def installed(tmp_path_factory) -> tuple[Path, dict, Path]:
     names = zipfile.ZipFile(wheel).namelist()
     for shipped in ("companion/models/monodepth2-sim-r18w025.onnx", "companion/models/monodepth2-real-nc-r18w025.onnx",
                     "companion/missions/demo-facade.yaml", "companion/viewer/static/leaflet/LICENSE", "sim/__main__.py",
-                    "sim/commands.py", "evaluation/keyframes/evaluate.py", "evaluation/depth/evaluate.py"):
+                    "sim/commands.py", "evaluation/keyframes/evaluate.py", "evaluation/depth/evaluate.py",
+                    "sim/sitl/px4-sih.yaml", "companion/mission/autopilot/px4.py"):
         assert shipped in names, f"the wheel lacks {shipped}"
     venv = tmp / "venv"
     _run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", venv], cwd=tmp, env=env)

@@ -13,7 +13,8 @@ import math
 from dataclasses import dataclass
 
 import pymap3d
-from mavsdk.asyncio import Autopilot, ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio import Autopilot as MavsdkAutopilot
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync, MavlinkMessage
 from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
@@ -22,10 +23,12 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from companion.errors import CompanionError
 from companion.flight.mavsdk_log import route_mavsdk_log
+from companion.mission.autopilot import Flavour, autopilot_for, autopilot_from_heartbeat
 
 log = logging.getLogger(__name__)
 
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_AUTOPILOT_INVALID = 8  # a HEARTBEAT from something that is not an autopilot (ground station, camera)
 MAV_CMD_DO_SET_MODE = 176
 MSG_ID_MISSION_CURRENT = 42
 MSG_ID_DISTANCE_SENSOR = 132
@@ -48,7 +51,7 @@ class Vehicle:
     action: ActionAsync
     mission: MissionRawAsync
     direct: MavlinkDirectAsync
-    autopilot: str  # 'px4' or 'ardupilot'
+    autopilot: Flavour  # chosen once, at connect (its home: ``companion.mission.autopilot.autopilot_for``)
     system_id: int
     param: ParamAsync | None = None
     own_system_id: int = 245  # the companion's MAVLink system id (mavsdk's ground-station default)
@@ -86,7 +89,10 @@ def _ack_result(ack) -> int:
 
 
 async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto") -> Vehicle:
-    """Open ``url`` (e.g. ``udp://:14540``, ``tcpout://127.0.0.1:5760``) and wait for an autopilot heartbeat."""
+    """Open ``url`` (e.g. ``udp://:14540``, ``tcpout://127.0.0.1:5760``) and wait for an autopilot heartbeat.
+
+    ``autopilot``: 'auto' takes the firmware from the heartbeat (an autopilot neither PX4 nor ArduPilot is refused,
+    naming its MAV_AUTOPILOT number); a flavour ('px4', 'ardupilot') flies the vehicle by that firmware's rules."""
     route_mavsdk_log()  # mavsdk's lines as whole logging records, not spliced into ours
     cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     mavsdk = Mavsdk(cfg)
@@ -102,15 +108,49 @@ async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto")
         raise CompanionError(
             f"no autopilot heartbeat on {url} within {timeout_s:g} s",
             "start the vehicle or simulator (e.g. `companion sim`), and check the --connect address and port")
-    if autopilot == "auto":
-        kind = await system.autopilot_type()
-        autopilot = "ardupilot" if kind == Autopilot.ARDUPILOT else "px4"
+    direct = MavlinkDirectAsync(system)
+    try:
+        home = autopilot_for(autopilot) if autopilot != "auto" else await _heartbeat_autopilot(system, direct)
+    except CompanionError:
+        mavsdk.destroy()
+        raise
     vehicle = Vehicle(mavsdk, system, TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system),
-                      MavlinkDirectAsync(system), autopilot, await system.get_system_id(), ParamAsync(system),
+                      direct, Flavour(home.flavour), await system.get_system_id(), ParamAsync(system),
                       own_system_id=int(cfg.system_id))
-    log.info("connected to %s autopilot (system %d) on %s as system %d", autopilot, vehicle.system_id, url,
+    log.info("connected to %s autopilot (system %d) on %s as system %d", vehicle.autopilot, vehicle.system_id, url,
              vehicle.own_system_id)
     return vehicle
+
+
+# mavsdk's name for the autopilot -> the MAV_AUTOPILOT number its heartbeat carried
+_MAVSDK_AUTOPILOTS = {MavsdkAutopilot.PX4: 12, MavsdkAutopilot.ARDUPILOT: 3}
+
+
+async def _heartbeat_autopilot(system, direct: MavlinkDirectAsync, timeout_s: float = 3.0):
+    """The home of the firmware the vehicle's HEARTBEAT names. mavsdk tells PX4 and ArduPilot apart; any other
+    (GENERIC, UNKNOWN) is read from the next HEARTBEAT itself so the refusal names its number."""
+    number = _MAVSDK_AUTOPILOTS.get(await system.autopilot_type())
+    if number is None:
+        number = await _heartbeat_number(direct, timeout_s)
+    return autopilot_from_heartbeat(number)
+
+
+async def _heartbeat_number(direct: MavlinkDirectAsync, timeout_s: float) -> int:
+    """MAV_AUTOPILOT of the next autopilot HEARTBEAT (not a ground station's or a camera's: MAV_AUTOPILOT_INVALID,
+    8); 0 (generic) when none says within ``timeout_s``."""
+
+    async def _first() -> int:
+        async for msg in direct.subscribe_message("HEARTBEAT"):
+            with contextlib.suppress(ValueError, TypeError, KeyError):
+                number = int(json.loads(msg.fields_json)["autopilot"])
+                if number != MAV_AUTOPILOT_INVALID:
+                    return number
+        return 0
+
+    try:
+        return await asyncio.wait_for(_first(), timeout_s)
+    except TimeoutError:
+        return 0
 
 
 async def request_rates(vehicle: Vehicle, rate_hz: float) -> None:

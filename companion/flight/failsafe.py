@@ -16,39 +16,19 @@ from dataclasses import dataclass
 from companion.errors import CompanionError
 from companion.flight.parameters import read_parameter
 from companion.mission import items as mi
-
-
-@dataclass(frozen=True)
-class FailsafeNames:
-    link_action: str
-    return_alt: str
-    return_alt_scale: float  # parameter units per metre
-    action_values: dict[str, int]  # our action name -> parameter value
-    action_names: dict[int, str]  # parameter value -> what the firmware does
-    keeps_flying: frozenset[int]  # values with which a lost link does not end the mission
-
-
-FAILSAFE = {
-    "px4": FailsafeNames(
-        "NAV_DLL_ACT", "RTL_RETURN_ALT", 1.0, {"rtl": 2, "land": 3},
-        {0: "disabled (keeps flying the mission)", 1: "hold", 2: "return", 3: "land", 5: "terminate",
-         6: "disarm"}, frozenset({0})),
-    "ardupilot": FailsafeNames(
-        "FS_GCS_ENABLE", "RTL_ALT", 100.0, {"rtl": 1, "land": 5},
-        {0: "disabled (keeps flying the mission)", 1: "RTL", 2: "continue the AUTO mission", 3: "SmartRTL or RTL",
-         4: "SmartRTL or land", 5: "land", 6: "DO_LAND_START or RTL", 7: "brake or land"}, frozenset({0, 2})),
-}
+from companion.mission.autopilot import Autopilot, autopilot_for
+from companion.mission.autopilot.base import FailsafeNames
 
 
 @dataclass(frozen=True)
 class FailsafeSettings:
-    autopilot: str
+    autopilot: str  # its flavour (``companion.mission.autopilot``, whose home names the parameters)
     link_action: int
     return_alt_m: float
 
     @property
     def names(self) -> FailsafeNames:
-        return FAILSAFE[self.autopilot]
+        return autopilot_for(self.autopilot).failsafe
 
     @property
     def link_action_text(self) -> str:
@@ -87,11 +67,12 @@ def required_return_alt(plan) -> ReturnAltitudeNeed | None:
     return None
 
 
-async def read_failsafe(param_plugin, autopilot: str) -> FailsafeSettings:
-    names = FAILSAFE[autopilot]
+async def read_failsafe(param_plugin, autopilot: str | Autopilot) -> FailsafeSettings:
+    ap = autopilot_for(autopilot)
+    names = ap.failsafe
     action = await read_parameter(param_plugin, names.link_action)
     alt = await read_parameter(param_plugin, names.return_alt)
-    return FailsafeSettings(autopilot, int(round(action.value)), alt.value / names.return_alt_scale)
+    return FailsafeSettings(ap.flavour, int(round(action.value)), alt.value / names.return_alt_scale)
 
 
 def failsafe_warnings(settings: FailsafeSettings, need: ReturnAltitudeNeed | None) -> list[str]:
@@ -107,11 +88,11 @@ def failsafe_warnings(settings: FailsafeSettings, need: ReturnAltitudeNeed | Non
     return out
 
 
-def failsafe_overrides(autopilot: str, *, link_action: str | None, return_alt: str | float | None,
+def failsafe_overrides(autopilot: str | Autopilot, *, link_action: str | None, return_alt: str | float | None,
                        need: ReturnAltitudeNeed | None, current: FailsafeSettings | None = None) -> dict[str, float]:
     """The parameter values the explicit options ask for (empty: change nothing). ``return_alt='auto'`` raises the
     return altitude to what the scan needs and never lowers one that is already high enough (``current``)."""
-    names = FAILSAFE[autopilot]
+    names = autopilot_for(autopilot).failsafe
     out: dict[str, float] = {}
     if link_action is not None:
         if link_action not in names.action_values:

@@ -12,8 +12,9 @@ Supervision rules (why they look like this; docs/FLIGHT.md "Supervision"):
   * the autopilot's home altitude is watched (mission altitudes are relative to it and PX4 moves it in flight):
     each move of more than 0.3 m is said; one that brings a waypoint still ahead under 1 m above the take-off
     ground ends the scan (pause, RTL) as failed (``home_watch.py``), once home has settled when the plan holds
-    above the wall for it (PX4); on PX4 SIH only, home is put back where it was at arming after PX4's 120 s
-    correction window (SIH's GPS altitude noise is white: the moves are noise) and handed back after landing;
+    above the wall for it (PX4); home is put back where it was at arming after the autopilot's correction window
+    (and handed back after landing) only when a SITL profile asks for it (``sitl_profile.py``: PX4 SIH, whose GPS
+    altitude noise is white, so its moves are noise): the same flight on a simulator as on a vehicle otherwise;
   * SIGINT/SIGTERM: pause (hold), then RTL, then wait at most ``stop_wait_s`` for landed + disarmed (said, with the
     time left); a second signal stops waiting.
 """
@@ -45,7 +46,7 @@ from companion.flight.link_watch import link_watch_overrides, until_heartbeat_co
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
 from companion.flight.restore import restore_before_flight
-from companion.flight.simulator import simulator_parameters
+from companion.flight.sitl_profile import SitlProfile
 from companion.flight.standoff_control import StandoffCorrection, StandoffSummary
 from companion.flight.standoff_loop import StandoffLoop, StandoffOptions, settings_for
 from companion.flight.start import arm_with_reason, select_arming_mode, start_from_first_item, start_with_reason
@@ -53,8 +54,7 @@ from companion.flight.status_texts import StatusTexts
 from companion.flight.telemetry_log import PlannedGimbal, TelemetryRecorder
 from companion.flight.upload import upload_and_verify
 from companion.mission import items as mi
-from companion.mission.firmware import PX4_HOME_CORRECTION_WINDOW_S
-from companion.mission.firmware import flight_parameters as firmware_flight_parameters
+from companion.mission.autopilot import Autopilot, autopilot_for
 from companion.records import StandoffEstimate
 
 log = logging.getLogger(__name__)
@@ -362,9 +362,9 @@ class _Supervisor:
         return now - self.takeoff_boot_s
 
     async def _send_home(self, alt_amsl_m: float) -> None:
-        """PX4 SIH only: ask for home at ``alt_amsl_m`` where it was at arming (DO_SET_HOME as COMMAND_INT, AMSL:
-        COMMAND_LONG's float32 would move home's longitude by up to 0.7 m). Fire and forget: the home watch confirms
-        it by HOME_POSITION and asks again if it does not come."""
+        """Asked for by a SITL profile only: ask for home at ``alt_amsl_m`` where it was at arming (DO_SET_HOME as
+        COMMAND_INT, AMSL: COMMAND_LONG's float32 would move home's longitude by up to 0.7 m). Fire and forget: the
+        home watch confirms it by HOME_POSITION and asks again if it does not come."""
         latlon = self.rec.home_before_air_latlon or self.home_latlon_before_arming
         if latlon is None:
             self.home.restore_done = True
@@ -380,9 +380,10 @@ class _Supervisor:
             log.warning("could not send DO_SET_HOME: %s", exc)
 
     async def hand_home_back(self) -> None:
-        """After a flight in which the companion put home back (PX4 SIH): landed and disarmed, home is set at the
-        vehicle's position again (DO_SET_HOME param1 1), which also clears PX4's manual-home flag; PX4 would otherwise
-        keep the companion's home at the next arming. Sent without waiting for its ACK (see ``_send_home``)."""
+        """After a flight in which the companion put home back (a SITL profile's restore_home): landed and disarmed,
+        home is set at the vehicle's position again (DO_SET_HOME param1 1), which also clears PX4's manual-home flag;
+        PX4 would otherwise keep the companion's home at the next arming. Sent without waiting for its ACK (see
+        ``_send_home``)."""
         st = self.rec.state
         if not self.home.put_back or st["armed"] is not False or st["in_air"] is not False:
             return
@@ -489,10 +490,10 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
     return overrides, warnings
 
 
-def plan_flight_parameters(plan, autopilot: str) -> dict[str, float]:
+def plan_flight_parameters(plan, autopilot: str | Autopilot) -> dict[str, float]:
     """The parameters a ScanPlan needs on ``autopilot`` for its flight; none for a bare list of items."""
     if hasattr(plan, "mavlink_items"):
-        return firmware_flight_parameters(plan, autopilot)
+        return autopilot_for(autopilot).flight_parameters(plan)
     return {}
 
 
@@ -510,11 +511,11 @@ def _check_flight_options(end_action: str, link_loss_s: float, link_dead_s: floa
 
 async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: float,
                            flight_parameters: Mapping[str, float] | None, lost_link_action: str | None,
-                           return_alt: str | float | None) -> tuple[dict[str, float], list[str], int, bool]:
+                           return_alt: str | float | None,
+                           sitl_profile: SitlProfile | None = None) -> tuple[dict[str, float], list[str], int]:
     """Everything before arming: upload + verify, arming mode, health, home, failsafe, parameters, first item.
 
-    Returns the parameters to set for the flight, the failsafe warnings, the item the mission starts from, and
-    whether the vehicle is PX4's SIH simulator.
+    Returns the parameters to set for the flight, the failsafe warnings and the item the mission starts from.
     """
     # upload before the health wait, once the vehicle is up: a mission it refuses is an error at once, not
     # after its EKF converged (real ArduCopter SITL: about 40 s after boot)
@@ -529,12 +530,14 @@ async def _prepare_vehicle(vehicle: Vehicle, plan, items, *, health_timeout_s: f
     overrides, warnings = await _failsafe_check(vehicle, plan, lost_link_action=lost_link_action,
                                                 return_alt=return_alt)
     wanted = plan_flight_parameters(plan, vehicle.autopilot)  # what the plan needs (e.g. vertical scan speed)
-    simulated = await simulator_parameters(vehicle)  # PX4 SIH only: EKF2 told the simulator's sensor noise
-    wanted.update(simulated)
+    if sitl_profile is not None:  # asked for by name (--sitl-profile): never chosen by what the vehicle looks like
+        log.warning("SITL profile %s: %s (a simulator's accommodations; never fly a real vehicle with it)",
+                    sitl_profile.source or "given", sitl_profile.describe())
+        wanted.update(sitl_profile.parameters)
     wanted.update(flight_parameters or {})
     wanted.update(overrides)
     first_seq = await start_from_first_item(vehicle)
-    return wanted, warnings, first_seq, bool(simulated)
+    return wanted, warnings, first_seq
 
 
 def standoff_loop_for(plan, items, first_seq: int, options: StandoffOptions, rec: TelemetryRecorder,
@@ -548,22 +551,23 @@ def standoff_loop_for(plan, items, first_seq: int, options: StandoffOptions, rec
     return loop
 
 
-def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str, is_sih: bool) -> HomeWatch:
-    """The flight's home watch: PX4 moves home for 120 s after take-off (ArduPilot keeps it where it armed); a
-    ScanPlan holds above the wall until then at its settle waypoint; PX4 SIH gets home put back after it."""
-    px4 = autopilot == "px4"
+def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str | Autopilot,
+                   restore_home: bool = False) -> HomeWatch:
+    """The flight's home watch: the autopilot's correction window (PX4 moves home for 120 s after take-off;
+    ArduPilot keeps it where it armed); a ScanPlan holds above the wall until then at its settle waypoint;
+    ``restore_home`` (a SITL profile's, asked for) puts home back after it."""
+    window_s = autopilot_for(autopilot).home_correction_window_s
     settle = -1
-    if px4 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
+    if window_s > 0 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
         settle = settle_item_seq(items, plan.settle_waypoint_index)
-    return HomeWatch(items, window_s=PX4_HOME_CORRECTION_WINDOW_S if px4 else 0.0, settle_seq=settle,
-                     restore=px4 and is_sih)
+    return HomeWatch(items, window_s=window_s, settle_seq=settle, restore=window_s > 0 and restore_home)
 
 
 async def _arm_and_start(vehicle: Vehicle, rec: TelemetryRecorder, first_seq: int) -> None:
     """Arm from a mode that allows it (quoting the firmware's refusal) and start the mission; disarm if refused."""
     if not await select_arming_mode(vehicle):
         log.warning("the vehicle did not confirm the switch to %s before arming",
-                    "GUIDED" if vehicle.autopilot == "ardupilot" else "Hold")
+                    autopilot_for(vehicle.autopilot).arming_mode.name)
     await arm_with_reason(vehicle, lambda n: rec.status_texts[n:], lambda: len(rec.status_texts))
     log.info("armed; starting the mission at item %d", first_seq)
     try:
@@ -630,12 +634,13 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                       lost_link_action: str | None = None, return_alt: str | float | None = None,
                       standoff: StandoffOptions | None = None,
                       camera_standoff: Callable[[], StandoffEstimate | None] | None = None,
-                      state_dir: Path | str | None = None) -> FlightResult:
+                      state_dir: Path | str | None = None,
+                      sitl_profile: SitlProfile | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
-    The parameters a ScanPlan needs on this firmware (``companion.mission.firmware.flight_parameters``: PX4's
-    climb/descent speed = the vertical scan speed, ArduCopter's WP_YAW_BEHAVIOR = 0) are always set for the flight
-    and restored afterwards.
+    The parameters a ScanPlan needs on this firmware (its home's ``flight_parameters``, ``companion.mission.autopilot``:
+    PX4's climb/descent speed = the vertical scan speed, ArduCopter's WP_YAW_BEHAVIOR = 0) are always set for the
+    flight and restored afterwards.
     ``flight_parameters``: further autopilot parameters to set for this flight only (restored afterwards, also after an
     error or Ctrl-C); ``lost_link_action`` ('rtl'/'land') and ``return_alt`` (metres or 'auto': the plan's transit
     altitude or wall top + margin) set the lost-link failsafe the same way.
@@ -645,6 +650,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     (the live chain's ``CullChain.standoff``). Without either the flight says the standoff was not measured.
     ``state_dir``: where the parameter journal lives (``param_journal.state_dir``); whatever an earlier run left
     changed on this vehicle is restored first, and every change this flight makes is journaled before it is made.
+    ``sitl_profile``: a simulator's accommodations (``companion.flight.sitl_profile``: parameters set for the flight,
+    home put back after the autopilot's correction window); None (default): none, on any vehicle or simulator.
 
     Returns when the vehicle is landed and disarmed, or supervision ended (stop request, timeout, restart, dead
     link: ``aborted`` and ``problem`` say which). Raises CompanionError for anything that prevents the flight from
@@ -662,9 +669,10 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
         journal = await restore_before_flight(vehicle, state_dir)  # before anything else (restore.py)
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
-        wanted, warnings, first_seq, is_sih = await _prepare_vehicle(
+        wanted, warnings, first_seq = await _prepare_vehicle(
             vehicle, plan, items, health_timeout_s=health_timeout_s, flight_parameters=flight_parameters,
-            lost_link_action=lost_link_action, return_alt=return_alt)
+            lost_link_action=lost_link_action, return_alt=return_alt, sitl_profile=sitl_profile)
+        restore_home = sitl_profile is not None and sitl_profile.restore_home
         async with FlightParameters(vehicle.param, wanted, journal) as params, \
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None,
                                   planned_gimbal=PlannedGimbal.from_items(items)) as rec:
@@ -672,7 +680,7 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
             sup = _Supervisor(vehicle, items, rec, link_loss_s=link_loss_s, flight_timeout_s=flight_timeout_s,
                               end_action=end_action, progress=progress, link_dead_s=link_dead_s,
                               stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz,
-                              home_watch=home_watch_for(plan, items, vehicle.autopilot, is_sih), standoff=loop_)
+                              home_watch=home_watch_for(plan, items, vehicle.autopilot, restore_home), standoff=loop_)
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):

@@ -18,13 +18,13 @@ Waiting for home to settle: the PX4 plan holds above the wall until its correcti
 (``settling``), a move is said but ends nothing: the vehicle is high above the ground and home's last position
 is the one the strips will be flown from. Once the window is over:
 
-* on PX4's SIH simulator (``restore``) home is put back where it was at arming (``restore_due``): SIH's GPS
-  altitude is the truth plus 0.5 m of white noise per sample (``sensor_gps_sim``) and PX4's correction takes one
-  raw sample, so there the move is noise, not drift (the estimator averages the samples; the re-fly with home 1.51 m
-  low flew its strip bottom 0.04 m above SIH's true ground). SITL only, like the estimator noise
-  (``simulator.py``): on a real vehicle the correction follows the receiver's real, slowly varying altitude error,
-  which the estimator follows too, so home is never moved back there;
-* anywhere else, a move that leaves a waypoint ahead too near the ground ends the flight there, at the hold, high
+* when asked (``restore``: a SITL profile's ``restore_home``, ``sitl_profile.py``, e.g. PX4's SIH simulator) home
+  is put back where it was at arming (``restore_step``): SIH's GPS altitude is the truth plus 0.5 m of white noise
+  per sample (``sensor_gps_sim``) and PX4's correction takes one raw sample, so there the move is noise, not drift
+  (the estimator averages the samples; the re-fly with home 1.51 m low flew its strip bottom 0.04 m above SIH's
+  true ground). Never decided from what the vehicle looks like: on a real vehicle the correction follows the
+  receiver's real, slowly varying altitude error, which the estimator follows too, so home is never moved back;
+* otherwise, a move that leaves a waypoint ahead too near the ground ends the flight there, at the hold, high
   above the ground.
 """
 
@@ -104,7 +104,8 @@ class HomeWatch:
                  wall_clock: Callable[[], float] = time.monotonic):
         """``window_s``: how long after take-off the autopilot may move home (PX4 120 s, ArduPilot 0);
         ``settle_seq``: the item the plan holds at until then (-1: none); ``restore``: put home back once the window
-        is over (PX4 SIH only); ``restore_wait_wall_s``: the least wall time between two tries of it."""
+        is over (a SITL profile's ``restore_home``); ``restore_wait_wall_s``: the least wall time between two tries
+        of it."""
         self.items = list(items)
         self.report_m = report_m
         self.min_clearance_m = min_clearance_m
@@ -164,7 +165,8 @@ class HomeWatch:
         log.warning("the autopilot's %g s home correction window is over: home moved %d time%s in it (each at debug "
                     "level, -v) and is now %+.2f m from where it was at arming%s", self.window_s, self.window_moves,
                     "" if self.window_moves == 1 else "s", offset,
-                    " (to be put back: PX4 SIH)" if self.restore and abs(offset) >= RESTORE_MIN_M else
+                    " (to be put back: the SITL profile's restore_home)"
+                    if self.restore and abs(offset) >= RESTORE_MIN_M else
                     ": every later mission altitude moved with it")
 
     def on_airborne(self) -> None:
@@ -183,10 +185,11 @@ class HomeWatch:
         return since_takeoff_s is None or since_takeoff_s < self.window_s + SETTLE_SLACK_S
 
     def settling(self, current_seq: int, since_takeoff_s: float | None) -> bool:
-        """Nothing ends yet: home may still move and the vehicle has not left the hold before the scan, or (PX4 SIH)
-        home is being put back. A put-back pending counts even after the vehicle left the hold: the companion sees
-        the window's end one poll late, and at a simulator speed-up of 20 on a loaded machine (CI) one poll was enough
-        for the vehicle to leave the 5 s slack of its hold and the flight ended with a put-back already on its way.
+        """Nothing ends yet: home may still move and the vehicle has not left the hold before the scan, or (asked for
+        by a SITL profile) home is being put back. A put-back pending counts even after the vehicle left the hold:
+        the companion sees the window's end one poll late, and at a simulator speed-up of 20 on a loaded machine one
+        poll was enough for the vehicle to leave the 5 s slack of its hold and the flight ended with a put-back
+        already on its way.
         The put-back is confirmed or given up within RESTORE_TRIES x RESTORE_WAIT_S (15 s) of autopilot time, less
         than the descent from the hold to the first strip bottom takes (18 m at the 0.72 m/s the flight sets); in a
         simulator at a speed-up, within RESTORE_TRIES x RESTORE_WAIT_WALL_S of wall time (the simulator takes the
@@ -196,8 +199,8 @@ class HomeWatch:
         return self.window_open(since_takeoff_s) and 0 <= current_seq <= self.settle_seq
 
     def restore_step(self, since_takeoff_s: float | None) -> float | None:
-        """PX4 SIH, after the window: the altitude to send home to now (home at arming), or None (not due, sent
-        recently, confirmed, or given up). Confirmation and giving up are said here."""
+        """Asked for (``restore``), after the window: the altitude to send home to now (home at arming), or None
+        (not due, sent recently, confirmed, or given up). Confirmation and giving up are said here."""
         if not self.restore or self.restore_done or not self.airborne or since_takeoff_s is None:
             return None
         offset = self.offset_m
@@ -210,10 +213,9 @@ class HomeWatch:
         if self.home_now_m is not None and abs(self.home_now_m - target) < RESTORE_MATCH_M:
             self.restore_done = self.put_back = True
             self._reported_offset_m = self.offset_m or 0.0
-            log.warning("PX4 SIH: home is back at %.2f m AMSL, where it was at arming (PX4 had moved it by %+.2f m "
-                        "in its %g s correction window; SIH's GPS altitude noise is white, so the move was noise; "
-                        "SITL only: a real vehicle's home is never moved back)", target, self._moved_by_m,
-                        self.window_s)
+            log.warning("SITL profile: home is back at %.2f m AMSL, where it was at arming (the autopilot had moved "
+                        "it by %+.2f m in its %g s correction window; put back as the profile's restore_home asks)",
+                        target, self._moved_by_m, self.window_s)
             return None
         waited = self._restore_sent_s is None or (
             since_takeoff_s - self._restore_sent_s >= RESTORE_WAIT_S

@@ -36,18 +36,19 @@ from collections.abc import Sequence
 from companion.errors import CompanionError
 from companion.flight.connection import Vehicle
 from companion.flight.parameters import read_parameter
+from companion.mission.autopilot import autopilot_for, homes
+from companion.mission.autopilot.base import LinkWatch
 
 log = logging.getLogger(__name__)
 
-ARDUPILOT_GCS_SYSID = ("MAV_GCS_SYSID", "SYSID_MYGCS")  # 4.7 on, then older firmware
-ARDUPILOT_GCS_SYSID_HI = "MAV_GCS_SYSID_HI"
-PX4_DLL_EXCEPT = "COM_DLL_EXCEPT"
-PX4_DLL_EXCEPT_AUTO_BITS = 0b11  # bit 0 Mission, bit 1 other auto modes (commander_params.c)
+# every firmware's GCS id parameters: a change of one of them waits for a counted heartbeat before arming
+GCS_ID_PARAMS = frozenset(name for home in homes() for name in home.link_watch.gcs_id_params)
 HEARTBEAT_PERIOD_WAIT_S = 1.5  # mavsdk sends a heartbeat every second: one has been counted after this
 
 
-def watched_by_ardupilot(companion_id: int, gcs_id: int, gcs_id_hi: int | None) -> bool:
-    """True when ArduPilot counts heartbeats from ``companion_id`` as its GCS's (GCS::sysid_is_gcs)."""
+def watched_by_gcs_id(companion_id: int, gcs_id: int, gcs_id_hi: int | None) -> bool:
+    """True when a firmware that counts one GCS id (or a range) counts heartbeats from ``companion_id`` (ArduPilot:
+    GCS::sysid_is_gcs)."""
     if gcs_id_hi is not None and gcs_id_hi >= gcs_id:
         return gcs_id <= companion_id <= gcs_id_hi
     return companion_id == gcs_id
@@ -61,7 +62,7 @@ async def _first_parameter(vehicle: Vehicle, names: tuple[str, ...]):
         except CompanionError as exc:
             problems.append(exc.problem)
     raise CompanionError("cannot read the GCS system id the lost-link failsafe watches: " + "; ".join(problems),
-                         "check the link; on ArduPilot set MAV_GCS_SYSID (SYSID_MYGCS before 4.7) to "
+                         f"check the link; set {' (or '.join(names)}{')' * (len(names) - 1)} to "
                          f"{vehicle.own_system_id} by hand, or fly without --lost-link-action")
 
 
@@ -73,24 +74,37 @@ async def _optional_parameter(vehicle: Vehicle, name: str):
 
 
 async def link_watch_overrides(vehicle: Vehicle) -> dict[str, float]:
-    """The parameters that make the lost-link failsafe count the companion's heartbeats (empty: it does already)."""
-    if vehicle.autopilot == "ardupilot":
-        gcs = await _first_parameter(vehicle, ARDUPILOT_GCS_SYSID)
-        hi = await _optional_parameter(vehicle, ARDUPILOT_GCS_SYSID_HI)
-        me = vehicle.own_system_id
-        if watched_by_ardupilot(me, int(gcs.value), int(hi.value) if hi is not None else None):
-            log.info("the lost-link failsafe already watches the companion's heartbeats (system %d)", me)
-            return {}
-        log.info("the lost-link failsafe watches heartbeats from system %s=%s only; the companion sends from %d: "
-                 "%s set to %d for this flight", gcs.name, gcs.text(), me, gcs.name, me)
-        return {gcs.name: float(me)}
-    exceptions = await _optional_parameter(vehicle, PX4_DLL_EXCEPT)
-    if exceptions is None or not int(exceptions.value) & PX4_DLL_EXCEPT_AUTO_BITS:
+    """The parameters that make the lost-link failsafe count the companion's heartbeats (empty: it does already),
+    by the firmware's rule (its home's ``link_watch``)."""
+    rule = autopilot_for(vehicle.autopilot).link_watch
+    out: dict[str, float] = {}
+    if rule.gcs_id_params:
+        out.update(await _gcs_id_override(vehicle, rule))
+    if rule.exception_param is not None:
+        out.update(await _exception_override(vehicle, rule))
+    return out
+
+
+async def _gcs_id_override(vehicle: Vehicle, rule: LinkWatch) -> dict[str, float]:
+    gcs = await _first_parameter(vehicle, rule.gcs_id_params)
+    hi = await _optional_parameter(vehicle, rule.gcs_id_hi_param) if rule.gcs_id_hi_param else None
+    me = vehicle.own_system_id
+    if watched_by_gcs_id(me, int(gcs.value), int(hi.value) if hi is not None else None):
+        log.info("the lost-link failsafe already watches the companion's heartbeats (system %d)", me)
         return {}
-    cleared = int(exceptions.value) & ~PX4_DLL_EXCEPT_AUTO_BITS
-    log.info("%s=%s ignores a lost link in Mission/auto modes: %d for this flight", PX4_DLL_EXCEPT,
+    log.info("the lost-link failsafe watches heartbeats from system %s=%s only; the companion sends from %d: "
+             "%s set to %d for this flight", gcs.name, gcs.text(), me, gcs.name, me)
+    return {gcs.name: float(me)}
+
+
+async def _exception_override(vehicle: Vehicle, rule: LinkWatch) -> dict[str, float]:
+    exceptions = await _optional_parameter(vehicle, rule.exception_param)
+    if exceptions is None or not int(exceptions.value) & rule.exception_bits:
+        return {}
+    cleared = int(exceptions.value) & ~rule.exception_bits
+    log.info("%s=%s ignores a lost link in Mission/auto modes: %d for this flight", rule.exception_param,
              exceptions.text(), cleared)
-    return {PX4_DLL_EXCEPT: float(cleared)}
+    return {rule.exception_param: float(cleared)}
 
 
 async def until_heartbeat_counted(applied: Sequence) -> None:
@@ -98,5 +112,5 @@ async def until_heartbeat_counted(applied: Sequence) -> None:
     failsafe keeps one "last seen" time; when the companion's heartbeats were not counted for a while (the id put
     back to 255 by the restore of a killed run, then set again), the failsafe is on, without action while
     disarmed, until the next counted heartbeat clears it; Copter refuses to arm in it ("GCS failsafe on")."""
-    if any(change.name in ARDUPILOT_GCS_SYSID for change in applied):
+    if any(change.name in GCS_ID_PARAMS for change in applied):
         await asyncio.sleep(HEARTBEAT_PERIOD_WAIT_S)

@@ -28,7 +28,7 @@ from mavsdk.asyncio.plugins.mavlink_direct import MavlinkMessage
 
 from companion.errors import CompanionError
 from companion.flight.connection import Vehicle
-from companion.flight.link_watch import ARDUPILOT_GCS_SYSID, HEARTBEAT_PERIOD_WAIT_S
+from companion.flight.link_watch import GCS_ID_PARAMS, HEARTBEAT_PERIOD_WAIT_S
 from companion.flight.param_journal import (
     JOURNAL_DIR,
     Journal,
@@ -188,7 +188,7 @@ async def _let_the_failsafe_see_the_companion(journals: list[Journal]) -> None:
     returns early when disabled) and refuses to arm while it is on ("PreArm: GCS failsafe on"). So before
     FS_GCS_ENABLE goes back to 0, one heartbeat period passes with MAV_GCS_SYSID still the companion's: the
     companion's heartbeat is counted and the failsafe cleared; disabled first, it would stay on for good."""
-    if any(e.name in ARDUPILOT_GCS_SYSID for journal in journals for e in journal.entries):
+    if any(e.name in GCS_ID_PARAMS for journal in journals for e in journal.entries):
         log.info("waiting %.1f s for the vehicle to count a heartbeat from the companion (it clears the GCS "
                  "failsafe the killed run left on) before restoring", HEARTBEAT_PERIOD_WAIT_S)
         await asyncio.sleep(HEARTBEAT_PERIOD_WAIT_S)

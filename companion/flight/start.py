@@ -21,6 +21,7 @@ from collections.abc import Callable, Collection
 
 from companion.errors import CompanionError
 from companion.flight.stream_listener import StreamListener
+from companion.mission.autopilot import Autopilot, autopilot_for
 
 log = logging.getLogger(__name__)
 
@@ -30,29 +31,23 @@ MAV_CMD_REQUEST_MESSAGE = 512
 MSG_ID_MISSION_CURRENT = 42
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 MAV_RESULT_ACCEPTED = 0
-ARDUCOPTER_GUIDED = 4
-PX4_MAIN_AUTO, PX4_SUB_LOITER = 4, 3
-ARMING_MODE = {"px4": "Hold (AUTO_LOITER)", "ardupilot": "GUIDED"}
 
 
-def first_item_seq(autopilot: str) -> int:
-    """ArduPilot keeps home at seq 0: its first mission item is 1."""
-    return 1 if autopilot == "ardupilot" else 0
+def first_item_seq(autopilot: str | Autopilot) -> int:
+    """The first item of the mission proper (ArduPilot keeps home at seq 0: its first mission item is 1)."""
+    return autopilot_for(autopilot).first_item_seq
 
 
 async def select_arming_mode(vehicle) -> bool:
     """Switch to the firmware's mode from which arming works; True when the vehicle accepted it."""
-    if vehicle.autopilot == "ardupilot":
-        params = (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, ARDUCOPTER_GUIDED)
-    else:
-        params = (MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PX4_MAIN_AUTO, PX4_SUB_LOITER)
+    mode = autopilot_for(vehicle.autopilot).arming_mode
     try:
-        result = await vehicle.command_long(MAV_CMD_DO_SET_MODE, *params)
+        result = await vehicle.command_long(MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, *mode.custom_mode)
     except Exception as exc:  # reported by the caller's health wait / arming if it matters
-        log.debug("mode switch to %s failed: %s", ARMING_MODE[vehicle.autopilot], exc)
+        log.debug("mode switch to %s failed: %s", mode.name, exc)
         return False
     if result != MAV_RESULT_ACCEPTED:
-        log.debug("mode switch to %s refused (MAV_RESULT %d)", ARMING_MODE[vehicle.autopilot], result)
+        log.debug("mode switch to %s refused (MAV_RESULT %d)", mode.name, result)
     return result == MAV_RESULT_ACCEPTED
 
 

@@ -16,7 +16,7 @@ from mavsdk.asyncio.plugins.mission_raw import MissionRawError
 from companion.errors import CompanionError
 from companion.flight.status_texts import StatusTexts, quote
 from companion.flight.stored_form import mismatches
-from companion.mission.firmware import ardupilot_param_refusal, check_autopilot
+from companion.mission.autopilot import Autopilot, autopilot_for
 from companion.mission.items import MissionItem
 
 log = logging.getLogger(__name__)
@@ -46,12 +46,13 @@ def from_raw(raw: Sequence[RawItem]) -> list[MissionItem]:
                         r.param4, r.x, r.y, r.z, r.mission_type) for r in raw]
 
 
-def compare_missions(sent: Sequence[MissionItem], got: Sequence[MissionItem], autopilot: str) -> list[str]:
+def compare_missions(sent: Sequence[MissionItem], got: Sequence[MissionItem],
+                     autopilot: str | Autopilot) -> list[str]:
     """Differences in meaning between what was uploaded and what the vehicle holds (empty list: the same mission).
 
     Each firmware stores some fields in its own form (``companion.flight.stored_form``, checked against real
     downloads); those forms are not differences. Another command, coordinate, order or count is."""
-    check_autopilot(autopilot)
+    autopilot = autopilot_for(autopilot)
     problems = []
     if len(sent) != len(got):
         problems.append(f"the vehicle holds {len(got)} items, {len(sent)} were uploaded")
@@ -60,12 +61,12 @@ def compare_missions(sent: Sequence[MissionItem], got: Sequence[MissionItem], au
     return problems
 
 
-def _culprit(items: Sequence[MissionItem], autopilot: str, result: str) -> str:
+def _culprit(items: Sequence[MissionItem], autopilot: str | Autopilot, result: str) -> str:
     """Which item the refusal is about. mavsdk reports only the result, so name the item the firmware's own
     per-command check refuses (ArduPilot: NaN/inf params), when there is one."""
     if result != "INVALID_ARGUMENT":
         return ""
-    refusal = ardupilot_param_refusal(items) if autopilot == "ardupilot" else None
+    refusal = autopilot_for(autopilot).param_refusal(items)
     if refusal is None:
         return ": mavsdk does not say which item; no item holds a value this firmware is known to refuse"
     return ": " + refusal.describe()
@@ -108,7 +109,8 @@ def _refusal_fix(name: str, said: list[str], count: int) -> str:
     return _UPLOAD_FIXES.get(name, "check the vehicle's messages and the plan")
 
 
-async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str, attempts: int = 4,
+async def upload_and_verify(mission_plugin, items: Sequence[MissionItem], autopilot: str | Autopilot,
+                            attempts: int = 4,
                             texts: StatusTexts | None = None) -> None:
     """Upload ``items``, download them again and compare; raises CompanionError naming the problem.
 

@@ -18,11 +18,10 @@ import simplekml
 
 from companion.errors import CompanionError
 from companion.mission import items as mi
-from companion.mission.firmware import AUTOPILOTS, flight_parameters
+from companion.mission.autopilot import DEFAULT_FLAVOUR, Autopilot, Flavour, autopilot_for
 from companion.mission.planner import ScanPlan
 from companion.polygons import signed_area
 
-QGC_FIRMWARE = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT numbers QGroundControl stores
 QGC_VEHICLE_MULTIROTOR = 2
 
 
@@ -31,10 +30,11 @@ def _num(v: float) -> float | None:
     return None if isinstance(v, float) and math.isnan(v) else v
 
 
-def mavlink_items_json(plan: ScanPlan, flavour: str) -> str:
+def mavlink_items_json(plan: ScanPlan, flavour: str | Autopilot) -> str:
     """Raw MISSION_ITEM_INT list, the form mavsdk's MissionRaw.upload_mission takes."""
-    rows = [{k: _num(v) for k, v in asdict(item).items()} for item in plan.mavlink_items(flavour)]
-    return json.dumps({"autopilot": flavour, "mission_items": rows}, indent=1)
+    ap = autopilot_for(flavour)
+    rows = [{k: _num(v) for k, v in asdict(item).items()} for item in plan.mavlink_items(ap)]
+    return json.dumps({"autopilot": ap.flavour, "mission_items": rows}, indent=1)
 
 
 # mavsdk.plugins.mission.MissionItem.CameraAction / VehicleAction are IntEnums: JSON holds their integer values,
@@ -94,11 +94,10 @@ def qgc_geofence(plan: ScanPlan) -> dict:
     return {"circles": [circle], "polygons": [], "version": 2}
 
 
-def qgc_plan_json(plan: ScanPlan, flavour: str = "px4") -> str:
+def qgc_plan_json(plan: ScanPlan, flavour: str | Autopilot = DEFAULT_FLAVOUR) -> str:
     """QGroundControl .plan with the mission items themselves (SimpleItems), readable by any tool."""
-    raw = plan.mavlink_items(flavour)
-    if flavour == "ardupilot":
-        raw = raw[1:]  # QGC keeps home in plannedHomePosition, not as an item
+    ap = autopilot_for(flavour)
+    raw = plan.mavlink_items(ap)[ap.first_item_seq:]  # QGC keeps home in plannedHomePosition, not as an item
     items = []
     for k, it in enumerate(raw, start=1):
         is_global = it.frame in (mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_FRAME_GLOBAL_RELATIVE_ALT)
@@ -128,7 +127,7 @@ def qgc_plan_json(plan: ScanPlan, flavour: str = "px4") -> str:
         "groundStation": "companion",
         "mission": {
             "version": 2,
-            "firmwareType": QGC_FIRMWARE[flavour],
+            "firmwareType": ap.mav_autopilot,  # QGroundControl stores the MAV_AUTOPILOT number
             "vehicleType": QGC_VEHICLE_MULTIROTOR,
             "plannedHomePosition": [h.lat, h.lon, h.alt_amsl_m],
             "items": items,
@@ -303,13 +302,13 @@ def kml_text(plan: ScanPlan) -> str:
 
 
 def flight_parameters_by_autopilot(plan: ScanPlan) -> dict[str, dict]:
-    """Per autopilot, the parameters the flight needs (``firmware.flight_parameters``), or why it cannot be flown."""
+    """Per autopilot, the parameters the flight needs (``Autopilot.flight_parameters``), or why it cannot be flown."""
     out: dict[str, dict] = {}
-    for autopilot in AUTOPILOTS:
+    for autopilot in Flavour:
         try:
-            out[autopilot] = flight_parameters(plan, autopilot)
+            out[str(autopilot)] = autopilot_for(autopilot).flight_parameters(plan)
         except CompanionError as exc:
-            out[autopilot] = {"error": exc.problem, "fix": exc.fix}
+            out[str(autopilot)] = {"error": exc.problem, "fix": exc.fix}
     return out
 
 
@@ -338,10 +337,8 @@ def render_outputs(plan: ScanPlan) -> dict[str, bytes]:
     stem = plan.mission.name
     texts = {
         "mavsdk_mission.json": mavsdk_mission_json(plan),
-        "mavlink_items_px4.json": mavlink_items_json(plan, "px4"),
-        "mavlink_items_ardupilot.json": mavlink_items_json(plan, "ardupilot"),
-        f"{stem}.plan": qgc_plan_json(plan, "px4"),
-        f"{stem}-ardupilot.plan": qgc_plan_json(plan, "ardupilot"),
+        **{f"mavlink_items_{ap}.json": mavlink_items_json(plan, ap) for ap in Flavour},
+        **{f"{stem}{autopilot_for(ap).plan_file_suffix}.plan": qgc_plan_json(plan, ap) for ap in Flavour},
         f"{stem}.waypoints": wpl_text(plan),
         f"{stem}.kml": kml_text(plan),
         f"{stem}.geojson": geojson_text(plan),

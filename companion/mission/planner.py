@@ -11,8 +11,9 @@ import pymap3d
 
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
-from companion.mission import firmware as fw
 from companion.mission import items as mi
+from companion.mission.autopilot import DEFAULT_FLAVOUR, Autopilot, autopilot_for
+from companion.mission.autopilot.px4 import PX4_MAX_CLIMB_M_S
 from companion.mission.geometry import footprint_enu, polyline_clearance, wall_frame
 from companion.mission.keyframe_count import PathPoint, ScanView, expected_keyframes
 from companion.mission.spec import Mission
@@ -109,7 +110,7 @@ class ScanPlan:
     def wall_length_m(self) -> float:
         return self.frame.length_m
 
-    def mavlink_items(self, flavour: str = "px4") -> list[mi.MissionItem]:
+    def mavlink_items(self, flavour: str | Autopilot = DEFAULT_FLAVOUR) -> list[mi.MissionItem]:
         return build_mission_items(self, flavour)
 
     @property
@@ -408,8 +409,8 @@ def settle_waypoint_index(wps: Sequence[Waypoint]) -> int:
 def home_settle_hold_s(m: Mission, wps: Sequence[Waypoint]) -> float:
     """How long to hold above the wall so the scan starts no earlier than ``margins.home_settle_s`` after take-off.
 
-    Why: PX4 moves home's altitude for 120 s after take-off (``firmware.PX4_HOME_CORRECTION_WINDOW_S``) and every
-    mission altitude moves with it; on PX4 SIH home ended up to 1.51 m low, and strip bottoms planned 1.55 m above
+    Why: PX4 moves home's altitude for 120 s after take-off (``autopilot.px4.PX4_HOME_CORRECTION_WINDOW_S``) and
+    every mission altitude moves with it; on PX4 SIH home ended up to 1.51 m low, and strip bottoms planned 1.55 m above
     home flew into the ground. Raising the strip bottoms by that much would leave the wall's bottom 1.5 m unseen
     (the demo's frames are 3.1 m high and the bottom strip's frame already reaches the ground), so the scan waits
     instead, high above the ground, until home has stopped moving; the flight's home watch then sees the final home
@@ -419,7 +420,7 @@ def home_settle_hold_s(m: Mission, wps: Sequence[Waypoint]) -> float:
     if m.margins.home_settle_s <= 0:
         return 0.0
     k = settle_waypoint_index(wps)
-    fastest = wps[0].rel_alt_m / fw.PX4_MAX_CLIMB_M_S
+    fastest = wps[0].rel_alt_m / PX4_MAX_CLIMB_M_S
     for prev, wp in zip(wps[: k], wps[1: k + 1], strict=True):
         fastest += math.dist((prev.along_m, prev.out_m, prev.up_m), (wp.along_m, wp.out_m, wp.up_m)) / wp.speed_m_s
     return max(0.0, round(m.margins.home_settle_s + HOME_SETTLE_SLACK_S - fastest, 1))
@@ -478,63 +479,40 @@ def _check_geofence(m: Mission, home: GeoPoint, wps: list[Waypoint]) -> None:
             )
 
 
-def build_mission_items(plan: ScanPlan, flavour: str = "px4") -> list[mi.MissionItem]:
-    """Raw MAVLink mission, in the form each firmware accepts and honours (see ``companion.mission.firmware``).
-
-    * ``px4``: NAV_WAYPOINT param4 holds the wall-facing yaw (PX4 honours it); NaN marks "no change" where MAVLink
-      allows it; DO_CHANGE_SPEED type 1 only (PX4 reads any type as horizontal speed: climb/descent speed is a
-      parameter, see ``firmware.flight_parameters``); the waypoint before the scan holds until PX4's home has
-      settled (``home_settle_hold_s``; ArduCopter keeps home where it armed).
-    * ``ardupilot``: a home placeholder at seq 0 (ArduPilot keeps home there); no NaN outside the params ArduPilot
-      allows (the gimbal's rates become 0); holds in whole seconds, rounded up; a CONDITION_YAW facing the wall
-      before every waypoint (Copter ignores NAV_WAYPOINT param4, so params 2-4 are sent as the 0 it stores);
-      DO_CHANGE_SPEED types 2 and 3 give the planned climb/descent speed wherever a leg moves vertically.
-    """
-    fw.check_autopilot(flavour)
-    ardupilot = flavour == "ardupilot"
-    nan = float("nan")
-    rows: list[tuple] = []  # (frame, command, p1, p2, p3, p4, lat, lon, z)
-    if ardupilot:
-        h = plan.home
-        rows.append((mi.MAV_FRAME_GLOBAL, mi.MAV_CMD_NAV_WAYPOINT, 0, 0, 0, 0, h.lat, h.lon, h.alt_amsl_m))
+def build_mission_items(plan: ScanPlan, flavour: str | Autopilot = DEFAULT_FLAVOUR) -> list[mi.MissionItem]:
+    """Raw MAVLink mission, in the form the firmware accepts and honours: its home (``companion.mission.autopilot``)
+    gives what differs (a home placeholder, what an unused param holds, the speed items, each waypoint's items
+    and how it faces the wall). Where the firmware moves home in flight (PX4), the waypoint before the scan holds
+    until home has settled (``home_settle_hold_s``)."""
+    ap = autopilot_for(flavour)
+    rows: list[tuple] = list(ap.home_rows(plan.home))  # (frame, command, p1, p2, p3, p4, lat, lon, z)
     pitch = plan.mission.gimbal_pitch_deg
-    rate = 0.0 if ardupilot else nan  # gimbal rates: NaN = "not used" (PX4); ArduPilot refuses NaN here
-    settle_k = settle_waypoint_index(plan.waypoints)
+    unused = ap.no_value
+    settle_k = settle_waypoint_index(plan.waypoints) if ap.home_correction_window_s > 0 else -1
     wps = plan.waypoints
     speed = None
     for k, wp in enumerate(wps):
         if wp.kind == "takeoff":
-            yaw_p = 0.0 if ardupilot else nan
-            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, yaw_p, wp.lat, wp.lon,
-                         wp.rel_alt_m))
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, unused, wp.lat,
+                         wp.lon, wp.rel_alt_m))
             # Camera level and forward; gimbal manager first (PX4, ArduPilot 4.3+), mount control for older stacks.
-            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, pitch, 0, rate, rate, 0, 0, 0))
+            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW, pitch, 0, unused, unused, 0, 0,
+                         0))
             rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_MOUNT_CONTROL, pitch, 0, 0, 0, 0, 0, 2))
             continue
         if wp.kind == "land":
-            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_LAND, 0, 0, 0, 0 if ardupilot else nan,
-                         wp.lat, wp.lon, 0.0))
+            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_LAND, 0, 0, 0, unused, wp.lat, wp.lon,
+                         0.0))
             continue
         if speed is None or abs(wp.speed_m_s - speed) > 1e-6:
             speed = wp.speed_m_s
-            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_CHANGE_SPEED, fw.SPEED_TYPE_GROUND, speed, -1, 0, 0, 0,
-                         0))
-            if ardupilot and _segment_moves_vertically(wps, k):
-                for speed_type in (fw.SPEED_TYPE_CLIMB, fw.SPEED_TYPE_DESCENT):
-                    rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_DO_CHANGE_SPEED, speed_type, speed, -1, 0, 0, 0, 0))
+            rows += ap.speed_rows(speed, _segment_moves_vertically(wps, k))
         is_last_before_land = k + 1 < len(wps) and wps[k + 1].kind == "land"
         if is_last_before_land and plan.mission.end_action == "rtl":
             rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0))
             break
-        if ardupilot:
-            # absolute heading (param4 0), shortest turn (param3 0), default slew rate (param2 0)
-            rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_CONDITION_YAW, wp.yaw_deg % 360.0, 0, 0, 0, 0, 0, 0))
-            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, fw.whole_seconds(wp.hold_s),
-                         0, 0, 0, wp.lat, wp.lon, wp.rel_alt_m))
-        else:
-            hold = max(wp.hold_s, plan.estimates.px4_home_settle_hold_s) if k == settle_k else wp.hold_s
-            rows.append((mi.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mi.MAV_CMD_NAV_WAYPOINT, hold, wp.acceptance_m, 0,
-                         wp.yaw_deg, wp.lat, wp.lon, wp.rel_alt_m))
+        hold = max(wp.hold_s, plan.estimates.px4_home_settle_hold_s) if k == settle_k else wp.hold_s
+        rows += ap.waypoint_rows(wp, hold)
     items = []
     for seq, (frm, cmd, p1, p2, p3, p4, lat, lon, z) in enumerate(rows):
         items.append(

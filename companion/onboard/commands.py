@@ -10,7 +10,9 @@ from pathlib import Path
 from companion.errors import CompanionError
 from companion.flight.commands import STATE_DIR_HELP
 from companion.flight.limits import FlightLimits
+from companion.flight.sitl_profile import load_sitl_profile
 from companion.flight.standoff_loop import StandoffOptions
+from companion.mission.autopilot import DEFAULT_FLAVOUR, Flavour
 from companion.onboard.mission_source import find_cull_mission
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
@@ -29,7 +31,7 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--connect", default=FlightLimits.connect_url,
                    help="MAVLink address: udp://:14540 (PX4 SITL), tcpout://127.0.0.1:5760 (ArduPilot SITL), "
                         "serial:///dev/ttyACM0:921600")
-    p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
+    p.add_argument("--autopilot", choices=["auto", *(str(f) for f in Flavour)], default="auto",
                    help="autopilot behaviour to expect (auto: from its heartbeat); with --sitl also the simulator's")
     p.add_argument("--telemetry-log", type=Path, help="write every telemetry sample as JSON lines here")
     p.add_argument("--connect-timeout", type=float, default=FlightLimits.connect_timeout_s,
@@ -53,6 +55,10 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
                    help="set an autopilot parameter for this flight only (restored after; repeatable)")
     p.add_argument("--state-dir", type=Path, help=STATE_DIR_HELP + "; a run's changes are journaled there and "
                    "what an interrupted run left is restored before the flight")
+    p.add_argument("--sitl-profile", type=Path, metavar="FILE",
+                   help="a simulator's accommodations, never for a real vehicle: parameters set for the flight and "
+                        "home put back after the autopilot's correction window (PX4 SIH: sim/sitl/px4-sih.yaml, "
+                        "docs/FLIGHT.md)")
     p.add_argument("--timeout", type=float, default=FlightLimits.flight_timeout_s,
                    help="RTL if the flight takes longer (seconds)")
     p.add_argument("--rate", type=float, default=FlightLimits.telemetry_rate_hz, help="telemetry rate to request, Hz")
@@ -140,7 +146,7 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
     sitl = None
     if args.sitl:
         sitl = SitlRequest(
-            mission_path=args.mission, autopilot="ardupilot" if args.autopilot == "ardupilot" else "px4",
+            mission_path=args.mission, autopilot=str(DEFAULT_FLAVOUR if args.autopilot == "auto" else args.autopilot),
             speedup=args.speedup, options=sim_options(args.sim_arg),
             camera_fps=args.sim_fps if args.capture == SIM_CAPTURE else None, camera_width_px=args.sim_width,
             log_dir=args.out / "sim" if args.capture == SIM_CAPTURE and args.out is not None else None)
@@ -150,6 +156,7 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
         progress=not args.no_progress, link_dead_s=args.link_dead, stop_wait_s=args.stop_wait,
         lost_link_action=args.lost_link_action, return_alt=args.return_alt,
         flight_parameters=flight_parameters(args.set_param) or None, state_dir=args.state_dir,
+        sitl_profile=load_sitl_profile(args.sitl_profile) if args.sitl_profile is not None else None,
         standoff=StandoffOptions(correct=not args.no_standoff_correction, tolerance_m=args.standoff_tolerance,
                                  floor_m=args.standoff_floor))
     return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,

@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from companion.resources import mission_argument
+from sim.vehicle.flavours import FLAVOURS
 
 
 def register(sub) -> None:
@@ -28,7 +29,7 @@ def register(sub) -> None:
     p.add_argument("--stride", type=int, default=1, help="with --fast: keep every N-th camera frame")
     p.add_argument("--fps", type=float, default=5.0, help="SITL: recorded frame rate in simulated time")
     p.add_argument("--speedup", type=float, default=2.0, help="SITL: simulated seconds per wall second")
-    p.add_argument("--autopilot", choices=["px4", "ardupilot"], default="px4", help="SITL: autopilot flavour")
+    p.add_argument("--autopilot", choices=sorted(FLAVOURS), default="px4", help="SITL: autopilot flavour")
     p.set_defaults(func=_record)
 
 

@@ -21,7 +21,8 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from sim.camera.recording import resolve_mission
-from sim.rig import SitlRig, fly_at_once_with_still_home
+from sim.rig import SitlRig, fly_at_once_with_still_home, sitl_profile_for
+from sim.vehicle.flavours import FLAVOURS
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +53,7 @@ def record_flight(mission_path: str | Path, out_dir: str | Path, *, seed: int = 
     with rig:
         result = fly_mission_sync(plan, rig.url, telemetry_log=out / "telemetry.jsonl", progress=progress,
                                   end_action=mission.end_action, flight_timeout_s=flight_timeout_s,
-                                  handle_signals=False)
+                                  handle_signals=False, sitl_profile=sitl_profile_for(autopilot))
     meta_p = out / "meta.json"
     if not meta_p.exists():
         raise CompanionError("the camera wrote no recording", f"see {out / 'camera.log'}")
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--width", type=int, default=640, help="camera working width, px")
     p.add_argument("--fps", type=float, default=5.0, help="recorded frame rate in simulated time")
     p.add_argument("--speedup", type=float, default=2.0, help="simulated seconds per wall second")
-    p.add_argument("--autopilot", choices=["px4", "ardupilot"], default="px4")
+    p.add_argument("--autopilot", choices=sorted(FLAVOURS), default="px4")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:

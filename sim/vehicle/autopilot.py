@@ -30,7 +30,7 @@ from sim.vehicle import rangefinder as rf
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
-from sim.vehicle.firmware import FirmwareRules, link_loss_after_s, lost_link_action, lost_link_ignored
+from sim.vehicle.firmware import FirmwareRules
 from sim.vehicle.gnss_bias import GnssBias, ned_to_enu
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
@@ -105,6 +105,9 @@ class VehicleConfig:
     # a number moves it once by that much (up positive; 0: never) home_shift_after_takeoff_s (simulated) after take-off
     home_shift_after_takeoff_s: float | None = None
     home_shift_m: float | None = None
+    # the MAV_AUTOPILOT its HEARTBEAT names (None: the flavour's): a vehicle that is neither PX4 nor ArduPilot, for
+    # the companion's refusal of a firmware it does not know
+    heartbeat_autopilot: int | None = None
     limits: Limits = field(default_factory=Limits)
 
 
@@ -168,7 +171,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
 
         self.t = 0.0
         self.armed = False
-        self.mode = fl.HOLD if self.flavour.name == "px4" else fl.POSCTL
+        self.mode = self.flavour.boot_mode
         self.task: Task = Hold(self.model.state.pos)
         self.yaw_target: float | None = None
         self.cruise_m_s = self.param("MPC_XY_CRUISE", 5.0)
@@ -212,21 +215,13 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
     def auto_climb_m_s(self) -> float:
         """Climb speed of mission legs: ArduCopter WPNAV_SPEED_UP (or DO_CHANGE_SPEED type 2), PX4
         MPC_Z_V_AUTO_UP (capped by MPC_Z_VEL_MAX_UP); never above the airframe's envelope."""
-        if self.flavour.name == "ardupilot":
-            v = self.climb_override_m_s or self.param("WPNAV_SPEED_UP", 250.0) / 100.0
-        else:
-            v = min(self.param("MPC_Z_V_AUTO_UP", 3.0), self.param("MPC_Z_VEL_MAX_UP", 3.0))
-        return min(v, self.limits.max_climb_m_s)
+        return min(self.flavour.auto_climb_m_s(self), self.limits.max_climb_m_s)
 
     @property
     def auto_descent_m_s(self) -> float:
         """Descent speed of mission legs: ArduCopter WPNAV_SPEED_DN (or DO_CHANGE_SPEED type 3), PX4
         MPC_Z_V_AUTO_DN (capped by MPC_Z_VEL_MAX_DN)."""
-        if self.flavour.name == "ardupilot":
-            v = self.descent_override_m_s or self.param("WPNAV_SPEED_DN", 150.0) / 100.0
-        else:
-            v = min(self.param("MPC_Z_V_AUTO_DN", 1.5), self.param("MPC_Z_VEL_MAX_DN", 1.5))
-        return min(v, self.limits.max_descent_m_s)
+        return min(self.flavour.auto_descent_m_s(self), self.limits.max_descent_m_s)
 
     @property
     def auto_limits(self) -> Limits:
@@ -236,9 +231,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
 
     @property
     def land_speed_m_s(self) -> float:
-        if self.flavour.name == "ardupilot":
-            return self.param("LAND_SPEED", 70.0) / 100.0
-        return self.param("MPC_LAND_SPEED", 0.7)
+        return self.flavour.land_speed_m_s(self)
 
     @property
     def on_ground(self) -> bool:
@@ -301,17 +294,13 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         elif mode == fl.TAKEOFF:
             if not self.armed:
                 return "takeoff needs the vehicle armed"
-            alt = self.param("MIS_TAKEOFF_ALT", 2.5)
-            if self.flavour.name == "ardupilot":
-                alt = self.param("PILOT_TKOFF_ALT", 250.0) / 100.0
+            alt = self.flavour.takeoff_alt_m(self)
             self.task = Climb(nav[:2], -max(alt, -nav[2]))
         elif mode == fl.RTL:
             if self.on_ground:
                 self.task = Hold(nav)
             else:
-                alt = self.param("RTL_RETURN_ALT", 15.0)
-                if self.flavour.name == "ardupilot":
-                    alt = self.param("RTL_ALT", 1500.0) / 100.0
+                alt = self.flavour.rtl_alt_m(self)
                 self.task = ReturnHome(nav, alt)
         elif mode == fl.LAND:
             self.task = Land()
@@ -379,7 +368,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         nav = self.nav
         cmd = item.command
         prev = self.mission_prev if self.mission_prev is not None else nav.copy()
-        copter = self.flavour.name == "ardupilot"
+        copter = self.flavour.copter_yaw
         if cmd == mi.MAV_CMD_NAV_TAKEOFF:
             target = self.item_ned(item)
             self.mission_task = Climb(nav[:2], min(target[2], nav[2]))
@@ -430,12 +419,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         (navigator_main.cpp): its climb/descent speeds are parameters only."""
         if not (math.isfinite(speed) and speed > 0):
             return
-        if self.flavour.name == "ardupilot" and speed_type == 2:
-            self.climb_override_m_s = float(speed)
-        elif self.flavour.name == "ardupilot" and speed_type == 3:
-            self.descent_override_m_s = float(speed)
-        else:
-            self.cruise_m_s = min(float(speed), self.limits.max_speed_h_m_s)
+        self.flavour.change_speed(self, int(speed_type), speed)
 
     def _set_gimbal(self, pitch: float, yaw: float) -> None:
         if math.isfinite(pitch):
@@ -484,7 +468,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 continue
             assert self.mission_task is not None
             v = self.mission_task.command(self.nav, on_ground, dt, self)
-            if self.flavour.name == "ardupilot":
+            if self.flavour.copter_yaw:
                 self.yaw_target = self.copter_yaw.target(self.yaw_deg, (float(self.model.state.vel[0]),
                                                                         float(self.model.state.vel[1])))
             elif self.mission_task.yaw_deg is not None:
@@ -513,7 +497,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
                 if self.task.yaw_deg is not None:
                     self.yaw_target = self.task.yaw_deg
                 if self.task.done and self.mode == fl.TAKEOFF:
-                    self.set_mode(fl.HOLD if self.flavour.name == "px4" else fl.GUIDED)
+                    self.set_mode(self.flavour.after_takeoff_mode)
         self.model.step(dt, v_cmd, self.yaw_target, wind if not st.on_ground else np.zeros(3), self.armed)
         if not st.on_ground:
             self.took_off = True
@@ -551,10 +535,10 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         with FS_GCS_ENABLE 0; an onset while disarmed takes no action and, already in failsafe, a later take-off
         none either; the next counted heartbeat clears it. (Arming used to clear it here, so a take-off right
         after the companion became the GCS, its first heartbeat not yet counted, went straight to RTL.)"""
-        action = lost_link_action(self.flavour.name, self.params)
+        action = self.flavour.lost_link_action(self.params)
         if self.last_gcs_wall is None or action is None:
             return
-        timeout = link_loss_after_s(self.flavour.name, self.params)
+        timeout = self.flavour.link_loss_timeout_s(self.params)
         if time.monotonic() - self.last_gcs_wall <= timeout:
             if self.link_failsafe:
                 self.link_failsafe = False
@@ -564,7 +548,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             return
         self.link_failsafe = True
         if (not self.armed or self.on_ground or self.mode in (fl.RTL, fl.LAND)
-                or lost_link_ignored(self.flavour.name, self.params, self.mode)):
+                or self.flavour.lost_link_ignored(self.params, self.mode)):
             log.info("data link lost for more than %.0f s: no action (%s, %s)", timeout,
                      "armed" if self.armed else "disarmed", self.mode)
             return

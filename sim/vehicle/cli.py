@@ -137,19 +137,23 @@ def add_firmware_arguments(p: argparse.ArgumentParser) -> None:
                    help="wall seconds after (re)boot until the autopilot has initialised: only HEARTBEAT is sent and "
                         "a mission upload is refused (ArduCopter: NO_SPACE, 'Only 0 items are supported'); default "
                         "ArduCopter 1, PX4 0")
+    p.add_argument("--heartbeat-autopilot", type=int, metavar="N",
+                   help="MAV_AUTOPILOT number the HEARTBEAT names instead of the flavour's (e.g. 0, generic: a "
+                        "firmware the companion does not fly, which it must refuse)")
 
 
 def firmware_config(args: argparse.Namespace) -> dict:
     return dict(reboot_after_takeoff_s=args.reboot_after_takeoff, reboot_s=args.reboot_s,
                 geofence_max_dist_m=args.geofence_max_dist, gps_ready_after_s=args.gps_ready_after,
                 storage=args.storage, outage_after_takeoff_s=args.outage_after_takeoff, init_s=args.init_s,
-                home_shift_after_takeoff_s=args.home_shift_after_takeoff, home_shift_m=args.home_shift_m)
+                home_shift_after_takeoff_s=args.home_shift_after_takeoff, home_shift_m=args.home_shift_m,
+                heartbeat_autopilot=args.heartbeat_autopilot)
 
 
 def _check_home_shift(args: argparse.Namespace) -> None:
     """An explicit home move is PX4's, within its window, and says how far; ``--home-shift-m 0`` alone keeps home."""
     shift_at, shift_m = args.home_shift_after_takeoff, args.home_shift_m
-    if args.autopilot != "px4" and (shift_at is not None or shift_m):
+    if not FLAVOURS[args.autopilot].moves_home_in_flight and (shift_at is not None or shift_m):
         raise CompanionError(f"--home-shift-m / --home-shift-after-takeoff with --autopilot {args.autopilot}: only "
                              "PX4 moves home in flight (ArduCopter keeps it where it armed)",
                              "use --autopilot px4, or leave both options out")

@@ -13,7 +13,6 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from sim.vehicle import flavours as fl
-from sim.vehicle.firmware import counts_for_link_failsafe
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +32,7 @@ class CommandHandler:
         t = msg.get_type()
         if t == "BAD_DATA" or msg.get_srcSystem() == self.cfg.system_id:
             return
-        if counts_for_link_failsafe(self.flavour.name, self.params, msg, self.cfg.system_id):
+        if self.flavour.counts_for_link_failsafe(self.params, msg, self.cfg.system_id):
             self.last_gcs_wall = time.monotonic()
         if t == "HEARTBEAT":
             if self.gcs is None:
@@ -49,7 +48,8 @@ class CommandHandler:
             self._on_command(msg, msg.command, [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5,
                                                 msg.param6, msg.param7])
         elif t == "COMMAND_INT":
-            if self.flavour.name == "px4" and msg.frame != mavlink.MAV_FRAME_GLOBAL_INT:
+            frames = self.flavour.command_int_frames
+            if frames is not None and msg.frame not in frames:
                 # PX4 takes COMMAND_INT in MAV_FRAME_GLOBAL_INT only (mavlink_receiver.cpp
                 # handle_message_command_int: "frame invalid for command"): its DO_SET_HOME in frame 0 went unheard
                 return self._ack(msg, msg.command, MAV_RESULT_UNSUPPORTED_MAV_FRAME)
@@ -120,12 +120,9 @@ class CommandHandler:
                 return self._refused(msg, cmd, reason)
             return self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
-            if self.flavour.name == "ardupilot":
-                if self.mode != fl.GUIDED or not self.armed:
-                    return self._refused(msg, cmd, "Takeoff needs GUIDED and armed")
-                self.params["PILOT_TKOFF_ALT"] = float(p[6] if math.isfinite(p[6]) else 2.5) * 100.0
-            elif math.isfinite(p[6]):
-                self.params["MIS_TAKEOFF_ALT"] = float(p[6]) - self.cfg.home.alt_amsl_m
+            refused = self.flavour.takeoff_command(self, p[6])
+            if refused:
+                return self._refused(msg, cmd, refused)
             reason = self.set_mode(fl.TAKEOFF)
             return self._refused(msg, cmd, reason) if reason else self._ack(msg, cmd, ok)
         if cmd == mavlink.MAV_CMD_DO_SET_MODE:

@@ -52,77 +52,25 @@ from sim.vehicle.tasks import Hold
 
 log = logging.getLogger(__name__)
 
-# Real defaults (PX4 main 2026-03: commander/navigator params; ArduCopter 4.7: Parameters.cpp / notes).
-FAILSAFE_DEFAULTS = {
-    "px4": {"NAV_DLL_ACT": 0, "COM_DL_LOSS_T": 10, "RTL_RETURN_ALT": 30.0, "COM_DISARM_PRFLT": 10.0,
-            "GF_MAX_HOR_DIST": 0.0, "COM_DLL_EXCEPT": 0},
-    # MAV_GCS_SYSID: the only source system whose heartbeats the GCS failsafe counts (HI 0: no range; GCS.cpp)
-    "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500, "MAV_GCS_SYSID": 255,
-                  "MAV_GCS_SYSID_HI": 0},
-}
-# Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
-GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
-COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
-COPTER_PREARM_GCS_FAILSAFE = "PreArm: GCS failsafe on"  # AP_Arming_Copter::gcs_failsafe_check
-# Wall seconds from (re)boot until the autopilot has initialised. Real ArduCopter 4.7 SITL (-w, wiped storage): its
-# first words ("ArduPilot Ready") came about 1 s after the first heartbeat at speed-up 1 and at 5 alike, so the
-# start-up is wall time (storage and sensor set-up), not simulated time. PX4 SITL answers from its first heartbeat.
-INIT_WALL_S = {"px4": 0.0, "ardupilot": 1.0}
-COPTER_READY_TEXT = "ArduPilot Ready"
-
-
 def lost_link_action(flavour: str, params: dict) -> str | None:
-    """What the firmware does when the ground link is lost in a mission: 'rtl', 'land', 'hold' or None (flies on).
-
-    PX4 NAV_DLL_ACT: 0 disabled, 1 hold, 2 return, 3 land, 5 terminate, 6 disarm. ArduCopter FS_GCS_ENABLE:
-    0 disabled, 1 RTL, 2 continue in AUTO, 3/4 SmartRTL (RTL here), 5 land, 6 DO_LAND_START or RTL, 7 brake/land."""
-    if flavour == "px4":
-        return {1: "hold", 2: "rtl", 3: "land"}.get(int(params.get("NAV_DLL_ACT", 0)))
-    return {1: "rtl", 3: "rtl", 4: "rtl", 5: "land", 6: "rtl", 7: "land"}.get(int(params.get("FS_GCS_ENABLE", 0)))
-
-
-# PX4 keeps a GCS heartbeat alive this long (telemetry_status HEARTBEAT_TIMEOUT_US) before COM_DL_LOSS_T starts
-PX4_HEARTBEAT_ALIVE_S = 2.5
-# ArduPilot: these messages from a GCS system id reset the GCS failsafe timer (GCS_Common.cpp sysid_mygcs_seen)
-COPTER_GCS_ALIVE_MESSAGES = frozenset({"HEARTBEAT", "RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL"})
-PX4_DLL_EXCEPT_MISSION, PX4_DLL_EXCEPT_AUTO = 1, 2  # COM_DLL_EXCEPT bits (commander_params.c)
+    """What the firmware ``flavour`` does when the ground link is lost in a mission: 'rtl', 'land', 'hold' or None
+    (flies on); each flavour's ``lost_link_action`` says how its parameter reads."""
+    return fl.FLAVOURS[flavour]().lost_link_action(params)
 
 
 def counts_for_link_failsafe(flavour: str, params: dict, msg, own_system: int) -> bool:
-    """Whether ``msg`` keeps the lost-link failsafe from firing, as each firmware decides it.
-
-    ArduCopter (``GCS_MAVLINK::handle_heartbeat``, ``Copter::failsafe_gcs_check``): a HEARTBEAT, RC override or
-    MANUAL_CONTROL whose source system is a GCS id: MAV_GCS_SYSID (default 255), or MAV_GCS_SYSID ..
-    MAV_GCS_SYSID_HI when HI is not below it. Anything from another system id (mavsdk's 245) does not count: real
-    ArduCopter 4.7 flew on after the companion was killed. PX4 (``MavlinkReceiver::handle_message_heartbeat``): a
-    HEARTBEAT of type MAV_TYPE_GCS from any system, or any HEARTBEAT from its own system id."""
-    kind = msg.get_type()
-    if flavour == "px4":
-        return kind == "HEARTBEAT" and (msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcSystem() == own_system)
-    if kind not in COPTER_GCS_ALIVE_MESSAGES:
-        return False
-    low, high = int(params.get("MAV_GCS_SYSID", 255)), int(params.get("MAV_GCS_SYSID_HI", 0))
-    src = msg.get_srcSystem()
-    return low <= src <= high if high >= low else src == low
+    """Whether ``msg`` keeps flavour ``flavour``'s lost-link failsafe from firing (its ``counts_for_link_failsafe``)."""
+    return fl.FLAVOURS[flavour]().counts_for_link_failsafe(params, msg, own_system)
 
 
 def link_loss_after_s(flavour: str, params: dict) -> float:
-    """Seconds from the last counted heartbeat to the failsafe: ArduCopter FS_GCS_TIMEOUT (default 5); PX4
-    COM_DL_LOSS_T (default 10) after the heartbeat's own 2.5 s (Commander::dataLinkCheck)."""
-    if flavour == "px4":
-        return float(params.get("COM_DL_LOSS_T", 10)) + PX4_HEARTBEAT_ALIVE_S
-    return float(params.get("FS_GCS_TIMEOUT", 5.0))
+    """Seconds from the last counted heartbeat to flavour ``flavour``'s failsafe (its ``link_loss_timeout_s``)."""
+    return fl.FLAVOURS[flavour]().link_loss_timeout_s(params)
 
 
 def lost_link_ignored(flavour: str, params: dict, mode: str) -> bool:
-    """PX4 ignores a lost link in Mission with COM_DLL_EXCEPT bit 0, in its other auto modes with bit 1
-    (``Failsafe::isFailsafeIgnored``); ArduCopter has no such exception by default (FS_OPTIONS 0)."""
-    if flavour != "px4":
-        return False
-    bits = int(params.get("COM_DLL_EXCEPT", 0))
-    if mode == fl.MISSION:
-        return bool(bits & PX4_DLL_EXCEPT_MISSION)
-    return mode in (fl.HOLD, fl.TAKEOFF, fl.RTL, fl.LAND) and bool(bits & PX4_DLL_EXCEPT_AUTO)
+    """Whether flavour ``flavour`` ignores a lost link in ``mode`` (its ``lost_link_ignored``)."""
+    return fl.FLAVOURS[flavour]().lost_link_ignored(params, mode)
 
 
 def _same_items(a: list, b: list) -> bool:
@@ -142,11 +90,11 @@ class FirmwareRules:
     """Mixed into SimVehicle: the start/stop behaviours above, each in its own method."""
 
     def _init_firmware_rules(self) -> None:
-        self.params.update(FAILSAFE_DEFAULTS[self.flavour.name])
+        self.params.update(self.flavour.failsafe_defaults)
         if self.cfg.geofence_max_dist_m is not None:
             self.params["GF_MAX_HOR_DIST"] = float(self.cfg.geofence_max_dist_m)
         delay = self.cfg.gps_ready_after_s
-        self.gps_ready_after_s = GPS_READY_AFTER_S[self.flavour.name] if delay is None else float(delay)
+        self.gps_ready_after_s = self.flavour.gps_ready_after_s if delay is None else float(delay)
         self.boot_count = 0
         self.mission_refused = False
         self.armed_at: float | None = None
@@ -158,7 +106,7 @@ class FirmwareRules:
         self.home_alt_shift_m = 0.0  # how far PX4 has moved home's altitude from the take-off ground (up positive)
         self._home_shift_done = False  # the scheduled move happened (a later DO_SET_HOME does not undo the schedule)
         self.manual_home = False  # home set by DO_SET_HOME at a given altitude: PX4 keeps it at the next arming
-        modelled = self.flavour.name == "px4" and self.cfg.home_shift_m is None
+        modelled = self.flavour.moves_home_in_flight and self.cfg.home_shift_m is None
         # its own random draws (seed + 5): the other faults keep their sequences
         self.home_correction = Px4HomeCorrection(np.random.default_rng(self.cfg.seed + 5)) if modelled else None
         self._load_storage()
@@ -171,7 +119,7 @@ class FirmwareRules:
 
     def begin_boot(self) -> None:
         """The autopilot process starts (``run()``) or restarts (``reboot()``)."""
-        init_s = INIT_WALL_S[self.flavour.name] if self.cfg.init_s is None else float(self.cfg.init_s)
+        init_s = self.flavour.init_wall_s if self.cfg.init_s is None else float(self.cfg.init_s)
         if init_s <= 0:
             return
         if self._init_until_wall is None:
@@ -185,8 +133,8 @@ class FirmwareRules:
             return
         self._init_until_wall = None
         self.missions.max_items = self._mission_capacity
-        if self.flavour.name == "ardupilot":
-            self.statustext(mavlink.MAV_SEVERITY_INFO, COPTER_READY_TEXT)
+        if self.flavour.ready_text is not None:
+            self.statustext(mavlink.MAV_SEVERITY_INFO, self.flavour.ready_text)
         log.info("initialised")
 
     # --- estimator readiness (ArduCopter: 35-40 s after boot) -----------------------------------------
@@ -198,11 +146,12 @@ class FirmwareRules:
         """The firmware's refusal text: the estimator not using GPS yet, (PX4) Mission mode without a valid
         mission, which PX4 does not arm in, or (ArduCopter) its GCS failsafe on."""
         if not self.position_ready:
-            return COPTER_PREARM_NO_POSITION if self.flavour.name == "ardupilot" else "Preflight Fail: No position"
-        if self.flavour.name == "px4" and self.mode == fl.MISSION and (not self.mission or self.mission_refused):
+            return self.flavour.no_position_text
+        if (self.flavour.refuses_arming_without_valid_mission and self.mode == fl.MISSION
+                and (not self.mission or self.mission_refused)):
             return "Arming denied: no valid mission"
-        if self.flavour.name == "ardupilot" and self.link_failsafe:
-            return COPTER_PREARM_GCS_FAILSAFE
+        if self.link_failsafe and self.flavour.gcs_failsafe_prearm_text is not None:
+            return self.flavour.gcs_failsafe_prearm_text
         return None
 
     def armable_now(self) -> bool:
@@ -212,13 +161,14 @@ class FirmwareRules:
     # --- current item kept across an identical upload (PX4) ------------------------------------------
     def keeps_current_on_upload(self, new_items: list) -> bool:
         """PX4 keeps the current item when the new mission equals the stored one (and it is inside the mission)."""
-        return (self.flavour.name == "px4" and bool(self.mission) and _same_items(self.mission, new_items)
+        return (self.flavour.keeps_current_on_identical_upload and bool(self.mission)
+                and _same_items(self.mission, new_items)
                 and 0 <= self.mission_seq < len(new_items))
 
     # --- storage across a restart of the simulator process (PX4 dataman) -----------------------------
     def _load_storage(self) -> None:
         path = self.cfg.storage
-        if path is None or not Path(path).exists() or self.flavour.name != "px4":
+        if path is None or not Path(path).exists() or not self.flavour.persistent_storage:
             return
         data = json.loads(Path(path).read_text())
         items = [mi.MissionItem(**d) for d in data.get("mission", [])]
@@ -229,7 +179,7 @@ class FirmwareRules:
 
     def save_storage(self) -> None:
         path = self.cfg.storage
-        if path is None or self.flavour.name != "px4":
+        if path is None or not self.flavour.persistent_storage:
             return
         data = {"mission": [it.__dict__ for it in self.mission], "current": self.mission_seq}
         Path(path).write_text(json.dumps(data, allow_nan=True))
@@ -238,7 +188,7 @@ class FirmwareRules:
     def geofence_violation(self) -> int | None:
         """1-based number of the first positional item beyond GF_MAX_HOR_DIST from home, as PX4 reports it."""
         limit = float(self.params.get("GF_MAX_HOR_DIST", 0.0))
-        if self.flavour.name != "px4" or limit <= 0:
+        if not self.flavour.checks_geofence_at_start or limit <= 0:
             return None
         h = self.cfg.home
         for i, it in enumerate(self.mission):
@@ -329,7 +279,7 @@ class FirmwareRules:
     def on_arm_home(self) -> None:
         """PX4 sets home at the vehicle when it arms, unless home was set by hand (Commander: ``manual_home``); its
         correction window starts again at the next take-off."""
-        if self.flavour.name != "px4":
+        if not self.flavour.moves_home_in_flight:
             return
         if not self.manual_home:
             self.home_alt_shift_m = 0.0
@@ -386,7 +336,7 @@ class FirmwareRules:
         self.took_off = False
         self.landed_since = None
         self.armed_at = None
-        self.mode = fl.HOLD if self.flavour.name == "px4" else fl.POSCTL
+        self.mode = self.flavour.boot_mode
         self.task = Hold(self.model.state.pos)
         self.yaw_target = None
         self.mission_task = None
@@ -398,7 +348,7 @@ class FirmwareRules:
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due = {}
         self._held, self._stall_until, self._next_stall = {}, {}, {}  # a new boot: no stream is held back
-        if self.flavour.name != "px4":
+        if not self.flavour.keeps_current_on_reboot:
             self.mission_seq = self.flavour.first_seq
         self.begin_boot()
         log.warning("autopilot booted again (boot %d): mission of %d items, current item %d", self.boot_count + 1,

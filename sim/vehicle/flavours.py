@@ -1,4 +1,6 @@
-"""What differs between a PX4-like and an ArduCopter-like autopilot, in one place.
+"""What differs between a PX4-like and an ArduCopter-like autopilot, in one place: the rest of the simulator asks
+the flavour (``vehicle.flavour``) and never compares its name, so a third flavour is one more class here (a subclass
+of the one it behaves like) and its entry in ``FLAVOURS``.
 
 Mode encodings follow what mavsdk 4.1 decodes: PX4 packs main mode in bits 16-23 and sub mode in bits 24-31 of
 HEARTBEAT.custom_mode; ArduCopter uses its mode number. The ArduPilot flavour reproduces the behaviours listed in
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
@@ -46,6 +49,15 @@ _COPTER_INVALID_PARAM = {1: mavlink.MAV_MISSION_INVALID_PARAM1, 2: mavlink.MAV_M
 # Commands ArduPilot stores with a location (AP_Mission::stored_in_location; the ones the simulator flies).
 _COPTER_LOCATED = {mi.MAV_CMD_NAV_WAYPOINT, mi.MAV_CMD_NAV_TAKEOFF, mi.MAV_CMD_NAV_LAND}
 _F32 = np.float32
+# The profiles a flight on each flavour passes to `companion fly --sitl-profile` (companion/flight/sitl_profile.py)
+SITL_PROFILES = Path(__file__).resolve().parents[1] / "sitl"
+COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
+COPTER_PREARM_GCS_FAILSAFE = "PreArm: GCS failsafe on"  # AP_Arming_Copter::gcs_failsafe_check
+# PX4 keeps a GCS heartbeat alive this long (telemetry_status HEARTBEAT_TIMEOUT_US) before COM_DL_LOSS_T starts
+PX4_HEARTBEAT_ALIVE_S = 2.5
+# ArduPilot: these messages from a GCS system id reset the GCS failsafe timer (GCS_Common.cpp sysid_mygcs_seen)
+COPTER_GCS_ALIVE_MESSAGES = frozenset({"HEARTBEAT", "RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL"})
+PX4_DLL_EXCEPT_MISSION, PX4_DLL_EXCEPT_AUTO = 1, 2  # COM_DLL_EXCEPT bits (commander_params.c)
 # The SITL's own truth messages (libraries/SITL/SITL.cpp sim_state_send / simstate_send)
 SIM_STATE_MESSAGES = ("SIM_STATE", "SIMSTATE")
 
@@ -103,6 +115,83 @@ class Px4:
         "EKF2_ACC_NOISE": 0.35, "EKF2_GYR_NOISE": 0.015, "EKF2_BARO_NOISE": 3.5,
     }
     waypoint_reached_m: float | None = None  # None: the item's acceptance radius (param2), else NAV_ACC_RAD
+    # what this flavour's flights ask `companion fly` for (SIH's estimator noise, home put back): the simulator
+    # boots as PX4 SIH does, so it needs what real SIH needs (sim/sitl/px4-sih.yaml); None: nothing
+    sitl_profile: Path | None = SITL_PROFILES / "px4-sih.yaml"
+
+    # --- boot, modes and start-up --------------------------------------------------------------------------
+    boot_mode = HOLD  # the mode after (re)boot
+    after_takeoff_mode = HOLD  # the mode a finished TAKEOFF command leaves the vehicle in
+    sw_version = (1 << 24) | (15 << 16) | (0 << 8) | 255  # AUTOPILOT_VERSION flight_sw_version (1.15.0 release)
+    # Real defaults (PX4 main 2026-03: commander/navigator params).
+    failsafe_defaults = {"NAV_DLL_ACT": 0, "COM_DL_LOSS_T": 10, "RTL_RETURN_ALT": 30.0, "COM_DISARM_PRFLT": 10.0,
+                         "GF_MAX_HOR_DIST": 0.0, "COM_DLL_EXCEPT": 0}
+    # Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
+    gps_ready_after_s = 0.0
+    # Wall seconds from (re)boot until the autopilot has initialised (PX4 SITL answers from its first heartbeat).
+    init_wall_s = 0.0
+    ready_text: str | None = None  # STATUSTEXT once initialised
+    no_position_text = "Preflight Fail: No position"  # pre-arm refusal before the estimator uses GPS
+    gcs_failsafe_prearm_text: str | None = None  # pre-arm refusal while the lost-link failsafe is on (None: arms)
+    # --- what PX4 does and ArduCopter does not (firmware.py) ----------------------------------------------
+    refuses_arming_without_valid_mission = True  # in Mission mode: "Arming denied: no valid mission"
+    keeps_current_on_identical_upload = True  # the current item survives an upload of the same mission
+    keeps_current_on_reboot = True  # ... and a restart (dataman), like the mission itself
+    persistent_storage = True  # --storage: the mission survives a restart of the simulator process
+    checks_geofence_at_start = True  # a mission beyond GF_MAX_HOR_DIST is refused at its start
+    moves_home_in_flight = True  # HomePosition's 120 s correction (home_drift.py); home set again at arming
+    command_int_frames: frozenset[int] | None = frozenset({mavlink.MAV_FRAME_GLOBAL_INT})  # None: any frame
+    copter_yaw = False  # True: yaw from WP_YAW_BEHAVIOR and CONDITION_YAW (copter_yaw.py), not NAV_WAYPOINT param4
+
+    def auto_climb_m_s(self, v) -> float:
+        """Climb speed of mission legs: MPC_Z_V_AUTO_UP capped by MPC_Z_VEL_MAX_UP."""
+        return min(v.param("MPC_Z_V_AUTO_UP", 3.0), v.param("MPC_Z_VEL_MAX_UP", 3.0))
+
+    def auto_descent_m_s(self, v) -> float:
+        """Descent speed of mission legs: MPC_Z_V_AUTO_DN capped by MPC_Z_VEL_MAX_DN."""
+        return min(v.param("MPC_Z_V_AUTO_DN", 1.5), v.param("MPC_Z_VEL_MAX_DN", 1.5))
+
+    def land_speed_m_s(self, v) -> float:
+        return v.param("MPC_LAND_SPEED", 0.7)
+
+    def takeoff_alt_m(self, v) -> float:
+        return v.param("MIS_TAKEOFF_ALT", 2.5)
+
+    def rtl_alt_m(self, v) -> float:
+        return v.param("RTL_RETURN_ALT", 15.0)
+
+    def change_speed(self, v, speed_type: int, speed: float) -> None:
+        """DO_CHANGE_SPEED: PX4 applies param2 of any type to the horizontal cruise speed (navigator_main.cpp)."""
+        v.cruise_m_s = min(float(speed), v.limits.max_speed_h_m_s)
+
+    def takeoff_command(self, v, param7: float) -> str | None:
+        """MAV_CMD_NAV_TAKEOFF: its altitude (param7, AMSL) becomes the take-off height. The refusal, or None."""
+        if math.isfinite(param7):
+            v.params["MIS_TAKEOFF_ALT"] = float(param7) - v.cfg.home.alt_amsl_m
+        return None
+
+    def link_loss_timeout_s(self, params: dict) -> float:
+        """Seconds from the last counted heartbeat to the failsafe: COM_DL_LOSS_T (default 10) after the heartbeat's
+        own 2.5 s (Commander::dataLinkCheck)."""
+        return float(params.get("COM_DL_LOSS_T", 10.0)) + PX4_HEARTBEAT_ALIVE_S
+
+    def counts_for_link_failsafe(self, params: dict, msg, own_system: int) -> bool:
+        """Whether ``msg`` keeps the lost-link failsafe from firing (``MavlinkReceiver::handle_message_heartbeat``):
+        a HEARTBEAT of type MAV_TYPE_GCS from any system, or any HEARTBEAT from its own system id."""
+        return msg.get_type() == "HEARTBEAT" and (msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcSystem() == own_system)
+
+    def lost_link_ignored(self, params: dict, mode: str) -> bool:
+        """A lost link is ignored in Mission with COM_DLL_EXCEPT bit 0, in the other auto modes with bit 1
+        (``Failsafe::isFailsafeIgnored``)."""
+        bits = int(params.get("COM_DLL_EXCEPT", 0))
+        if mode == MISSION:
+            return bool(bits & PX4_DLL_EXCEPT_MISSION)
+        return mode in (HOLD, TAKEOFF, RTL, LAND) and bool(bits & PX4_DLL_EXCEPT_AUTO)
+
+    def lost_link_action(self, params: dict) -> str | None:
+        """NAV_DLL_ACT: 0 disabled, 1 hold, 2 return, 3 land, 5 terminate, 6 disarm ('rtl', 'land', 'hold' or None:
+        flies on)."""
+        return {1: "hold", 2: "rtl", 3: "land"}.get(int(params.get("NAV_DLL_ACT", 0)))
 
     def custom_mode(self, mode: str) -> int:
         main, sub = _PX4_MODES[mode]
@@ -176,6 +265,85 @@ class ArduCopter(Px4):
     # Copter keeps no acceptance radius per waypoint; its S-curve target reaches the waypoint and the vehicle trails
     # it by a few decimetres before the next leg starts.
     waypoint_reached_m = 0.3
+    sitl_profile = None  # ArduCopter SITL takes the companion's flight as a real Copter does
+    boot_mode = POSCTL
+    after_takeoff_mode = GUIDED
+    sw_version = (4 << 24) | (6 << 16) | 255
+    # ArduCopter 4.7 Parameters.cpp; MAV_GCS_SYSID: the only source system whose heartbeats the GCS failsafe counts
+    # (HI 0: no range; GCS.cpp)
+    failsafe_defaults = {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500, "MAV_GCS_SYSID": 255,
+                         "MAV_GCS_SYSID_HI": 0}
+    gps_ready_after_s = 38.0
+    # Real ArduCopter 4.7 SITL (-w, wiped storage): its first words ("ArduPilot Ready") came about 1 s after the first
+    # heartbeat at speed-up 1 and at 5 alike, so the start-up is wall time (storage and sensor set-up).
+    init_wall_s = 1.0
+    ready_text = "ArduPilot Ready"
+    no_position_text = COPTER_PREARM_NO_POSITION
+    gcs_failsafe_prearm_text = COPTER_PREARM_GCS_FAILSAFE
+    refuses_arming_without_valid_mission = False
+    keeps_current_on_identical_upload = False
+    keeps_current_on_reboot = False
+    persistent_storage = False
+    checks_geofence_at_start = False
+    moves_home_in_flight = False
+    command_int_frames = None
+    copter_yaw = True
+
+    def auto_climb_m_s(self, v) -> float:
+        """WPNAV_SPEED_UP, or the mission's DO_CHANGE_SPEED type 2."""
+        return v.climb_override_m_s or v.param("WPNAV_SPEED_UP", 250.0) / 100.0
+
+    def auto_descent_m_s(self, v) -> float:
+        """WPNAV_SPEED_DN, or the mission's DO_CHANGE_SPEED type 3."""
+        return v.descent_override_m_s or v.param("WPNAV_SPEED_DN", 150.0) / 100.0
+
+    def land_speed_m_s(self, v) -> float:
+        return v.param("LAND_SPEED", 70.0) / 100.0
+
+    def takeoff_alt_m(self, v) -> float:
+        return v.param("PILOT_TKOFF_ALT", 250.0) / 100.0
+
+    def rtl_alt_m(self, v) -> float:
+        return v.param("RTL_ALT", 1500.0) / 100.0
+
+    def change_speed(self, v, speed_type: int, speed: float) -> None:
+        """Copter 4.7 honours types 2 (climb) and 3 (descent); others set the horizontal speed."""
+        if speed_type == 2:
+            v.climb_override_m_s = float(speed)
+        elif speed_type == 3:
+            v.descent_override_m_s = float(speed)
+        else:
+            super().change_speed(v, speed_type, speed)
+
+    def takeoff_command(self, v, param7: float) -> str | None:
+        """Copter takes off by command only in GUIDED and armed, to param7 metres (PILOT_TKOFF_ALT in cm)."""
+        if v.mode != GUIDED or not v.armed:
+            return "Takeoff needs GUIDED and armed"
+        v.params["PILOT_TKOFF_ALT"] = float(param7 if math.isfinite(param7) else 2.5) * 100.0
+        return None
+
+    def link_loss_timeout_s(self, params: dict) -> float:
+        """FS_GCS_TIMEOUT (default 5 s) from the last counted message (Copter::failsafe_gcs_check)."""
+        return float(params.get("FS_GCS_TIMEOUT", 5.0))
+
+    def counts_for_link_failsafe(self, params: dict, msg, own_system: int) -> bool:
+        """``GCS_MAVLINK::handle_heartbeat``: a HEARTBEAT, RC override or MANUAL_CONTROL whose source system is a GCS
+        id: MAV_GCS_SYSID (default 255), or MAV_GCS_SYSID .. MAV_GCS_SYSID_HI when HI is not below it. Anything
+        from another system id (mavsdk's 245) does not count: real ArduCopter 4.7 flew on after the companion was
+        killed."""
+        if msg.get_type() not in COPTER_GCS_ALIVE_MESSAGES:
+            return False
+        low, high = int(params.get("MAV_GCS_SYSID", 255)), int(params.get("MAV_GCS_SYSID_HI", 0))
+        src = msg.get_srcSystem()
+        return low <= src <= high if high >= low else src == low
+
+    def lost_link_ignored(self, params: dict, mode: str) -> bool:
+        return False  # no such exception by default (FS_OPTIONS 0)
+
+    def lost_link_action(self, params: dict) -> str | None:
+        """FS_GCS_ENABLE: 0 disabled, 1 RTL, 2 continue in AUTO, 3/4 SmartRTL (RTL here), 5 land, 6 DO_LAND_START or
+        RTL, 7 brake/land."""
+        return {1: "rtl", 3: "rtl", 4: "rtl", 5: "land", 6: "rtl", 7: "land"}.get(int(params.get("FS_GCS_ENABLE", 0)))
 
     def custom_mode(self, mode: str) -> int:
         return _COPTER_MODES[mode]

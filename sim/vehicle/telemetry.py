@@ -48,8 +48,10 @@ class TelemetryStreams:
         status = mavlink.MAV_STATE_ACTIVE if self.armed else mavlink.MAV_STATE_STANDBY
         if self.link_failsafe or self.battery_failsafe:
             status = mavlink.MAV_STATE_CRITICAL
-        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, self.flavour.autopilot, base,
-                                         self.flavour.custom_mode(self.mode), status)
+        named = self.cfg.heartbeat_autopilot
+        autopilot = self.flavour.autopilot if named is None else named
+        custom = self.flavour.custom_mode(self.mode)
+        return self.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, autopilot, base, custom, status)
 
     def _sys_status(self):
         health = SENSORS
@@ -195,9 +197,8 @@ class TelemetryStreams:
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
         caps |= (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.flavour.param_bytewise
                  else mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)
-        version = (1 << 24) | (15 << 16) | (0 << 8) | 255 if self.flavour.name == "px4" else (4 << 24) | (6 << 16) | 255
-        return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x11,
-                                                 1000 + self.cfg.seed)
+        return self.mav.autopilot_version_encode(caps, self.flavour.sw_version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
+                                                 0x26AC, 0x11, 1000 + self.cfg.seed)
 
     STREAMS = {
         "HEARTBEAT": "_heartbeat", "SYS_STATUS": "_sys_status", "GPS_RAW_INT": "_gps_raw",

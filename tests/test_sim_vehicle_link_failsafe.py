@@ -71,7 +71,7 @@ def test_copter_with_the_companion_as_its_gcs_flies_on_while_it_is_alive_and_ret
 
 
 def test_px4_counts_gcs_type_heartbeats_from_any_system(monkeypatch):
-    monkeypatch.setattr(firmware, "PX4_HEARTBEAT_ALIVE_S", 0.4)  # PX4's 2.5 s, shortened for the test
+    monkeypatch.setattr(fl, "PX4_HEARTBEAT_ALIVE_S", 0.4)  # PX4's 2.5 s, shortened for the test
     v = _flying("px4", NAV_DLL_ACT=2, COM_DL_LOSS_T=0)
     try:
         v.handle(_from(255))
@@ -82,7 +82,7 @@ def test_px4_counts_gcs_type_heartbeats_from_any_system(monkeypatch):
 
 
 def test_px4_ignores_a_lost_link_in_mission_with_com_dll_except(monkeypatch):
-    monkeypatch.setattr(firmware, "PX4_HEARTBEAT_ALIVE_S", 0.2)
+    monkeypatch.setattr(fl, "PX4_HEARTBEAT_ALIVE_S", 0.2)
     v = _flying("px4", NAV_DLL_ACT=2, COM_DL_LOSS_T=0, COM_DLL_EXCEPT=1)
     try:
         v.handle(_from(255))

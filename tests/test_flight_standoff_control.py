@@ -321,3 +321,15 @@ def test_a_back_off_the_camera_cannot_confirm_in_time_ends_the_flight_and_says_w
     outcome = [ctl.decide(t / 10, 3) for t in range(10, 200)]  # the chain stalled: no estimate after the move
     abort = next(d for d in outcome if d.action == ABORT)
     assert "no measurement since" in abort.reason and "s old (the camera chain running behind?)" in abort.reason
+
+
+def test_a_camera_estimate_too_old_to_steer_by_is_said_as_such():
+    """On a loaded companion the camera chain ran up to 85 s behind the camera (the drift bench): its estimates
+    arrived, but too late to steer by. The flight must not act on them, and must say why instead of "no camera
+    estimate" on a wall the chain is measuring."""
+    ctl = StandoffController(StandoffSettings(4.0))
+    for t in range(0, 30):
+        ctl.observe(Measurement(t * 0.5, 5.3, 0.04, "camera"), leg=3)
+    decision = ctl.decide(40.0, leg=3)  # the newest is 25.5 s old
+    assert decision.action == NO_MEASUREMENT
+    assert "26 s old" in decision.reason and "running behind" in decision.reason

@@ -1,4 +1,4 @@
-"""The simulator's lost-link failsafe counts the heartbeats each real firmware counts (sim/vehicle/firmware.py
+"""The simulator's lost-link failsafe counts the heartbeats each real firmware counts (each flavour's
 ``counts_for_link_failsafe``), in process: ArduCopter only its GCS system id's (MAV_GCS_SYSID, default 255; real
 ArduCopter 4.7 flew on when the companion, system 245, was killed), PX4 any MAV_TYPE_GCS heartbeat."""
 
@@ -10,7 +10,6 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mission import items as mi
-from sim.vehicle import firmware
 from sim.vehicle import flavours as fl
 from tests.test_sim_vehicle_firmware_rules import _mission, _run_until, _vehicle
 

@@ -257,9 +257,15 @@ class StandoffController:
         if now_s < self._settle_until:
             return StandoffDecision(SETTLING)
         newest = max(self._history, key=lambda h: h.time_s, default=None)
-        if newest is None or now_s - newest.time_s > self._fresh_limit(newest.source):
+        if newest is None:
             return StandoffDecision(NO_MEASUREMENT, reason="no rangefinder reading facing the wall and no camera "
                                                            "estimate in the last seconds")
+        if now_s - newest.time_s > self._fresh_limit(newest.source):
+            # measured, but too long ago to steer by: on a loaded companion the camera chain can run a minute behind
+            # the camera; say so, or a pilot reads "not measured" on a wall the chain is measuring
+            return StandoffDecision(NO_MEASUREMENT, reason=f"the newest measurement ({newest.source}, "
+                                                           f"{newest.distance_m:.2f} m) is {now_s - newest.time_s:.0f} "
+                                                           "s old: the camera chain is running behind the camera")
         ref = newest.time_s  # windows end at the newest measurement (the camera's arrive late)
         recent = sorted((h for h in self._history if h.time_s >= ref - self.s.hold_s), key=lambda h: h.time_s)
         too_close = self._too_close(ref, recent)

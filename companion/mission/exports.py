@@ -219,10 +219,12 @@ def geojson_text(plan: ScanPlan) -> str:
             "type": "Feature",
             "properties": {
                 "name": "scan path",
-                # per vertex, under their own names: a list under the points' alt_amsl_m made GDAL type that
-                # field RealList for every feature (one type per property name)
-                "vertex_alt_amsl_m": [round(_mission_amsl_m(plan, wp.rel_alt_m), 3) for wp in plan.waypoints],
-                "vertex_rel_alt_m": [round(wp.rel_alt_m, 3) for wp in plan.waypoints],
+                # scalars only (GIS tools type a field once per layer: a list became RealList, which a GeoPackage
+                # stores as text and a shapefile refuses); each vertex's heights are on the waypoint Point whose
+                # seq is the vertex's index
+                "vertices": len(plan.waypoints),
+                "alt_amsl_min_m": round(min(_mission_amsl_m(plan, wp.rel_alt_m) for wp in plan.waypoints), 3),
+                "alt_amsl_max_m": round(max(_mission_amsl_m(plan, wp.rel_alt_m) for wp in plan.waypoints), 3),
             },
             "geometry": {"type": "LineString", "coordinates": [[wp.lon, wp.lat] for wp in plan.waypoints]},
         },
@@ -270,7 +272,7 @@ def geojson_text(plan: ScanPlan) -> str:
         {
             "type": "FeatureCollection",
             "heights": "2-D positions; alt_amsl_m is above mean sea level (home altitude + rel_alt_m, the mission's "
-            "frame), rel_alt_m above home; the scan path's per vertex: vertex_alt_amsl_m, vertex_rel_alt_m",
+            "frame), rel_alt_m above home; the scan path's vertex k: the waypoint with seq k",
             "features": feats,
         },
         indent=1,

@@ -167,7 +167,8 @@ def _wall_corners(plan: ScanPlan) -> list[tuple[float, float, float]]:
     pts = []
     for a, u in ((0.0, 0.0), (f.length_m, 0.0), (f.length_m, h), (0.0, h), (0.0, 0.0)):
         lat, lon, _ = f.facade_to_geodetic(a, 0.0, 0.0)
-        pts.append((float(lon), float(lat), ground + u))
+        # to 1e-8 degree (about a millimetre), as the planner's waypoints: no float noise (37.56649999999999)
+        pts.append((round(float(lon), 8), round(float(lat), 8), round(ground + u, 3)))
     return pts
 
 

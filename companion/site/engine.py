@@ -1,0 +1,150 @@
+"""Where a site's face tasks run: in this process, on an embedded Dask cluster, or on an existing one.
+
+Why Dask (``dask.distributed``): it is the engine an inspection firm may already run (`dask scheduler` and
+`dask worker` on its machines, or Kubernetes/SLURM deployments of them), it reruns the tasks of a worker that dies,
+and it needs nothing on this side but a client. The default is a ``LocalCluster`` of worker processes sized to
+this machine (one per core, one thread each): no server to start. ``scheduler`` sends the same tasks to an
+existing cluster; ``workers=0`` keeps everything in this process (the companion computer, small jobs). The task
+is the same function everywhere (``facade.build_facade``), so the maps are the same.
+
+Dask is imported only when a cluster is used: single-process mode works without it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from companion.errors import CompanionError
+from companion.site.facade import FacadeOutcome, FacadeTask, build_facade
+
+log = logging.getLogger(__name__)
+
+WORKER_WAIT_S = 60.0  # how long an existing cluster may take to show its first worker
+
+
+@dataclass(frozen=True)
+class EngineSpec:
+    """``workers``: processes of the embedded cluster (None: one per core; 0: no cluster, this process);
+    ``scheduler``: an existing cluster's address (tcp://HOST:8786) or scheduler file, instead of an embedded one."""
+
+    workers: int | None = None
+    scheduler: str | None = None
+
+    @property
+    def single_process(self) -> bool:
+        return self.scheduler is None and self.workers == 0
+
+
+class SingleProcess:
+    """The tasks one after another in this process."""
+
+    description = "this process"
+    dashboard: str | None = None
+    threads = 0  # the stitcher's own default: every core
+
+    def run(self, tasks: list[FacadeTask]) -> Iterator[FacadeOutcome]:
+        for task in tasks:
+            yield build_facade(task)
+
+    def close(self) -> None:
+        pass
+
+
+class DaskEngine:
+    """The tasks on a Dask cluster, results in the order they finish."""
+
+    def __init__(self, client, cluster=None):
+        self.client, self.cluster = client, cluster
+        workers = client.scheduler_info().get("workers", {})
+        self.threads = min((w.get("nthreads", 1) for w in workers.values()), default=1)
+        kind = "embedded local cluster" if cluster is not None else f"cluster at {client.scheduler.address}"
+        self.description = f"{kind}, {len(workers)} worker(s) x {self.threads} thread(s)"
+        self.dashboard = _dashboard(client)
+
+    def run(self, tasks: list[FacadeTask]) -> Iterator[FacadeOutcome]:
+        from dask.distributed import as_completed
+
+        futures, by_key = [], {}
+        for task in tasks:
+            task = replace(task, threads=self.threads)
+            # a key of its own per run: a rerun of the site is new work, not a result the scheduler remembers
+            fut = self.client.submit(build_facade, task, key=f"facade-{task.job.name}-{os.urandom(4).hex()}",
+                                     pure=False)
+            futures.append(fut)
+            by_key[fut.key] = task
+        for fut in as_completed(futures):
+            yield _result(fut, by_key[fut.key])
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def _result(fut, task: FacadeTask) -> FacadeOutcome:
+    """The task's outcome; a task the cluster could not run (an exception outside the stitcher's own errors, a
+    task whose workers kept dying) is a failed face, named, not the end of the job."""
+    try:
+        return fut.result()
+    except Exception as exc:  # noqa: BLE001 - any failure of one face must leave the others going
+        fix = ("install companion (this version) on every worker, with the spools and --out on a path they all "
+               "read" if isinstance(exc, ModuleNotFoundError | FileNotFoundError)
+               else "see the worker's log; rerun the site with the same --out to retry the faces not done")
+        return FacadeOutcome(task.job.name, task.out_dir, tuple(str(s) for s in task.job.spools), "failed",
+                             problem=f"the task failed on the cluster: {type(exc).__name__}: {exc}", fix=fix)
+
+
+def _dashboard(client) -> str | None:
+    """The dashboard's address, when the scheduler serves one (it needs bokeh installed where it runs)."""
+    port = client.scheduler_info().get("services", {}).get("dashboard")
+    if not port:
+        return None
+    host = client.scheduler.address.split("://")[-1].rsplit(":", 1)[0]
+    return f"http://{host}:{port}/status"
+
+
+def default_workers() -> int:
+    """One worker process per core this process may use."""
+    return max(1, len(os.sched_getaffinity(0)))
+
+
+def open_engine(spec: EngineSpec) -> SingleProcess | DaskEngine:
+    """The engine ``spec`` asks for, started (close it when done)."""
+    if spec.single_process:
+        return SingleProcess()
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as exc:
+        raise CompanionError(f"Dask is not installed ({exc})",
+                             "pip install 'dask[distributed]', or run in this process with --single-process") from None
+    quiet = logging.getLogger("distributed")
+    if quiet.level == logging.NOTSET:  # its INFO lines (every worker's start and stop) would bury the job's own
+        quiet.setLevel(logging.WARNING)
+    if spec.scheduler is None:
+        cluster = LocalCluster(n_workers=spec.workers or default_workers(), threads_per_worker=1, processes=True,
+                               dashboard_address=":0", silence_logs=logging.ERROR)
+        return DaskEngine(Client(cluster), cluster)
+    return DaskEngine(_connect(Client, spec.scheduler))
+
+
+def _connect(client_type, scheduler: str):
+    fix = ("start the scheduler (`dask scheduler`) and workers (`dask worker ADDRESS`), give its address "
+           "(tcp://HOST:8786) or --scheduler-file path; or leave --scheduler out for a local cluster")
+    try:
+        if Path(scheduler).is_file():
+            client = client_type(scheduler_file=scheduler, timeout="20s")
+        else:
+            client = client_type(scheduler, timeout="20s")
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise CompanionError(f"cannot reach the Dask scheduler at {scheduler} ({exc})", fix) from None
+    try:
+        client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+    except TimeoutError:
+        client.close()
+        raise CompanionError(f"the Dask scheduler at {scheduler} has no worker after {WORKER_WAIT_S:.0f} s",
+                             "start workers: `dask worker ADDRESS` on machines that see the spools' path") from None
+    return client

@@ -12,6 +12,7 @@ Dask is imported only when a cluster is used: single-process mode works without 
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
 from collections.abc import Iterator
@@ -121,13 +122,16 @@ def open_engine(spec: EngineSpec) -> SingleProcess | DaskEngine:
     except ImportError as exc:
         raise CompanionError(f"Dask is not installed ({exc})",
                              "pip install 'dask[distributed]', or run in this process with --single-process") from None
-    quiet = logging.getLogger("distributed")
-    if quiet.level == logging.NOTSET:  # its INFO lines (every worker's start and stop) would bury the job's own
-        quiet.setLevel(logging.WARNING)
+    if logging.getLogger().level > logging.DEBUG:  # (not with -v) Dask's INFO lines, every worker's start and
+        logging.getLogger("distributed").setLevel(logging.ERROR)  # stop, its shutdown chatter, bury the job's own
     if spec.scheduler is None:
         cluster = LocalCluster(n_workers=spec.workers or default_workers(), threads_per_worker=1, processes=True,
                                dashboard_address=":0", silence_logs=logging.ERROR)
-        return DaskEngine(Client(cluster), cluster)
+        engine = DaskEngine(Client(cluster), cluster)
+        if importlib.util.find_spec("bokeh") is None:  # the address answers, but only "install bokeh"
+            log.info("no Dask dashboard: it needs bokeh (pip install 'bokeh>=3.1')")
+            engine.dashboard = None
+        return engine
     return DaskEngine(_connect(Client, spec.scheduler))
 
 

@@ -52,6 +52,7 @@ class FacadeOutcome:
     keyframes: int = 0
     uncovered_areas_m: tuple[dict, ...] = ()
     seconds: float = 0.0
+    cpu_seconds: float = 0.0  # the worker process's CPU time for the task (all its threads): load-independent cost
     problem: str | None = None
     fix: str | None = None
     files: dict[str, str] = field(default_factory=dict)
@@ -93,7 +94,7 @@ def done_before(task: FacadeTask) -> FacadeOutcome | None:
         marker = json.loads(path.read_text())
         if marker.get("inputs_key") != inputs_key(task):
             return None
-        return replace(FacadeOutcome.from_dict(marker["outcome"]), status="skipped", seconds=0.0)
+        return replace(FacadeOutcome.from_dict(marker["outcome"]), status="skipped", seconds=0.0, cpu_seconds=0.0)
     except (OSError, ValueError, KeyError, TypeError):
         return None  # no marker, or a torn / older one: make the face again
 
@@ -102,7 +103,7 @@ def build_facade(task: FacadeTask) -> FacadeOutcome:
     """Make one face's map in ``task.out_dir`` (as `companion stitch` of its spools would) and write its marker
     last. A user-facing problem (a damaged spool, another camera) is returned as a failed outcome, not raised, so
     the site's other faces go on and a cluster does not retry what cannot succeed."""
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), time.process_time()
     spools = tuple(str(s) for s in task.job.spools)
     base = FacadeOutcome(task.job.name, task.out_dir, spools, "failed")
     (task.out_dir / MARKER).unlink(missing_ok=True)  # the folder is in flux until the new marker is written
@@ -122,6 +123,7 @@ def build_facade(task: FacadeTask) -> FacadeOutcome:
         keyframes=len(res.report.get("keyframes_used", [])),
         uncovered_areas_m=tuple(res.report.get("uncovered_areas_m", [])),
         seconds=round(time.perf_counter() - start, 3),
+        cpu_seconds=round(time.process_time() - cpu, 3),
         files={k: str(Path(v).relative_to(task.out_dir)) for k, v in res.files.items() if _inside(v, task.out_dir)},
     )
     marker = {"inputs_key": inputs_key(task), "outcome": outcome.as_dict()}

@@ -136,4 +136,4 @@ def test_only_the_command_line_uses_site_and_only_its_engine_imports_dask():
         if target.split(".")[0] in ("dask", "distributed") and path != PACKAGE / "site" / "engine.py"
     ]
     assert not dask, dask
-    assert set(part_graph()["site"]) <= {"stitch", "spool", "files", "errors", "progress", "geo"}
+    assert set(part_graph()["site"]) <= {"stitch", "spool", "keyframes", "files", "errors", "progress", "geo"}

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from companion.site.facade import FacadeOutcome, FacadeTask, build_facade
+from companion.site.keyframe_tasks import extract_features, keyframe_tasks
 
 log = logging.getLogger(__name__)
 
@@ -58,8 +59,9 @@ class SingleProcess:
 class DaskEngine:
     """The tasks on a Dask cluster, results in the order they finish."""
 
-    def __init__(self, client, cluster=None):
+    def __init__(self, client, cluster=None, *, split_features: bool = True):
         self.client, self.cluster = client, cluster
+        self.split_features = split_features  # each keyframe's features a task of its own, before its face
         workers = client.scheduler_info().get("workers", {})
         self.threads = min((w.get("nthreads", 1) for w in workers.values()), default=1)
         kind = "embedded local cluster" if cluster is not None else f"cluster at {client.scheduler.address}"
@@ -73,8 +75,13 @@ class DaskEngine:
         for task in tasks:
             task = replace(task, threads=self.threads)
             # a key of its own per run: a rerun of the site is new work, not a result the scheduler remembers
-            fut = self.client.submit(build_facade, task, key=f"facade-{task.job.name}-{os.urandom(4).hex()}",
-                                     pure=False)
+            run = os.urandom(4).hex()
+            features = [
+                self.client.submit(extract_features, kt, key=f"features-{task.job.name}-{kt.keyframe.index}-{run}",
+                                   pure=False)
+                for kt in keyframe_tasks(task)
+            ] if self.split_features else []
+            fut = self.client.submit(_after, task, *features, key=f"facade-{task.job.name}-{run}", pure=False)
             futures.append(fut)
             by_key[fut.key] = task
         for fut in as_completed(futures):
@@ -84,6 +91,12 @@ class DaskEngine:
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+def _after(task: FacadeTask, *_features: str | None) -> FacadeOutcome:
+    """The face's task, run once its keyframes' feature tasks are done (their results are not needed: they
+    filled the face's feature cache)."""
+    return build_facade(task)
 
 
 def _result(fut, task: FacadeTask) -> FacadeOutcome:

@@ -52,6 +52,7 @@ def run_site(spools: list[Path], out: Path, workers: int) -> dict:
     outcomes = list(engine.run(tasks))
     t2 = time.perf_counter()
     peaks = engine.client.run(_peak_rss_mb)
+    cpu = engine.client.run(time.process_time)  # fresh worker processes: all the CPU each used for the job
     engine.close()
     stages: dict[str, float] = {}
     keyframes = 0
@@ -70,6 +71,7 @@ def run_site(spools: list[Path], out: Path, workers: int) -> dict:
         "keyframes": keyframes,
         "stage_ms_per_keyframe": {k: round(1000 * v / keyframes, 1) for k, v in stages.items()},
         "worker_peak_rss_mb": sorted(round(v) for v in peaks.values()),
+        "worker_cpu_s": round(sum(cpu.values()), 1),
         "task_pickle_kb": round(max(len(pickle.dumps(t)) for t in tasks) / 1e3, 2),
         "result_pickle_kb": round(max(len(pickle.dumps(o)) for o in outcomes) / 1e3, 2),
         "spools_read_mb_per_face": round(sum(_size_mb(s) for s in spools) / len(tasks), 2),
@@ -82,7 +84,8 @@ def _print(r: dict) -> None:
     print(f"  {r['workers']} worker(s): cluster start {r['start_s']:.1f} s, job {r['run_s']:.1f} s, "
           f"task s {r['task_s']} (mean {per_face:.2f} s/face, {sum(r['task_s']) / r['keyframes']:.3f} s/keyframe), "
           f"failed {r['failed'] or 'none'}")
-    print(f"    task CPU s {r['task_cpu_s']} ({sum(r['task_cpu_s']) / r['keyframes']:.3f} CPU s/keyframe)")
+    print(f"    CPU s: face tasks {r['task_cpu_s']}; all workers' processes {r['worker_cpu_s']} "
+          f"({r['worker_cpu_s'] / r['keyframes']:.3f} CPU s/keyframe, keyframe feature tasks and Dask included)")
     print(f"    stages ms/keyframe {r['stage_ms_per_keyframe']}; worker peak RSS MB {r['worker_peak_rss_mb']}")
     print(f"    moved per task: task {r['task_pickle_kb']} kB + result {r['result_pickle_kb']} kB through the "
           f"scheduler; spools read {r['spools_read_mb_per_face']} MB, map folder written "

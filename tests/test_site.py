@@ -175,3 +175,28 @@ def test_a_scheduler_and_two_workers_started_by_hand_make_the_same_maps_with_a_w
                 p.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_the_cog_opens_in_gdal_at_the_reports_scale_also_from_a_tiled_map(site, single, tmp_path):
+    """The COG of an in-memory map (the site's) and of a map written only as tiles (a tiny in-memory limit): GDAL
+    reads a COG layout with overviews, the report's mm/px and the map's pixels."""
+    rasterio = pytest.importorskip("rasterio")
+    from companion.site.facade import FacadeTask, build_facade
+    from companion.site.spools import FacadeJob
+    from companion.stitch.config import StitchConfig
+
+    root, spools, _ = site
+    out, _ = single
+    tiled = build_facade(FacadeTask(FacadeJob("face0", (spools[0], spools[2])), tmp_path / "face0",
+                                    StitchConfig(max_in_memory_px=1e5, tile_px=128)))
+    assert tiled.status == "done" and "map_vrt" in tiled.files and "map" not in tiled.files
+    reference = _map(out / "face0")
+    for folder in (out / "face0", tmp_path / "face0"):
+        mm = json.loads((folder / "report.json").read_text())["map"]["mm_per_px"]
+        info = subprocess.run(["gdalinfo", str(folder / "map_cog.tif")], capture_output=True, text=True, check=True)
+        assert "LAYOUT=COG" in info.stdout and "Overviews:" in info.stdout
+        with rasterio.open(folder / "map_cog.tif") as cog:
+            assert cog.res[0] * 1000 == pytest.approx(mm, abs=5e-5) and cog.crs is not None  # report: 4 decimals
+            rgba = cog.read()
+        bgra = np.dstack([rgba[2], rgba[1], rgba[0], rgba[3]]).astype(int)
+        assert bgra.shape == reference.shape and np.abs(bgra - reference).max() <= 1

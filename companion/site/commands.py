@@ -24,6 +24,8 @@ def register(sub) -> None:
                    help="embedded cluster's worker processes (default: one per core); 0: this process only")
     p.add_argument("--single-process", action="store_true", help="no cluster: every face in this process")
     add_map_arguments(p)
+    p.add_argument("--no-cog", action="store_true",
+                   help="no map_cog.tif (the map as a Cloud Optimized GeoTIFF in wall metres, with overviews)")
     p.add_argument("--quiet", action="store_true", help="no progress bar (the log lines stay)")
     p.set_defaults(func=run)
 
@@ -51,7 +53,8 @@ def _print(res: SiteResult) -> None:
 
 
 def run(args) -> int:
-    res = build_site(args.spools, args.out, config_from_args(args), engine_spec(args), progress=not args.quiet)
+    res = build_site(args.spools, args.out, config_from_args(args), engine_spec(args), progress=not args.quiet,
+                     cog=not args.no_cog)
     _print(res)
     problems = [f"spool {b.path}: {b.problem} (fix: {b.fix})" for b in res.bad_spools]
     problems += [f"facade {o.name} ({', '.join(o.spools)}): {o.problem} (fix: {o.fix})" for o in res.failed]

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from companion.errors import CompanionError
 from companion.files import write_atomic
+from companion.site.cog import write_cog
 from companion.site.spools import FacadeJob
 from companion.spool.layout import MANIFEST, META
 from companion.stitch.config import StitchConfig
@@ -35,6 +36,7 @@ class FacadeTask:
     out_dir: Path
     config: StitchConfig
     threads: int = 0
+    cog: bool = True  # also write the map as a Cloud Optimized GeoTIFF (cog.py)
 
 
 @dataclass(frozen=True)
@@ -75,8 +77,8 @@ class FacadeOutcome:
 
 def inputs_key(task: FacadeTask) -> str:
     """A key of everything the face's map depends on: each spool's manifest (size, time) and spool.json, the
-    settings. The thread count is not in it: it does not change the map."""
-    parts = [json.dumps(asdict(task.config), sort_keys=True, default=str)]
+    settings, whether a COG is asked for. The thread count is not in it: it does not change the map."""
+    parts = [json.dumps(asdict(task.config), sort_keys=True, default=str), f"cog={task.cog}"]
     for spool in task.job.spools:
         parts.append(str(Path(spool).resolve()))
         for name in (MANIFEST, META):
@@ -112,6 +114,9 @@ def build_facade(task: FacadeTask) -> FacadeOutcome:
     try:
         inp, _ = merge_spools(list(task.job.spools))
         res = stitch(inp, task.out_dir, cfg, progress=False)
+        files = dict(res.files)
+        if task.cog and (cog := write_cog(task.out_dir, files)) is not None:
+            files["cog"] = str(cog)
     except CompanionError as exc:
         return replace(base, problem=exc.problem, fix=exc.fix, seconds=time.perf_counter() - start)
     outcome = replace(
@@ -124,7 +129,7 @@ def build_facade(task: FacadeTask) -> FacadeOutcome:
         uncovered_areas_m=tuple(res.report.get("uncovered_areas_m", [])),
         seconds=round(time.perf_counter() - start, 3),
         cpu_seconds=round(time.process_time() - cpu, 3),
-        files={k: str(Path(v).relative_to(task.out_dir)) for k, v in res.files.items() if _inside(v, task.out_dir)},
+        files={k: str(Path(v).relative_to(task.out_dir)) for k, v in files.items() if _inside(v, task.out_dir)},
     )
     marker = {"inputs_key": inputs_key(task), "outcome": outcome.as_dict()}
     write_atomic(task.out_dir / MARKER, json.dumps(marker, indent=1), durable=True)

@@ -38,7 +38,7 @@ class SiteResult:
 
 
 def build_site(spools: list[str | Path], out_dir: str | Path, config: StitchConfig | None = None,
-               engine: EngineSpec | None = None, *, progress: bool = True) -> SiteResult:
+               engine: EngineSpec | None = None, *, progress: bool = True, cog: bool = True) -> SiteResult:
     """Every face's map in ``out_dir/<face>/`` and the site's index; faces done before with the same inputs are
     skipped. Raises only when nothing can be done at all (no readable spool, no engine)."""
     out = Path(out_dir)
@@ -50,7 +50,7 @@ def build_site(spools: list[str | Path], out_dir: str | Path, config: StitchConf
         raise CompanionError(f"no spool of the site can be stitched ({reasons})",
                              "give keyframe spool directories (each has manifest.jsonl and spool.json)")
     out.mkdir(parents=True, exist_ok=True)
-    tasks = [FacadeTask(job, out / job.name, config or StitchConfig()) for job in plan.facades]
+    tasks = [FacadeTask(job, out / job.name, config or StitchConfig(), cog=cog) for job in plan.facades]
     done = {t.job.name: o for t in tasks if (o := done_before(t)) is not None}
     todo = [t for t in tasks if t.job.name not in done]
     bar = SiteProgress(len(tasks), show=progress)

@@ -150,7 +150,7 @@ def open_engine(spec: EngineSpec) -> SingleProcess | DaskEngine:
 
 def _connect(client_type, scheduler: str):
     fix = ("start the scheduler (`dask scheduler`) and workers (`dask worker ADDRESS`), give its address "
-           "(tcp://HOST:8786) or --scheduler-file path; or leave --scheduler out for a local cluster")
+           "(tcp://HOST:8786) or its scheduler file (--scheduler-file); or leave --scheduler out for a local cluster")
     try:
         if Path(scheduler).is_file():
             client = client_type(scheduler_file=scheduler, timeout="20s")

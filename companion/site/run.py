@@ -49,28 +49,28 @@ def build_site(spools: list[str | Path], out_dir: str | Path, config: StitchConf
         reasons = "; ".join(f"{b.path}: {b.problem}" for b in plan.bad_spools) or "no spool given"
         raise CompanionError(f"no spool of the site can be stitched ({reasons})",
                              "give keyframe spool directories (each has manifest.jsonl and spool.json)")
-    out.mkdir(parents=True, exist_ok=True)
     tasks = [FacadeTask(job, out / job.name, config or StitchConfig(), cog=cog) for job in plan.facades]
     done = {t.job.name: o for t in tasks if (o := done_before(t)) is not None}
     todo = [t for t in tasks if t.job.name not in done]
+    runner = open_engine(engine or EngineSpec()) if todo else None  # before the bar: a refusal is said plainly
+    description = runner.description if runner else "nothing to run: every facade was done"
+    dashboard = runner.dashboard if runner else None
+    out.mkdir(parents=True, exist_ok=True)
     bar = SiteProgress(len(tasks), show=progress)
-    for outcome in done.values():
-        bar.finished(outcome)
     outcomes = dict(done)
-    description, dashboard = "nothing to run: every facade was done", None
-    if todo:
-        runner = open_engine(engine or EngineSpec())
-        description, dashboard = runner.description, runner.dashboard
-        log.info("running %d facade task(s) on %s%s", len(todo), description,
-                 f"; dashboard: {dashboard}" if dashboard else "")
-        try:
+    try:
+        for outcome in done.values():
+            bar.finished(outcome)
+        if runner:
+            log.info("running %d facade task(s) on %s%s", len(todo), description,
+                     f"; dashboard: {dashboard}" if dashboard else "")
             for outcome in runner.run(todo):
                 outcomes[outcome.name] = outcome
                 bar.finished(outcome)
-        finally:
-            bar.close()
+    finally:
+        bar.close()
+        if runner:
             runner.close()
-    bar.close()
     ordered = tuple(outcomes[t.job.name] for t in tasks)
     files = write_index(out, site_record(list(ordered), plan.bad_spools, out, description))
     return SiteResult(out, ordered, plan.bad_spools, description, dashboard, files)

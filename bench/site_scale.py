@@ -41,6 +41,22 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
 
 
+def _noop(i: int) -> int:
+    return i
+
+
+def task_overhead_ms(n: int = 200) -> float:
+    """Milliseconds per task of Dask itself: ``n`` empty tasks on a 2-worker embedded cluster, submitted at once."""
+    engine = open_engine(EngineSpec(workers=2))
+    try:
+        engine.client.gather(engine.client.map(_noop, range(10)))  # warm up
+        t = time.perf_counter()
+        engine.client.gather(engine.client.map(_noop, range(n), pure=False))
+        return 1000 * (time.perf_counter() - t) / n
+    finally:
+        engine.close()
+
+
 def run_site(spools: list[Path], out: Path, workers: int) -> dict:
     """One run of the site on ``workers`` worker processes; every figure the comparison prints."""
     shutil.rmtree(out, ignore_errors=True)
@@ -72,6 +88,7 @@ def run_site(spools: list[Path], out: Path, workers: int) -> dict:
         "stage_ms_per_keyframe": {k: round(1000 * v / keyframes, 1) for k, v in stages.items()},
         "worker_peak_rss_mb": sorted(round(v) for v in peaks.values()),
         "worker_cpu_s": round(sum(cpu.values()), 1),
+        "worker_cpu_split": sorted(round(v, 1) for v in cpu.values()),
         "task_pickle_kb": round(max(len(pickle.dumps(t)) for t in tasks) / 1e3, 2),
         "result_pickle_kb": round(max(len(pickle.dumps(o)) for o in outcomes) / 1e3, 2),
         "spools_read_mb_per_face": round(sum(_size_mb(s) for s in spools) / len(tasks), 2),
@@ -85,6 +102,7 @@ def _print(r: dict) -> None:
           f"task s {r['task_s']} (mean {per_face:.2f} s/face, {sum(r['task_s']) / r['keyframes']:.3f} s/keyframe), "
           f"failed {r['failed'] or 'none'}")
     print(f"    CPU s: face tasks {r['task_cpu_s']}; all workers' processes {r['worker_cpu_s']} "
+          f"(per worker {r['worker_cpu_split']}) "
           f"({r['worker_cpu_s'] / r['keyframes']:.3f} CPU s/keyframe, keyframe feature tasks and Dask included)")
     print(f"    stages ms/keyframe {r['stage_ms_per_keyframe']}; worker peak RSS MB {r['worker_peak_rss_mb']}")
     print(f"    moved per task: task {r['task_pickle_kb']} kB + result {r['result_pickle_kb']} kB through the "
@@ -104,6 +122,7 @@ def main() -> None:
     spools = make_site(args.out / "spools", faces=args.faces, shape=SiteShape(width=w, height=h))
     print(f"{platform.node()}: {len(os.sched_getaffinity(0))} cores, load {os.getloadavg()}; "
           f"{args.faces} faces x 12 keyframes at {w}x{h}, {len(spools)} spools")
+    print(f"Dask's own cost per task (empty tasks, 2 workers): {task_overhead_ms():.2f} ms")
     for k in range(args.rounds):
         print(f"round {k + 1} (load {os.getloadavg()[0]:.2f}):")
         one = run_site(spools, args.out / "one", 1)
@@ -111,7 +130,9 @@ def main() -> None:
         two = run_site(spools, args.out / "two", 2)
         _print(two)
         print(f"  speed-up, two workers against one: job {one['run_s'] / two['run_s']:.2f}x, with the cluster's "
-              f"start {(one['start_s'] + one['run_s']) / (two['start_s'] + two['run_s']):.2f}x")
+              f"start {(one['start_s'] + one['run_s']) / (two['start_s'] + two['run_s']):.2f}x; on free cores "
+              f"(CPU of the busier worker against one worker's): "
+              f"{one['worker_cpu_s'] / max(two['worker_cpu_split']):.2f}x")
     print(f"load at the end {os.getloadavg()}")
 
 

@@ -127,7 +127,8 @@ def test_only_the_command_line_uses_site_and_only_its_engine_imports_dask():
     """``companion.site`` sits on top of the stitcher: no part of companion imports it but the command line (the
     stitcher must stay usable on the companion computer without it), and Dask is imported in one module only,
     ``site/engine.py`` (single-process mode and every other command run without Dask installed)."""
-    users = {part for part, targets in part_graph().items() if "site" in targets}
+    graph = part_graph()
+    users = {part for part, targets in graph.items() if "site" in targets}
     assert users == {"cli"}, users
     dask = [
         f"{path.relative_to(ROOT)}:{line}"
@@ -136,4 +137,4 @@ def test_only_the_command_line_uses_site_and_only_its_engine_imports_dask():
         if target.split(".")[0] in ("dask", "distributed") and path != PACKAGE / "site" / "engine.py"
     ]
     assert not dask, dask
-    assert set(part_graph()["site"]) <= {"stitch", "spool", "keyframes", "files", "errors", "progress", "geo"}
+    assert set(graph["site"]) <= {"stitch", "spool", "keyframes", "files", "errors", "progress", "geo"}

@@ -15,7 +15,7 @@ from __future__ import annotations
 import importlib.util
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -48,9 +48,12 @@ class SingleProcess:
     dashboard: str | None = None
     threads = 0  # the stitcher's own default: every core
 
-    def run(self, tasks: list[FacadeTask]) -> Iterator[FacadeOutcome]:
+    def run(self, tasks: list[FacadeTask], on_task: Callable[[int], None] | None = None) -> Iterator[FacadeOutcome]:
         for task in tasks:
-            yield build_facade(task)
+            outcome = build_facade(task)
+            if on_task:
+                on_task(len(tasks))
+            yield outcome
 
     def close(self) -> None:
         pass
@@ -68,7 +71,8 @@ class DaskEngine:
         self.description = f"{kind}, {len(workers)} worker(s) x {self.threads} thread(s)"
         self.dashboard = _dashboard(client)
 
-    def run(self, tasks: list[FacadeTask]) -> Iterator[FacadeOutcome]:
+    def run(self, tasks: list[FacadeTask], on_task: Callable[[int], None] | None = None) -> Iterator[FacadeOutcome]:
+        """Faces' outcomes as they finish; ``on_task(total)`` after every task (keyframe or face) is done."""
         from dask.distributed import as_completed
 
         futures, by_key = [], {}
@@ -82,15 +86,26 @@ class DaskEngine:
                 for kt in keyframe_tasks(task)
             ] if self.split_features else []
             fut = self.client.submit(_after, task, *features, key=f"facade-{task.job.name}-{run}", pure=False)
-            futures.append(fut)
+            futures += [*features, fut]
             by_key[fut.key] = task
         for fut in as_completed(futures):
-            yield _result(fut, by_key[fut.key])
+            if on_task:
+                on_task(len(futures))
+            if fut.key in by_key:
+                yield _result(fut, by_key[fut.key])
 
     def close(self) -> None:
-        self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+        """Ends the client (and the embedded cluster). Its shutdown races (a worker's last heartbeat to a closed
+        scheduler) are logged by Dask as errors with tracebacks although nothing is wrong: not shown."""
+        quiet = logging.getLogger("distributed")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
+        try:
+            self.client.close()
+            if self.cluster is not None:
+                self.cluster.close()
+        finally:
+            quiet.setLevel(level)
 
 
 def _after(task: FacadeTask, *_features: str | None) -> FacadeOutcome:
@@ -139,7 +154,7 @@ def open_engine(spec: EngineSpec) -> SingleProcess | DaskEngine:
         logging.getLogger("distributed").setLevel(logging.ERROR)  # stop, its shutdown chatter, bury the job's own
     if spec.scheduler is None:
         cluster = LocalCluster(n_workers=spec.workers or default_workers(), threads_per_worker=1, processes=True,
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.CRITICAL)
         engine = DaskEngine(Client(cluster), cluster)
         if importlib.util.find_spec("bokeh") is None:  # the address answers, but only "install bokeh"
             log.info("no Dask dashboard: it needs bokeh (pip install 'bokeh>=3.1')")

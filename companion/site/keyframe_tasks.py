@@ -44,14 +44,15 @@ def keyframe_tasks(task: FacadeTask) -> list[KeyframeTask]:
 
 
 def extract_features(task: KeyframeTask) -> str | None:
-    """Fill the cache with the keyframe's features; a damaged keyframe is left to the face's task (which names it
-    in its report), so its problem is only returned here."""
+    """Fill the cache with the keyframe's features. Nothing is raised: a damaged keyframe is left to the face's
+    task (which names it in its report, or fails the face with the fix), so a keyframe's problem is only returned
+    here, and one keyframe never fails its face by another route than the stitcher's."""
     if task.threads > 0:
         import cv2
 
         cv2.setNumThreads(task.threads)
     try:
         cached_features(task.keyframe, task.cache_dir, task.features)
-    except (CompanionError, OSError) as exc:
-        return str(exc)
+    except Exception as exc:  # noqa: BLE001 - whatever it is, the face's task meets it again and reports it
+        return f"{type(exc).__name__}: {exc}"
     return None

@@ -27,8 +27,14 @@ class SiteProgress:
 
     def __init__(self, total: int, *, show: bool = True):
         self.total, self.done = total, 0
+        self.tasks_done, self.tasks_total = 0, 0  # every task (keyframes' and faces'), as the engine reports them
         self.start = time.perf_counter()
         self.bar = progress_bar(total=total, desc="facades", unit="facade", disable=not show)
+
+    def task_done(self, total: int) -> None:
+        """One more task of ``total`` is done (shown beside the faces' count)."""
+        self.tasks_done, self.tasks_total = self.tasks_done + 1, total
+        self.bar.set_postfix_str(f"tasks {self.tasks_done}/{total}")
 
     def finished(self, outcome: FacadeOutcome) -> None:
         self.done += 1
@@ -37,9 +43,10 @@ class SiteProgress:
         left = eta_s(self.done, self.total, elapsed)
         what = {"done": f"done in {outcome.seconds:.1f} s", "skipped": "already done (skipped)",
                 "failed": f"FAILED: {outcome.problem}"}[outcome.status]
+        tasks = f", tasks {self.tasks_done}/{self.tasks_total}" if self.tasks_total else ""
         log.log(logging.WARNING if outcome.status == "failed" else logging.INFO,
-                "facade %s %s; %d/%d facades, elapsed %.0f s, ETA %s", outcome.name, what, self.done, self.total,
-                elapsed, "-" if left is None else f"{left:.0f} s")
+                "facade %s %s; %d/%d facades%s, elapsed %.0f s, ETA %s", outcome.name, what, self.done, self.total,
+                tasks, elapsed, "-" if left is None else f"{left:.0f} s")
 
     def close(self) -> None:
         self.bar.close()

@@ -64,7 +64,7 @@ def build_site(spools: list[str | Path], out_dir: str | Path, config: StitchConf
         if runner:
             log.info("running %d facade task(s) on %s%s", len(todo), description,
                      f"; dashboard: {dashboard}" if dashboard else "")
-            for outcome in runner.run(todo):
+            for outcome in runner.run(todo, on_task=bar.task_done):
                 outcomes[outcome.name] = outcome
                 bar.finished(outcome)
     finally:

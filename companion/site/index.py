@@ -63,12 +63,12 @@ def _face_row(face: dict) -> str:
     viewer, preview = (html.escape(f"{folder}/{files[k]}") if k in files else "" for k in ("viewer", "preview"))
     thumb = f'<a href="{viewer}"><img src="{preview}" alt="{name}" height="90"></a>' if preview else ""
     scale = f"{face['mm_per_px']:.2f} mm/px" if face.get("mm_per_px") else "scale unknown"
-    size = "x".join(str(v) for v in face["size_px"]) if face.get("size_px") else ""
+    size = "x".join(str(v) for v in face["size_px"]) + " px" if face.get("size_px") else ""
     if "cog" in files:
         size += f'<br><a href="{html.escape(folder + "/" + files["cog"])}">GeoTIFF (COG)</a>'
 
     return (f'<tr><td><a href="{viewer}">{name}</a></td><td>{thumb}</td>'
-            f"<td>{100 * face['coverage_fraction']:.1f} %</td><td>{scale}<br>{size} px</td>"
+            f"<td>{100 * face['coverage_fraction']:.1f} %</td><td>{scale}<br>{size}</td>"
             f"<td>{_refly_cell(tuple(face['uncovered_areas_m']))}</td><td>{spools}</td></tr>")
 
 

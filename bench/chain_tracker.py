@@ -1,19 +1,21 @@
-"""Today's chain (every frame masked and measured) and the tracker chain (every frame tracked, frames around each
-decision measured) side by side in one run: the same mission flown in SITL twice, same seed, same camera.
+"""The onboard chain (every frame tracked, frames around each decision measured) on a mission flown in SITL.
 
     python bench/chain_tracker.py [--mission missions/demo-facade.yaml] [--fps 30] [--width 1280] [--speedup 1]
-                                  [--chains measure-all tracker] [--busy-core] [--companion-cpus 0]
+                                  [--busy-core] [--companion-cpus 0]
 
-Per chain it prints: frames the chain considered per second of flight (tracked or measured, not dropped), frames
-measured (depth mask + SIFT), CPU share of one core (the chain's thread, and the whole companion process), keyframes
-against the planner's expected count and against the minimum from truth (the paper's rule on the vehicle's true
-poses, sampled by the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair (the
-footprint overlap on the wall plane from the true poses, ``companion.keyframes.motion``, the simulator's
-definition), the share of the wall inside the keyframes' true footprints, and the chain's warnings and gaps.
-``--busy-core`` keeps one core busy with a spinning process for the whole run (a companion computer that also
-records video); ``--companion-cpus 0`` gives the companion one core (its threads pinned, as ``taskset -c 0``; the
-simulated vehicle and camera keep the machine). Figures are from a simulator.
-"""
+The chain that masked and measured every frame (the "measure-all" column of the first runs) is gone from the
+product; to set a run beside it, run this script at a revision that still has it (``git worktree add ../before
+2510c03`` and ``--chains measure-all`` there) with the same mission, seed and camera.
+
+It prints: frames the chain considered per second of flight (tracked or measured, not dropped), frames measured (depth
+mask + SIFT), CPU share of one core (the chain's thread, and the whole companion process), keyframes against the
+planner's expected count and against the minimum from truth (the paper's rule on the vehicle's true poses, sampled by
+the simulator's truth log, over the same span), the lowest true overlap of a keyframe pair (the footprint overlap on the
+wall plane from the true poses, ``companion.keyframes.motion``, the simulator's definition), the share of the wall
+inside the keyframes' true footprints, and the chain's warnings and gaps. ``--busy-core`` keeps one core busy with a
+spinning process for the whole run (a companion computer that also records video); ``--companion-cpus 0`` gives the
+companion one core (its threads pinned, as ``taskset -c 0``; the simulated vehicle and camera keep the machine). Figures
+are from a simulator."""
 
 from __future__ import annotations
 
@@ -134,7 +136,7 @@ def pin_this_process(cpus: set[int]) -> None:
             os.sched_setaffinity(int(tid), cpus)
 
 
-def fly_one(args, chain: str, out: Path) -> dict:
+def fly_one(args, out: Path) -> dict:
     rig = SitlRig(args.mission, log_dir=out / "logs", speedup=args.speedup, fps=args.fps, width_px=args.width,
                   truth_log=out / "truth.jsonl", seed=args.seed)  # fmt: skip
     all_cpus = os.sched_getaffinity(0)
@@ -143,11 +145,11 @@ def fly_one(args, chain: str, out: Path) -> dict:
         if args.companion_cpus is not None:
             pin_this_process(args.companion_cpus)
         res = run_live_scan(rig.plan, rig.url, rig.capture, out / "spool", mask=True, progress=False,
-                            handle_signals=False, end_action="land", track=chain == "tracker")  # fmt: skip
+                            handle_signals=False, end_action="land")  # fmt: skip
         camera = rig.camera_counts
     pin_this_process(all_cpus)
     wall, cpu = time.monotonic() - wall0, _cpu_s() - cpu0
-    return _figures(args, chain, rig, res, camera() or {}, wall, cpu, out)
+    return _figures(args, "tracker", rig, res, camera() or {}, wall, cpu, out)
 
 
 def _figures(args, chain, rig, res, camera: dict, wall: float, cpu: float, out: Path) -> dict:
@@ -203,7 +205,6 @@ def main() -> int:
     p.add_argument("--width", type=int, default=1280)
     p.add_argument("--speedup", type=float, default=1.0)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
     p.add_argument("--companion-cpus", type=lambda v: {int(c) for c in v.split(",")}, default=None,
                    help="pin the companion process to these CPUs, e.g. 0 (a one-core budget, as taskset -c 0)")
@@ -211,8 +212,7 @@ def main() -> int:
     args = p.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="chain-tracker-"))
     with busy_core(args.busy_core):
-        for chain in args.chains:
-            print(json.dumps(fly_one(args, chain, out / chain), indent=1), flush=True)
+        print(json.dumps(fly_one(args, out / "tracker"), indent=1), flush=True)
     return 0
 
 

@@ -1,6 +1,7 @@
-"""Today's chain and the tracker chain side by side on a camera that really delivers 30 fps at 1280x720: a scan leg
-along a synthetic wall (``companion.keyframes.synthetic.WallScene``: textured wall, far background, exact poses and
-true overlap), rendered ahead of time, JPEG-encoded, and replayed in real time through the live runner.
+"""The onboard chain (every frame tracked, frames around each decision measured) on a camera that really delivers 30 fps
+at 1280x720: a scan leg along a synthetic wall (``evaluation.keyframes.synthetic.WallScene``: textured wall, far
+background, exact poses and true overlap), rendered ahead of time, JPEG-encoded, and replayed in real time through the
+live runner.
 
     python bench/chain_tracker_synthetic.py [--fps 30] [--width 1280] [--speed 1.0] [--length 24] [--speedup 1]
                                             [--busy-core] [--working 0 640]
@@ -10,8 +11,9 @@ machine (docs/BENCHMARKS.md, camera simulator), so in SITL the chain never sees 
 the camera's rate whatever the renderer costs, with the real depth mask and gate. Prints per chain: frames
 considered per second, frames measured, CPU share of one core (chain thread), keyframes against the minimum from
 truth (the paper's rule on every frame's true overlap), the lowest true overlap of a keyframe pair, warnings, gaps.
-``--working``: the chain's working copy (long side px; 0 = decide on the camera's frames, the chain before issue
-17's working copy), each chain run once per size, side by side.
+``--working``: the chain's working copy (long side px; 0 = decide on the camera's frames), one run per size, side
+by side. The chain that masked and measured every frame (the "measure-all" column of the first runs) is gone from
+the product: run this script at revision 2510c03 (``--chains measure-all``) to set it beside these figures.
 """
 
 from __future__ import annotations
@@ -41,13 +43,13 @@ from companion.depth.masker import Masker  # noqa: E402
 from companion.depth.parallax import SequenceParallax  # noqa: E402
 from companion.keyframes.gate import GateConfig, KeyframeGate  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 from companion.onboard.chain import CullChain  # noqa: E402
-from companion.onboard.runner import MEASURE_ALL_BACKLOG, TRACKED_BACKLOG, LiveRunner  # noqa: E402
+from companion.onboard.runner import TRACKED_BACKLOG, LiveRunner  # noqa: E402
 from companion.onboard.tracked import MeasureSchedule  # noqa: E402
 from companion.onboard.working import WorkingCopy  # noqa: E402
 from companion.records import EncodedFrame, Frame  # noqa: E402
 from companion.spool import KeyframeSpool  # noqa: E402
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 
 STANDOFF_M, UP_M = 4.0, 5.0
 
@@ -96,14 +98,13 @@ def run_chain(name: str, scene: WallScene, cams, jpegs, args, out: Path, working
     spool = out / f"{name}-{working}-{decode}"
     parallax = SequenceParallax(scene.hfov_deg, standoff_m=STANDOFF_M) if args.parallax else None
     chain = CullChain(FrameTagger(buffer, ClockMap(fixed_offset_s=0.0)), Masker(parallax=parallax), gate,
-                      KeyframeSpool(spool), track=MeasureSchedule() if name == "tracker" else None,
+                      KeyframeSpool(spool), track=MeasureSchedule(),
                       working=WorkingCopy(working))  # fmt: skip
     source = PacedJpegSource(jpegs, args.fps, args.speedup or 1.0, args.width, decode)
-    tracked = name == "tracker"
     capture_cpu_s = 0.0  # unpaced only: the decode on arrival, outside the chain (0 when the chain decodes)
     wall0 = time.monotonic()
     if args.speedup > 0:
-        runner = LiveRunner(source, chain, TRACKED_BACKLOG if tracked else MEASURE_ALL_BACKLOG)
+        runner = LiveRunner(source, chain, TRACKED_BACKLOG)
         runner.run_until_done(poll_s=0.05)
     else:  # unpaced: every frame through the chain, none dropped (the chain's CPU per frame, whatever the load)
         profile = cProfile.Profile(time.thread_time) if args.profile else None
@@ -177,7 +178,6 @@ def main() -> int:
                         "0: unpaced, every frame processed in turn (CPU per frame, no drops)")
     p.add_argument("--profile", action="store_true", help="with --speedup 0: print the chain thread's CPU profile")
     p.add_argument("--parallax", action="store_true", help="the depth mask with motion parallax (the demo's chain)")
-    p.add_argument("--chains", nargs="+", default=["measure-all", "tracker"], choices=["measure-all", "tracker"])
     p.add_argument("--busy-core", action="store_true", help="keep one core busy with another process")
     p.add_argument("--working", type=int, nargs="+", default=[640],
                    help="working copy long side(s), px (0: the camera's frames, as before the working copy)")
@@ -192,11 +192,10 @@ def main() -> int:
     print(f"{len(cams)} frames {args.width} px rendered; leg {args.length:g} m at {args.speed:g} m/s, "
           f"{args.fps:g} fps", flush=True)
     with busy_core(args.busy_core):
-        for name in args.chains:
-            for working in args.working:
-                for decode in args.decode:
-                    result = run_chain(name, scene, cams, jpegs, args, out, working, decode)
-                    print(json.dumps(result, indent=1), flush=True)
+        for working in args.working:
+            for decode in args.decode:
+                result = run_chain("tracker", scene, cams, jpegs, args, out, working, decode)
+                print(json.dumps(result, indent=1), flush=True)
     return 0
 
 

@@ -29,9 +29,9 @@ sys.path.insert(0, str(ROOT))
 from companion.keyframes.features import FeatureConfig  # noqa: E402
 from companion.keyframes.gate import GateConfig, KeyframeGate  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 from companion.onboard.working import WorkingCopy  # noqa: E402
 from companion.records import Frame, MaskedFrame, TaggedFrame  # noqa: E402
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall  # noqa: E402
 
 STANDOFF_M = 4.0
 

@@ -37,7 +37,6 @@ import numpy as np
 
 from companion.depth.masker import Masker
 from companion.depth.parallax import (
-    PARALLAX_RULES,
     ParallaxParams,
     camera_translation,
     carried_wall,
@@ -51,6 +50,7 @@ from companion.depth.parallax import (
     wall_depth_of,
 )
 from companion.depth.session import DepthSession
+from evaluation.depth.parallax_rules import PARALLAX_RULES
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a script
@@ -79,11 +79,13 @@ VALIDATION = {
 
 def validation_spec(name: str, frames: int, background_frames: int):
     """The PhotoPass of one validation pass (training-split photos only: a figure on them is never a held-out one)."""
-    from companion.depth.realdata import facade_mask, list_real_photos, load_image
+    from checkout import use_checkout_shared_data
+
+    from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
     from sim.camera.photo_scene import PhotoPass, PhotoTexture
 
     wall_name, width_m, bg_name, distance_m, strips = VALIDATION[name]
-    photos = {p.image.name: p for p in list_real_photos()}
+    photos = {p.image.name: p for p in list_real_photos(use_checkout_shared_data())}
     for n in (wall_name, bg_name):
         if photos[n].split != "train":
             raise SystemExit(f"{n} is held out: validation passes use training photos only")

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.depth.evaluate import evaluate_recording
 from companion.depth.masker import Masker
 from companion.depth.roi import RoiParams
 from companion.depth.session import DEFAULT_MODEL
+from evaluation.depth.evaluate import evaluate_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 

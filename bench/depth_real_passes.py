@@ -27,20 +27,25 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.depth.evaluate import MaskEval, frame_eval, save_visual
 from companion.depth.masker import Masker
-from companion.depth.parallax import PARALLAX_RULES, ParallaxParams
-from companion.depth.roi import ROI_RULES
+from companion.depth.parallax import ParallaxParams
 from companion.depth.session import DEFAULT_MODEL, DepthSession
+from companion.depth.visual import save_visual
+from evaluation.depth.evaluate import MaskEval, frame_eval
+from evaluation.depth.parallax_rules import PARALLAX_RULES
+from evaluation.depth.roi_rules import ROI_RULES
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def photo_pass_frames(name: str, args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    from checkout import use_checkout_shared_data
+
     from sim.camera.photo_passes import RECIPES, build_pass, parse_recipe
 
     recipe = RECIPES[name] if name in RECIPES else parse_recipe(name)
-    spec = build_pass(recipe, frames=args.frames, background_frames=args.background_frames,
+    spec = build_pass(recipe, root=use_checkout_shared_data(),
+                      frames=args.frames, background_frames=args.background_frames,
                       background_distance_m=args.bg_distance)
     print(f"pass {name}: wall {spec.wall.name} {spec.wall.width_m:.1f} x {spec.wall.height_m:.1f} m, background "
           f"{spec.background.name} at {spec.background_distance_m:.0f} m, {spec.frames} frames "
@@ -84,13 +89,12 @@ def sim_frames(args) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
 def facade_pose(index: int, position: np.ndarray):
     """The exact telemetry pose (``companion.records.Pose``) of a photo pass's camera at facade (along, out, up),
     facing the wall with the gimbal level: what the onboard masker reads (its parallax baselines are relative)."""
-    from companion.records import Pose
-    from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
+    from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     along, out, up = (float(v) for v in position)
     frame = wall_frame(SyntheticWall(length_m=12.0, height_m=3.0))  # any wall: only its site and heading matter
-    row = reported_pose(np.random.default_rng(0), frame, (along, out, up, 0.0, 0.0), TelemetryErrors(), index)
-    return Pose.from_json({**row, "t_boot_s": index / 10.0})
+    return reported_pose(np.random.default_rng(0), frame, (along, out, up, 0.0, 0.0), TelemetryErrors(), index,
+                         time_s=index / 10.0)
 
 
 def _parallax_maskers(sessions: dict[str, DepthSession], rules: list[str], params: dict, fx: float, width: int,

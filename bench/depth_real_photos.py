@@ -1,4 +1,5 @@
-"""Depth-mask figures on HELD-OUT real photos only (companion.depth.realdata's fixed split), models side by side.
+"""Depth-mask figures on HELD-OUT real photos only (the fixed split of companion.depth.training.realdata),
+models side by side.
 
 Usage: python bench/depth_real_photos.py [--model A.onnx B.onnx ...] [--data ../shared/data] [--composites 200]
        [--json OUT]
@@ -31,11 +32,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from checkout import use_checkout_shared_data
 
 from companion.depth.masker import Masker
-from companion.depth.realdata import default_data_root, facade_mask, list_real_photos, load_image
 from companion.depth.roi import pixel_error_ratio
 from companion.depth.session import DEFAULT_MODEL
+from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
 from companion.records import Frame, TaggedFrame
 
 _SKY_VEG_RGB = ((0, 128, 128), (0, 128, 0))
@@ -139,7 +141,7 @@ def strecha_photos(masker: Masker, photos) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", nargs="+", default=[str(DEFAULT_MODEL)])
-    ap.add_argument("--data", default=str(default_data_root()))
+    ap.add_argument("--data", default=str(use_checkout_shared_data()), help="the shared data folder")
     ap.add_argument("--composites", type=int, default=200, help="held-out composite frames per model")
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--json", default=None)

@@ -1,6 +1,6 @@
 """How the two overlap estimators differ: Eq. 2 (mean displacement) vs the homography polygon, against truth.
 
-Synthetic wall views (companion.keyframes.synthetic) with known translation, rotation and zoom (standoff
+Synthetic wall views (evaluation.keyframes.synthetic) with known translation, rotation and zoom (standoff
 change); prints R from both estimators on the same RANSAC inliers and the true footprint overlap.
 
     python bench/gate_estimators.py
@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 
 from companion.keyframes import FeatureConfig, FeatureExtractor, OverlapEstimator
-from companion.keyframes.synthetic import View, render, textured_wall, true_overlap
+from evaluation.keyframes.synthetic import View, render, textured_wall, true_overlap
 
 CASES = [  # (dx, dy, angle_deg, zoom) of Iq relative to Ip, dx/dy in texture px
     (0, 0, 0, 1.0),

@@ -24,7 +24,11 @@ import platform
 import time
 from pathlib import Path
 
-from companion.keyframes.evaluate import (
+from companion.keyframes.features import FeatureConfig
+from companion.keyframes.gate import GateConfig
+from companion.keyframes.motion import WallMotionPredictor
+from companion.keyframes.overlap import METHODS, OverlapConfig
+from evaluation.keyframes.evaluate import (
     PoseNoise,
     evaluate_gate,
     format_report,
@@ -32,10 +36,6 @@ from companion.keyframes.evaluate import (
     plot_curve,
     telemetry_poses,
 )
-from companion.keyframes.features import FeatureConfig
-from companion.keyframes.gate import GateConfig
-from companion.keyframes.motion import WallMotionPredictor
-from companion.keyframes.overlap import METHODS, OverlapConfig
 
 
 def model_masks(rec):

@@ -26,15 +26,15 @@ from dataclasses import replace
 import numpy as np
 
 from companion.errors import CompanionError
-from companion.keyframes.evaluate import PoseNoise, evaluate_gate, format_table, telemetry_poses
 from companion.keyframes.features import FeatureConfig
 from companion.keyframes.gate import GateConfig
 from companion.keyframes.motion import WallMotionPredictor
-from companion.keyframes.synthetic import SITE
+from evaluation.keyframes.evaluate import PoseNoise, evaluate_gate, format_table, telemetry_poses
+from evaluation.keyframes.synthetic import SITE
 
 
 class PhotoPassRecording:
-    """The duck-typed recording interface of companion.keyframes.evaluate over a rendered photo pass."""
+    """The duck-typed recording interface of evaluation.keyframes.evaluate over a rendered photo pass."""
 
     def __init__(self, renderer, fps: float = 10.0):
         self.r = renderer
@@ -110,6 +110,8 @@ def main() -> None:
     ap.add_argument("--rth", type=float, default=0.80)
     args = ap.parse_args()
     try:
+        from checkout import use_checkout_shared_data
+
         from sim.camera.model import CameraModel
         from sim.camera.photo_passes import DEFAULT_PASSES, RECIPES, build_pass
         from sim.camera.photo_scene import PhotoPassRenderer
@@ -125,7 +127,8 @@ def main() -> None:
     cfg = GateConfig(rth=args.rth, features=FeatureConfig(long_side_px=960))
     print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
     for name in args.passes or DEFAULT_PASSES:
-        spec = build_pass(RECIPES[name], frames=args.frames, background_frames=max(2, round(args.frames * 22 / 250)))
+        spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                          frames=args.frames, background_frames=max(2, round(args.frames * 22 / 250)))
         cam = spec.camera
         spec = replace(spec, camera=CameraModel(args.width, round(cam.height * args.width / cam.width), cam.hfov_deg))
         rec = PhotoPassRecording(PhotoPassRenderer(spec))

@@ -1,6 +1,6 @@
 """Keyframe gate speed: 118 frames at 3840x2160 (the paper's pass size) and sustained frames/s at 1920x1080.
 
-Frames are synthetic wall views on a continuous serpentine path (companion.keyframes.synthetic), rendered
+Frames are synthetic wall views on a continuous serpentine path (evaluation.keyframes.synthetic), rendered
 before each push; only the time inside ``gate.push``/``gate.flush`` is counted (SIFT on the working copy,
 matching, RANSAC, sharpness). The paper's selection of its 118 images took 40 min 49 s (2449 s) offline on a
 Xeon E5-2630 v4.
@@ -19,7 +19,7 @@ import time
 import cv2
 
 from companion.keyframes import FeatureConfig, GateConfig, KeyframeGate
-from companion.keyframes.synthetic import lawnmower, masked_frame, render, textured_wall
+from evaluation.keyframes.synthetic import lawnmower, masked_frame, render, textured_wall
 
 PAPER_SECONDS = 40 * 60 + 49
 

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from checkout import use_checkout_shared_data
 from PIL import Image
 
-from companion.depth.evaluate import evaluate_recording
 from companion.depth.masker import Masker
-from companion.depth.realdata import facade_mask, list_real_photos, load_image
+from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
 from companion.records import Frame, TaggedFrame
+from evaluation.depth.evaluate import evaluate_recording
 from sim.camera.photo_passes import RECIPES, build_pass
 from sim.camera.photo_scene import PhotoPassRenderer
 from sim.camera.recording import generate_recording
@@ -55,7 +56,7 @@ def acceptance(masker: Masker, recording: Path, backgrounds: dict[str, np.ndarra
         out[f"{name}_kept_pct / plain_left_kept_pct"] = (round(100 * roi.roi_fraction, 1), round(100 * plain, 1))
         ok &= (masked is not None and roi.roi_fraction >= 0.85 and plain >= 0.99
                and masked.mask[h // 2 :, :w].min() == 255)
-    held = {p.image.name: p for p in list_real_photos(split="heldout")}
+    held = {p.image.name: p for p in list_real_photos(use_checkout_shared_data(), split="heldout")}
     for name in ("DJI_0977_rgb.JPG", "DJI_0981_rgb.JPG"):
         _, roi = _roi(masker, load_image(held[name]))
         out[f"{name}_kept_pct"] = round(100 * roi.roi_fraction, 1)
@@ -85,7 +86,8 @@ def main() -> None:
                                        stride=211, max_frames=12)
         backgrounds = {}
         for name in PASSES:
-            renderer = PhotoPassRenderer(build_pass(RECIPES[name], frames=12, background_frames=2))
+            renderer = PhotoPassRenderer(build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                                                    frames=12, background_frames=2))
             backgrounds[name] = renderer.render(len(renderer) - 1).image
         for model in args.models:
             figures, ok = acceptance(Masker(model, threads=1), recording, backgrounds)

@@ -5,7 +5,7 @@
 Each pass (100 frames at the pass's camera, 12 past the wall's end, as bench/depth_real_passes.py) is masked in
 capture order by the onboard ``Masker`` (shipped ``sim`` model + parallax) once per rule set, with exact telemetry.
 Prints every frame where the two differ: the frame's true wall share, its trusted far share, and the background
-kept and wall lost (shares of the frame) under each rule set. docs/DEPTH.md "A far speck" quotes it.
+kept and wall lost (shares of the frame) under each rule set. docs/DEPTH.md "A far speck" names it.
 """
 
 from __future__ import annotations
@@ -18,10 +18,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from checkout import use_checkout_shared_data
+
 import companion.depth.parallax as parallax_module  # noqa: E402
 from companion.depth.masker import Masker  # noqa: E402
-from companion.depth.parallax import PARALLAX_RULES, SequenceParallax  # noqa: E402
+from companion.depth.parallax import SequenceParallax  # noqa: E402
 from companion.records import Frame, TaggedFrame  # noqa: E402
+from evaluation.depth.parallax_rules import PARALLAX_RULES  # noqa: E402
 from sim.camera.photo_passes import RECIPES, build_pass  # noqa: E402
 from sim.camera.photo_scene import PhotoPassRenderer  # noqa: E402
 from tests.test_mask_wall import _pose  # noqa: E402
@@ -50,7 +53,8 @@ def main() -> None:
     args = ap.parse_args()
     seen = _far_share_spy()
     for name in args.passes:
-        spec = build_pass(RECIPES[name], frames=args.frames, background_frames=args.background_frames)
+        spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                          frames=args.frames, background_frames=args.background_frames)
         renderer = PhotoPassRenderer(spec)
         maskers = [Masker("sim", parallax=SequenceParallax(spec.camera.hfov_deg, PARALLAX_RULES[rule]))
                    for rule in args.rules]

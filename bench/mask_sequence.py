@@ -6,6 +6,7 @@ command does, once per photo alone and once as a sequence (parallax between neig
 
     python bench/mask_sequence.py                                   # 4 passes, 80 frames, 960 px, sim + real-nc
     python bench/mask_sequence.py --passes ornate-entry --frames 24 --background-frames 6 --width 640 --models sim
+    python bench/mask_sequence.py --models sim --width 640 --spacing 3 --standoff 13 --rules yes,before-align
 """
 
 from __future__ import annotations
@@ -20,17 +21,49 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from checkout import use_checkout_shared_data
 
 from companion.depth.masker import Masker
+from companion.depth.parallax import ParallaxParams
 from companion.depth.photomask import mask_photos
 from sim.camera.photo_passes import DEFAULT_PASSES, RECIPES, build_pass
 from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
 
+# --sequence rule sets compared side by side: the shipped rules, and the rules before issue 27 (no alignment of
+# photos whose dominant motion is beyond DIS's reach)
+SEQUENCE_RULES = {"yes": ParallaxParams(),
+                  "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"),
+                                                 sequence_wall_depth=False),
+                  "no-wall-depth": ParallaxParams(sequence_wall_depth=False)}
 
-def render_pass(name: str, frames: int, background_frames: int, width: int, folder: Path) -> list[np.ndarray]:
+
+def pass_spec(name: str, frames: int, background_frames: int, width: int, standoff_m: float = 4.0,
+              spacing_m: float | None = None):
+    """A held-out pass (sim/camera/photo_passes.py) or a validation pass (training photos,
+    bench/depth_error_regions.py) at ``standoff_m`` with its wall scaled by standoff / 4 m (the frames look as at
+    4 m; only the camera's distance, and so the metres between photos for the same image motion, change).
+    ``spacing_m``: stills that far apart along each strip (``frames`` is then ignored; ``background_frames``
+    past the wall's end at the same spacing)."""
+    from bench.depth_error_regions import VALIDATION, validation_spec
+
+    spec = (validation_spec(name, frames, background_frames) if name in VALIDATION
+            else build_pass(RECIPES[name], root=use_checkout_shared_data(), frames=frames,
+                       background_frames=background_frames))
+    scale = standoff_m / spec.standoff_m
+    wall = dataclasses.replace(spec.wall, width_m=spec.wall.width_m * scale)
+    strips = tuple(u * scale for u in spec.strips_up_m) if spec.strips_up_m else None
+    camera = CameraModel(width=width, height=width * 9 // 16, hfov_deg=69.0)
+    spec = dataclasses.replace(spec, wall=wall, strips_up_m=strips, standoff_m=standoff_m, camera=camera)
+    if spacing_m is not None:
+        per_strip = max(1, int(np.ceil((wall.width_m + 0.05) / spacing_m)))
+        spec = dataclasses.replace(spec, frames=per_strip * len(strips or (0,)) + background_frames)
+    return spec
+
+
+def render_pass(name: str, frames: int, background_frames: int, width: int, folder: Path,
+                standoff_m: float = 4.0, spacing_m: float | None = None) -> list[np.ndarray]:
     """The pass's photos written as PNG files in capture order; their truth masks."""
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=background_frames)
-    spec = dataclasses.replace(spec, camera=CameraModel(width=width, height=width * 9 // 16, hfov_deg=69.0))
+    spec = pass_spec(name, frames, background_frames, width, standoff_m, spacing_m)
     renderer = PhotoPassRenderer(spec)
     truths = []
     for i in range(len(renderer)):
@@ -66,24 +99,34 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=80)
     ap.add_argument("--background-frames", type=int, default=16)
     ap.add_argument("--width", type=int, default=960, help="photo width in px (16:9, 69 deg hfov)")
+    ap.add_argument("--standoff", type=float, default=4.0,
+                    help="camera distance to the wall in metres (the wall is scaled by standoff / 4 m)")
+    ap.add_argument("--spacing", type=float, default=None,
+                    help="stills this many metres apart along each strip (overrides --frames)")
+    ap.add_argument("--rules", type=lambda t: [r for r in t.split(",") if r], default=["yes"],
+                    help=f"--sequence rule sets beside the photos alone: {', '.join(SEQUENCE_RULES)}")
     args = ap.parse_args()
     print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
-    print(f"{args.frames} frames per pass ({args.background_frames} past the wall's end), {args.width} px wide")
-    print("\n| pass | model | --sequence | error mean / p95 | wall-only frames | background-only dropped | "
+    spacing = f"stills {args.spacing} m apart" if args.spacing else f"{args.frames} frames per pass"
+    print(f"{spacing} ({args.background_frames} past the wall's end), {args.width} px wide, "
+          f"{args.standoff} m from the wall")
+    print("\n| pass | model | --sequence (rules) | error mean / p95 | wall-only frames | background-only dropped | "
           "frames with wall dropped | s |")
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in [p.strip() for p in args.passes.split(",") if p.strip()]:
             folder = Path(tmp) / name
             folder.mkdir()
-            truths = render_pass(name, args.frames, args.background_frames, args.width, folder)
+            truths = render_pass(name, args.frames, args.background_frames, args.width, folder, args.standoff,
+                                 args.spacing)
             for model in [m.strip() for m in args.models.split(",") if m.strip()]:
                 masker = Masker(model)
-                for sequence in (False, True):
+                for rule in [None, *args.rules]:
                     t0 = time.perf_counter()
-                    out = Path(tmp) / f"{name}-{Path(model).stem}-{sequence}"
-                    results = mask_photos([folder], out, masker, sequence=sequence)
-                    print(f"| {name} | {model} | {'yes' if sequence else 'no'} | {score(results, truths)} | "
+                    out = Path(tmp) / f"{name}-{Path(model).stem}-{rule}"
+                    results = mask_photos([folder], out, masker, sequence=rule is not None,
+                                          sequence_params=SEQUENCE_RULES.get(rule))
+                    print(f"| {name} | {model} | {rule or 'no'} | {score(results, truths)} | "
                           f"{time.perf_counter() - t0:.0f} |", flush=True)
 
 

@@ -42,6 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 def render(name: str, frames: int, width: int):
     """The pass's renderer as bench/stitch_eval.py builds it (no gate yet)."""
+    from checkout import use_checkout_shared_data
     from stitch_photo_passes import RenderedPass
 
     from sim.camera.model import CameraModel
@@ -50,7 +51,8 @@ def render(name: str, frames: int, width: int):
 
     background_frames = max(2, round(frames * 22 / 250))
     if name in RECIPES:
-        spec = build_pass(RECIPES[name], frames=frames, background_frames=background_frames)
+        spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                          frames=frames, background_frames=background_frames)
     else:  # a validation pass of training-split photos (bench/depth_error_regions.py): rules are chosen there
         spec = validation_spec(name, frames, background_frames)
     cam = spec.camera
@@ -96,10 +98,11 @@ def mask_pass(rp, model: str, rules: list[str]):
     from stitch_photo_passes import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     from companion.depth.masker import Masker
-    from companion.depth.parallax import PARALLAX_RULES, SequenceParallax
+    from companion.depth.parallax import SequenceParallax
     from companion.depth.parallax_first import LaterReference, judged_alone, reference_mark
     from companion.depth.session import DepthSession
-    from companion.records import Frame, Pose, TaggedFrame
+    from companion.records import Frame, TaggedFrame
+    from evaluation.depth.parallax_rules import PARALLAX_RULES
 
     spec = rp.spec
     session = DepthSession(model)
@@ -116,8 +119,9 @@ def mask_pass(rp, model: str, rules: list[str]):
     for i in range(len(rp.renderer)):
         f = rp.renderer.render(i)
         truth[i] = f.roi_mask > 0
-        row = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
-        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), Pose.from_json({**row, "t_boot_s": i / 10.0}))
+        pose = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i,
+                             time_s=i / 10.0)
+        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), pose)
         for rule in rules:
             recorders[rule].last = "sure"
             mark = reference_mark(maskers[rule])
@@ -248,7 +252,7 @@ def _picture(path: Path, image, truth, mask, entry) -> None:
 
 
 def main() -> None:
-    from companion.depth.parallax import PARALLAX_RULES
+    from evaluation.depth.parallax_rules import PARALLAX_RULES
     from sim.camera.photo_passes import DEFAULT_PASSES
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -38,8 +38,8 @@ from companion.flight.standoff_loop import StandoffOptions  # noqa: E402
 from companion.resources import demo_mission  # noqa: E402
 from companion.spool.reader import load_spool  # noqa: E402
 from companion.stitch import StitchConfig, stitch  # noqa: E402
-from companion.stitch.evaluate import truth_homography, truth_on_grid  # noqa: E402
 from companion.stitch.geometry import apply_h  # noqa: E402
+from evaluation.stitch.evaluate import truth_homography, truth_on_grid  # noqa: E402
 from sim.camera.scene import Scene  # noqa: E402
 from sim.demo import fly_demo, plan_for_camera  # noqa: E402
 

@@ -44,10 +44,10 @@ import cv2
 import numpy as np
 
 from companion.stitch import StitchConfig, stitch
-from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
 from companion.stitch.inputs import load_recording_input
 from companion.stitch.render import MapGrid
-from companion.stitch.synthetic import TelemetryErrors
+from evaluation.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
+from evaluation.stitch.synthetic import TelemetryErrors
 
 NETWORK_FIRST = "-network-first"  # a shipped mask's label with main's first frames (bench/mask_wall_coverage.py)
 

@@ -11,7 +11,6 @@ whether the background photo can be matched in it.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -20,15 +19,24 @@ import numpy as np
 
 from companion.matching import match_descriptors
 from companion.ransac import ransac_homography
-from companion.stitch.evaluate import (
+from companion.records import Frame, Keyframe
+from companion.spool.writer import KeyframeSpool
+from companion.stitch.render import MapGrid
+from evaluation.stitch.evaluate import (
     EVALUATION_MATCHING,
     map_accuracy,
     register_to_truth,
     truth_homography,
     truth_on_grid,
 )
-from companion.stitch.render import MapGrid
-from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, spool_meta, wall_frame
+from evaluation.stitch.synthetic import (
+    CAPTURE_EPOCH_S,
+    SyntheticWall,
+    TelemetryErrors,
+    reported_pose,
+    spool_meta,
+    wall_frame,
+)
 
 
 @dataclass(frozen=True)
@@ -46,11 +54,14 @@ class RenderedPass:
 
 def render_pass(name: str, frames: int, width: int) -> RenderedPass:
     """Renders the pass and runs our gate on it (truth masks, exact telemetry) for the keyframes."""
+    from checkout import use_checkout_shared_data
+
     from sim.camera.model import CameraModel
     from sim.camera.photo_passes import RECIPES, build_pass
     from sim.camera.photo_scene import PhotoPassRenderer
 
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=max(2, round(frames * 22 / 250)))
+    spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                      frames=frames, background_frames=max(2, round(frames * 22 / 250)))
     cam = spec.camera
     spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
     renderer = PhotoPassRenderer(spec)
@@ -66,10 +77,10 @@ def gate_pass(rp: RenderedPass, masks: dict[int, np.ndarray | None] | None) -> R
     the spools of a shipped mask hold the keyframes the chain keeps with that mask."""
     from gate_photo_passes import PhotoPassRecording  # beside this script
 
-    from companion.keyframes.evaluate import evaluate_gate, telemetry_poses
     from companion.keyframes.features import FeatureConfig
     from companion.keyframes.gate import GateConfig
-    from companion.keyframes.synthetic import SITE
+    from evaluation.keyframes.evaluate import evaluate_gate, telemetry_poses
+    from evaluation.keyframes.synthetic import SITE
 
     rec = PhotoPassRecording(rp.renderer)
     cfg = GateConfig(rth=0.80, features=FeatureConfig(long_side_px=max(640, rp.spec.camera.width)))
@@ -103,29 +114,22 @@ def jump_errors(rp: RenderedPass, frames: list[int], noise_m: float, noise_deg: 
 
 def write_spool(rp: RenderedPass, frames: list[int], out: Path, *, mask: str, errors: TelemetryErrors,
                 seed: int = 0, model_masks: dict[int, np.ndarray] | None = None) -> Path:
-    """A keyframe spool of ``frames`` of the pass: images, masks (``truth``, ``none``, or a depth model's:
-    ``model_masks`` from :func:`pass_masks`) and telemetry as reported with ``errors``."""
+    """A keyframe spool of ``frames`` of the pass, written by the product's spool writer: images, masks (``truth``,
+    ``none``: the whole frame, as ``companion cull --no-mask`` spools it, or a depth model's: ``model_masks`` from
+    :func:`pass_masks`) and telemetry as reported with ``errors``. Each keyframe's index is its frame in the pass."""
     spec = rp.spec
     cam = spec.camera
     wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
     frame = wall_frame(wall)
     rng = np.random.default_rng(seed)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
-    lines = []
+    spool = KeyframeSpool(out, meta=spool_meta(frame, wall, cam.width, cam.height, cam.hfov_deg, spec.standoff_m),
+                          settings={"synthetic": True, "mask": mask})
     for k, i in enumerate(frames):
         f = rp.renderer.render(i)
-        name = f"frames/{k:06d}.jpg"
-        cv2.imwrite(str(out / name), f.image, [cv2.IMWRITE_JPEG_QUALITY, 95])
-        entry = {"index": k, "image": name, "source_frame": i}
         roi = f.roi_mask if mask == "truth" else (None if mask == "none" else model_masks[i])
-        if roi is not None:
-            cv2.imwrite(str(out / f"frames/{k:06d}_mask.png"), roi)
-            entry["mask"] = f"frames/{k:06d}_mask.png"
-        entry["pose"] = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), errors, k)
-        lines.append(json.dumps(entry))
-    meta = spool_meta(frame, wall, cam.width, cam.height, cam.hfov_deg, spec.standoff_m)
-    (out / "spool.json").write_text(json.dumps(meta, indent=1))
-    (out / "manifest.jsonl").write_text("\n".join(lines) + "\n")
+        roi = np.full(f.image.shape[:2], 255, np.uint8) if roi is None else roi
+        pose = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), errors, k)
+        spool.append(Keyframe(Frame(i, CAPTURE_EPOCH_S + k, f.image), pose, roi))
     return out
 
 
@@ -152,7 +156,7 @@ def shipped_masks(spec, renderer, model: str, *, parallax: bool = True,
     from companion.depth.masker import Masker
     from companion.depth.parallax import SequenceParallax
     from companion.depth.parallax_first import LaterReference, masked_without_reference
-    from companion.records import Frame, Pose, TaggedFrame
+    from companion.records import Frame, TaggedFrame
 
     wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
     frame = wall_frame(wall)
@@ -171,8 +175,9 @@ def shipped_masks(spec, renderer, model: str, *, parallax: bool = True,
 
     for i in range(len(renderer)):
         f = renderer.render(i)
-        row = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
-        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), Pose.from_json({**row, "t_boot_s": i / 10.0}))
+        pose = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i,
+                             time_s=i / 10.0)
+        tagged = TaggedFrame(Frame(i, i / 10.0, f.image), pose)
         masked, alone = masked_without_reference(masker, tagged)
         masks[i] = None if masked is None else masked.mask
         if later is not None:

@@ -31,11 +31,14 @@ SCORES = ("ssim", "coverage", "background_inliers", "connected", "shift_median_m
 
 def scene(name: str, frames: int, width: int) -> RenderedPass:
     """The pass's renderer (no gate: the keyframes are the spool's), as stitch_eval rendered it."""
+    from checkout import use_checkout_shared_data
+
     from sim.camera.model import CameraModel
     from sim.camera.photo_passes import RECIPES, build_pass
     from sim.camera.photo_scene import PhotoPassRenderer
 
-    spec = build_pass(RECIPES[name], frames=frames, background_frames=max(2, round(frames * 22 / 250)))
+    spec = build_pass(RECIPES[name], root=use_checkout_shared_data(),
+                      frames=frames, background_frames=max(2, round(frames * 22 / 250)))
     cam = spec.camera
     spec = replace(spec, camera=CameraModel(width, round(cam.height * width / cam.width), cam.hfov_deg))
     return RenderedPass(name, spec, PhotoPassRenderer(spec), [], [], [], [])
@@ -43,7 +46,7 @@ def scene(name: str, frames: int, width: int) -> RenderedPass:
 
 def restitch(rp: RenderedPass, spool: Path, old: Path, dest: Path, *, image_only: bool) -> dict:
     lines = (spool / "manifest.jsonl").read_text().splitlines()
-    frames = [json.loads(line)["source_frame"] for line in lines if line.strip()]
+    frames = [json.loads(line)["index"] for line in lines if line.strip()]  # the pass's frames (write_spool)
     for sub in ("features", "pairs"):
         if (old / "cache" / sub).is_dir() and not (dest / "cache" / sub).exists():
             shutil.copytree(old / "cache" / sub, dest / "cache" / sub)

@@ -3,7 +3,7 @@
 
 The wall is real: the plain grey cladding of a real UAV photo (`real-uav-facade`, DJI Mavic 2 Enterprise Dual,
 left 80 % of the frame below the on-screen date, i.e. without the window) is the wall texture of a synthetic
-pass (companion.stitch.synthetic: pinhole views of the texture at its own resolution, a far background beyond
+pass (evaluation.stitch.synthetic: pinhole views of the texture at its own resolution, a far background beyond
 the wall's ends, exact poses), so every keyframe shows real plain-wall texture. Printed per setting: keyframes
 connected by image-only alignment (`--no-poses`), pairs registered, features per keyframe, time; with
 `--poses` also the same with telemetry. Then the two real photos themselves (two views of the same wall)
@@ -31,7 +31,7 @@ from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect
 from companion.stitch.pairs import PairSettings, match_pair
-from companion.stitch.synthetic import make_spool, wall_for_texture
+from evaluation.stitch.synthetic import make_spool, wall_for_texture
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-uav-facade"
 SETTINGS = {

@@ -23,6 +23,7 @@ JPEG_EOI = b"\xff\xd9"  # end of image: a complete JPEG has one after its last s
 TRUNCATED = "truncated (the JPEG ends before its end-of-image marker)"
 UNDECODABLE = "not a readable image (OpenCV cannot decode it)"
 EMPTY = "empty (every pixel is black, or the image is a few pixels in size)"
+ZERO_BYTES = "an empty file (0 bytes: a write that never happened)"
 
 
 @dataclass(frozen=True)
@@ -61,9 +62,14 @@ def read_image_file(path: str | Path, flags: int = cv2.IMREAD_COLOR, *, reject_b
         data = path.read_bytes()
     except OSError as exc:
         return ImageRead(path, None, f"cannot be read ({exc.strerror or exc})")
+    if not data:  # OpenCV asserts on an empty buffer rather than returning None
+        return ImageRead(path, None, ZERO_BYTES)
     if jpeg_truncated(data):
         return ImageRead(path, None, TRUNCATED)
-    image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    except cv2.error:
+        image = None
     if image is None:
         return ImageRead(path, None, UNDECODABLE)
     if reject_blank and (min(image.shape[:2]) <= 8 or not image.any()):

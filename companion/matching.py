@@ -30,8 +30,8 @@ class MatcherSettings:
     nearest (repeated texture fails it and gives no match rather than a wrong one). ``kind``: ``"flann"``
     (randomised kd-trees, approximate and fast) or ``"bf"`` (exact brute force L2, the reference). ``trees``: kd-trees
     in the FLANN forest. ``checks``: leaves FLANN visits per query; on SIFT 32 finds the ratio-test matches that 64
-    finds at about half the search time (docs/BENCHMARKS.md, Keyframe gate, "Cost per measured frame", and the
-    stitcher's 4K pairs)."""
+    finds at about half the search time (measured on the gate's frames and the stitcher's 4K pairs: the dated runs
+    in `git show 2510c03:docs/BENCHMARKS.md`, "Cost per measured frame")."""
 
     ratio: float = 0.75
     kind: str = "flann"

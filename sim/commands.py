@@ -51,8 +51,8 @@ def _register_eval_mask(what: argparse._SubParsersAction) -> None:
 
 
 def run_eval_mask(args: argparse.Namespace) -> int:
-    from companion.depth.evaluate import evaluate_recording
     from companion.depth.masker import Masker
+    from evaluation.depth.evaluate import evaluate_recording
 
     masker = Masker(args.model)
     summaries = []
@@ -94,7 +94,7 @@ def gate_config_from_args(args: argparse.Namespace) -> GateConfig:
 
 
 def run_eval_gate(args: argparse.Namespace) -> int:
-    from companion.keyframes.evaluate import evaluate_gate, format_report, plot_curve
+    from evaluation.keyframes.evaluate import evaluate_gate, format_report, plot_curve
     from sim.camera.recording import load_recording
 
     path = Path(args.recording)

@@ -1,5 +1,5 @@
 """Small synthetic sites for the site tests and bench/site_scale.py: the faces of one building, each a main flight
-with a hole and a re-fly that flies only the hole (``companion.stitch.synthetic.make_spool`` moved onto each face).
+with a hole and a re-fly that flies only the hole (``evaluation.stitch.synthetic.make_spool`` moved onto each face).
 
 make_spool flies one wall at a fixed place; a face here is that spool moved onto another wall: spool.json gets the
 face's ends and every pose is carried from the fixed wall's frame into the face's (same along/out/up, the yaw
@@ -17,7 +17,7 @@ import pymap3d
 
 from companion.geo import FacadeFrame, GeoPoint
 from companion.spool.layout import MANIFEST, META
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 CORNER = GeoPoint(37.56650, 126.97800, 30.0)  # the building's south-west corner, ground level
 

@@ -15,9 +15,9 @@ from companion.capture.sources import ImageFolderSource
 from companion.cli import main
 from companion.errors import CompanionError
 from companion.image_files import TRUNCATED, jpeg_truncated, read_image_file
-from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.spool.layout import CULL_REPORT
 from companion.stitch.features import read_image
+from evaluation.keyframes.synthetic import render, sweep, textured_wall
 
 FIXTURES = Path(__file__).parent / "depth_fixtures"
 
@@ -73,7 +73,8 @@ def test_cull_counts_and_names_the_cut_frame(tmp_path, capsys):
     log.write_text("".join(json.dumps({**row, "t_boot_s": i / 10, "lon": 126.978 + i * 1e-7}) + "\n"
                            for i in range(20)))
     spool = tmp_path / "spool"
-    main(["cull", str(frames), "--telemetry", str(log), "--out", str(spool), "--no-mask", "--fps", "10"])
+    main(["cull", str(frames), "--telemetry", str(log), "--out", str(spool), "--no-mask", "--no-mission",
+          "--fps", "10"])
     printed = capsys.readouterr()
     assert "(1 corrupt," in printed.out and f"0005.jpg: {TRUNCATED}" in printed.out, printed.out
     report = json.loads((spool / CULL_REPORT).read_text())

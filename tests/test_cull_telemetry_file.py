@@ -27,7 +27,8 @@ def _cull(tmp_path: Path, text: str, capsys) -> tuple[int, str]:
     cv2.imwrite(str(frames / "0000.jpg"), np.full((60, 80, 3), 90, np.uint8))
     log = tmp_path / "flight.json"
     log.write_text(text)
-    code = main(["cull", str(frames), "--telemetry", str(log), "--out", str(tmp_path / "spool"), "--no-mask"])
+    code = main(["cull", str(frames), "--telemetry", str(log), "--out", str(tmp_path / "spool"), "--no-mask",
+                 "--no-mission"])
     err = capsys.readouterr().err
     assert not (tmp_path / "spool").exists()  # refused before anything was written
     assert "Traceback" not in err

@@ -1,4 +1,5 @@
-"""Dependencies go one way: ``sim`` uses ``companion``, never the reverse, and companion's own parts (subpackages and
+"""Dependencies go one way: ``sim`` uses ``evaluation`` and ``companion``, ``evaluation`` uses ``companion``, never
+the reverse (the product never imports its evaluation nor the simulator), and companion's own parts (subpackages and
 top-level modules) import each other without a cycle. Read from the source (every import statement, including
 those inside functions), so a hidden import cannot slip through."""
 
@@ -10,10 +11,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "companion"
+EVALUATION = ROOT / "evaluation"
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+def module_name(path: Path, root: Path = ROOT) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -83,14 +85,49 @@ def find_cycle(graph: dict[str, dict[str, str]]) -> list[str] | None:
     return None
 
 
-def test_companion_never_imports_sim():
-    offending = [
-        f"{path.relative_to(ROOT)}:{line} imports {target}"
-        for path in sorted(PACKAGE.rglob("*.py"))
-        for target, line in imports(path)
-        if target == "sim" or target.startswith("sim.")
+def imports_of(package: Path, top: str) -> list[str]:
+    """'file:line imports module' for every import of the top-level package ``top`` in ``package``'s files."""
+    return [
+        f"{path.relative_to(package.parent)}:{line} imports {target}"
+        for path in sorted(package.rglob("*.py"))
+        for target, line in imports(path, module_name(path, package.parent))
+        if target == top or target.startswith(f"{top}.")
     ]
+
+
+def test_companion_never_imports_sim():
+    offending = imports_of(PACKAGE, "sim")
     assert not offending, "companion must not import sim (sim registers what it provides):\n" + "\n".join(offending)
+
+
+def test_companion_never_imports_its_evaluation():
+    """The product's behaviour cannot depend on synthetic scenes, evaluators or where the real photos are."""
+    offending = imports_of(PACKAGE, "evaluation")
+    assert not offending, "companion must not import evaluation:\n" + "\n".join(offending)
+    named = [
+        (str(path.relative_to(ROOT)), node.value)
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+        if isinstance(node, ast.Constant) and isinstance(node.value, str)
+        and (node.value == "evaluation" or node.value.startswith("evaluation."))
+    ]
+    assert not named, f"a string naming an evaluation module is an import in disguise: {named}"
+
+
+def test_evaluation_never_imports_sim():
+    """sim's ``eval`` commands import evaluation; evaluation reaches simulator recordings only through the plugin
+    hooks (companion.plugins.provided), as the product does."""
+    offending = imports_of(EVALUATION, "sim")
+    assert not offending, "evaluation must not import sim:\n" + "\n".join(offending)
+
+
+def test_the_import_walk_finds_an_evaluation_import_in_a_function(tmp_path):
+    package = tmp_path / "companion"
+    package.mkdir()
+    (package / "probe.py").write_text("import os\n\ndef f():\n    from evaluation.stitch import synthetic\n")
+    (package / "clean.py").write_text("from companion.stitch import worker\n")
+    assert imports_of(package, "evaluation") == ["companion/probe.py:4 imports evaluation.stitch",
+                                                 "companion/probe.py:4 imports evaluation.stitch.synthetic"]
 
 
 def test_companion_reaches_sim_only_through_the_named_plugin_hook():

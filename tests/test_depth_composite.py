@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.depth.realdata import default_data_root, list_real_photos
 from companion.depth.session import SHIPPED_MODELS
 from companion.depth.training.composite import (
     BACKGROUND_M,
@@ -20,10 +19,12 @@ from companion.depth.training.composite import (
     compose,
     load_photo_bank,
 )
+from companion.depth.training.realdata import list_real_photos
+from evaluation.shared_data import shared_data_root
 
 SIM_MODEL = SHIPPED_MODELS["sim"]  # the shipped simulator-only model: where real-photo fine-tunes start
 
-DATA = default_data_root()
+DATA = shared_data_root()
 needs_data = pytest.mark.skipif(not (DATA / "real-facades").is_dir(), reason="../shared/data not beside the checkout")
 MAX_DEPTH = 100.0
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from companion.cli import main
-from companion.depth.evaluate import evaluate_recording
 from companion.depth.masker import Masker
 from companion.records import Frame, TaggedFrame
+from evaluation.depth.evaluate import evaluate_recording
 
 FIXTURES = Path(__file__).parent / "depth_fixtures"
 MISSION = Path(__file__).parents[1] / "missions" / "demo-facade.yaml"

@@ -321,9 +321,10 @@ def test_the_masker_carries_the_wall_only_with_the_rule_on():
 def _training_photo_pass(camera: CameraModel):
     """Validation pass ``val-b0169-40`` of bench/depth_error_regions.py (training-split photos: a CMP facade whose
     upper strip ends in a plain white balustrade, a Boston street 40 m behind) at a smaller camera."""
-    from companion.depth.realdata import facade_mask, list_real_photos, load_image
+    from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
+    from evaluation.shared_data import shared_data_root
 
-    photos = {p.image.name: p for p in list_real_photos()}
+    photos = {p.image.name: p for p in list_real_photos(shared_data_root())}
     wall_p, bg_p = photos["cmp_b0169.jpg"], photos["static_boston_street_april__p1010115.jpg"]
     assert wall_p.split == "train" and bg_p.split == "train"  # never a held-out photo in a test of a rule
     wall = PhotoTexture(wall_p.image.name, load_image(wall_p), 14.0, facade_mask(wall_p))
@@ -344,7 +345,8 @@ def test_a_strip_of_wall_the_flow_calls_far_is_kept_by_the_wall_plane_check():
     dropped."""
     import cv2
 
-    from companion.depth.parallax import PARALLAX_RULES, dense_flow, depth_from_flow
+    from companion.depth.parallax import dense_flow, depth_from_flow
+    from evaluation.depth.parallax_rules import PARALLAX_RULES
 
     cam = CameraModel(width=1920, height=1080, hfov_deg=69.0)  # the pass as the bench renders it
     r = _training_photo_pass(cam)

@@ -1,10 +1,10 @@
 """The real-photo model's mask on real photos (issue 13): what a real wall, real windows and a real far background
 must give.
 
-These use held-out photos only (companion.depth.realdata) and the shipped ``real-nc`` model, the one an engineer
-selects for real walls (``depth_model: real-nc``). The simulator-only ``sim`` model, still the default because the
-simulator's scenes (demo, SITL tests) are its domain, fails them (DJI wall 89.8 % kept, far background kept on two
-passes: docs/DEPTH.md), so a model that is to become the default must pass them first.
+These use held-out photos only (split by companion.depth.training.realdata) and the shipped ``real-nc`` model,
+the one an engineer selects for real walls (``depth_model: real-nc``). The simulator-only ``sim`` model, still the
+default because the simulator's scenes (demo, SITL tests) are its domain, fails them (DJI wall 89.8 % kept, far
+background kept on two passes: docs/DEPTH.md), so a model that is to become the default must pass them first.
 """
 
 from __future__ import annotations
@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from companion.depth.evaluate import frame_eval
 from companion.depth.masker import Masker
-from companion.depth.realdata import facade_mask, list_real_photos, load_image
 from companion.depth.roi import extract_roi
+from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
 from companion.records import Frame, TaggedFrame
+from evaluation.depth.evaluate import frame_eval
+from evaluation.shared_data import shared_data_root
 from sim.camera.photo_passes import RECIPES, build_pass
 from sim.camera.photo_scene import PhotoPassRenderer
 
@@ -36,7 +37,7 @@ def _mask(masker: Masker, image: np.ndarray):
 @pytest.mark.parametrize("name", ["DJI_0977_rgb.JPG", "DJI_0981_rgb.JPG"])
 def test_real_dji_photos_keep_the_wall(masker, name):
     """The two DJI photos are all wall (grey cladding and, at the right edge, a window of the same wall)."""
-    photo = next(p for p in list_real_photos(split="heldout") if p.image.name == name)
+    photo = next(p for p in list_real_photos(shared_data_root(), split="heldout") if p.image.name == name)
     roi = _mask(masker, load_image(photo))
     assert not roi.empty
     assert roi.roi_fraction >= 0.98, f"{name}: only {100 * roi.roi_fraction:.1f} % of the wall kept"
@@ -44,7 +45,7 @@ def test_real_dji_photos_keep_the_wall(masker, name):
 
 def test_held_out_labelled_facade_keeps_its_windows(masker):
     """CMP b0283 (held out): a six-floor facade with window rows and balconies; its windows are facade."""
-    photo = next(p for p in list_real_photos(split="heldout") if p.image.name == "cmp_b0283.jpg")
+    photo = next(p for p in list_real_photos(shared_data_root(), split="heldout") if p.image.name == "cmp_b0283.jpg")
     roi = _mask(masker, load_image(photo))
     with Image.open(photo.label) as im:
         windows = np.array(im) == _CMP_WINDOW

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from companion.depth.realdata import facade_mask, list_real_photos, load_image, split_of
+from companion.depth.training.realdata import facade_mask, list_real_photos, load_image, split_of
+from evaluation.shared_data import shared_data_root
 
 
 def test_split_is_fixed_by_name_and_holds_out_test_only_sets():
-    photos = list_real_photos()
+    photos = list_real_photos(shared_data_root())
     train = [p for p in photos if p.split == "train"]
     heldout = [p for p in photos if p.split == "heldout"]
     assert len(photos) == len(train) + len(heldout) > 800
@@ -19,11 +20,11 @@ def test_split_is_fixed_by_name_and_holds_out_test_only_sets():
     assert all(p.split == "heldout" for p in photos if p.source in ("strecha", "dji"))
     # the split depends on the name only, not on the folder it is read from
     assert split_of(train[0].image) == split_of(train[0].image.with_name(train[0].image.name))
-    assert {p.image for p in list_real_photos(split="train")} == {p.image for p in train}
+    assert {p.image for p in list_real_photos(shared_data_root(), split="train")} == {p.image for p in train}
 
 
 def test_cmp_mask_keeps_windows_and_drops_background():
-    cmp = [p for p in list_real_photos() if p.source == "cmp"]
+    cmp = [p for p in list_real_photos(shared_data_root()) if p.source == "cmp"]
     photo = cmp[0]
     mask = facade_mask(photo)
     image = load_image(photo)
@@ -36,6 +37,6 @@ def test_cmp_mask_keeps_windows_and_drops_background():
 
 
 def test_labelme_background_photos_are_mostly_background():
-    backgrounds = [p for p in list_real_photos() if p.source == "labelmefacade-bg"][:5]
+    backgrounds = [p for p in list_real_photos(shared_data_root()) if p.source == "labelmefacade-bg"][:5]
     shares = [float((facade_mask(p) > 0).mean()) for p in backgrounds]
     assert all(s < 0.7 for s in shares), shares

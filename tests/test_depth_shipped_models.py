@@ -1,5 +1,6 @@
 """Both shipped depth models: selectable by name (mission ``depth_model``, ``--model``), licences stated in their
-metadata, and the real-photo model on held-out real photos (never trained on: companion.depth.realdata's split)."""
+metadata, and the real-photo model on held-out real photos (never trained on: the split of
+companion.depth.training.realdata)."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ import pytest
 import yaml
 
 from companion.depth.masker import Masker
-from companion.depth.realdata import default_data_root, split_of
 from companion.depth.session import DEFAULT_MODEL, SHIPPED_MODELS, DepthSession, resolve_model
+from companion.depth.training.realdata import split_of
 from companion.records import Frame, TaggedFrame
+from evaluation.shared_data import shared_data_root
 
 FIXTURES = Path(__file__).parent / "depth_fixtures"
 MISSION = Path(__file__).parents[1] / "missions" / "demo-facade.yaml"
@@ -57,12 +59,12 @@ def test_real_photo_model_keeps_the_held_out_dji_wall(photo):
 
 
 def test_real_photo_model_keeps_the_windows_of_held_out_facades():
-    data = default_data_root()
+    data = shared_data_root()
     if not (data / "real-facades").is_dir():
         pytest.skip("../shared/data not beside the checkout")
     from PIL import Image
 
-    from companion.depth.realdata import list_real_photos, load_image
+    from companion.depth.training.realdata import list_real_photos, load_image
 
     # the first six held-out CMP facades in name order (no choosing): real-nc kept 100 % of the windows (CMP class
     # 3) of five and dropped cmp_b0044 whole; the sim model kept all windows of only two (0.89, 0.60, 0.10, 0.48 of

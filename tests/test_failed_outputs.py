@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -16,23 +15,21 @@ from companion.export import colmap
 from companion.export.colmap import ColmapResult
 from companion.files import NewOutput, removed_on_failure
 from companion.image_files import TRUNCATED
-from companion.spool.layout import MANIFEST
+from companion.records import Frame, Keyframe, Pose
+from companion.spool.writer import KeyframeSpool
 
 
 def _spool(root: Path, n: int = 4, cut: int | None = 2) -> Path:
-    """A minimal spool: ``n`` keyframe JPEGs and their manifest lines; keyframe ``cut`` cut short."""
-    root.mkdir(parents=True)
+    """A minimal spool written by the spool writer: ``n`` keyframes; keyframe ``cut``'s JPEG then cut short."""
     rng = np.random.default_rng(5)
-    lines = []
+    spool = KeyframeSpool(root)
     for i in range(n):
-        name = f"kf_{i:06d}.jpg"
-        cv2.imwrite(str(root / name), rng.integers(0, 255, (90, 120, 3), dtype=np.uint8))
-        lines.append(json.dumps({"image": name, "mask": f"kf_{i:06d}_mask.png",
-                                 "pose": {"lat": 37.5, "lon": 127.0 + i * 1e-6, "alt_amsl_m": 30.0}}))
+        pose = Pose(float(i), 37.5, 127.0 + i * 1e-6, 30.0, 0.0, 0.0, 0.0, 0.0)
+        image = rng.integers(0, 255, (90, 120, 3), dtype=np.uint8)
+        spool.append(Keyframe(Frame(i, 1_780_000_000.0 + i, image), pose, np.full((90, 120), 255, np.uint8)))
     if cut is not None:
         data = (root / f"kf_{cut:06d}.jpg").read_bytes()
         (root / f"kf_{cut:06d}.jpg").write_bytes(data[: len(data) // 2])
-    (root / MANIFEST).write_text("\n".join(lines) + "\n")
     return root
 
 
@@ -103,6 +100,7 @@ def test_a_failed_cull_removes_the_spool_folder_it_created(tmp_path, capsys):
            "pitch_deg": 0.0, "yaw_deg": 0.0}
     log.write_text("".join(json.dumps({**row, "t_boot_s": i / 10}) + "\n" for i in range(5)))
     out = tmp_path / "spool"
-    assert main(["cull", str(tmp_path / "missing.mp4"), "--telemetry", str(log), "--out", str(out), "--no-mask"]) == 2
+    assert main(["cull", str(tmp_path / "missing.mp4"), "--telemetry", str(log), "--out", str(out),
+                 "--no-mask", "--no-mission"]) == 2
     assert "missing.mp4" in capsys.readouterr().err
     assert not out.exists()

@@ -219,13 +219,15 @@ def test_progress_counts_waypoints_not_do_items(caplog):
     assert len(navigation_seqs(ardu, first_seq=1)) == len(nav)  # the home placeholder is not a waypoint
 
     caplog.set_level(logging.INFO, logger="companion.flight.progress")
-    prog = WaypointProgress(items, enabled=True, terminal=False, interval_s=3600.0)
+    prog = WaypointProgress(items, enabled=True, terminal=False)
     for seq in range(len(items)):
-        prog.update(seq)
+        for _ in range(3):  # the supervisor asks ten times a second, whether anything changed or not
+            prog.update(seq)
     prog.close()
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("progress:")]
-    assert len(lines) == 2  # one at the start, one at the end: not a redraw per update
-    assert lines[-1] == f"progress: waypoint {prog.done}/{len(nav)}"
+    # one line per waypoint count, each once: not a redraw per update, nor the same line every few seconds
+    assert lines == [f"progress: waypoint {n}/{len(nav)}" for n in range(steps[len(items) - 1] + 1)]
+    assert prog.done == steps[len(items) - 1]
 
 
 def test_item_lists_without_a_plan_still_get_a_return_altitude():

@@ -7,8 +7,8 @@ import pytest
 
 from companion.cli import main as cli_main
 from companion.keyframes import FeatureConfig, GateConfig
-from companion.keyframes.evaluate import evaluate_gate, format_report, minimum_keyframes, plot_curve
-from companion.keyframes.synthetic import View, render, textured_wall, true_overlap
+from evaluation.keyframes.evaluate import evaluate_gate, format_report, minimum_keyframes, plot_curve
+from evaluation.keyframes.synthetic import View, render, textured_wall, true_overlap
 
 
 def test_minimum_keyframes_on_uniform_steps():

@@ -10,7 +10,7 @@ import pytest
 
 from companion.errors import CompanionError
 from companion.keyframes import FeatureConfig, GateConfig, GateEventKind, KeyframeGate
-from companion.keyframes.synthetic import View, masked_frame, render, sweep, textured_wall, true_overlap
+from evaluation.keyframes.synthetic import View, masked_frame, render, sweep, textured_wall, true_overlap
 
 W, H = 480, 360
 

@@ -13,12 +13,12 @@ from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.errors import CompanionError
 from companion.keyframes import FeatureConfig, GateConfig, KeyframeGate
 from companion.keyframes.gate_scope import ScanScope
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall
 from companion.mission import load_mission
 from companion.onboard.chain import CullChain
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.setup import build_chain
 from companion.spool import KeyframeSpool
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall
 
 W, H = 320, 180
 STANDOFF = 4.0

@@ -20,7 +20,7 @@ from companion.keyframes import (
     polygon_overlap,
 )
 from companion.keyframes.overlap import convex_intersection_area
-from companion.keyframes.synthetic import View, render, textured_wall, true_overlap
+from evaluation.keyframes.synthetic import View, render, textured_wall, true_overlap
 
 W, H = 480, 360
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from companion.keyframes.standoff import StandoffEstimator, StandoffFitConfig, StandoffMeasurement, measure_standoff
-from companion.keyframes.synthetic import SITE, WallCamera
 from companion.records import Pose
+from evaluation.keyframes.synthetic import SITE, WallCamera
 
 W, H, HFOV = 640, 360, 69.0
 

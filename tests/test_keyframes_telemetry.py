@@ -2,7 +2,7 @@
 the poses put below Rth - 3 points, and decides where a thin wall strip cannot be measured (issue 15).
 
 Scenes: a procedurally textured wall plane at 4 m in front of a strongly textured background plane 120 m away
-(``companion.keyframes.synthetic.WallScene``), exact truth on the wall plane, poses as telemetry would give them.
+(``evaluation.keyframes.synthetic.WallScene``), exact truth on the wall plane, poses as telemetry would give them.
 """
 
 from __future__ import annotations
@@ -17,13 +17,13 @@ import pytest
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.keyframes import FeatureConfig, FeatureExtractor, GateConfig, KeyframeGate, OverlapEstimator
-from companion.keyframes.evaluate import evaluate_gate, format_table, minimum_keyframes, telemetry_poses
 from companion.keyframes.motion import WallMotionPredictor
 from companion.keyframes.overlap import OverlapStatus
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall
 from companion.onboard.chain import CullChain
 from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.spool import KeyframeSpool
+from evaluation.keyframes.evaluate import evaluate_gate, format_table, minimum_keyframes, telemetry_poses
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall
 
 W, H = 320, 180
 STANDOFF = 4.0

@@ -1,4 +1,4 @@
-"""The wall tracker against views with known motion (companion.keyframes.synthetic): its Eq. 2 overlap with the
+"""The wall tracker against views with known motion (evaluation.keyframes.synthetic): its Eq. 2 overlap with the
 anchor follows the true overlap frame by frame, survives dropped frames with a telemetry prior, re-anchors on a
 tracked frame and takes a measurement's correction."""
 
@@ -8,8 +8,8 @@ import pytest
 from companion.errors import CompanionError
 from companion.keyframes.motion import WallMotion
 from companion.keyframes.overlap import eq2_overlap
-from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 from companion.keyframes.tracker import TrackerConfig, WallTracker
+from evaluation.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 
 W, H = 640, 360
 

@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from companion.depth.masker import Masker
-from companion.depth.parallax import PARALLAX_RULES, DenseFlow, SequenceParallax, depth_from_flow
+from companion.depth.parallax import DenseFlow, SequenceParallax, depth_from_flow
+from evaluation.depth.parallax_rules import PARALLAX_RULES
 from sim.camera.photo_passes import RECIPES, build_pass
 from sim.camera.photo_scene import PhotoPassRenderer
 from tests.test_mask_wall import CAM, _masked

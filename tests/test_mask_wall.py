@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from companion.depth.masker import Masker
-from companion.depth.parallax import PARALLAX_RULES, ParallaxParams, ParallaxResult, SequenceParallax, plain_vote
+from companion.depth.parallax import ParallaxParams, ParallaxResult, SequenceParallax, plain_vote
 from companion.records import Frame, Pose, TaggedFrame
+from evaluation.depth.parallax_rules import PARALLAX_RULES
 from sim.camera.model import CameraModel
 from sim.camera.photo_passes import RECIPES, build_pass
 from sim.camera.photo_scene import PhotoPassRenderer
@@ -145,12 +146,11 @@ def ornate_entry() -> PhotoPassRenderer:
 
 def _pose(frame, standoff_m: float) -> Pose:
     """The frame's camera as telemetry reports it (exact; the parallax baselines are relative motion)."""
-    from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
+    from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
     wall = wall_frame(SyntheticWall(length_m=12.0, height_m=3.0))
-    row = reported_pose(np.random.default_rng(0), wall, (frame.along_m, standoff_m, frame.up_m, 0.0, 0.0),
-                        TelemetryErrors(), frame.index)
-    return Pose.from_json({**row, "t_boot_s": frame.index / 10.0})
+    return reported_pose(np.random.default_rng(0), wall, (frame.along_m, standoff_m, frame.up_m, 0.0, 0.0),
+                         TelemetryErrors(), frame.index, time_s=frame.index / 10.0)
 
 
 def _masked(masker: Masker, frame, standoff_m: float):

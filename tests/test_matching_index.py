@@ -11,10 +11,10 @@ import pytest
 from companion.errors import CompanionError
 from companion.keyframes import FeatureConfig, FeatureExtractor, OverlapConfig, OverlapEstimator
 from companion.keyframes.overlap import GATE_MATCHING
-from companion.keyframes.synthetic import View, render, textured_wall, true_overlap
 from companion.matching import DescriptorIndex, MatcherSettings, match_descriptors
 from companion.stitch.config import STITCH_MATCHING
-from companion.stitch.evaluate import EVALUATION_MATCHING
+from evaluation.keyframes.synthetic import View, render, textured_wall, true_overlap
+from evaluation.stitch.evaluate import EVALUATION_MATCHING
 
 W, H = 480, 360
 

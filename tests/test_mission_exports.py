@@ -104,3 +104,14 @@ def test_cli_keeps_existing_outputs_when_a_new_plan_fails(tmp_path):
     bad.write_text(DEMO.read_text().replace("max_alt_m: 40.0", "max_alt_m: 5.0"))
     assert main(["plan", str(bad), "--out", str(out)]) == 2
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_exported_positions_carry_no_float_noise(plan):
+    """Positions to 1e-8 degree and heights to the mm (issue 29: 37.56649999999999 in the exports)."""
+    files = render_outputs(plan)
+    items = json.loads(files["mavsdk_mission.json"])["mission_items"]
+    values = [it[k] for it in items for k in ("latitude_deg", "longitude_deg", "relative_altitude_m")]
+    assert all(v == round(v, 8) for v in values[0::3] + values[1::3]) and all(v == round(v, 3) for v in values[2::3])
+    assert all(len(repr(v).split(".")[-1]) <= 8 for v in values), values
+    text = files["demo-facade.waypoints"].decode()
+    assert "37.56649999" not in text and "37.56638000\t126.97815000" in text  # home, as the mission gives it

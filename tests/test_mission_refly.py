@@ -194,7 +194,7 @@ def test_map_without_georef_is_planned_with_a_note(tmp_path):
 def test_refly_of_a_real_stitch_covers_its_hole(tmp_path):
     """End to end: a synthetic spool whose keyframes all miss one wall patch, stitched by `companion stitch`,
     re-flown by `companion plan --refly`: the re-fly frames cover the patch the map lacks."""
-    from companion.stitch.synthetic import SyntheticWall, make_spool
+    from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
     hole = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: no keyframe shows it (flown at 2 m: small footprints)
     truth = make_spool(tmp_path / "spool", SyntheticWall(length_m=8.0, height_m=4.0), standoff_m=2.0,

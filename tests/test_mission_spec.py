@@ -67,7 +67,7 @@ def test_zero_length_wall(demo):
 def test_unsafe_standoff_refused_unless_overridden(demo):
     demo["standoff_m"] = 1.0
     err = _error(demo)
-    assert "safe minimum" in err.problem and "allow_unsafe_standoff" in err.problem
+    assert "safe minimum" in err.problem and "allow_unsafe_standoff" in err.fix and "(top level)" not in str(err)
     demo["allow_unsafe_standoff"] = True
     demo.pop("takeoff")
     plan = plan_scan(parse_mission(demo))

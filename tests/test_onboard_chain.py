@@ -13,11 +13,11 @@ from companion.capture.sources import FrameSource
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.cli import main
-from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 from companion.onboard.runner import Backlog, LiveRunner
 from companion.onboard.setup import build_chain
 from companion.records import EncodedFrame, Frame, Pose
 from companion.spool.layout import CLOSED, CULL_REPORT, MANIFEST
+from evaluation.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 
 
 def _scan(n=40, step=14):
@@ -138,6 +138,7 @@ def test_cull_cli_on_image_folder(tmp_path):
         "--out",
         str(out),
         "--no-mask",
+        "--no-mission",
         "--fps",
         "10",
         "--time-offset",

@@ -21,11 +21,11 @@ from companion.capture.sources import ImageFolderSource, open_source
 from companion.capture.telemetry import TelemetryBuffer
 from companion.cli import main
 from companion.errors import CompanionError
-from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.mission import load_mission, plan_scan
 from companion.onboard.live import NoKeyframesError, TelemetryLogTailer, run_live_scan
 from companion.records import Pose
 from companion.spool.layout import CULL_REPORT, MANIFEST
+from evaluation.keyframes.synthetic import render, sweep, textured_wall
 
 SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
 
@@ -180,7 +180,8 @@ def test_cull_that_places_no_frame_is_an_error_with_the_offset_to_use(tmp_path, 
     frames = _frames(tmp_path / "frames", n=25)  # no times.csv: 0 .. 2.4 s at --fps 10
     log = tmp_path / "telemetry.jsonl"
     log.write_text("".join(json.dumps(_row(50.0 + i / 10)) + "\n" for i in range(30)))
-    args = ["cull", str(frames), "--telemetry", str(log), "--out", str(tmp_path / "spool"), "--no-mask", "--fps", "10"]
+    args = ["cull", str(frames), "--telemetry", str(log), "--out", str(tmp_path / "spool"), "--no-mask", "--no-mission",
+            "--fps", "10"]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "kept no keyframe" in err and "all 25 frames are older than the first telemetry sample" in err, err

@@ -14,7 +14,6 @@ from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
 from companion.cli import main
 from companion.keyframes import FeatureConfig, GateConfig, KeyframeGate
-from companion.keyframes.synthetic import WallCamera, WallScene, textured_wall
 from companion.mission import load_mission
 from companion.onboard.chain import ChainStats, CullChain
 from companion.onboard.crosscheck import OverlapCrossCheck
@@ -23,6 +22,7 @@ from companion.onboard.setup import scan_scope
 from companion.onboard.standoff_watch import StandoffWatch
 from companion.spool import KeyframeSpool
 from companion.spool.layout import CULL_REPORT, MANIFEST
+from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall
 
 W, H = 320, 180
 PLAN = 4.0
@@ -88,11 +88,12 @@ def test_the_gate_predicts_the_wall_at_the_measured_standoff(scene, tmp_path):
     """At 2.5 m while the poses say 4.0, the wall moves 1.6x what the plan predicts: the gate found no wall where
     the prediction looked and took 7 of 8 keyframes' overlap from the telemetry at the wrong distance (9 keyframes
     for a pass that needs 16 at 80 %). Once measured, the prediction is made at the measured distance: the image
-    decides every keyframe after the first, as on plan; on plan nothing changes."""
+    decides every keyframe after the second, as on plan; on plan nothing changes. (The chain measures only the
+    frames around a decision, so the first measurement comes from the pairs that decide the second keyframe.)"""
     near, _ = _fly(scene, tmp_path / "near", true_m=2.5, n=30)
     on_plan, _ = _fly(scene, tmp_path / "plan", true_m=PLAN, n=30)
-    sources = [k["overlap_source"] for k in _sidecars(tmp_path / "near" / "spool")[1:]]
-    assert sources and all(s == "image" for s in sources), sources
+    sources = [k["overlap_source"] for k in _sidecars(tmp_path / "near" / "spool")[2:]]
+    assert len(sources) >= 8 and all(s == "image" for s in sources), sources
     assert near.crosscheck.standoff_m == pytest.approx(2.5, abs=0.1)
     assert near.gate.predictor is near.crosscheck.predictor
     assert on_plan.crosscheck.standoff_m == PLAN

@@ -7,8 +7,8 @@ import pytest
 
 from companion.errors import CompanionError
 from companion.keyframes.gate import KeyframeGate
-from companion.keyframes.synthetic import masked_frame, render, sweep, textured_wall, true_overlap
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
+from evaluation.keyframes.synthetic import masked_frame, render, sweep, textured_wall, true_overlap
 
 W, H = 480, 270
 
@@ -88,7 +88,7 @@ def test_schedule_rejects_bands_that_cannot_work():
 def posed_scan():
     """A 30 fps pass at 1 m/s, 4 m from a textured wall, with exact telemetry poses: 26 frames per keyframe."""
     from companion.keyframes.motion import WallMotionPredictor
-    from companion.keyframes.synthetic import WallCamera, WallScene
+    from evaluation.keyframes.synthetic import WallCamera, WallScene
 
     scene = WallScene(textured_wall(3000, 1000, seed=4), textured_wall(800, 300, seed=6), 12.0, 6.0,
                       width_px=W, height_px=H)

@@ -11,11 +11,11 @@ import pytest
 
 from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer
-from companion.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 from companion.onboard.setup import build_chain
 from companion.onboard.working import FullResolution, WorkingCopy, decode_full
 from companion.records import EncodedFrame, Frame, GateDecision, Keyframe, Pose
 from companion.spool.layout import MANIFEST
+from evaluation.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 
 
 def _buffer(n, fps=10.0):
@@ -130,7 +130,7 @@ def test_chain_on_1280_px_frames_spools_full_resolution_keyframes_at_the_overlap
 
 def test_off_scan_frames_do_not_pile_up_at_full_resolution(tmp_path):
     from companion.keyframes.gate_scope import ScanScope
-    from companion.keyframes.synthetic import WallCamera, WallScene
+    from evaluation.keyframes.synthetic import WallCamera, WallScene
 
     scene = WallScene(textured_wall(600, 200, seed=1), textured_wall(160, 60, seed=2), 16.0, 10.0,
                       width_px=1280, height_px=720)
@@ -149,8 +149,8 @@ def test_off_scan_frames_do_not_pile_up_at_full_resolution(tmp_path):
 def test_frames_off_the_scan_or_before_telemetry_are_never_decoded(tmp_path, monkeypatch):
     """Tagging and the scan scope need the capture time only: a transit frame costs no JPEG decode (issue 17)."""
     from companion.keyframes.gate_scope import ScanScope
-    from companion.keyframes.synthetic import WallCamera, WallScene
     from companion.onboard import working
+    from evaluation.keyframes.synthetic import WallCamera, WallScene
 
     scene = WallScene(textured_wall(600, 200, seed=1), textured_wall(160, 60, seed=2), 16.0, 10.0,
                       width_px=1280, height_px=720)

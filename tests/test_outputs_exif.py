@@ -137,6 +137,20 @@ def test_exiftool_reads_camera_focal_size_time_and_place(tmp_path, sensor_width_
     assert "XMP-drone-dji:GimbalPitchDegree" not in t  # DJI convention only for DJI makes (see the ODM test)
 
 
+@pytest.mark.parametrize("with_time", [True, False])
+def test_exiftool_validates_a_keyframe_without_a_warning(tmp_path, with_time):
+    """EXIF 2.32 as exiftool checks it: IFDs chained and aligned, the required tags present (issue 29: piexif's
+    IFDs gave 15 warnings)."""
+    path = _spool_one(tmp_path, _sim_tags(13.2), FLIGHT_UNIX if with_time else 12.5)  # 12.5: no wall clock
+    tool = shutil.which("exiftool")
+    assert tool is not None, "exiftool is not installed: apt-get install -y libimage-exiftool-perl"
+    out = subprocess.run([tool, "-validate", "-warning", "-a", str(path)], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.split() == ["Validate", ":", "OK"], out
+    t = exiftool(str(path))
+    assert (t["ExifIFD:ExifVersion"], t["ExifIFD:ColorSpace"], t["IFD0:XResolution"]) == ("0232", 1, 72)
+
+
 def test_pycolmap_takes_the_focal_from_exif(tmp_path):
     for sensor in (None, 13.2):
         path = _spool_one(tmp_path / str(sensor), _sim_tags(sensor))
@@ -234,7 +248,7 @@ def test_cull_dates_images_from_the_telemetry_wall_clock(tmp_path):
                 "pitch_deg": 0.0, "yaw_deg": 0.0, "mission_item": 3,
             }) + "\n")
     out = tmp_path / "spool"
-    args = ["cull", str(frames), "--telemetry", str(log), "--out", str(out), "--no-mask", "--fps", "10",
+    args = ["cull", str(frames), "--telemetry", str(log), "--out", str(out), "--no-mask", "--no-mission", "--fps", "10",
             "--time-offset", "50"]
     assert main(args) == 0
     for line in (out / MANIFEST).read_text().splitlines():
@@ -304,7 +318,7 @@ def test_pycolmap_registers_every_keyframe_with_the_exif_focal(tmp_path):
 
     from companion.geo import FacadeFrame, GeoPoint
     from companion.stitch.inputs import CameraModel
-    from companion.stitch.synthetic import SyntheticWall, make_texture, view
+    from evaluation.stitch.synthetic import SyntheticWall, make_texture, view
 
     w, h, hfov = 640, 360, 70.0
     wall = SyntheticWall(length_m=6.0, height_m=3.0)
@@ -342,7 +356,8 @@ def test_pycolmap_registers_every_keyframe_with_the_exif_focal(tmp_path):
 
 def test_a_cropped_stream_is_spooled_without_a_wrong_focal(tmp_path, caplog):
     """A 4:3 stream from a camera modelled 16:9 is a crop: its focal is unknown, so none is written (and no stop)."""
-    import piexif
+    from PIL import Image
+    from PIL.ExifTags import IFD, Base
 
     tags = CameraTags("companion", "sim-pinhole", Intrinsics.from_hfov(3840, 2160, HFOV))
     spool = KeyframeSpool(tmp_path, meta={"camera": {"width_px": 3840, "height_px": 2160, "hfov_deg": HFOV}},
@@ -350,8 +365,9 @@ def test_a_cropped_stream_is_spooled_without_a_wrong_focal(tmp_path, caplog):
     kf = _keyframe(1, FLIGHT_UNIX)
     kf = replace(kf, frame=replace(kf.frame, image=kf.image[:, :1440]))  # 1440 x 1080: 4:3
     entry = spool.append(kf)
-    exif = piexif.load((tmp_path / entry.image).read_bytes())["Exif"]
-    assert piexif.ExifIFD.FocalLength not in exif and exif[piexif.ExifIFD.PixelXDimension] == 1440
+    with Image.open(tmp_path / entry.image) as im:
+        exif = im.getexif().get_ifd(IFD.Exif)
+    assert Base.FocalLength not in exif and exif[Base.ExifImageWidth] == 1440
     assert "another aspect ratio" in caplog.text and "without a focal length" in caplog.text
     assert "K" not in json.loads((tmp_path / META).read_text())["camera"]
 

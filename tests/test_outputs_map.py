@@ -20,7 +20,7 @@ import pytest
 from companion.spool.layout import META
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.output import WallAnchor, write_georeferencing
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 WALL = SyntheticWall(length_m=8.0, height_m=4.0)
 HOLE = (3.6, 4.4, 1.6, 2.4)

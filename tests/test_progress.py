@@ -13,8 +13,8 @@ from pathlib import Path
 
 import cv2
 
-from companion.keyframes.synthetic import render, sweep, textured_wall
 from companion.progress import progress_bar
+from evaluation.keyframes.synthetic import render, sweep, textured_wall
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,7 +81,7 @@ def test_cull_log_to_a_file_has_no_carriage_returns(tmp_path):
     log.write_text("".join(json.dumps({"t_boot_s": i / 10.0, "lat": 37.0, "lon": 127.0 + i * 1e-6, "alt_amsl_m": 40.0,
                                        "roll_deg": 0.0, "pitch_deg": 0.0, "yaw_deg": 0.0}) + "\n" for i in range(40)))
     cmd = [sys.executable, "-m", "companion.cli", "cull", str(frames), "--telemetry", str(log),
-           "--out", str(tmp_path / "spool"), "--no-mask", "--fps", "10"]
+           "--out", str(tmp_path / "spool"), "--no-mask", "--no-mission", "--fps", "10"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     t0 = time.monotonic()
     with open(tmp_path / "cull.log", "w") as fh:

@@ -13,8 +13,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import piexif
 import pytest
+from PIL import Image
+from PIL.ExifTags import GPS, IFD, Base
 
 from companion.files import TEMP_GLOB
 from companion.records import Frame, GateDecision, Keyframe, Pose
@@ -46,7 +47,7 @@ def _keyframe(index: int, lat=37.5665123, lon=126.9781234) -> Keyframe:
 
 
 def _dms_to_deg(dms) -> float:
-    return sum(n / d / 60**k for k, (n, d) in enumerate(dms))
+    return sum(float(v) / 60**k for k, v in enumerate(dms))
 
 
 def test_keyframe_files_and_tags(tmp_path):
@@ -59,12 +60,13 @@ def test_keyframe_files_and_tags(tmp_path):
         "hfov_deg": 69.0,
     }
     jpeg = (tmp_path / entry.image).read_bytes()
-    exif = piexif.load(jpeg)
-    gps = exif["GPS"]
-    assert _dms_to_deg(gps[piexif.GPSIFD.GPSLatitude]) == pytest.approx(37.5665123, abs=1e-7)
-    assert _dms_to_deg(gps[piexif.GPSIFD.GPSLongitude]) == pytest.approx(126.9781234, abs=1e-7)
-    assert gps[piexif.GPSIFD.GPSAltitude][0] / gps[piexif.GPSIFD.GPSAltitude][1] == pytest.approx(41.25)
-    assert exif["Exif"][piexif.ExifIFD.SubSecTimeOriginal] == b"123"
+    with Image.open(tmp_path / entry.image) as im:
+        exif = im.getexif()
+    gps = exif.get_ifd(IFD.GPSInfo)
+    assert _dms_to_deg(gps[GPS.GPSLatitude]) == pytest.approx(37.5665123, abs=1e-7)
+    assert _dms_to_deg(gps[GPS.GPSLongitude]) == pytest.approx(126.9781234, abs=1e-7)
+    assert float(gps[GPS.GPSAltitude]) == pytest.approx(41.25)
+    assert exif.get_ifd(IFD.Exif)[Base.SubsecTimeOriginal] == "123"
     xmp = read_xmp(jpeg)
     assert 'drone-dji:FlightYawDegree="-1.00"' in xmp and 'Camera:Pitch="90.00"' in xmp  # horizontal camera
     assert "GimbalPitchDegree" not in xmp  # DJI's gimbal convention only for DJI makes (test_outputs_exif.py)

@@ -16,10 +16,10 @@ import pytest
 
 from companion.cli import main
 from companion.errors import CompanionError
-from companion.spool.layout import MANIFEST
+from companion.spool.layout import MANIFEST, SpoolEntry
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.features import read_image
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 WALL = SyntheticWall(length_m=12.0, height_m=4.0, seed=5)
 TRUNCATED, GARBAGE, MISSING, BAD_MASK = 5, 11, 17, 23
@@ -31,11 +31,11 @@ def damaged(tmp_path_factory):
     make_spool(d, WALL, width=320, height=180, overlap=0.8)
     lines = (d / MANIFEST).read_text().splitlines()
     assert len(lines) >= 30
-    jpg = (d / "frames" / f"{TRUNCATED:06d}.jpg").read_bytes()
-    (d / "frames" / f"{TRUNCATED:06d}.jpg").write_bytes(jpg[: len(jpg) // 2])  # a torn write
-    (d / "frames" / f"{GARBAGE:06d}.jpg").write_bytes(np.random.default_rng(0).bytes(5000))
-    (d / "frames" / f"{MISSING:06d}.jpg").unlink()
-    cv2.imwrite(str(d / "frames" / f"{BAD_MASK:06d}_mask.png"), np.full((90, 160), 255, np.uint8))
+    jpg = (d / SpoolEntry.for_frame(TRUNCATED).image).read_bytes()
+    (d / SpoolEntry.for_frame(TRUNCATED).image).write_bytes(jpg[: len(jpg) // 2])  # a torn write
+    (d / SpoolEntry.for_frame(GARBAGE).image).write_bytes(np.random.default_rng(0).bytes(5000))
+    (d / SpoolEntry.for_frame(MISSING).image).unlink()
+    cv2.imwrite(str(d / SpoolEntry.for_frame(BAD_MASK).mask), np.full((90, 160), 255, np.uint8))
     # a bad sector in the middle of the manifest: one line unreadable (the keyframe after BAD_MASK)
     lines[BAD_MASK + 1] = lines[BAD_MASK + 1][:20] + "\x00\x00" + lines[BAD_MASK + 1][22:]
     (d / MANIFEST).write_text("\n".join(lines) + "\n")

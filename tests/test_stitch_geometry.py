@@ -7,6 +7,7 @@ import pytest
 
 from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
+from companion.records import GimbalSource, Pose
 from companion.spool.reader import CameraModel, CameraPose, FacadeGeometry, camera_attitude
 from companion.stitch.geometry import apply_h, is_sane_homography, prior_plane_from_image
 from companion.stitch.mesh import mesh_for_keyframe, weighted_dlt
@@ -82,14 +83,18 @@ def test_camera_axes_level_and_facing_north():
     assert np.allclose(R[:, 1], [0, 0, -1])  # image down = down
 
 
-def test_camera_attitude_prefers_explicit_then_gimbal_then_body():
-    assert camera_attitude({"camera_yaw_deg": 10, "yaw_deg": 50}) == (0.0, 0.0, 10.0)
-    assert camera_attitude({"yaw_deg": 50, "pitch_deg": 5, "roll_deg": 2, "gimbal_pitch_deg": -10}) == (
-        0.0,
-        -10.0,
-        50.0,
-    )
-    assert camera_attitude({"yaw_deg": 50, "pitch_deg": 5, "roll_deg": 2}) == (2.0, 5.0, 50.0)
+def test_camera_attitude_is_the_gimbal_s_in_every_form_the_writer_has_written():
+    """Today's pose form (``Pose.to_json``) and the writer's form before it (``time_s``, a gimbal yaw of 0.0) give
+    the camera on its stabilised gimbal; the vehicle's roll and pitch never tilt it."""
+    today = Pose(81.2, 37.5, 127.0, 36.0, 6.0, 2.0, 5.0, 50.0, gimbal_pitch_deg=-10.0, gimbal_yaw_deg=15.0,
+                 gimbal_source=GimbalSource.TELEMETRY).to_json()
+    assert camera_attitude(today) == (0.0, -10.0, 65.0)
+    before = {"time_s": 81.2, "lat": 37.5, "lon": 127.0, "alt_amsl_m": 36.0, "relative_alt_m": 6.0, "roll_deg": 2.0,
+              "pitch_deg": 5.0, "yaw_deg": 50.0, "velocity_ned_m_s": [0.0, 0.0, 0.0], "gimbal_pitch_deg": -10.0,
+              "gimbal_yaw_deg": 0.0, "mission_item": 3}
+    assert camera_attitude(before) == (0.0, -10.0, 50.0)
+    unknown = Pose(81.2, 37.5, 127.0, 36.0, 6.0, 2.0, 5.0, 50.0).to_json()  # no gimbal report nor plan
+    assert camera_attitude(unknown) == (0.0, 0.0, 50.0)
 
 
 def test_prior_puts_the_image_centre_in_front_of_the_camera():

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from companion.stitch import load_input, stitch
-from companion.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
-from companion.stitch.synthetic import TelemetryErrors, make_spool, wall_for_texture
+from evaluation.stitch.evaluate import map_accuracy, register_to_truth, truth_on_grid
+from evaluation.stitch.synthetic import TelemetryErrors, make_spool, wall_for_texture
 
 ROOT = Path(__file__).resolve().parents[1]
 PHOTO = ROOT.parent / "shared" / "data" / "real-facades" / "facades" / "strecha_entry-P10" / "images"

@@ -11,10 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
+from companion.spool.layout import SpoolEntry
 from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect
-from companion.stitch.synthetic import make_spool, wall_for_texture
+from evaluation.stitch.synthetic import make_spool, wall_for_texture
 
 ROOT = Path(__file__).resolve().parents[1]
 PHOTO = ROOT.parent / "shared" / "data" / "real-uav-facade" / "DJI_0977_rgb.JPG"
@@ -38,8 +39,8 @@ def plain_spool(tmp_path_factory):
 
 def test_plain_sift_finds_almost_nothing_on_plain_cladding_and_the_shared_extraction_does(plain_spool):
     d, _ = plain_spool
-    img = cv2.imread(str(d / "frames" / "000002.jpg"))
-    mask = cv2.imread(str(d / "frames" / "000002_mask.png"), cv2.IMREAD_GRAYSCALE)
+    img = cv2.imread(str(d / SpoolEntry.for_frame(2).image))
+    mask = cv2.imread(str(d / SpoolEntry.for_frame(2).mask), cv2.IMREAD_GRAYSCALE)
     plain = detect(img, mask, replace(STITCH_FEATURES, contrast_threshold=0.04, equalize=False))
     shared = detect(img, mask)
     assert len(plain.keypoints) < 100

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from companion.stitch import StitchConfig, load_input, stitch
-from companion.stitch.evaluate import map_accuracy, truth_on_grid
+from evaluation.stitch.evaluate import map_accuracy, truth_on_grid
 from sim.camera import recording
 
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "demo-facade.yaml"

@@ -14,7 +14,7 @@ from companion.stitch import StitchConfig, load_input, stitch
 from companion.stitch.mesh import WarpedMesh
 from companion.stitch.render import MapGrid, SourceCache, place, render_tile
 from companion.stitch.render_plan import best_order, decodes, needs_by_box
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 W, H = 320, 180
 

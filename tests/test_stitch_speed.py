@@ -14,7 +14,7 @@ from companion.stitch import StitchConfig, Stitcher, load_input
 from companion.stitch.config import STITCH_FEATURES
 from companion.stitch.features import detect, load_image_and_mask, load_working_copy
 from companion.stitch.inputs import KeyframeInput
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 
 @pytest.fixture(scope="module")

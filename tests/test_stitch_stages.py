@@ -20,9 +20,9 @@ from companion.stitch.layout import MapLayout
 from companion.stitch.pairs import PairSettings, RegisteredPairs, match_pair
 from companion.stitch.priors import PlanePriors
 from companion.stitch.report import StitchReport, StitchRun
-from companion.stitch.synthetic import SyntheticWall, make_spool
 from companion.stitch.wall_anchor import WallPlacement
 from companion.stitch.wall_distance import WallDistance
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 CONFIG = StitchConfig(cells=(8, 4))
 

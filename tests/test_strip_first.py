@@ -33,7 +33,7 @@ from companion.onboard.tracked import MeasureSchedule
 from companion.records import Frame, Pose, TaggedFrame
 from companion.spool import KeyframeSpool
 from companion.spool.layout import CLOSED, MANIFEST
-from companion.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
+from evaluation.stitch.synthetic import SyntheticWall, TelemetryErrors, reported_pose, wall_frame
 
 STANDOFF_M = 4.0
 
@@ -55,9 +55,9 @@ def ornate():
     renders, poses = [], []
     for i in range(8):
         f = renderer.render(i)
-        row = reported_pose(None, facade, (f.along_m, STANDOFF_M, f.up_m, 0.0, 0.0), TelemetryErrors(), i)
         renders.append(f)
-        poses.append(Pose.from_json({**row, "t_boot_s": i / 10.0}))
+        poses.append(reported_pose(None, facade, (f.along_m, STANDOFF_M, f.up_m, 0.0, 0.0), TelemetryErrors(), i,
+                                   time_s=i / 10.0))
     return spec, renders, poses
 
 

@@ -24,12 +24,13 @@ import pytest
 
 from companion.cli import main
 from companion.stitch import load_input, stitch
-from companion.stitch.output import tiles_vrt
+from companion.stitch.output import UncoveredArea, tiles_vrt
 from companion.stitch.render import MapGrid
-from companion.stitch.synthetic import SyntheticWall, make_spool
+from companion.stitch.unscaled import area_px
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
 from companion.viewer.tiles import MapReader, halve, halve_weighted, max_zoom_for
+from evaluation.stitch.synthetic import SyntheticWall, make_spool
 
 WALL = SyntheticWall(length_m=8.0, height_m=4.0)
 HOLE = (3.6, 4.4, 1.6, 2.4)
@@ -276,6 +277,16 @@ def test_page_from_file_draws_the_map_tiles(page, mapped):
         _find_on_screen(screen, truth["texture"], along, up, m_per_screen_px)
 
 
+def test_the_info_panel_leaves_the_whole_map_in_view(page):
+    """The first view fits the map beside the info panel, not under it (issue 29: it hid the wall's right end and
+    its re-fly areas)."""
+    right_px, panel_left = page.evaluate(
+        "() => { const v = companionViewer, b = v.bounds, m = v.map.getContainer().getBoundingClientRect();"
+        " const p = v.map.latLngToContainerPoint([b.getNorth(), b.getEast()]);"
+        " return [p.x, document.querySelector('.viewer-info').getBoundingClientRect().left - m.left]; }")
+    assert right_px <= panel_left, (right_px, panel_left)
+
+
 def test_click_on_the_wall_opens_the_keyframe_that_shows_it(page, mapped):
     out = mapped[0]
     kf = _data(out)["keyframes"][len(_data(out)["keyframes"]) // 2]
@@ -322,18 +333,20 @@ def test_measured_distance_between_two_landmarks_is_the_wall_distance(page, mapp
 
 def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
     """Stitched without telemetry: no geotransform, no footprints; the re-fly areas land on their map pixels."""
-    s, along0, up_top, w, h = 0.01, -2.0, 3.0, 600, 300  # plane units per pixel, pixel-centre origin, size
+    s, along0, up_top, w, h = 0.01, -2.0, 3.0, 600, 300  # plane units per pixel, the map's corner, size
     bgra = np.full((h, w, 4), 200, np.uint8)
     bgra[100:150, 200:300] = 0  # the hole
     cv2.imwrite(str(tmp_path / "map.png"), bgra)
     georef = {"scale_known": False, "geotransform": None, "size_px": [w, h], "keyframes": []}
     (tmp_path / "map_georef.json").write_text(json.dumps(georef))
-    hole = {"along_min_m": along0 + 199.5 * s, "along_max_m": along0 + 299.5 * s}
-    hole |= {"up_min_m": up_top - 149.5 * s, "up_max_m": up_top - 99.5 * s, "area_m2": 0.5}
+    hole = area_px(UncoveredArea(along0 + 200 * s, along0 + 300 * s, up_top - 150 * s, up_top - 100 * s, 0.5),
+                   MapGrid(along0, up_top, s, w, h))
+    assert hole == {"x_min_px": 200, "x_max_px": 300, "y_min_px": 100, "y_max_px": 150, "area_px2": 5000}
+    why = "the spool has no spool.json"
     report = {
-        "coverage_fraction": 0.97,
-        "uncovered_areas_m": [hole],
-        "map": {"width_px": w, "height_px": h, "along_m": [along0, along0 + w * s], "up_m": [up_top - h * s, up_top]},
+        "coverage_fraction": 0.97, "uncovered_areas_m": None, "uncovered_areas_px": [hole],
+        "scale_unknown": {"why": why, "fix": "cull with --mission"},
+        "map": {"width_px": w, "height_px": h, "along_m": None, "up_m": None},
     }
     (tmp_path / "report.json").write_text(json.dumps(report))
     write_viewer(tmp_path)
@@ -341,3 +354,4 @@ def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
     assert data["frame"]["units"] == "px" and data["mm_per_px"] is None and data["keyframes"] == []
     left, right, bottom, top = data["refly"][0]["rect"]  # page units: x right, y up (= minus the map row)
     assert [left, right, -top, -bottom] == pytest.approx([200, 300, 100, 150])
+    assert data["scale_note"] == why  # the panel says why there is no scale, not "no telemetry"

@@ -33,7 +33,7 @@ def installed(tmp_path_factory) -> tuple[Path, dict, Path]:
     for name in ("pyproject.toml", "README.md", "LICENSE"):
         if (ROOT / name).exists():
             shutil.copy2(ROOT / name, src / name)
-    for package in ("companion", "sim"):
+    for package in ("companion", "sim", "evaluation"):
         shutil.copytree(ROOT / package, src / package, ignore=shutil.ignore_patterns("__pycache__"))
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-w", tmp / "dist",
@@ -42,7 +42,7 @@ def installed(tmp_path_factory) -> tuple[Path, dict, Path]:
     names = zipfile.ZipFile(wheel).namelist()
     for shipped in ("companion/models/monodepth2-sim-r18w025.onnx", "companion/models/monodepth2-real-nc-r18w025.onnx",
                     "companion/missions/demo-facade.yaml", "companion/viewer/static/leaflet/LICENSE", "sim/__main__.py",
-                    "sim/commands.py"):
+                    "sim/commands.py", "evaluation/keyframes/evaluate.py", "evaluation/depth/evaluate.py"):
         assert shipped in names, f"the wheel lacks {shipped}"
     venv = tmp / "venv"
     _run([sys.executable, "-m", "venv", "--system-site-packages", "--without-pip", venv], cwd=tmp, env=env)
@@ -61,8 +61,8 @@ def installed(tmp_path_factory) -> tuple[Path, dict, Path]:
 
 def test_installed_package_is_imported_from_the_venv_not_the_checkout(installed):
     bin_dir, env, work = installed
-    out = _run([bin_dir / "python", "-c", "import companion, sim; print(companion.__file__); print(sim.__file__)"],
-               cwd=work, env=env).stdout.split()
+    script = "import companion, sim, evaluation; print(companion.__file__, sim.__file__, evaluation.__file__)"
+    out = _run([bin_dir / "python", "-c", script], cwd=work, env=env).stdout.split()
     for path in out:
         assert Path(path).is_relative_to(bin_dir.parent), f"{path} is not the installed copy"
 

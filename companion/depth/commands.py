@@ -121,23 +121,44 @@ def cmd_run(args) -> int:
     return 0
 
 
+def _photo_masker(args):
+    """The masker ``companion mask`` uses: with ``--standoff``, what the network puts farther than the standoff
+    rule's limit is background (companion/depth/standoff_rule.py)."""
+    from companion.depth.masker import Masker
+    from companion.depth.standoff_rule import standoff_masker
+
+    if args.standoff is None:
+        return Masker(args.model, threads=args.threads)
+    return standoff_masker(args.model, args.standoff, threads=args.threads)
+
+
+def _photo_bound(args):
+    """``--mission``: each photo's wall bound from its own pose tags (None without a mission)."""
+    if args.mission is None:
+        return None
+    from companion.depth.photo_pose import checked_mission_wall, photo_bound
+
+    wall = checked_mission_wall(args.mission)
+    return lambda path, shape: photo_bound(path, shape, wall)
+
+
 def cmd_mask(args) -> int:
     """Write ``<stem>_mask.png`` (255 facade, 0 background) for each photo and print its ROI share."""
-    from companion.depth.masker import Masker
     from companion.depth.photomask import mask_photos
 
     def report(m) -> None:
         what = "no near surface: all-zero mask" if m.no_near_surface else f"ROI {100 * m.roi_fraction:.1f} %"
-        how = " (parallax)" if m.by_parallax else ""
+        how = (" (parallax)" if m.by_parallax else "") + (" (wall bound)" if m.bounded else "")
         print(f"{m.image}: {what}{how} -> {m.mask_path}", flush=True)
 
-    results = mask_photos(args.images, args.out, Masker(args.model, threads=args.threads), on_mask=report,
-                          sequence=args.sequence)
+    results = mask_photos(args.images, args.out, _photo_masker(args), on_mask=report, sequence=args.sequence,
+                          bound=_photo_bound(args))
     dropped = sum(m.no_near_surface for m in results)
     print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
     if args.sequence and not any(m.by_parallax for m in results):
         print("--sequence: no neighbouring photos showed usable motion, so the network alone decided every mask "
-              "(photos of one pass along the wall, in capture order, are needed)")
+              "(photos of one pass along the wall, in capture order, are needed; stills whose wall moves more than "
+              "0.3 of the frame between neighbours are too far apart for the flow)")
     return 0
 
 
@@ -213,4 +234,15 @@ def register(subparsers) -> None:
     p.add_argument("--sequence", action="store_true",
                    help="the photos are one pass along the wall in capture order (folders: sorted by name): "
                         "motion parallax between neighbours corrects each mask (docs/DEPTH.md)")
+    _add_mask_telemetry_options(p)
     p.set_defaults(func=cmd_mask)
+
+
+def _add_mask_telemetry_options(p) -> None:
+    """``companion mask``'s geometry options (issue 27): the mission's wall and the standoff."""
+    p.add_argument("--mission", default=None,
+                   help="mission YAML of the wall the photos show: photos with a pose in their tags (EXIF GPS, DJI "
+                        "gimbal XMP) are masked only inside the wall's projection (docs/DEPTH.md)")
+    p.add_argument("--standoff", type=float, default=None,
+                   help="the camera's distance to the wall in metres: what the network puts well beyond it is "
+                        "background (docs/DEPTH.md)")

@@ -10,9 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.depth.evaluate import save_visual
 from companion.depth.masker import Masker
 from companion.depth.roi import RoiResult
+from companion.depth.visual import save_visual
 from companion.errors import CompanionError
 
 

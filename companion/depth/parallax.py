@@ -89,7 +89,31 @@ class ParallaxParams:
     drop_max_untrusted_kept: float = 0.10
     min_baseline_m: float = 0.08  # the reference frame is the latest one at least this far from the current
     max_baseline_m: float = 0.6  # beyond this the flow is too large to track reliably: network alone
-    # Off by default (measured, docs/DEPTH.md "Where the mask is wrong"): no frame is dropped while the wall the
+    # The 8-60 cm window above is for a wall this far away. What DIS must track is the wall's image motion,
+    # f x baseline / standoff, so with the standoff known (the mission's) the window scales with standoff / this:
+    # sparse stills 13-31 m from the wall, 2-5 m apart, move the wall about as much as 0.3-1.5 m at 4 m (issue 27).
+    # At the paper's 4 m nothing changes. None: the fixed window whatever the standoff (the rule before).
+    baseline_standoff_m: float | None = 4.0
+    # ``companion mask --sequence`` (no telemetry): where two neighbouring photos' dominant motion (phase
+    # correlation of the working copies) exceeds this share of the working width, the flow is measured around it
+    # (``dense_flow(..., prior=...)``): DIS's fast preset lost the wall of stills 3 m apart 13 m out (39 of 240 px:
+    # 0-5 % of the frame trusted, walls dropped as background). 0.1: about the 60 cm at 4 m the window above
+    # allows (26 px), so the passes it was tuned on are unchanged. None: never (the rule before).
+    sequence_align_share: float | None = 0.1
+    sequence_align_min_response: float = 0.2  # phase correlation peak below this: no dominant motion to trust
+    # ... and where the pass's wall moves more than this share of the working width between neighbours (stills 3 m
+    # apart 4 m out move it half the frame: aligned or not, parallax made the masks worse than the network alone
+    # on the validation passes, 25-29 % -> 57-76 % error), parallax is not used: the network alone decides
+    sequence_max_share: float = 0.3
+    # ``--sequence``: a photo its own flow would drop as all background is judged again with the wall-plane check
+    # at the pass's wall depth (``sequence.PassMotion.wall_depth``): a sliver of wall at the frame's edge is too
+    # little for the flow to measure the wall's depth, so the check never ran there. Only in a pass whose wall moves
+    # less than ``sequence_align_share`` of the width between neighbours: on the validation passes at 0.5 m it
+    # dropped 1 and 0 photos with wall (3 and 8 before) at no cost, but at 3 m spacing 13 m out one
+    # background-only photo of six was kept (5 of 6, under the 90 % bar), and on the held-out passes there 16 of 32
+    # dropped instead of 31 (seen before this restriction was made: docs/DEPTH.md). False: the rule before.
+    sequence_wall_depth: bool = True
+    # Off by default (measured, docs/DEPTH.md "Tried and off"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
     # this frame still shows. Where it covers at least ``wall_in_view_min_share`` of the frame, the frame is kept
@@ -168,39 +192,6 @@ class ParallaxParams:
                                  "use a comma list of bottom, left, right, top, top-alone")
 
 
-# Named rule sets, so an evaluation can compare them side by side on the same frames (bench/depth_real_passes.py).
-# the mask-top change's two rules switched off: the rule sets named before it compare as they were measured
-_BEFORE_TOP = {"continuity_top_max_far_share": None, "plane_far_untracked": False}
-PARALLAX_RULES: dict[str, ParallaxParams] = {
-    "default": ParallaxParams(),
-    # the rules before issue 13's diagnosis: trusted pixels nearer than 15 m are near, plain pixels keep the
-    # network's answer
-    "fixed-15m": ParallaxParams(near_rule="fixed", plain_rule="network", plane_check=False,
-                                plain_watershed_cut=False, **_BEFORE_TOP),
-    # the rules before the wall-plane check (DIS alone decides which textured pixels are near and far)
-    "no-plane-check": ParallaxParams(plane_check=False, plain_watershed_cut=False, **_BEFORE_TOP),
-    # the wall-plane check without the watershed cut of plain background
-    "no-watershed": ParallaxParams(plain_watershed_cut=False, **_BEFORE_TOP),
-    # the wall-plane check's first drop rule: at most 1.5 % of the frame near after the check
-    "near-drop": ParallaxParams(plane_drop_rule="near", **_BEFORE_TOP),
-    # the rules before the mask-wall change: a plain patch touching any frame border keeps the network's answer
-    "before-borders": ParallaxParams(continuity_wall_borders="", **_BEFORE_TOP),
-    # the rules before the mask-top change: a plain patch touching the frame's top always keeps the network's
-    # answer, and only pixels DIS itself calls far are far
-    "before-top": ParallaxParams(**_BEFORE_TOP),
-    # the rules before far specks enclosed by the wall stopped vetoing wall patches where no background is in view
-    "before-speck": ParallaxParams(continuity_speck_veto="every"),
-    # ... and no far pixel of such a frame vetoing one (measured, docs/DEPTH.md "A far speck": more background kept)
-    "speck-none": ParallaxParams(continuity_speck_veto="none"),
-    # a frame parallax cannot judge (a strip's first) keeps what no depth boundary separates: more wall, and the
-    # background beside the wall's start with it (docs/DEPTH.md; measured with the top-alone border rule)
-    "unjudged-paper": ParallaxParams(unjudged_far_cut_ratio=0.0, continuity_wall_borders="bottom,left,right,top-alone",
-                                     **_BEFORE_TOP),
-    # plain patches hanging from the frame's top edge alone judged by their neighbours too (docs/DEPTH.md)
-    "borders-top-alone": ParallaxParams(continuity_wall_borders="bottom,left,right,top-alone", **_BEFORE_TOP),
-}
-
-
 @dataclass(frozen=True)
 class ParallaxResult:
     """Per pixel at work resolution: depth from parallax (inf: no motion), trusted, near and far (both trusted)."""
@@ -254,22 +245,33 @@ class DenseFlow:
     cur: np.ndarray | None = None
 
 
-def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxParams | None = None) -> DenseFlow:
-    """DIS optical flow both ways between two frames of the same camera, at ``params.work_width``."""
+def dense_flow(ref_image: np.ndarray, cur_image: np.ndarray, params: ParallaxParams | None = None,
+               prior: tuple[int, int] | None = None) -> DenseFlow:
+    """DIS optical flow both ways between two frames of the same camera, at ``params.work_width``; ``prior``: a
+    shift (work pixels) the flow is measured around (:func:`dense_flow_grey`)."""
     p = params or ParallaxParams()
     if ref_image.shape != cur_image.shape:
         raise CompanionError(f"frames differ in size: {ref_image.shape} vs {cur_image.shape}",
                              "compare frames of the same camera")
-    return dense_flow_grey(_grey(ref_image, p.work_width), _grey(cur_image, p.work_width), cur_image.shape[1], p)
+    return dense_flow_grey(_grey(ref_image, p.work_width), _grey(cur_image, p.work_width), cur_image.shape[1], p,
+                           prior)
 
 
 def dense_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int,
-                    params: ParallaxParams | None = None) -> DenseFlow:
-    """:func:`dense_flow` of two grey working copies (``work_width`` wide) of frames ``frame_width`` wide."""
+                    params: ParallaxParams | None = None, prior: tuple[int, int] | None = None) -> DenseFlow:
+    """:func:`dense_flow` of two grey working copies (``work_width`` wide) of frames ``frame_width`` wide.
+
+    ``prior`` (whole work pixels, None: none): the reference is first moved by it and DIS measures the rest. DIS's
+    fast preset loses a wall moving much more than a tenth of the frame (stills metres apart); moved by the
+    pass's dominant motion, what is left for it is small (companion/depth/sequence.py)."""
     p = params or ParallaxParams()
+    dx, dy = prior or (0, 0)
+    moved = ref if not (dx or dy) else cv2.warpAffine(
+        ref, np.float32([[1, 0, dx], [0, 1, dy]]), (ref.shape[1], ref.shape[0]),
+        flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)  # moved(x) = ref(x + d)
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
-    fwd = dis.calc(cur, ref, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
-    bwd = dis.calc(ref, cur, None)
+    fwd = dis.calc(cur, moved, None)  # cur(x) ~ ref(x + fwd(x)): a point at depth Z moves by f t / Z
+    bwd = dis.calc(moved, cur, None)
     h, w = cur.shape
     xx, yy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     back = cv2.remap(bwd, xx + fwd[..., 0], yy + fwd[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
@@ -277,6 +279,8 @@ def dense_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int,
     gx = cv2.Sobel(cur, cv2.CV_32F, 1, 0, ksize=3) / 4.0
     gy = cv2.Sobel(cur, cv2.CV_32F, 0, 1, ksize=3) / 4.0
     texture = cv2.boxFilter(np.hypot(gx, gy), -1, (7, 7))
+    fwd[..., 0] += dx
+    fwd[..., 1] += dy
     tx, ty = xx + fwd[..., 0], yy + fwd[..., 1]
     inside = (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)  # tracked to a point inside the reference
     trusted = (texture >= p.min_texture) & (fb_err <= p.max_fb_error_px) & inside
@@ -603,15 +607,25 @@ def _reaching_border(region: np.ndarray) -> np.ndarray:
     return reach[labels]
 
 
+def baseline_window(params: ParallaxParams, standoff_m: float | None) -> tuple[float, float]:
+    """(min, max) baseline in metres for a wall ``standoff_m`` away (``ParallaxParams.baseline_standoff_m``): the
+    fixed 8-60 cm without a standoff or with the scaling off."""
+    if params.baseline_standoff_m is None or standoff_m is None or not standoff_m > 0:
+        return params.min_baseline_m, params.max_baseline_m
+    scale = standoff_m / params.baseline_standoff_m
+    return params.min_baseline_m * scale, params.max_baseline_m * scale
+
+
 def pick_reference(positions: list[np.ndarray], current: np.ndarray,
-                   params: ParallaxParams | None = None) -> int | None:
-    """Index (into ``positions``, oldest first) of the latest earlier camera position at least ``min_baseline_m``
-    from ``current`` and at most ``max_baseline_m``; None when there is none (hover, first frames)."""
-    p = params or ParallaxParams()
+                   params: ParallaxParams | None = None, standoff_m: float | None = None) -> int | None:
+    """Index (into ``positions``, oldest first) of the latest earlier camera position at least the window's
+    minimum (:func:`baseline_window`) from ``current`` and at most its maximum; None when there is none (hover,
+    first frames, stills farther apart than the flow tracks)."""
+    low, high = baseline_window(params or ParallaxParams(), standoff_m)
     for k in range(len(positions) - 1, -1, -1):
         d = float(np.linalg.norm(np.asarray(current, float) - np.asarray(positions[k], float)))
-        if d >= p.min_baseline_m:
-            return k if d <= p.max_baseline_m else None
+        if d >= low:
+            return k if d <= high else None
     return None
 
 
@@ -638,7 +652,8 @@ class SequenceParallax:
     """Parallax for frames arriving in capture order with their telemetry poses (``companion.records.Pose``).
 
     Keeps grey working copies of the last few frames; each frame to be masked is compared with the latest one at
-    least ``min_baseline_m`` away. Returns None (the network alone decides) without a pose, while hovering, or at
+    least the baseline window's minimum away (``min_baseline_m``, scaled by the standoff: :func:`baseline_window`).
+    Returns None (the network alone decides) without a pose, while hovering, or at
     the start of a pass. The onboard chain masks only the frames around a keyframe decision (about two per
     keyframe, a metre apart), so it also shows the masker every frame it tracks (:meth:`remember`, a resize and
     no flow): that is what gives the masked frame a reference a few centimetres back. ``standoff_m`` (the
@@ -683,13 +698,17 @@ class SequenceParallax:
         fx = (frame_shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
         return carried_wall(self._kept[0], self._enu(pose), R, fx, frame_shape[1], self.params)
 
+    def baseline_window(self) -> tuple[float, float]:
+        """The baseline window (metres) for this pass's standoff (:func:`baseline_window`)."""
+        return baseline_window(self.params, self.standoff_m)
+
     def remember(self, image: np.ndarray, pose) -> None:
         """Keep a frame as a possible reference without judging it (frames closer than a quarter of the minimum
         baseline to the last one kept add nothing and are skipped)."""
         if pose is None:
             return
         pos = self._enu(pose)
-        if self._history and np.linalg.norm(pos - self._history[-1][1]) < self.params.min_baseline_m / 4:
+        if self._history and np.linalg.norm(pos - self._history[-1][1]) < self.baseline_window()[0] / 4:
             return
         self._push(_grey(image, self.params.work_width), pos, image.shape)
 
@@ -702,7 +721,7 @@ class SequenceParallax:
             return None
         pos = self._enu(pose)
         grey = _grey(image, self.params.work_width)
-        k = pick_reference([h[1] for h in self._history], pos, self.params)
+        k = pick_reference([h[1] for h in self._history], pos, self.params, self.standoff_m)
         result = None
         if k is not None and self._history[k][2] == image.shape:
             yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level

@@ -64,12 +64,12 @@ def baseline_between(masker: Masker, held: Pose, later: Pose) -> Baseline:
     """Where ``later`` lies from ``held`` against the masker's parallax limits (distance of the camera centres)."""
     import pymap3d
 
-    p = masker.parallax.params
+    low, high = masker.parallax.baseline_window()
     d = float(np.linalg.norm(pymap3d.geodetic2enu(later.lat, later.lon, later.alt_amsl_m,
                                                   held.lat, held.lon, held.alt_amsl_m)))
-    if d < p.min_baseline_m:
+    if d < low:
         return Baseline.SHORT
-    return Baseline.USABLE if d <= p.max_baseline_m else Baseline.TOO_FAR
+    return Baseline.USABLE if d <= high else Baseline.TOO_FAR
 
 
 class _LaterOnly(SequenceParallax):

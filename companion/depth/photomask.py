@@ -20,10 +20,12 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
-from companion.files import write_atomic
+from companion.files import NewOutput, write_atomic
 from companion.image_files import read_image_file
 
 _Masks = Iterator[tuple[int, np.ndarray | None, bool, bool]]  # (index, mask or None, no near surface, parallax)
+# (photo path, decoded image shape) -> where the photo can show the wall (uint8 0/255), or None: no bound
+Bound = Callable[[Path, tuple[int, ...]], "np.ndarray | None"]
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 
 
@@ -36,6 +38,7 @@ class PhotoMask:
     roi_fraction: float  # share of the photo kept as facade (0 for a photo with no near surface)
     no_near_surface: bool  # the masker found only far background: the mask is all zero
     by_parallax: bool = False  # --sequence: parallax confirmed or corrected the network's mask
+    bounded: bool = False  # --mission: the wall's projection from the photo's pose cut what cannot be wall
 
 
 def mask_name(image: Path) -> str:
@@ -107,21 +110,37 @@ def _single_photo_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks
         yield n, (roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)), roi.empty, False
 
 
-def _sequence_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks:
+def _sequence_masks(paths: list[Path], masker, read: _PhotoReader, params=None) -> _Masks:
     """The same from the network and the pass's parallax (companion/depth/sequence.py)."""
     from companion.depth.sequence import mask_sequence
 
-    for n, m in mask_sequence(paths, masker, read):
+    for n, m in mask_sequence(paths, masker, read, params):
         yield (n, None, False, False) if m is None else (n, m.mask, m.no_near_surface, m.parallax)
 
 
+def _bounded(mask: np.ndarray, no_near_surface: bool, path: Path, bound: Bound | None) -> tuple[np.ndarray, bool, bool]:
+    """The mask cut to the photo's wall bound (companion/depth/wall_bound.py); (mask, no near surface, bounded)."""
+    from companion.depth.wall_bound import apply_bound
+
+    cut = bound(path, mask.shape) if bound is not None else None
+    if cut is None:
+        return mask, no_near_surface, False
+    mask = apply_bound(mask, cut)
+    return mask, no_near_surface or not mask.any(), True
+
+
 def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
-                on_mask: Callable[[PhotoMask], None] | None = None, *, sequence: bool = False) -> list[PhotoMask]:
+                on_mask: Callable[[PhotoMask], None] | None = None, *, sequence: bool = False,
+                bound: Bound | None = None, sequence_params=None) -> list[PhotoMask]:
     """Mask each photo with the depth masker (default: the shipped model) and write ``<stem>_mask.png``.
 
     ``sequence``: the photos are one pass along the wall in capture order; the motion parallax between
     neighbouring photos confirms or corrects each network mask and drops photos of only far background
     (companion/depth/sequence.py; docs/DEPTH.md says what it changes).
+
+    ``bound``: where each photo can show the wall (``companion.depth.photo_pose.photo_bound`` with a mission):
+    everything outside it is cut from the mask; a photo it gives no bound keeps its mask. ``sequence_params``: the
+    parallax rules of ``sequence`` (``companion.depth.parallax.ParallaxParams``; default: the shipped ones).
 
     Raises CompanionError before writing anything when two photos would get the same mask name or ``out_dir``
     is a file, and after writing every readable photo's mask when some photos could not be read.
@@ -130,28 +149,34 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
 
     paths = expand_images(images)
     out = _checked_out_dir(out_dir, paths)
+    output = NewOutput(out)
     out.mkdir(parents=True, exist_ok=True)
     masker = masker or Masker()
     reader = _PhotoReader()
-    masks = (_sequence_masks if sequence else _single_photo_masks)(paths, masker, reader)
+    masks = _sequence_masks(paths, masker, reader, sequence_params) if sequence else \
+        _single_photo_masks(paths, masker, reader)
     results: list[PhotoMask] = []
     unreadable: list[Path] = []
     for n, mask, no_near_surface, by_parallax in masks:
         if mask is None:
             unreadable.append(paths[n])
             continue
+        mask, no_near_surface, bounded = _bounded(mask, no_near_surface, paths[n], bound)
         target = out / mask_name(paths[n])
         _write_png(target, mask)
         share = 0.0 if no_near_surface else float(np.count_nonzero(mask)) / mask.size
-        result = PhotoMask(paths[n], target, share, no_near_surface, by_parallax)
+        result = PhotoMask(paths[n], target, share, no_near_surface, by_parallax, bounded)
         results.append(result)
         if on_mask is not None:
             on_mask(result)
     if unreadable:
         names = "; ".join(f"{p}: {reader.problems.get(p, 'unreadable')}" for p in unreadable)
+        written = f"the masks of the other {len(results)} photos were written to {out}"
+        if not results:  # nothing written: no empty folder left behind to be taken for a result
+            output.remove_created()
+            written = "no mask was written"
         raise CompanionError(
             f"{len(unreadable)} of {len(paths)} photos could not be read as images: {names}",
-            f"check that they are complete JPEG/PNG/TIFF files and rerun on them; the masks of the other "
-            f"{len(results)} photos were written to {out}",
+            f"check that they are complete JPEG/PNG/TIFF files and rerun on them; {written}",
         )
     return results

@@ -311,15 +311,3 @@ def pixel_error_ratio(mask: np.ndarray, truth: np.ndarray) -> float:
     if mask.shape != truth.shape:
         truth = cv2.resize(truth, (mask.shape[1], mask.shape[0]), interpolation=cv2.INTER_NEAREST)
     return float(np.count_nonzero((mask > 127) != (truth > 127))) / mask.size
-
-
-# Named ROI rules, so an evaluation can compare them side by side on the same disparity (bench/depth_real_passes.py).
-ROI_RULES: dict[str, RoiParams] = {
-    "default": RoiParams(),  # near 0.4, far cut 0.4: keep what is within 2.5x the facade's distance
-    "sim-0.6-0.5": RoiParams(near_ratio=0.6, far_cut_ratio=0.5),  # the rules chosen on the simulator alone
-    "paper": RoiParams(far_cut_ratio=0.0),  # the paper's regions only, no far cut
-    # the default plus a per-pixel metric cut at the masker's depth limit (metric models), frame dropped under 1 %
-    "metric": RoiParams(pixel_depth_cut=True, min_roi_fraction=0.01),
-    # depth alone (metric models): every region kept, only the per-pixel cut at the depth limit
-    "metric-only": RoiParams(near_ratio=0.01, far_cut_ratio=0.0, pixel_depth_cut=True, min_roi_fraction=0.01),
-}

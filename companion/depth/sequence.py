@@ -23,7 +23,7 @@ trained on metric depth (the shipped ones), and a scene that is static between n
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -43,6 +43,15 @@ class PassMotion:
     direction: np.ndarray  # unit (x, y): how the image content moves from one photo to the next (work pixels)
     scale_px_m: float  # focal length (work pixels) x baseline between neighbouring photos (metres)
     pairs: int  # pairs that measured the scale
+    # the wall's dominant motion between neighbours (work pixels, the median of the pairs aligned by
+    # :func:`dominant_prior`), None when no pair needed aligning: a pair whose own dominant motion is the
+    # background's (the wall entering or leaving the view) is measured around it too (:func:`pass_flow`)
+    wall_shift: tuple[int, int] | None = None
+    # the wall's depth in the pass's units (scale / the wall's motion on pairs the network reads as mostly near),
+    # for the wall-plane check of a photo whose own flow shows too little wall to measure it (a sliver at the
+    # frame's edge); None when no pair measured it or ``ParallaxParams.sequence_wall_depth`` is off
+    wall_depth: float | None = None
+    wall_motion_px: float | None = None  # that dominant motion (work pixels)
 
 
 @dataclass(frozen=True)
@@ -84,9 +93,11 @@ def _pair_measure(flow: DenseFlow, network_near: np.ndarray, network_depth_m: np
     return direction, float(np.median(network_depth_m[near][moving] * along[moving]))
 
 
-def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None]) -> PassMotion | None:
+def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None],
+                shifts: Sequence[tuple[int, int]] = (), wall_motions: Sequence[float] = ()) -> PassMotion | None:
     """The pass's direction (median of the pairs') and scale (median of the pairs that measured one); None when no
-    pair measured a scale (the network alone decides every photo)."""
+    pair measured a scale (the network alone decides every photo). ``shifts``: the priors of the aligned pairs;
+    ``wall_motions``: the dominant motion (work pixels) of pairs the network reads as mostly near."""
     measured = [s for s in scales if s is not None]
     moving = [d for d in directions if d is not None]
     if not measured or not moving:
@@ -95,7 +106,49 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
     norm = float(np.hypot(*d))
     if norm < 1e-6:
         return None
-    return PassMotion(d / norm, float(np.median(measured)), len(measured))
+    wall_shift = tuple(int(round(v)) for v in np.median(np.array(shifts), axis=0)) if shifts else None
+    scale = float(np.median(measured))
+    wall_motion = float(np.median(wall_motions)) if wall_motions else None
+    wall_depth = scale / wall_motion if wall_motion else None
+    return PassMotion(d / norm, scale, len(measured), wall_shift, wall_depth, wall_motion)
+
+
+def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
+    """The flow of one pair for deciding a photo: around its own dominant motion, and where the pass's wall motion
+    differs from that (the wall entering or leaving the view, the background dominating the pair) also around the
+    wall's, each pixel taking the first of the two that it can trust."""
+    own = dominant_prior(ref, cur, params)
+    flow = dense_flow(ref, cur, params, own)
+    if wall_shift is None or np.hypot(*np.subtract(wall_shift, own or (0, 0))) < params.sequence_align_share * \
+            params.work_width / 2:
+        return flow
+    other = dense_flow(ref, cur, params, wall_shift)
+    use = ~flow.trusted & other.trusted
+    merged = np.where(use[..., None], other.flow, flow.flow)
+    return replace(flow, flow=merged, trusted=flow.trusted | other.trusted)
+
+
+def dominant_motion(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[float, float, float]:
+    """The two photos' dominant image motion (work pixels, ``cur(x) ~ ref(x + d)``) by phase correlation of the
+    working copies, and the correlation peak (near 1: one motion fills the frame)."""
+    size = _work_size(cur, params)
+    grey = [cv2.resize(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) if im.ndim == 3 else im, size,
+                       interpolation=cv2.INTER_AREA).astype(np.float32) for im in (ref, cur)]
+    (dx, dy), response = cv2.phaseCorrelate(grey[1], grey[0], cv2.createHanningWindow(size, cv2.CV_32F))
+    return float(dx), float(dy), float(response)
+
+
+def dominant_prior(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams,
+                   motion: tuple[float, float, float] | None = None) -> tuple[int, int] | None:
+    """:func:`dominant_motion` (or the one given) when it is large enough that DIS should measure around it
+    (``ParallaxParams.sequence_align_share``); None otherwise."""
+    if params.sequence_align_share is None:
+        return None
+    dx, dy, response = motion or dominant_motion(ref, cur, params)
+    if response < params.sequence_align_min_response or \
+            np.hypot(dx, dy) < params.sequence_align_share * params.work_width:
+        return None
+    return round(dx), round(dy)
 
 
 def _work_size(image: np.ndarray, params: ParallaxParams) -> tuple[int, int]:
@@ -139,17 +192,30 @@ class SequenceMasker:
         networks: dict[int, NetworkMask] = {}
         directions: list[np.ndarray | None] = []
         scales: list[float | None] = []
+        shifts: list[tuple[int, int]] = []
+        wall_motions: list[float] = []
         previous: np.ndarray | None = None
         for i, image in images:
             if image is None:
                 continue
             networks[i], near, depth = self._network(image)
             if previous is not None and previous.shape == image.shape:
-                direction, scale = _pair_measure(dense_flow(previous, image, self.params), near, depth, self.params)
+                dominant = dominant_motion(previous, image, self.params)
+                prior = dominant_prior(previous, image, self.params, dominant)
+                shifts += [prior] if prior is not None else []
+                if self.params.sequence_wall_depth and dominant[2] >= self.params.sequence_align_min_response \
+                        and near.mean() >= 0.5:
+                    wall_motions.append(float(np.hypot(dominant[0], dominant[1])))
+                direction, scale = _pair_measure(dense_flow(previous, image, self.params, prior), near, depth,
+                                                 self.params)
                 directions.append(direction)
                 scales.append(scale)
             previous = image
-        return networks, pass_motion(directions, scales)
+        motion = pass_motion(directions, scales, shifts, wall_motions)
+        if motion is not None and motion.wall_shift is not None and \
+                np.hypot(*motion.wall_shift) > self.params.sequence_max_share * self.params.work_width:
+            return networks, None  # stills too far apart for the flow: the network alone decides
+        return networks, motion
 
     def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
                motion: PassMotion | None) -> SequenceMask:
@@ -158,12 +224,18 @@ class SequenceMasker:
         net_mask = network.mask()
         if motion is None or neighbour is None or neighbour.shape != image.shape:
             return SequenceMask(net_mask, network.empty, False)
-        flow = dense_flow(neighbour, image, self.params)
+        wall_shift = motion.wall_shift if forward or motion.wall_shift is None else \
+            (-motion.wall_shift[0], -motion.wall_shift[1])
+        flow = pass_flow(neighbour, image, self.params, wall_shift)
         sign = 1.0 if forward else -1.0
         fx = float(image.shape[1])  # any focal length: the scale was measured in the same units, so it cancels
         baseline_m = motion.scale_px_m / (fx * flow.work_width / flow.frame_width)
         translation = np.array([*(sign * baseline_m * motion.direction), 0.0])
-        mask, dropped = fuse_with_network(net_mask, depth_from_flow(flow, translation, fx, self.params), image=image)
+        par = depth_from_flow(flow, translation, fx, self.params)
+        if par.all_background and motion.wall_depth is not None and \
+                motion.wall_motion_px < (self.params.sequence_align_share or 0.0) * self.params.work_width:
+            par = depth_from_flow(flow, translation, fx, self.params, motion.wall_depth)
+        mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)
 
 

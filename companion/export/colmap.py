@@ -28,9 +28,10 @@ import numpy as np
 import pymap3d
 
 from companion.errors import CompanionError
-from companion.files import read_jsonl, removed_on_failure, write_atomic
+from companion.files import removed_on_failure, write_atomic
 from companion.image_files import read_image_file
-from companion.spool.layout import MANIFEST, META
+from companion.spool.layout import MANIFEST
+from companion.spool.reader import KeyframeInput, load_spool, read_spool_meta
 
 log = logging.getLogger(__name__)
 
@@ -80,20 +81,22 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 
 
 def write_workspace(spool: Path, out: Path, *, masks: bool = False) -> ColmapWorkspace:
-    """Put the keyframes where COLMAP looks for them (``out/images``, ``out/masks``); the spool is not touched."""
+    """Put the keyframes where COLMAP looks for them (``out/images``, ``out/masks``); the spool is not touched.
+    The spool is read by its reader (``companion.spool.reader.load_spool``), as the stitcher reads it."""
     spool, out = Path(spool), Path(out)
-    entries = read_jsonl(spool / MANIFEST) if (spool / MANIFEST).exists() else []
-    if not entries:
+    if not (spool / MANIFEST).exists() or not (spool / MANIFEST).read_text(errors="replace").strip():
         raise CompanionError(f"{spool} holds no keyframe spool (no {MANIFEST} with keyframes)",
                              "give the --out folder of `companion fly --capture`, `companion cull` or `companion demo`"
                              " (its spool/ folder)")
     if out.resolve() == spool.resolve():
         raise CompanionError("the COLMAP workspace would be written into the spool itself",
                              "choose another --out folder")
-    usable, left_out = _readable_keyframes(spool, entries)
+    spooled = load_spool(spool)
+    usable, left_out = _readable_keyframes(spooled.keyframes)
+    left_out = [skipped.reason for skipped in spooled.skipped] + left_out
     if not usable:
-        raise CompanionError(f"none of the {len(entries)} keyframe images of {spool} can be read: "
-                             f"{'; '.join(left_out[:5])}",
+        raise CompanionError(f"none of the {len(spooled.keyframes) + len(spooled.skipped)} keyframe images of "
+                             f"{spool} can be read: {'; '.join(left_out[:5])}",
                              "check the spool's files (a card pulled mid-write cuts JPEGs short); cull again")
     images = out / "images"
     images.mkdir(parents=True, exist_ok=True)
@@ -101,34 +104,29 @@ def write_workspace(spool: Path, out: Path, *, masks: bool = False) -> ColmapWor
     if mask_dir is not None:
         mask_dir.mkdir(exist_ok=True)
     names, positions = [], []
-    for entry in usable:
-        src = spool / entry["image"]
+    for keyframe in usable:
+        src = keyframe.image_path
         _link_or_copy(src, images / src.name)
-        if mask_dir is not None:
-            mask = spool / entry["mask"]
-            if mask.exists():
-                _link_or_copy(mask, mask_dir / f"{src.name}.png")  # COLMAP: the image's full name + .png
-        pose = entry.get("pose") or {}
-        positions.append(tuple(float(pose.get(k, np.nan)) for k in ("lat", "lon", "alt_amsl_m")))
+        if mask_dir is not None and keyframe.mask_path is not None:
+            _link_or_copy(keyframe.mask_path, mask_dir / f"{src.name}.png")  # COLMAP: the image's full name + .png
+        pose = keyframe.pose
+        positions.append((np.nan, np.nan, np.nan) if pose is None else (pose.lat, pose.lon, pose.alt_amsl_m))
         names.append(src.name)
-    true_focal = None
-    if (spool / META).exists():
-        camera = json.loads((spool / META).read_text(encoding="utf-8")).get("camera") or {}
-        if camera.get("K"):
-            true_focal = float(camera["K"][0][0])
+    camera, _, _ = read_spool_meta(spool)  # the mission's camera (or its calibration); None without spool.json
+    true_focal = None if camera is None else camera.focal_px
     return ColmapWorkspace(out, images, mask_dir, tuple(names), tuple(positions), true_focal, tuple(left_out))
 
 
-def _readable_keyframes(spool: Path, entries: list[dict]) -> tuple[list[dict], list[str]]:
-    """The manifest entries whose image reads through the shared decode path (companion/image_files.py), and
-    "NAME: why" for the others. Why: COLMAP decodes a JPEG cut short to grey without a word, or fails to read a
-    missing one, and the keyframe then shows up only as "not registered" (exit 1, no reason). Decoded at 1/8 size
-    (libjpeg scales in the DCT): the check costs a few ms per keyframe."""
+def _readable_keyframes(keyframes: list[KeyframeInput]) -> tuple[list[KeyframeInput], list[str]]:
+    """The keyframes whose image reads through the shared decode path (companion/image_files.py), and "NAME: why"
+    for the others. Why: COLMAP decodes a JPEG cut short to grey without a word, or fails to read a missing one,
+    and the keyframe then shows up only as "not registered" (exit 1, no reason). Decoded at 1/8 size (libjpeg
+    scales in the DCT): the check costs a few ms per keyframe."""
     usable, left_out = [], []
-    for entry in entries:
-        read = read_image_file(spool / entry["image"], cv2.IMREAD_REDUCED_GRAYSCALE_8)
+    for keyframe in keyframes:
+        read = read_image_file(keyframe.image_path, cv2.IMREAD_REDUCED_GRAYSCALE_8)
         if read.ok:
-            usable.append(entry)
+            usable.append(keyframe)
         else:
             left_out.append(read.describe())
             log.warning("keyframe image %s left out of the COLMAP workspace", read.describe())

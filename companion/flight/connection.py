@@ -21,6 +21,7 @@ from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from companion.errors import CompanionError
+from companion.flight.mavsdk_log import route_mavsdk_log
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +51,7 @@ class Vehicle:
     autopilot: str  # 'px4' or 'ardupilot'
     system_id: int
     param: ParamAsync | None = None
+    own_system_id: int = 245  # the companion's MAVLink system id (mavsdk's ground-station default)
 
     async def command_long(self, command: int, *params: float) -> int:
         """Send a COMMAND_LONG through mavlink_direct; returns the MAV_RESULT of its final ACK."""
@@ -85,6 +87,7 @@ def _ack_result(ack) -> int:
 
 async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto") -> Vehicle:
     """Open ``url`` (e.g. ``udp://:14540``, ``tcpout://127.0.0.1:5760``) and wait for an autopilot heartbeat."""
+    route_mavsdk_log()  # mavsdk's lines as whole logging records, not spliced into ours
     cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
     mavsdk = Mavsdk(cfg)
     try:
@@ -103,8 +106,10 @@ async def connect(url: str, *, timeout_s: float = 10.0, autopilot: str = "auto")
         kind = await system.autopilot_type()
         autopilot = "ardupilot" if kind == Autopilot.ARDUPILOT else "px4"
     vehicle = Vehicle(mavsdk, system, TelemetryAsync(system), ActionAsync(system), MissionRawAsync(system),
-                      MavlinkDirectAsync(system), autopilot, await system.get_system_id(), ParamAsync(system))
-    log.info("connected to %s autopilot (system %d) on %s", autopilot, vehicle.system_id, url)
+                      MavlinkDirectAsync(system), autopilot, await system.get_system_id(), ParamAsync(system),
+                      own_system_id=int(cfg.system_id))
+    log.info("connected to %s autopilot (system %d) on %s as system %d", autopilot, vehicle.system_id, url,
+             vehicle.own_system_id)
     return vehicle
 
 

@@ -41,8 +41,10 @@ from companion.flight.connection import (
 from companion.flight.failsafe import failsafe_overrides, failsafe_warnings, read_failsafe, required_return_alt
 from companion.flight.home_watch import HomeWatch, settle_item_seq
 from companion.flight.limits import FLIGHT_DEFAULTS
+from companion.flight.link_watch import link_watch_overrides, until_heartbeat_counted
 from companion.flight.parameters import FlightParameters, ParamChange
 from companion.flight.progress import WaypointProgress
+from companion.flight.restore import restore_before_flight
 from companion.flight.simulator import simulator_parameters
 from companion.flight.standoff_control import StandoffCorrection, StandoffSummary
 from companion.flight.standoff_loop import StandoffLoop, StandoffOptions, settings_for
@@ -101,6 +103,22 @@ class FlightResult:
     # the standoff measured on the scan legs and the corrections made (None: not a scan plan, or not watched)
     standoff: StandoffSummary | None = None
     standoff_corrections: list[StandoffCorrection] = field(default_factory=list)
+
+
+_SIGNAL_SOURCES = {"SIGINT": "Ctrl-C", "SIGTERM": "kill or a service manager"}
+
+
+def stop_request_text(signum: int | None, count: int) -> str:
+    """The log line for a stop request, naming the signal (SIGINT, SIGTERM: never a bare number, which read as
+    signal 1, SIGHUP, when it was the first request) and what the companion does about it."""
+    try:
+        name = signal.Signals(signum).name if signum is not None else None
+    except ValueError:
+        name = f"signal {signum}"
+    by = f" by {name}" + (f" ({_SIGNAL_SOURCES[name]})" if name in _SIGNAL_SOURCES else "") if name else ""
+    if count <= 1:
+        return f"stop requested{by}: pausing, then returning to launch"
+    return f"stop requested again{by}: no longer waiting for the landing"
 
 
 def _down_and_disarmed(state: Mapping) -> bool:
@@ -164,10 +182,10 @@ class _Supervisor:
         self.home_latlon_before_arming: tuple[float, float] | None = None
         self.standoff = standoff
 
-    def on_signal(self) -> None:
+    def on_signal(self, signum: int | None = None) -> None:
         self.signal_count += 1
         self.signalled.set()
-        log.warning("stop requested (signal %d): pausing, then returning to launch", self.signal_count)
+        log.warning("%s", stop_request_text(signum, self.signal_count))
 
     @property
     def problem(self) -> str | None:
@@ -425,7 +443,6 @@ class _Supervisor:
                 log.info("landed and disarmed after RTL")
                 return
             if self.signal_count >= 2:
-                log.warning("second stop request: not waiting for the landing")
                 return
             if self.rec.reboot is not None:
                 self._fail(self.rec.reboot)
@@ -458,6 +475,8 @@ async def _failsafe_check(vehicle: Vehicle, plan, *, lost_link_action: str | Non
         return {}, [text]
     overrides = failsafe_overrides(vehicle.autopilot, link_action=lost_link_action, return_alt=return_alt,
                                    need=need, current=settings)
+    if lost_link_action is not None:  # the failsafe must count the companion's heartbeats (link_watch.py); set
+        overrides = {**await link_watch_overrides(vehicle), **overrides}  # before it is enabled, restored after
     log.info("lost-link failsafe: %s=%d (%s); return altitude %s = %g m", settings.names.link_action,
              settings.link_action, settings.link_action_text, settings.names.return_alt, settings.return_alt_m)
     warnings = []
@@ -582,7 +601,8 @@ def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, p
     total = len(items)
     problem = sup.problem
     if params.restore_failures:
-        text = "parameters not restored: " + ", ".join(params.restore_failures)
+        text = ("parameters not restored: " + ", ".join(params.restore_failures) + " (kept in the parameter "
+                "journal: the next `companion fly` or `companion restore --connect URL` puts them back)")
         problem = f"{problem}; {text}" if problem else text
     return FlightResult(
         completed=reason is None and problem is None and landed and disarmed and sup.max_reached >= total,
@@ -609,7 +629,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                       flight_parameters: Mapping[str, float] | None = None,
                       lost_link_action: str | None = None, return_alt: str | float | None = None,
                       standoff: StandoffOptions | None = None,
-                      camera_standoff: Callable[[], StandoffEstimate | None] | None = None) -> FlightResult:
+                      camera_standoff: Callable[[], StandoffEstimate | None] | None = None,
+                      state_dir: Path | str | None = None) -> FlightResult:
     """Upload, verify and fly ``plan`` (a ScanPlan or a list of MissionItem) on the autopilot at ``connect_url``.
 
     The parameters a ScanPlan needs on this firmware (``companion.mission.firmware.flight_parameters``: PX4's
@@ -622,6 +643,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     ``StandoffOptions()``: corrected, tolerance 0.3 m, floor = the mission's ``min_distance_m`` or 60 %); the
     measurements are the forward rangefinder's (DISTANCE_SENSOR in the telemetry rows) and ``camera_standoff()``'s
     (the live chain's ``CullChain.standoff``). Without either the flight says the standoff was not measured.
+    ``state_dir``: where the parameter journal lives (``param_journal.state_dir``); whatever an earlier run left
+    changed on this vehicle is restored first, and every change this flight makes is journaled before it is made.
 
     Returns when the vehicle is landed and disarmed, or supervision ended (stop request, timeout, restart, dead
     link: ``aborted`` and ``problem`` say which). Raises CompanionError for anything that prevents the flight from
@@ -636,12 +659,13 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     installed: list[int] = []
     sup: _Supervisor | None = None
     try:
+        journal = await restore_before_flight(vehicle, state_dir)  # before anything else (restore.py)
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
         wanted, warnings, first_seq, is_sih = await _prepare_vehicle(
             vehicle, plan, items, health_timeout_s=health_timeout_s, flight_parameters=flight_parameters,
             lost_link_action=lost_link_action, return_alt=return_alt)
-        async with FlightParameters(vehicle.param, wanted) as params, \
+        async with FlightParameters(vehicle.param, wanted, journal) as params, \
                 TelemetryRecorder(vehicle, Path(telemetry_log) if telemetry_log else None,
                                   planned_gimbal=PlannedGimbal.from_items(items)) as rec:
             loop_ = standoff_loop_for(plan, items, first_seq, standoff, rec, camera_standoff)
@@ -652,9 +676,10 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
             if handle_signals:
                 for sig in (signal.SIGINT, signal.SIGTERM):
                     with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-                        loop.add_signal_handler(sig, sup.on_signal)
+                        loop.add_signal_handler(sig, sup.on_signal, sig)
                         installed.append(sig)
             await sup.read_home_before_arming()
+            await until_heartbeat_counted(params.applied)  # link_watch.py: no arming in a stale GCS failsafe
             await _arm_and_start(vehicle, rec, first_seq)
             sup.t0 = time.monotonic()
             reason = await sup.run()

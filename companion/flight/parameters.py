@@ -3,6 +3,8 @@
 Why a context manager: a flight may need firmware settings that differ from what the vehicle keeps (a lost-link
 action, a return altitude, vertical scan speeds). Left changed, they would silently alter the next flight, so the
 previous values are restored on every way out (normal end, error, Ctrl-C) and every change is logged both ways.
+Ways out Python never sees (``kill -9``, a power cut) are covered by the journal (``param_journal.py``): each change
+is written there before it is made and dropped once restored, so the next run can put back what this one left.
 
 Types: PX4 sends integer parameters byte-wise inside the float field, ArduPilot as a C cast; mavsdk's param plugin
 decodes both, but only when asked with the parameter's own type (``WRONG_TYPE`` otherwise). So each parameter is
@@ -18,6 +20,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from companion.errors import CompanionError
+from companion.flight.param_journal import ParamJournal
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +100,7 @@ async def write_parameter(param_plugin, name: str, value: float, is_int: bool) -
                              "check the value's range for this firmware, or set it on the ground station") from exc
 
 
-def _same(a: float, b: float, is_int: bool) -> bool:
+def same_value(a: float, b: float, is_int: bool) -> bool:
     return int(round(a)) == int(round(b)) if is_int else math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-6)
 
 
@@ -106,8 +109,9 @@ class FlightParameters:
     and restores them on exit, whatever the exit. ``fp.changes`` says what was changed; a value that could not be
     restored is logged as an error naming the parameter and the value to set by hand (``fp.restore_failures``)."""
 
-    def __init__(self, param_plugin, wanted: Mapping[str, float] | None):
+    def __init__(self, param_plugin, wanted: Mapping[str, float] | None, journal: ParamJournal | None = None):
         self.param = param_plugin
+        self.journal = journal
         self.wanted = dict(wanted or {})
         self.changes: list[ParamChange] = []  # still to restore
         self.applied: list[ParamChange] = []  # everything set for the flight (kept for the report)
@@ -121,18 +125,33 @@ class FlightParameters:
                     raise CompanionError(f"parameter {name} = {value} is not a finite number",
                                          "give a finite value")
                 old = await read_parameter(self.param, name)
-                if _same(old.value, float(value), old.is_int):
+                if same_value(old.value, float(value), old.is_int):
                     log.info("parameter %s is already %s", name, old.text())
                     continue
-                await write_parameter(self.param, name, float(value), old.is_int)
                 change = ParamChange(name, old.value, float(value), old.is_int)
+                if self.journal is not None:  # on disk before the vehicle changes
+                    self.journal.record(name, old.value, float(value), old.is_int)
                 self.changes.append(change)
+                await self._set(change)
                 self.applied.append(change)
                 log.info("parameter %s set to %s for this flight (was %s)", name, old.text(float(value)), old.text())
         except BaseException:
             await self.restore()
             raise
         return self
+
+    async def _set(self, change: ParamChange) -> None:
+        """Write the flight's value. Refused by the vehicle: nothing changed, so nothing to put back or journal.
+        Timed out: it may have landed, so it stays to be put back (now, and by the journal if that fails)."""
+        try:
+            await write_parameter(self.param, change.name, change.during, change.is_int)
+        except CompanionError as exc:
+            cause = exc.__cause__
+            if cause is None or _result_name(cause) != "TIMEOUT":
+                self.changes.remove(change)
+                if self.journal is not None:
+                    self.journal.settled(change.name)
+            raise
 
     async def __aexit__(self, *exc) -> None:
         await self.restore()
@@ -146,15 +165,19 @@ class FlightParameters:
                 # SITL) and push the end past the --link-dead limit; say what to set by hand instead
                 text = ParamValue(ch.name, ch.before, ch.is_int).text()
                 self.restore_failures.append(f"{ch.name} (set it back to {text})")
-                log.error("parameter %s not restored to %s: %s; set it on the ground station", ch.name, text,
-                          self.unreachable)
+                log.error("parameter %s not restored to %s: %s; it stays in the parameter journal: the next "
+                          "`companion fly` or `companion restore` puts it back (or set it on the ground station)",
+                          ch.name, text, self.unreachable)
                 continue
             try:
                 await asyncio.shield(write_parameter(self.param, ch.name, ch.before, ch.is_int))
+                if self.journal is not None:
+                    self.journal.settled(ch.name)
                 value = ParamValue(ch.name, ch.before, ch.is_int)
                 log.info("parameter %s restored to %s", ch.name, value.text())
             except (Exception, asyncio.CancelledError) as exc:
                 text = ParamValue(ch.name, ch.before, ch.is_int).text()
                 self.restore_failures.append(f"{ch.name} (set it back to {text})")
-                log.error("could not restore parameter %s to %s: %s; set it on the ground station", ch.name, text,
-                          exc)
+                log.error("could not restore parameter %s to %s: %s; it stays in the parameter journal: the next "
+                          "`companion fly` or `companion restore` puts it back (or set it on the ground station)",
+                          ch.name, text, exc)

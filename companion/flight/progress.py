@@ -2,14 +2,13 @@
 
 Why: DO items (gimbal, speed) complete instantly, so an item counter jumps (1 -> 5 -> 7) and says nothing about how
 much of the scan is flown. And a progress bar redrawn ten times a second into a log file (stderr not a terminal)
-is 150 KB of noise per flight: there, one plain line every few seconds.
+is 150 KB of noise per flight: there, one plain line per waypoint reached.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
-import time
 from collections.abc import Sequence
 
 from companion.mission import items as mi
@@ -33,18 +32,18 @@ def waypoints_done(nav_seqs: Sequence[int], current_seq: int, total_items: int) 
 
 
 class WaypointProgress:
-    """A tqdm bar of waypoints on a terminal; otherwise a log line at most every ``interval_s`` seconds (and one
-    at the end). Disabled: nothing."""
+    """A tqdm bar of waypoints on a terminal; otherwise one log line each time the count changes (and the final
+    count at the end, when that is new): a pilot reading the log sees each waypoint once, not the same line every
+    few seconds while a long leg is flown. Disabled: nothing."""
 
     def __init__(self, items: Sequence[mi.MissionItem], first_seq: int = 0, *, enabled: bool = True,
-                 interval_s: float = 5.0, terminal: bool | None = None):
+                 terminal: bool | None = None):
         self.nav = navigation_seqs(items, first_seq)
         self.total_items = len(items)
         self.enabled = enabled
-        self.interval_s = interval_s
         self.terminal = sys.stderr.isatty() if terminal is None else terminal
         self.done = 0
-        self._last_line = -float("inf")
+        self._said: int | None = None  # the count the last log line gave
         self._bar = None
         if enabled and self.terminal:
             self._bar = progress_bar(total=len(self.nav), unit="wp", desc="waypoints", leave=True)
@@ -63,9 +62,8 @@ class WaypointProgress:
                 self._bar.n = self.done
                 self._bar.refresh()
             return self.done
-        now = time.monotonic()
-        if now - self._last_line >= self.interval_s:
-            self._last_line = now
+        if self.done != self._said:
+            self._said = self.done
             log.info("progress: waypoint %d/%d%s", self.done, self.total, f", {detail}" if detail else "")
         return self.done
 
@@ -73,5 +71,6 @@ class WaypointProgress:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
-        elif self.enabled:
+        elif self.enabled and self.done != self._said:
+            self._said = self.done
             log.info("progress: waypoint %d/%d", self.done, self.total)

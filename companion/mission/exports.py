@@ -140,7 +140,13 @@ def qgc_plan_json(plan: ScanPlan, flavour: str = "px4") -> str:
 
 
 def wpl_text(plan: ScanPlan) -> str:
-    """MAVLink 'QGC WPL 110' text (Mission Planner .waypoints): line 0 is home, as ArduPilot stores it."""
+    """MAVLink 'QGC WPL 110' text (Mission Planner .waypoints): line 0 is home, as ArduPilot stores it.
+
+    Written here, not by pymavlink's ``MAVWPLoader.save`` (2.4.50): that writes every field with ``%f``, 6
+    decimals, so latitudes and longitudes lose up to 5e-7 degree (5.6 cm at the wall) against the 1e-7 degree the
+    MISSION_ITEM_INT items carry and the plan's other exports keep; it also writes only to a file path, not into
+    the in-memory render that ``write_outputs`` commits all or nothing. pymavlink's loader still reads this file
+    back item for item (tests/test_mission_exports.py)."""
     lines = ["QGC WPL 110"]
     for it in plan.mavlink_items("ardupilot"):
         frame = it.frame

@@ -46,6 +46,13 @@ class WallRegion:
     up_max_m: float
 
 
+# The plan's positions to 1e-8 degree (about 1 mm) and its heights to the mm: finer is below any autopilot's
+# resolution (MISSION_ITEM_INT: 1e-7 deg), and the geodesy's float noise (37.56649999999999) would show in every
+# exported text.
+DEG_DECIMALS = 8
+M_DECIMALS = 3
+
+
 @dataclass(frozen=True)
 class Waypoint:
     along_m: float
@@ -236,7 +243,7 @@ def _takeoff_point(m: Mission, frame: FacadeFrame) -> _Takeoff:
     else:
         ta, to = frame.length_m / 2.0, d + 6.0
         lat, lon, _ = frame.facade_to_geodetic(ta, to, 0.0)
-        home = GeoPoint(float(lat), float(lon), m.facade.ground_alt_amsl_m)
+        home = GeoPoint(round(float(lat), DEG_DECIMALS), round(float(lon), DEG_DECIMALS), m.facade.ground_alt_amsl_m)
     return _Takeoff(home, ta, to, m.facade.ground_alt_amsl_m - home.alt_amsl_m)
 
 
@@ -298,10 +305,10 @@ def _waypoints(
                 along_m=float(along),
                 out_m=float(out),
                 up_m=float(up),
-                lat=float(lat),
-                lon=float(lon),
-                alt_amsl_m=float(alt),
-                rel_alt_m=float(up + up_to_rel),
+                lat=round(float(lat), DEG_DECIMALS),
+                lon=round(float(lon), DEG_DECIMALS),
+                alt_amsl_m=round(float(alt), M_DECIMALS),
+                rel_alt_m=round(float(up + up_to_rel), M_DECIMALS),
                 yaw_deg=yaw,
                 speed_m_s=speed,
                 kind=kind,

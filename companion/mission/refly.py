@@ -101,16 +101,19 @@ def read_map_gaps(map_dir: str | Path) -> MapGaps:
             _STITCH_FIX,
         )
     report = _read_json(report_path, "stitch report")
+    unscaled = report.get("scale_unknown")
+    if isinstance(unscaled, dict):  # a map in pixels: its reason and fix, not a guess at one
+        raise CompanionError(f"the map in {map_dir} has no scale ({unscaled.get('why')}), so its uncovered areas "
+                             "are not in wall metres and cannot be flown", str(unscaled.get("fix")))
+    if not (report.get("map") or {}).get("rectified_to_facade"):
+        raise CompanionError(
+            f"the map in {map_dir} is not rectified to the facade (stitched with --no-poses, or from keyframes "
+            "without telemetry poses), so its uncovered areas are not in wall metres and cannot be flown",
+            "stitch the spool again without --no-poses, then plan the re-fly from that map",
+        )
     raw = report.get("uncovered_areas_m")
     if not isinstance(raw, list):
         raise CompanionError(f"{report_path} has no 'uncovered_areas_m' list", f"re-run the stitch: {_STITCH_FIX}")
-    if not (report.get("map") or {}).get("rectified_to_facade"):
-        raise CompanionError(
-            f"the map in {map_dir} is not rectified to the facade (stitched without telemetry poses), so its "
-            "uncovered areas are not in wall metres and cannot be flown",
-            "stitch the spool with its telemetry poses (keyframes tagged by `companion fly`/`companion cull`), then "
-            "plan the re-fly from that map",
-        )
     areas = []
     for k, a in enumerate(raw):
         try:

@@ -172,6 +172,11 @@ _FIELD_FIXES = {
 }
 
 
+# pydantic's error type prefix (float_parsing, int_type, ...) -> what the field wants, in a user's words
+_TYPE_WANTED = {"float": "a number", "int": "a whole number", "bool": "true or false", "string": "text",
+                "dict": "a mapping of fields", "model": "a mapping of fields", "list": "a list"}
+
+
 def _format_validation_error(path: Path, exc: ValidationError) -> CompanionError:
     lines = []
     fixes = []
@@ -187,12 +192,20 @@ def _format_validation_error(path: Path, exc: ValidationError) -> CompanionError
         elif err["type"] == "missing":
             lines.append(f"missing field '{loc}'")
             fixes.append(f"add '{loc}' (see missions/demo-facade.yaml)")
+        elif not err["loc"] and err["type"] == "value_error":  # a rule across fields: its message says both
+            problem, _, fix = str(err["msg"]).removeprefix("Value error, ").partition("; ")
+            lines.append(problem)
+            fixes.append(fix or "see missions/demo-facade.yaml")
         else:
             got = err.get("input")
             got_text = "" if isinstance(got, dict | list) else f" (got {got!r})"
             lines.append(f"field '{loc}': {err['msg']}{got_text}")
             top = str(err["loc"][0]) if err["loc"] else ""
-            fixes.append(_FIELD_FIXES.get(top, f"correct '{loc}' in {path.name}"))
+            wrong_type = str(err["type"]).endswith(("_type", "_parsing"))
+            kind = _TYPE_WANTED.get(str(err["type"]).split("_")[0]) if wrong_type else None
+            # a value of the wrong type: say the type (the field's range fix would answer another question)
+            fixes.append(f"write '{loc}' as {kind} (see missions/demo-facade.yaml)" if kind else
+                         _FIELD_FIXES.get(top, f"correct '{loc}' in {path.name}"))
     return CompanionError(f"invalid mission file {path}:\n    " + "\n    ".join(lines), "; ".join(dict.fromkeys(fixes)))
 
 

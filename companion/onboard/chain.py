@@ -128,8 +128,8 @@ class CullChain:
     the scan is the frames showing the wall from near the standoff, and leaving it ends the gate's segment
     (``companion.keyframes.gate_scope.ScanPhase``).
 
-    ``track`` (a ``MeasureSchedule``): every frame is tracked cheaply and only the frames around each keyframe
-    decision are masked and measured (``companion.onboard.tracked``); None masks and measures every frame.
+    ``track`` (a ``MeasureSchedule``, default its defaults): every frame is tracked cheaply and only the frames
+    around each keyframe decision are masked and measured (``companion.onboard.tracked``).
 
     ``working``: each frame is resized once to this working copy, on which tagging, tracking, the depth mask and the
     gate all run, so the chain's cost per frame does not grow with the camera's resolution; keyframes are spooled
@@ -182,8 +182,7 @@ class CullChain:
         # a keyframe the network alone masked waits here for a later frame's parallax before it is spooled
         self._later = None if observe is None else LaterReference(masker)
         self._alone: set[int] = set()  # frames masked by the network alone for want of a reference
-        self.selection = None if track is None else TrackedSelection(gate, self._mask, gate.predictor, track,
-                                                                     observe=observe)
+        self.selection = TrackedSelection(gate, self._mask, gate.predictor, track or MeasureSchedule(), observe=observe)
 
     @property
     def scope(self) -> ScanScope | None:
@@ -235,7 +234,7 @@ class CullChain:
             return out
         st.scan_segments += int(where == ScopeStep.OPENS)
         self._watch_standoff(tagged.frame.capture_time_s)
-        if self.selection is not None and self.selection.skips(tagged):  # far above Rth: counted, not decoded
+        if self.selection.skips(tagged):  # far above Rth: counted, not decoded
             self._count_processed(now)
             st.skipped_far = self.selection.counts.skipped_far
             self._skipped_last = (frame, tagged)  # decoded only if it turns out to be the wall's last view
@@ -252,12 +251,8 @@ class CullChain:
         st.stale_pose += int(tagged.pose_stale)
         self._full.keep(frame, work)
         tagged = replace(tagged, frame=work)
-        if self.selection is not None:
-            keyframes = self.selection.offer(tagged)
-            st.frames_tracked = self.selection.counts.tracked
-        else:
-            masked = self._mask(tagged)
-            keyframes = [] if masked is None else self.gate.push(masked)
+        keyframes = self.selection.offer(tagged)
+        st.frames_tracked = self.selection.counts.tracked
         st.telemetry_vetoes = self.gate.telemetry_vetoes
         self._events()
         out = self._spool(self._in_spool_order(keyframes, tagged))
@@ -295,7 +290,7 @@ class CullChain:
         self.crosscheck = check = replace(check, standoff_m=round(estimate.distance_m, 3))
         if shared:
             self.gate.predictor = check.predictor
-        if self.selection is not None and self.selection.predictor is not None:
+        if self.selection.predictor is not None:
             self.selection.predictor = check.predictor
 
     def _count_processed(self, now: float) -> None:
@@ -307,7 +302,7 @@ class CullChain:
     def finish(self) -> list[SpoolEntry]:
         """End of stream: the gate's last candidate becomes a keyframe and the spool is marked CLOSED."""
         out = self._offer_skipped_last()
-        out += [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
+        out += self._spool(self._in_spool_order(self.selection.finish(), None))
         out += self._spool(self._in_spool_order(self.gate.flush(), None))
         self._full.release_below(None)
         self._events()
@@ -324,7 +319,7 @@ class CullChain:
         """The scan was left: the held frames are decided and the gate's segment ends with its last view (the same
         as the end of a stream); the next frame of the scan opens a new segment."""
         out = self._offer_skipped_last()
-        out += [] if self.selection is None else self._spool(self._in_spool_order(self.selection.finish(), None))
+        out += self._spool(self._in_spool_order(self.selection.finish(), None))
         out += self._spool(self._in_spool_order(self.gate.end_segment(), None))
         self._events()
         return out
@@ -333,7 +328,7 @@ class CullChain:
         """The segment or the stream ends on a frame skipped far above Rth: it is the wall's last view, so it is
         decoded and offered now, as if it had not been skipped."""
         pending, self._skipped_last = self._skipped_last, None
-        if pending is None or self.selection is None:
+        if pending is None:
             return []
         frame, tagged = pending
         work = self.working.of(frame)
@@ -349,7 +344,7 @@ class CullChain:
 
     def _oldest_undecided(self, newest: int) -> int:
         """The oldest frame that may still become a keyframe: held for a decision, or the gate's candidate."""
-        held = [] if self.selection is None else self.selection.held_indices()
+        held = self.selection.held_indices()
         held += [] if self._later is None else self._later.held_indices()
         candidate = self.gate.candidate_index
         return min([newest, *held, *([] if candidate is None else [candidate])])

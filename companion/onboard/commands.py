@@ -8,8 +8,10 @@ import sys
 from pathlib import Path
 
 from companion.errors import CompanionError
+from companion.flight.commands import STATE_DIR_HELP
 from companion.flight.limits import FlightLimits
 from companion.flight.standoff_loop import StandoffOptions
+from companion.onboard.mission_source import find_cull_mission
 from companion.onboard.offline import OfflineCull, cull_recorded_flight
 from companion.onboard.scan_flight import SIM_CAPTURE, ScanFlight, culling_summary, flight_summary, fly_scan
 from companion.plugins import SitlRequest
@@ -49,6 +51,8 @@ def _register_fly(sub: argparse._SubParsersAction) -> None:
                         "the plan's transit altitude or wall top + roof margin; restored after")
     p.add_argument("--set-param", action="append", default=[], metavar="NAME=VALUE",
                    help="set an autopilot parameter for this flight only (restored after; repeatable)")
+    p.add_argument("--state-dir", type=Path, help=STATE_DIR_HELP + "; a run's changes are journaled there and "
+                   "what an interrupted run left is restored before the flight")
     p.add_argument("--timeout", type=float, default=FlightLimits.flight_timeout_s,
                    help="RTL if the flight takes longer (seconds)")
     p.add_argument("--rate", type=float, default=FlightLimits.telemetry_rate_hz, help="telemetry rate to request, Hz")
@@ -93,7 +97,10 @@ def _register_cull(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--telemetry", type=Path, required=True, help="telemetry log (JSON lines from companion fly)")
     p.add_argument("--out", type=Path, required=True, help="keyframe spool directory (resumable)")
     p.add_argument("--mission", type=mission_argument,
-                   help="mission YAML: overlap threshold, camera and facade for the spool")
+                   help="mission YAML the flight flew: overlap threshold, camera and facade, the map's scale "
+                        "(found in a `companion record` recording's meta.json; otherwise required)")
+    p.add_argument("--no-mission", action="store_true",
+                   help="cull without a mission: the spool has no camera identity or scale, its map is in pixels")
     p.add_argument("--model", type=Path, help="depth model (.onnx); default: the shipped model")
     p.add_argument("--no-mask", action="store_true", help="skip background removal (whole frame is ROI)")
     p.add_argument("--no-parallax", action="store_true",
@@ -142,7 +149,7 @@ def scan_flight_from_args(args: argparse.Namespace) -> ScanFlight:
         link_loss_s=args.link_loss, flight_timeout_s=args.timeout, end_action=args.end_action,
         progress=not args.no_progress, link_dead_s=args.link_dead, stop_wait_s=args.stop_wait,
         lost_link_action=args.lost_link_action, return_alt=args.return_alt,
-        flight_parameters=flight_parameters(args.set_param) or None,
+        flight_parameters=flight_parameters(args.set_param) or None, state_dir=args.state_dir,
         standoff=StandoffOptions(correct=not args.no_standoff_correction, tolerance_m=args.standoff_tolerance,
                                  floor_m=args.standoff_floor))
     return ScanFlight(mission_path=args.mission, connect_url=args.connect, fly_options=fly_options,
@@ -166,8 +173,11 @@ def run_fly(args: argparse.Namespace) -> int:
 
 
 def run_cull(args: argparse.Namespace) -> int:
+    mission = find_cull_mission(args.video, args.mission, allow_none=args.no_mission)
+    if mission.path is not None and mission.found_in != "--mission":
+        print(f"mission: {mission.path} (the recording's, from {mission.found_in})", file=sys.stderr)
     request = OfflineCull(video=args.video, telemetry_log=args.telemetry, spool_dir=args.out,
-                          mission_path=args.mission, model=args.model, mask=not args.no_mask,
+                          mission_path=mission.path, model=args.model, mask=not args.no_mask,
                           parallax=not args.no_parallax, time_offset_s=args.time_offset, fps=args.fps)
     result = cull_recorded_flight(request)
     stats = result.stats.as_dict()

@@ -23,7 +23,7 @@ from companion.errors import CompanionError
 from companion.files import write_atomic
 from companion.onboard.chain import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
-from companion.onboard.runner import MEASURE_ALL_BACKLOG, TRACKED_BACKLOG, Backlog, LiveRunner
+from companion.onboard.runner import TRACKED_BACKLOG, Backlog, LiveRunner
 from companion.onboard.setup import build_chain
 from companion.onboard.standoff_watch import standoff_line
 from companion.spool.clock import CaptureClock, TelemetryWallClock, UnixCaptureClock
@@ -119,7 +119,6 @@ def run_live_scan(
     gcs_camera_url: str | None = None,
     backlog: Backlog | None = None,
     capture_time_offset_s: float = 0.0,
-    track: bool = True,
     **fly_kwargs,
 ) -> LiveScanResult:
     """Fly ``plan`` and cull ``capture`` into the spool ``out`` at the same time.
@@ -130,10 +129,9 @@ def run_live_scan(
     + ``capture_time_offset_s`` are autopilot seconds, and each frame is released once the flight's telemetry
     reaches it (``companion.capture.pacing``); times it can never reach are refused before the flight.
 
-    ``track``: every frame is followed by the wall tracker and only the frames around each keyframe decision are
-    masked and measured (``companion.onboard.tracked``); False measures every frame the CPU can take. Frames wait
-    for the chain within ``backlog`` (default: a minute of camera time with the tracker, ``runner.TRACKED_BACKLOG``;
-    3 frames without, which never catches up anyway); after the flight the chain finishes what waits.
+    Every frame is followed by the wall tracker and only the frames around each keyframe decision are masked and
+    measured (``companion.onboard.tracked``). Frames wait for the chain within ``backlog`` (default: a minute of
+    camera time, ``runner.TRACKED_BACKLOG``); after the flight the chain finishes what waits.
 
     A run that ends without a keyframe raises ``NoKeyframesError`` (after the flight, with the report written),
     saying why: a flight with a camera and no keyframe is a failed capture, never a silent success.
@@ -143,7 +141,7 @@ def run_live_scan(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     telemetry_log = Path(telemetry_log) if telemetry_log else out / "telemetry.jsonl"
-    backlog = backlog or (TRACKED_BACKLOG if track else MEASURE_ALL_BACKLOG)
+    backlog = backlog or TRACKED_BACKLOG
     buffer = TelemetryBuffer(max_samples=_telemetry_samples(backlog, fly_kwargs["telemetry_rate_hz"]))
     source, paced = _open_capture(capture, buffer, capture_time_offset_s)
     on_autopilot_clock = capture.startswith("sim://") or paced is not None
@@ -156,8 +154,7 @@ def run_live_scan(
     try:
         tagger = FrameTagger(buffer, clock, wait_for_telemetry_s=TELEMETRY_WAIT_S)
         chain, camera_component = _build(out, tagger, plan, model=model, mask=mask,
-                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock, track=track,
-                                         parallax=parallax)
+                                         gcs_camera_url=gcs_camera_url, capture_clock=capture_clock, parallax=parallax)
     except BaseException:
         source.close()
         raise
@@ -245,7 +242,7 @@ def _report(flight, chain, runner: LiveRunner, out: Path, telemetry_log: Path, c
 
 def _build(
     out: Path, tagger: FrameTagger, plan, *, model, mask: bool, gcs_camera_url: str | None, capture_clock: CaptureClock,
-    track: bool = True, parallax: bool = True,
+    parallax: bool = True,
 ):
     """The chain (and the MAVLink camera component that announces its keyframes, when asked for)."""
     camera_component = None
@@ -266,7 +263,7 @@ def _build(
             camera_component.publish(kf.pose, entry.image)
 
     chain = build_chain(out, tagger, mission=plan.mission, model=model, mask=mask, capture_clock=capture_clock,
-                        on_keyframe=on_keyframe, track=track, parallax=parallax)
+                        on_keyframe=on_keyframe, parallax=parallax)
     return chain, camera_component
 
 

@@ -2,8 +2,8 @@
 
 When the worker cannot keep up, frames wait; past the buffer's bounds (``Backlog``) a waiting frame is dropped
 (counted as skipped): waiting frames have not reached the gate yet, so a frame the gate already chose as keyframe
-can never be dropped. Which one: the OLDEST (a chain that measures every frame keeps the freshest), or, with
-``drop="thin"`` (the tracker chain, which works in bursts while it measures), the one whose neighbours are closest
+can never be dropped. Which one: the OLDEST (the freshest are kept), or, with ``drop="thin"`` (the chain's
+backlog: it works in bursts while it measures), the one whose neighbours are closest
 in capture time, so what waits stays evenly spread over the time the worker was busy: a burst costs frames here
 and there, never a stretch of the wall.
 
@@ -55,7 +55,6 @@ class Backlog:
 # bigger than JPEGs: then the megabytes bound it) and the telemetry the chain keeps (``live.run_live_scan`` sizes
 # its telemetry buffer for this backlog).
 TRACKED_BACKLOG = Backlog(frames=1800, drop="thin", megabytes=512.0, seconds=60.0)
-MEASURE_ALL_BACKLOG = Backlog(frames=3)  # a chain that measures every frame never catches up anyway
 
 
 def _nbytes(frame: Frame | EncodedFrame) -> int:
@@ -144,7 +143,7 @@ class FrameBuffer:
 
 
 class LiveRunner:
-    def __init__(self, source: FrameSource, chain: CullChain, backlog: Backlog = MEASURE_ALL_BACKLOG):
+    def __init__(self, source: FrameSource, chain: CullChain, backlog: Backlog = TRACKED_BACKLOG):
         self.source = source
         self.chain = chain
         self.queue = FrameBuffer(backlog)

@@ -8,7 +8,6 @@ from companion.capture.tagging import FrameTagger
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.onboard.chain import CullChain
 from companion.onboard.standoff_watch import StandoffWatch
-from companion.onboard.tracked import MeasureSchedule
 from companion.onboard.working import WorkingCopy
 from companion.spool import KeyframeSpool
 from companion.spool.camera import camera_tags_for_mission
@@ -62,11 +61,9 @@ def build_chain(
     capture_clock: CaptureClock | None = None,
     on_keyframe=None,
     on_warning=None,
-    track: bool = True,
     parallax: bool = True,
 ) -> CullChain:
-    """``track``: follow every frame with the wall tracker and measure only around keyframe decisions (default);
-    False masks and measures every frame (the chain before issue 17, kept for side-by-side figures).
+    """Every frame is followed by the wall tracker and only the frames around keyframe decisions are measured.
     ``parallax``: with a mission (its camera's field of view), the depth mask is confirmed or corrected by the
     motion parallax against a frame a few centimetres back along the telemetry's baseline, and frames whose
     trusted pixels are all far are dropped (``companion.depth.parallax``, docs/DEPTH.md); False: network alone."""
@@ -122,7 +119,6 @@ def build_chain(
         on_keyframe=on_keyframe,
         on_warning=on_warning,
         crosscheck=crosscheck,
-        track=MeasureSchedule() if track else None,
         working=working,
         scope=scope,
         standoff_watch=watch,

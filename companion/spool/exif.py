@@ -14,9 +14,10 @@ import io
 import math
 from fractions import Fraction
 
-import cv2
 import numpy as np
-import piexif
+from PIL import Image, TiffTags
+from PIL.ExifTags import GPS, IFD, Base
+from PIL.TiffImagePlugin import IFDRational
 
 from companion.records import Pose
 from companion.spool.camera import CameraTags
@@ -25,72 +26,88 @@ XMP_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
 FOCAL_PLANE_UNIT_MM = 4  # EXIF FocalPlaneResolutionUnit: 2 inch, 3 cm, 4 mm, 5 um
 
 
-def _rational(value: float, denom: int = 10000) -> tuple[int, int]:
+def _rational(value: float, denom: int = 10000) -> IFDRational:
     f = Fraction(value).limit_denominator(denom)
-    return f.numerator, f.denominator
+    return IFDRational(f.numerator, f.denominator)
 
 
-def _dms(deg: float) -> tuple[tuple[int, int], tuple[int, int], tuple[int, int]]:
+def _dms(deg: float) -> tuple[IFDRational, IFDRational, IFDRational]:
     deg = abs(deg)
     d = int(deg)
     m = int((deg - d) * 60)
     s = (deg - d - m / 60) * 3600
-    return (d, 1), (m, 1), (int(round(s * 10000)), 10000)
+    return IFDRational(d, 1), IFDRational(m, 1), IFDRational(int(round(s * 10000)), 10000)
 
 
-def exif_bytes(
-    pose: Pose | None, capture_utc: dt.datetime | None, camera: CameraTags, width_px: int, height_px: int
-) -> bytes:
-    """EXIF for one keyframe; ``capture_utc`` None (no wall clock known) leaves the time tags out, never 1970."""
-    zeroth: dict = {piexif.ImageIFD.Orientation: 1}
-    if camera.make:
-        zeroth[piexif.ImageIFD.Make] = camera.make
-    if camera.model:
-        zeroth[piexif.ImageIFD.Model] = camera.model
-    exif: dict = {
-        piexif.ExifIFD.PixelXDimension: int(width_px),
-        piexif.ExifIFD.PixelYDimension: int(height_px),
+# Pillow's EXIF table knows no type for ComponentsConfiguration and would write the 4 bytes as BYTE; EXIF says
+# UNDEFINED (exiftool -validate: "Non-standard format"). Its table is extended once, never overriding a Pillow
+# that knows the tag.
+TiffTags.TAGS_V2_GROUPS[IFD.Exif].setdefault(
+    Base.ComponentsConfiguration,
+    TiffTags.TagInfo(Base.ComponentsConfiguration, "ComponentsConfiguration", TiffTags.UNDEFINED, 1))
+
+# What EXIF 2.32 requires of a JPEG besides our tags (exiftool -validate checks each): 72 dpi, centred chroma,
+# EXIF version 2.32, YCbCr components, Flashpix 1.0, sRGB.
+_IFD0_REQUIRED = {Base.XResolution: IFDRational(72, 1), Base.YResolution: IFDRational(72, 1), Base.ResolutionUnit: 2,
+                  Base.YCbCrPositioning: 1}
+_EXIF_REQUIRED = {Base.ExifVersion: b"0232", Base.ComponentsConfiguration: b"\x01\x02\x03\x00",
+                  Base.FlashPixVersion: b"0100", Base.ColorSpace: 1}
+
+
+def _time_tags(capture_utc: dt.datetime) -> dict:
+    stamp = capture_utc.strftime("%Y:%m:%d %H:%M:%S")
+    subsec = f"{capture_utc.microsecond // 1000:03d}"
+    return {
+        Base.DateTimeOriginal: stamp, Base.DateTimeDigitized: stamp,
+        Base.SubsecTime: subsec, Base.SubsecTimeOriginal: subsec, Base.SubsecTimeDigitized: subsec,
+        Base.OffsetTime: "+00:00", Base.OffsetTimeOriginal: "+00:00", Base.OffsetTimeDigitized: "+00:00",
+    }
+
+
+def _gps_tags(pose: Pose, capture_utc: dt.datetime | None) -> dict:
+    gps = {
+        GPS.GPSVersionID: b"\x02\x03\x00\x00",
+        GPS.GPSLatitudeRef: "N" if pose.lat >= 0 else "S",
+        GPS.GPSLatitude: _dms(pose.lat),
+        GPS.GPSLongitudeRef: "E" if pose.lon >= 0 else "W",
+        GPS.GPSLongitude: _dms(pose.lon),
+        GPS.GPSAltitudeRef: b"\x00" if pose.alt_amsl_m >= 0 else b"\x01",
+        GPS.GPSAltitude: _rational(abs(pose.alt_amsl_m), 1000),
     }
     if capture_utc is not None:
-        stamp = capture_utc.strftime("%Y:%m:%d %H:%M:%S")
-        subsec = f"{capture_utc.microsecond // 1000:03d}"
-        zeroth[piexif.ImageIFD.DateTime] = stamp
-        exif.update({
-            piexif.ExifIFD.DateTimeOriginal: stamp,
-            piexif.ExifIFD.DateTimeDigitized: stamp,
-            piexif.ExifIFD.SubSecTime: subsec,
-            piexif.ExifIFD.SubSecTimeOriginal: subsec,
-            piexif.ExifIFD.SubSecTimeDigitized: subsec,
-            piexif.ExifIFD.OffsetTime: "+00:00",
-            piexif.ExifIFD.OffsetTimeOriginal: "+00:00",
-            piexif.ExifIFD.OffsetTimeDigitized: "+00:00",
-        })
+        gps[GPS.GPSTimeStamp] = (IFDRational(capture_utc.hour, 1), IFDRational(capture_utc.minute, 1),
+                                 _rational(capture_utc.second + capture_utc.microsecond / 1e6, 1000))
+        gps[GPS.GPSDateStamp] = capture_utc.strftime("%Y:%m:%d")
+    return gps
+
+
+def keyframe_exif(
+    pose: Pose | None, capture_utc: dt.datetime | None, camera: CameraTags, width_px: int, height_px: int
+) -> Image.Exif:
+    """EXIF for one keyframe, written by Pillow (IFDs chained and aligned as EXIF 2.32 says; the hand-packed
+    piexif IFDs before gave exiftool -validate 15 warnings); ``capture_utc`` None (no wall clock known) leaves
+    the time tags out, never 1970."""
+    exif = Image.Exif()
+    exif.update({Base.Orientation: 1, **_IFD0_REQUIRED})
+    if camera.make:
+        exif[Base.Make] = camera.make
+    if camera.model:
+        exif[Base.Model] = camera.model
+    sub: dict = {**_EXIF_REQUIRED, Base.ExifImageWidth: int(width_px), Base.ExifImageHeight: int(height_px)}
+    if capture_utc is not None:
+        exif[Base.DateTime] = capture_utc.strftime("%Y:%m:%d %H:%M:%S")
+        sub.update(_time_tags(capture_utc))
     focal = camera.focal_for(width_px, height_px)
     if focal is not None:
         focal_mm, px_per_mm_x, px_per_mm_y = focal
-        exif[piexif.ExifIFD.FocalLength] = _rational(focal_mm, 100000)
-        exif[piexif.ExifIFD.FocalPlaneXResolution] = _rational(px_per_mm_x, 100000)
-        exif[piexif.ExifIFD.FocalPlaneYResolution] = _rational(px_per_mm_y, 100000)
-        exif[piexif.ExifIFD.FocalPlaneResolutionUnit] = FOCAL_PLANE_UNIT_MM
-    gps = {}
+        sub[Base.FocalLength] = _rational(focal_mm, 100000)
+        sub[Base.FocalPlaneXResolution] = _rational(px_per_mm_x, 100000)
+        sub[Base.FocalPlaneYResolution] = _rational(px_per_mm_y, 100000)
+        sub[Base.FocalPlaneResolutionUnit] = FOCAL_PLANE_UNIT_MM
+    exif[IFD.Exif] = dict(sorted(sub.items()))  # EXIF wants each IFD's entries in tag order
     if pose is not None and all(math.isfinite(v) for v in (pose.lat, pose.lon, pose.alt_amsl_m)):
-        gps = {
-            piexif.GPSIFD.GPSVersionID: (2, 3, 0, 0),
-            piexif.GPSIFD.GPSLatitudeRef: "N" if pose.lat >= 0 else "S",
-            piexif.GPSIFD.GPSLatitude: _dms(pose.lat),
-            piexif.GPSIFD.GPSLongitudeRef: "E" if pose.lon >= 0 else "W",
-            piexif.GPSIFD.GPSLongitude: _dms(pose.lon),
-            piexif.GPSIFD.GPSAltitudeRef: 0 if pose.alt_amsl_m >= 0 else 1,
-            piexif.GPSIFD.GPSAltitude: _rational(abs(pose.alt_amsl_m), 1000),
-        }
-        if capture_utc is not None:
-            gps[piexif.GPSIFD.GPSTimeStamp] = (
-                (capture_utc.hour, 1),
-                (capture_utc.minute, 1),
-                _rational(capture_utc.second + capture_utc.microsecond / 1e6, 1000),
-            )
-            gps[piexif.GPSIFD.GPSDateStamp] = capture_utc.strftime("%Y:%m:%d")
-    return piexif.dump({"0th": zeroth, "Exif": exif, "GPS": gps, "1st": {}, "thumbnail": None})
+        exif[IFD.GPSInfo] = _gps_tags(pose, capture_utc)
+    return exif
 
 
 def _dji_degrees(angle: float) -> float:
@@ -141,25 +158,20 @@ def xmp_packet(pose: Pose | None, camera: CameraTags | None = None) -> bytes:
 def encode_tagged_jpeg(
     image: np.ndarray, pose: Pose | None, capture_utc: dt.datetime | None, camera: CameraTags, quality: int = 95
 ) -> bytes:
-    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise ValueError("JPEG encoding failed")
-    out = io.BytesIO()
+    """``image`` (BGR) as a JPEG carrying the keyframe's EXIF and XMP, both written by Pillow's JPEG encoder
+    (4:2:0, like OpenCV's default)."""
     height, width = image.shape[:2]
-    piexif.insert(exif_bytes(pose, capture_utc, camera, width, height), buf.tobytes(), out)
-    return _insert_xmp(out.getvalue(), xmp_packet(pose, camera))
-
-
-def _insert_xmp(jpeg: bytes, xmp: bytes) -> bytes:
-    """Put the XMP APP1 segment right after the EXIF APP1 (or after SOI)."""
-    if not xmp:
-        return jpeg
-    payload = XMP_HEADER + xmp
-    segment = b"\xff\xe1" + (len(payload) + 2).to_bytes(2, "big") + payload
-    pos = 2
-    if jpeg[2:4] == b"\xff\xe1":
-        pos = 4 + int.from_bytes(jpeg[4:6], "big")
-    return jpeg[:pos] + segment + jpeg[pos:]
+    exif = keyframe_exif(pose, capture_utc, camera, width, height)
+    if image.ndim == 3:  # Pillow unpacks BGR itself: one copy, no cvtColor
+        rgb = Image.frombuffer("RGB", (width, height), np.ascontiguousarray(image), "raw", "BGR", 0, 1)
+    else:
+        rgb = Image.fromarray(image)
+    out = io.BytesIO()
+    try:
+        rgb.save(out, "JPEG", quality=quality, dpi=(72, 72), exif=exif, xmp=xmp_packet(pose, camera))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"JPEG encoding failed ({exc})") from exc
+    return out.getvalue()
 
 
 def read_xmp(jpeg: bytes) -> str | None:

@@ -2,7 +2,8 @@
 
 Everything downstream (the stitcher, follow mode, evaluations) works on :class:`StitchInput`, never on the files.
 Poses are read from their one JSON form (``companion.records.Pose.to_json``) and turned into the camera's
-attitude here, gimbal included; hand-made spools may give the camera's attitude directly (``camera_*_deg``).
+attitude here, gimbal included. Spools the writer wrote before that form (``time_s`` for ``t_boot_s``, no
+``gimbal_source``) read the same: only the position, the heading and the gimbal's angles are used.
 """
 
 from __future__ import annotations
@@ -106,27 +107,16 @@ class StitchInput:
 
 
 def camera_attitude(pose: dict) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) of the CAMERA from a manifest pose.
-
-    Priority: explicit ``camera_roll/pitch/yaw_deg`` (hand-made spools); else a stabilised gimbal (the key
-    ``gimbal_pitch_deg`` present, as the writer always writes it: ``gimbal_camera_angles``, null angles taken as
-    level and forward); else a camera fixed to the body.
-    """
-    if "camera_yaw_deg" in pose:
-        return (
-            float(pose.get("camera_roll_deg", 0.0)),
-            float(pose.get("camera_pitch_deg", 0.0)),
-            float(pose["camera_yaw_deg"]),
-        )
-    if "gimbal_pitch_deg" in pose:
-        gimbal_pitch, gimbal_yaw = (pose.get(k) for k in ("gimbal_pitch_deg", "gimbal_yaw_deg"))
-        yaw, pitch, roll = gimbal_camera_angles(
-            float(pose["yaw_deg"]),
-            None if gimbal_pitch is None else float(gimbal_pitch),
-            None if gimbal_yaw is None else float(gimbal_yaw),
-        )
-        return roll, pitch, yaw
-    return float(pose.get("roll_deg", 0.0)), float(pose.get("pitch_deg", 0.0)), float(pose["yaw_deg"])
+    """(roll, pitch, yaw) of the CAMERA from a manifest pose: the camera on its stabilised gimbal, as every pose
+    the writer has written describes it (``gimbal_camera_angles``: a null or absent angle is level and forward).
+    The vehicle's own roll and pitch do not tilt the camera."""
+    gimbal_pitch, gimbal_yaw = (pose.get(k) for k in ("gimbal_pitch_deg", "gimbal_yaw_deg"))
+    yaw, pitch, roll = gimbal_camera_angles(
+        float(pose["yaw_deg"]),
+        None if gimbal_pitch is None else float(gimbal_pitch),
+        None if gimbal_yaw is None else float(gimbal_yaw),
+    )
+    return roll, pitch, yaw
 
 
 def parse_pose(pose: dict | None, where: str) -> CameraPose | None:
@@ -138,7 +128,7 @@ def parse_pose(pose: dict | None, where: str) -> CameraPose | None:
     except (KeyError, TypeError, ValueError) as exc:
         raise CompanionError(
             f"{where}: pose is incomplete or not numeric ({exc!r})",
-            "a pose needs lat, lon, alt_amsl_m and yaw_deg (plus roll/pitch or gimbal_pitch_deg), or null",
+            "a pose needs lat, lon, alt_amsl_m and yaw_deg (and the gimbal's angles, or null), or null",
         ) from exc
     if not all(math.isfinite(v) for v in vals):
         return None  # telemetry was stale / NaN: treat as no pose rather than a wrong prior

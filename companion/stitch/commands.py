@@ -7,10 +7,12 @@ import argparse
 import json
 
 from companion.errors import CompanionError
+from companion.files import removed_on_failure
 from companion.stitch import view_command
 from companion.stitch.follow import follow
 from companion.stitch.inputs import load_input
 from companion.stitch.merge import merge_spools
+from companion.stitch.unscaled import ScaleNote, area_text
 from companion.stitch.worker import StitchConfig, StitchResult, stitch
 
 
@@ -97,6 +99,11 @@ def _config(args) -> StitchConfig:
     )
 
 
+def _m(value: float) -> str:
+    """Metres to the cm, never "-0.00" (a cell edge a hair below the wall base)."""
+    return f"{round(value, 2) + 0.0:.2f}"
+
+
 def _print(res: StitchResult) -> None:
     r = res.report
     for w in r.get("warnings", []):
@@ -110,8 +117,13 @@ def _print(res: StitchResult) -> None:
         f"{r['pairs_tried']} accepted ({r['pairs_affine_fallback']} affine)"
     )
     print(f"coverage: {100 * res.coverage_fraction:.1f} %, {len(res.uncovered)} uncovered area(s)")
-    for a in res.uncovered[:10]:
-        print(f"  along {a.along_min_m:.2f}..{a.along_max_m:.2f} m, up {a.up_min_m:.2f}..{a.up_max_m:.2f} m")
+    if r.get("scale_unknown"):
+        for a in r["uncovered_areas_px"][:10]:
+            print(f"  {area_text(a)}")
+        print(f"warning: {ScaleNote(**r['scale_unknown']).text()}")
+    else:
+        for a in res.uncovered[:10]:
+            print(f"  along {_m(a.along_min_m)}..{_m(a.along_max_m)} m, up {_m(a.up_min_m)}..{_m(a.up_max_m)} m")
     print(f"report: {res.files['report']}")
     print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 
@@ -141,7 +153,8 @@ def run(args) -> int:
             raise CompanionError("no map was made: fewer than 2 keyframes arrived", "check that the gate is running")
     else:
         inp = _input(args)
-        res = stitch(inp, args.out, cfg, progress=not args.quiet, debug_dir=args.debug_dir)
+        with removed_on_failure(args.out):  # a failed stitch leaves no empty or half-made map folder
+            res = stitch(inp, args.out, cfg, progress=not args.quiet, debug_dir=args.debug_dir)
     _print(res)
     if args.quiet:
         print(json.dumps({"coverage": res.coverage_fraction, "mm_per_px": res.mm_per_px}))

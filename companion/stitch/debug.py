@@ -27,6 +27,7 @@ from companion.stitch.layout import MapLayout
 from companion.stitch.output import annotate_uncovered
 from companion.stitch.pairs import PairResult, RegisteredPairs
 from companion.stitch.report import MapCoverage, pair_summary
+from companion.stitch.unscaled import area_px
 
 _DRAWING_WIDTH_PX = 1600  # match drawings and the mesh picture are at most this wide
 _MAX_LINES = 150  # inlier lines drawn per pair
@@ -133,7 +134,9 @@ class StageDebug:
             "info": rendered.info,
             "covered_px": rendered.covered_px,
             "coverage_fraction": coverage.fraction,
-            "uncovered_areas_m": [a.as_dict() for a in coverage.uncovered],
+            # metres only where the map has a scale (companion.stitch.unscaled), else map pixels
+            **({"uncovered_areas_m": [a.as_dict() for a in coverage.uncovered]} if layout.scale_known else
+               {"uncovered_areas_px": [area_px(a, layout.grid) for a in coverage.uncovered]}),
             "gains": [round(float(v), 4) for v in rendered.gains],
         }
         self._json("5-render", "render.json", doc)

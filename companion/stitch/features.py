@@ -21,7 +21,7 @@ from PIL import Image
 
 from companion.errors import CompanionError
 from companion.files import atomic_path
-from companion.image_files import TRUNCATED, UNDECODABLE, read_image_file
+from companion.image_files import TRUNCATED, UNDECODABLE, ZERO_BYTES, read_image_file
 from companion.keyframes.features import FeatureConfig, FeatureExtractor
 from companion.progress import progress_bar
 from companion.stitch.config import STITCH_FEATURES, StitchConfig, worker_count
@@ -82,8 +82,10 @@ def image_size(path: Path) -> tuple[int, int]:
             f"cannot read keyframe image {path} ({exc.strerror})", "check that the file is there"
         ) from exc
     except (OSError, ValueError) as exc:
+        empty = path.is_file() and path.stat().st_size == 0
         raise CompanionError(
-            f"cannot decode keyframe image {path}", "the spool must write complete JPEG or PNG files"
+            f"keyframe image {path} is {ZERO_BYTES}" if empty else f"cannot decode keyframe image {path}",
+            "the spool must write complete JPEG or PNG files"
         ) from exc
 
 

@@ -122,7 +122,7 @@ def draw_scale_bar(image: np.ndarray, m_per_px: float | None, *, label_unit: str
     else:
         cv2.putText(
             strip,
-            "scale unknown (no camera pose or standoff)",
+            "scale unknown: lengths in map pixels (why: report.json scale_unknown)",
             (10, strip_h // 2 + 5),
             cv2.FONT_HERSHEY_SIMPLEX,
             font_scale,

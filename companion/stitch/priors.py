@@ -8,6 +8,7 @@ measure: ``wall_distance.py``). Without, the first placed keyframe fixes the pla
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,18 +28,21 @@ class PlanePriors:
     reference: np.ndarray  # places the first keyframe when none has a prior (fixes the gauge)
 
 
-def plane_priors(inp: StitchInput, cfg: StitchConfig, out_shift_m: float = 0.0) -> PlanePriors:
+def plane_priors(inp: StitchInput, cfg: StitchConfig, out_shift_m: float | Sequence[float] = 0.0) -> PlanePriors:
     """The priors of ``inp``'s keyframes; ``out_shift_m`` moves every camera that far out from the wall first
-    (the correction the measured wall distance makes: ``wall_distance.py``)."""
+    (the correction the measured wall distance makes: ``wall_distance.py``), one value for all or one per keyframe
+    position (a bias that drifted during the flight)."""
     cam = inp.camera
     use_poses = cfg.use_poses and inp.has_poses
+    shifts = ((float(out_shift_m),) * len(inp.keyframes) if isinstance(out_shift_m, int | float)
+              else tuple(out_shift_m))
     priors = tuple(
-        prior_plane_from_image(kf.pose, inp.facade, out_shift_m) if use_poses and kf.pose is not None else None
-        for kf in inp.keyframes
+        prior_plane_from_image(kf.pose, inp.facade, shift) if use_poses and kf.pose is not None else None
+        for kf, shift in zip(inp.keyframes, shifts, strict=True)
     )
     if use_poses:
-        dists = [camera_distance_to_wall(kf.pose, inp.facade) + out_shift_m
-                 for kf in inp.keyframes if kf.pose is not None]
+        dists = [camera_distance_to_wall(kf.pose, inp.facade) + shift
+                 for kf, shift in zip(inp.keyframes, shifts, strict=True) if kf.pose is not None]
         distance = float(np.median(dists))
         if distance <= 0:
             raise CompanionError(

@@ -31,6 +31,7 @@ from companion.stitch.output import (
 )
 from companion.stitch.pairs import PairResult
 from companion.stitch.render import PlacedKeyframe
+from companion.stitch.unscaled import area_px, scale_note
 from companion.stitch.wall_anchor import WallPlacement
 from companion.stitch.wall_distance import WallDistance
 
@@ -156,8 +157,12 @@ class StitchReport:
     map: dict
     coverage_fraction: float
     gains: dict[int, float]
-    uncovered_areas_m: list[dict]
-    relief_areas_m: list[dict]  # wall keyframes showed and all cut (portals, recesses, glass): not for a re-fly
+    # None when the map has no scale: then the ``_px`` lists (map pixels) and ``scale_unknown`` (why, fix) say it
+    uncovered_areas_m: list[dict] | None
+    relief_areas_m: list[dict] | None  # wall keyframes showed and all cut (portals, recesses, glass): not re-flown
+    uncovered_areas_px: list[dict] | None
+    relief_areas_px: list[dict] | None
+    scale_unknown: dict | None
     timing_s: dict[str, float]
     files: dict[str, str]
     config: dict
@@ -207,13 +212,25 @@ def build_report(run: StitchRun, coverage: MapCoverage, files: dict[str, str]) -
         map=_map_section(layout, run.rendered, run.use_poses),
         coverage_fraction=round(coverage.fraction, 4),
         gains={kfs[k].index: round(float(run.rendered.gains[k]), 4) for k in layout.placed},
-        uncovered_areas_m=[a.as_dict() for a in coverage.uncovered],
-        relief_areas_m=[a.as_dict() for a in coverage.relief],
+        **_area_lists(run, coverage),
         timing_s=run.timing_s,
         files=files,
         config=asdict(run.config),
         render=run.rendered.info,
     )
+
+
+def _area_lists(run: StitchRun, coverage: MapCoverage) -> dict:
+    """The uncovered and relief areas in wall metres, or (no scale) in map pixels with why and the fix."""
+    if run.layout.scale_known:
+        return {"uncovered_areas_m": [a.as_dict() for a in coverage.uncovered],
+                "relief_areas_m": [a.as_dict() for a in coverage.relief],
+                "uncovered_areas_px": None, "relief_areas_px": None, "scale_unknown": None}
+    grid = run.layout.grid
+    return {"uncovered_areas_m": None, "relief_areas_m": None,
+            "uncovered_areas_px": [area_px(a, grid) for a in coverage.uncovered],
+            "relief_areas_px": [area_px(a, grid) for a in coverage.relief],
+            "scale_unknown": scale_note(run.input, run.config.use_poses).as_dict()}
 
 
 def _pair_entries(run: StitchRun) -> tuple[list[dict], list[float], list[float]]:
@@ -275,12 +292,13 @@ def _anchor_section(run: StitchRun) -> dict | None:
 
 def _map_section(layout: MapLayout, rendered: RenderedMap, use_poses: bool) -> dict:
     grid, mm = layout.grid, layout.mm_per_px
+    known = layout.scale_known  # without a scale the plane's units are no metres: no extent in metres
     return {
         "width_px": grid.width,
         "height_px": grid.height,
         "mm_per_px": None if mm is None else round(mm, 4),
-        "along_m": [round(grid.along0_m, 3), round(grid.along0_m + grid.width * grid.m_per_px, 3)],
-        "up_m": [round(grid.up_top_m - grid.height * grid.m_per_px, 3), round(grid.up_top_m, 3)],
+        "along_m": [round(grid.along0_m, 3), round(grid.along0_m + grid.width * grid.m_per_px, 3)] if known else None,
+        "up_m": [round(grid.up_top_m - grid.height * grid.m_per_px, 3), round(grid.up_top_m, 3)] if known else None,
         "in_memory": rendered.canvas is not None,
         "rectified_to_facade": use_poses,
     }

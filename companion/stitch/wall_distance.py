@@ -12,8 +12,14 @@ its best-connected keyframe, whose telemetry footprint fixes the layout's scale:
 The telemetry's image centres are then fitted to the chained ones by a scale and a shift (robust least squares,
 Cauchy weights, so a GNSS jump on a few keyframes is outvoted): the scale is ``d_root / d``. Long baselines (a
 whole strip, strip to strip) decide it, so attitude noise, which moves one keyframe's image by f x angle, counts
-for little. The correction is one distance offset for the whole map: a bias that drifts slowly shows as a larger
-residual, and so as a larger ``sigma_m``.
+for little.
+
+A receiver's bias is not constant: it wanders by a metre over minutes. So the same fit is also made on windows of
+``WINDOW_KEYFRAMES`` consecutive keyframes (about 45 s of a scan), each giving the bias across the wall at its time;
+a drift also stretches the telemetry's relative motion over the whole flight, which a window's short baselines
+barely see. When the windows disagree with one distance offset beyond their uncertainty (a chi-square test at
+``VARYING_SIGMAS``), each keyframe gets the offset of its time (interpolated between the windows); otherwise the
+map keeps one offset, and a bias that does not move changes nothing.
 """
 
 from __future__ import annotations
@@ -36,6 +42,12 @@ SIGNIFICANT_SIGMAS = 2.0  # the correction is applied when it is at least this m
 # (exact telemetry measures 4.002 m for 4.000); no smaller sigma is claimed, so a correction under twice this is
 # not worth making (exact or zero-mean telemetry keeps its map)
 MIN_SIGMA_FRACTION = 0.0025
+# a local fit's keyframes: about 45 s of the demo's scan (a keyframe every 1.5 s), two vertical strips; a GNSS bias
+# wanders over minutes, so within a window it is close to constant. Windows overlap by half.
+WINDOW_KEYFRAMES = 30
+# the windows' offsets differ from one offset when their chi-square exceeds its degrees of freedom by this many of
+# its standard deviations (sqrt(2 dof)): noise alone almost never does, a drift of decimetres does
+VARYING_SIGMAS = 5.0
 
 
 @dataclass(frozen=True)
@@ -47,14 +59,21 @@ class WallDistance:
     telemetry_m: float  # median distance the telemetry puts the cameras at
     measured_m: float | None  # the images' measurement of the same median distance; None: not measurable
     sigma_m: float | None  # its standard uncertainty
-    out_shift_m: float  # added to every camera's distance from the wall (applied)
+    out_shift_m: float  # added to every camera's distance from the wall (applied), or the median of ``varying``
     keyframes: int  # keyframes with telemetry in the measured parts
     parts: int  # connected parts of the pair graph that measured
     reason: str | None = None  # why nothing was measured
+    # the bias drifted: each keyframe position's own offset (in spool order), applied instead of ``out_shift_m``
+    varying: tuple[float, ...] | None = None
+    windows: int = 0  # local fits made (the windows of WINDOW_KEYFRAMES keyframes)
 
     @property
     def applied(self) -> bool:
-        return self.out_shift_m != 0.0
+        return self.out_shift_m != 0.0 or self.varying is not None
+
+    def shifts(self, n: int) -> tuple[float, ...]:
+        """The offset to apply to each of ``n`` keyframe positions."""
+        return self.varying if self.varying is not None else (self.out_shift_m,) * n
 
     @property
     def distance_m(self) -> float:
@@ -79,10 +98,15 @@ class WallDistance:
             "scale_sigma_percent": None if self.scale_sigma is None else round(100 * self.scale_sigma, 2),
             "keyframes": self.keyframes,
             "parts": self.parts,
+            "windows": self.windows,
+            "varying": self.varying is not None,
+            "correction_range_m": None if self.varying is None else [round(min(self.varying), 3),
+                                                                      round(max(self.varying), 3)],
             "reason": self.reason,
             "meaning": "camera-to-wall distance: the telemetry's, and the one the images measure from the wall's "
             "image motion against the telemetry's relative motion (a GNSS bias across the wall cancels in the "
-            "relative motion); the map's scale stands on used_m, good to scale_sigma_percent",
+            "relative motion); the map's scale stands on used_m, good to scale_sigma_percent; varying: the bias "
+            "drifted during the flight and each keyframe got the correction of its time (correction_range_m)",
         }
 
 
@@ -93,16 +117,34 @@ class _PartFit:
     positions: tuple[int, ...]  # keyframe positions, in spool order
     shifts_m: np.ndarray  # measured true distance - telemetry distance, per keyframe
     common_sigma_m: float  # the part's shared uncertainty (the layout scale's fit)
+    layout: _PartLayout | None = None  # what the fit was made from, for the windows' local fits
+
+
+@dataclass(frozen=True)
+class _PartLayout:
+    """A part's keyframes as the images lay them out and as the telemetry does, in spool order."""
+
+    chained: np.ndarray  # (n, 2) image centres in the images' layout
+    told: np.ndarray  # (n, 2) the same centres where the telemetry puts them (metres on the wall)
+    distance_m: np.ndarray  # the telemetry's camera-wall distance per keyframe
+    footprint_ratio: np.ndarray  # footprint scale in the images' layout over the telemetry's, per keyframe
+
+
+@dataclass(frozen=True)
+class _Window:
+    centre: float  # mean spool position of its keyframes
+    shift_m: float  # its median distance offset
+    sigma_m: float  # that median's standard uncertainty
 
 
 def measure_wall_distance(inp: StitchInput, priors: PlanePriors, pairs: RegisteredPairs) -> WallDistance:
     """The wall distance the accepted pairs measure (see the module's docstring)."""
+    if not priors.use_poses:  # no poses, or no wall to measure them against (a spool without spool.json)
+        return WallDistance(0.0, None, None, 0.0, 0, 0, "no telemetry poses on a known wall")
     told = [kf.pose for kf in inp.keyframes if kf.pose is not None]
     telemetry = {k: camera_distance_to_wall(kf.pose, inp.facade) for k, kf in enumerate(inp.keyframes)
                  if kf.pose is not None}
     telemetry_m = float(np.median(list(telemetry.values()))) if told else 0.0
-    if not priors.use_poses:
-        return WallDistance(telemetry_m, None, None, 0.0, 0, 0, "no telemetry poses")
     fits = _part_fits(priors, pairs, inp.camera, telemetry)
     if not fits:
         return WallDistance(telemetry_m, None, None, 0.0, 0, 0,
@@ -113,11 +155,77 @@ def measure_wall_distance(inp: StitchInput, priors: PlanePriors, pairs: Register
     # the shared part (each part's scale fit) and the keyframes' own scatter (chain drift, telemetry noise
     # across the wall), whose median is known to about 1.25 MAD / sqrt(n)
     common = math.sqrt(1.0 / sum(1.0 / max(f.common_sigma_m, 1e-6) ** 2 for f in fits))
-    scatter = 1.4826 * float(np.median(np.abs(shifts - shift))) * 1.2533 / math.sqrt(len(shifts))
-    measured = float(np.median([telemetry[k] for f in fits for k in f.positions])) + shift
+    scatter = _median_sigma(shifts)
+    told_median = float(np.median([telemetry[k] for f in fits for k in f.positions]))
+    measured = told_median + shift
     sigma = max(math.hypot(common, scatter), MIN_SIGMA_FRACTION * measured)
+    windows = [w for f in fits for w in _windows(f, MIN_SIGMA_FRACTION * measured)]
+    varying = _varying_shifts(fits, windows, len(inp.keyframes))
+    if varying is not None:
+        values = np.array([varying[k] for f in fits for k in f.positions])
+        shift = float(np.median(values))
+        measured = told_median + shift
+        # what the map's one mm/px stands on: the windows' own uncertainty, not the drift between them
+        sigma = max(math.sqrt(1.0 / sum(1.0 / w.sigma_m**2 for w in windows)) * math.sqrt(len(windows)),
+                    MIN_SIGMA_FRACTION * measured)
+        return WallDistance(telemetry_m, measured, sigma, shift, len(shifts), len(fits), varying=varying,
+                            windows=len(windows))
     applied = shift if abs(shift) >= SIGNIFICANT_SIGMAS * sigma else 0.0
-    return WallDistance(telemetry_m, measured, sigma, applied, len(shifts), len(fits))
+    return WallDistance(telemetry_m, measured, sigma, applied, len(shifts), len(fits), windows=len(windows))
+
+
+def _median_sigma(values: np.ndarray) -> float:
+    """Standard uncertainty of a sample's median: about 1.25 robust spreads (1.4826 MAD) / sqrt(n)."""
+    median = float(np.median(values))
+    return 1.4826 * float(np.median(np.abs(values - median))) * 1.2533 / math.sqrt(len(values))
+
+
+def _windows(fit: _PartFit, floor_m: float) -> list[_Window]:
+    """The part's local fits: windows of WINDOW_KEYFRAMES consecutive keyframes (overlapping by half), each laid
+    out against the telemetry on its own, so the offset it measures is the bias of its time."""
+    lay = fit.layout
+    n = len(fit.positions)
+    if lay is None or n < 2 * MIN_KEYFRAMES:
+        return []
+    size = min(WINDOW_KEYFRAMES, max(2 * MIN_KEYFRAMES, n // 3))  # a short pass still gets three windows
+    starts = sorted({*range(0, n - size + 1, max(size // 2, 1)), n - size})
+    out = []
+    for a in starts:
+        sl = slice(a, a + size)
+        y = lay.told[sl]
+        if float(np.sqrt(np.mean(np.sum((y - y.mean(axis=0)) ** 2, axis=1)))) < MIN_SPREAD_M:
+            continue
+        ratio, ratio_sigma = _robust_scale(lay.chained[sl], y)
+        if ratio is None or ratio <= 0 or not math.isfinite(ratio_sigma):
+            continue
+        d = lay.distance_m[sl]
+        shifts = d * (lay.footprint_ratio[sl] / ratio - 1.0)
+        common = float(np.median(d)) * ratio_sigma / ratio
+        sigma = max(math.hypot(common, _median_sigma(shifts)), floor_m)
+        out.append(_Window(float(np.mean(fit.positions[sl])), float(np.median(shifts)), sigma))
+    return out
+
+
+def _varying_shifts(fits: list[_PartFit], windows: list[_Window], n: int) -> tuple[float, ...] | None:
+    """Each keyframe position's offset when the windows disagree with one offset (None when they agree, or
+    when there are too few windows to tell): interpolated between the windows' centres, the nearest window's
+    beyond them; keyframes outside the measured parts get the median."""
+    if len(windows) < 3:
+        return None
+    shifts = np.array([w.shift_m for w in windows])
+    sigmas = np.array([w.sigma_m for w in windows])
+    weights = 1.0 / sigmas**2
+    mean = float(np.sum(weights * shifts) / np.sum(weights))
+    chi2 = float(np.sum(((shifts - mean) / sigmas) ** 2))
+    dof = len(windows) - 1
+    if chi2 <= dof + VARYING_SIGMAS * math.sqrt(2.0 * dof):
+        return None
+    order = np.argsort([w.centre for w in windows])
+    centres = np.array([windows[i].centre for i in order])
+    values = shifts[order]
+    measured = {k for f in fits for k in f.positions}
+    median = float(np.median(values))
+    return tuple(float(np.interp(k, centres, values)) if k in measured else median for k in range(n))
 
 
 def _part_fits(priors: PlanePriors, pairs: RegisteredPairs, camera: CameraModel,
@@ -144,8 +252,10 @@ def _part_fits(priors: PlanePriors, pairs: RegisteredPairs, camera: CameraModel,
         # true distance / telemetry distance of keyframe k: its footprint in the images' layout, brought to
         # metres (/ ratio), over its telemetry footprint
         d = np.array([telemetry[k] for k in told])
-        rel = np.array([_footprint_scale(chained[k]) / _footprint_scale(priors.priors[k]) for k in told]) / ratio
-        fits.append(_PartFit(tuple(told), d * (rel - 1.0), float(np.median(d * rel)) * ratio_sigma / ratio))
+        footprint = np.array([_footprint_scale(chained[k]) / _footprint_scale(priors.priors[k]) for k in told])
+        rel = footprint / ratio
+        fits.append(_PartFit(tuple(told), d * (rel - 1.0), float(np.median(d * rel)) * ratio_sigma / ratio,
+                             _PartLayout(x, y, d, footprint)))
     return fits
 
 

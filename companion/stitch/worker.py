@@ -128,7 +128,8 @@ class Stitcher:
     def priors(self, found: KeyframeFeatures, wall: WallDistance | None = None) -> PlanePriors:
         """Telemetry's placement of every keyframe; with ``wall``, each camera moved across the wall by the
         correction the images measured."""
-        return plane_priors(found.input, self.config, wall.out_shift_m if wall is not None else 0.0)
+        shifts = wall.shifts(len(found.input.keyframes)) if wall is not None else 0.0
+        return plane_priors(found.input, self.config, shifts)
 
     def wall_distance(self, found: KeyframeFeatures, priors: PlanePriors,
                       pairs: RegisteredPairs) -> tuple[WallDistance | None, PlanePriors]:

@@ -88,26 +88,15 @@ def _frame(georef: dict, report: dict) -> dict:
     return {"units": "px", "unit_per_px": 1.0, "left": 0.0, "top": 0.0, "width_px": w, "height_px": h}
 
 
-def _refly_areas(report: dict, frame: dict, key: str = "uncovered_areas_m") -> list[dict]:
+def _refly_areas(report: dict, frame: dict, key: str = "uncovered_areas") -> list[dict]:
     """The report's uncovered areas (or another list of wall rectangles, ``key``: the relief areas) as page
-    rectangles [left, right, bottom, top] in page units."""
-    areas = report.get(key, [])
+    rectangles [left, right, bottom, top] in page units: wall metres, or map pixels (y up) for a map without scale,
+    whose report lists them in pixels (``companion.stitch.unscaled``)."""
     if frame["units"] == "m":
+        areas = report.get(f"{key}_m") or []
         return [{**a, "rect": [a["along_min_m"], a["along_max_m"], a["up_min_m"], a["up_max_m"]]} for a in areas]
-    m = report.get("map", {})
-    if not m.get("along_m") or not m.get("width_px"):
-        return []
-    s = (m["along_m"][1] - m["along_m"][0]) / m["width_px"]  # plane units per pixel (no scale known)
-
-    def x(v):
-        return (v - m["along_m"][0]) / s + 0.5
-
-    def y(v):
-        return -((m["up_m"][1] - v) / s + 0.5)
-
-    return [
-        {**a, "rect": [x(a["along_min_m"]), x(a["along_max_m"]), y(a["up_min_m"]), y(a["up_max_m"])]} for a in areas
-    ]
+    areas = report.get(f"{key}_px") or []
+    return [{**a, "rect": [a["x_min_px"], a["x_max_px"], -a["y_max_px"], -a["y_min_px"]]} for a in areas]
 
 
 def _coverage_overlay(tiles_dir: Path, info: PyramidInfo, path: Path) -> None:
@@ -132,7 +121,8 @@ def viewer_data(
         "tiles": {"url": info.url, "size": info.tile_px, "max_zoom": info.max_zoom},
         "coverage": {"fraction": report.get("coverage_fraction"), "overlay": f"{ASSETS}/coverage.png"},
         "refly": _refly_areas(report, frame),
-        "relief": _refly_areas(report, frame, "relief_areas_m"),
+        "relief": _refly_areas(report, frame, "relief_areas"),
+        "scale_note": (report.get("scale_unknown") or {}).get("why"),
         "keyframes": [
             {"index": k["index"], "image": images.get(k["index"]), "corners": k["corners_along_up_m"]}
             for k in georef.get("keyframes", [])

@@ -11,11 +11,14 @@ import argparse
 import json
 from pathlib import Path
 
+from companion.resources import mission_argument
+
 
 def register(sub) -> None:
     p = sub.add_parser("record", help="fly a mission in SITL with the simulated camera and write a recording "
                                       "(frames, depth, ROI masks, poses, telemetry)")
-    p.add_argument("mission", type=Path, help="mission YAML (e.g. missions/demo-facade.yaml)")
+    p.add_argument("mission", type=mission_argument,
+                   help="mission YAML (e.g. missions/demo-facade.yaml) or a shipped mission's name (demo-facade)")
     p.add_argument("--out", type=Path, required=True, help="recording directory (must not hold one already)")
     p.add_argument("--seed", type=int, default=0, help="scene seed (wall material, windows, background, light)")
     p.add_argument("--width", type=int, default=640, help="camera working width in px (lens and aspect kept)")

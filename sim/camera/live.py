@@ -33,7 +33,7 @@ from companion.capture.simcam import DEFAULT_PORT, encode_message
 from companion.errors import CompanionError
 from companion.geo import FacadeFrame
 from sim.camera.model import TruePose
-from sim.camera.recording import RecordingWriter, camera_from_mission, facade_meta, resolve_mission
+from sim.camera.recording import RecordingWriter, camera_from_mission, facade_meta, mission_file_meta, resolve_mission
 from sim.camera.render import AutoExposure
 from sim.camera.scene import Scene
 from sim.camera.warp_render import RENDERERS, make_renderer
@@ -251,6 +251,7 @@ class LiveCamera:
     def __init__(self, mission, cfg: LiveConfig):
         from companion.mission import plan_scan
 
+        self._mission_source = mission_file_meta(mission)
         self.mission = resolve_mission(mission)
         self.cfg = cfg
         plan = plan_scan(self.mission)
@@ -291,6 +292,7 @@ class LiveCamera:
         cam = self.camera
         return {
             "mission": self.mission.name,
+            **self._mission_source,
             "seed": self.cfg.seed,
             "generator": {"kind": "live", "pose_port": self.listener.port, "renderer": self.cfg.renderer},
             "camera": {"width": cam.width, "height": cam.height, "hfov_deg": cam.hfov_deg, "K": cam.K.tolist(),

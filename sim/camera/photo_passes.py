@@ -1,7 +1,7 @@
 """The named real-texture passes of the mask evaluation, built only from held-out photos.
 
 Each pass names its wall photo, how wide that wall is in metres (a plausible real size, so windows are window
-sized at the 4 m standoff), the background photo and its distance. ``companion.depth.realdata`` owns the split;
+sized at the 4 m standoff), the background photo and its distance. ``companion.depth.training.realdata`` owns the split;
 a photo that training may see is refused here, so no figure is ever reported on a training photo.
 """
 
@@ -12,8 +12,9 @@ from pathlib import Path
 
 import cv2
 
-from companion.depth.realdata import RealPhoto, facade_mask, list_real_photos, load_image
+from companion.depth.training.realdata import RealPhoto, facade_mask, list_real_photos, load_image
 from companion.errors import CompanionError
+from evaluation.shared_data import shared_data_root
 from sim.camera.photo_scene import PhotoPass, PhotoTexture
 
 
@@ -61,12 +62,12 @@ def _find(name: str, photos: list[RealPhoto]) -> RealPhoto | Path:
         if p.image.name == name:
             if p.split != "heldout":
                 raise CompanionError(f"{name} is in the training split",
-                                     "report figures only on held-out photos (companion.depth.realdata)")
+                                     "report figures only on held-out photos (companion.depth.training.realdata)")
             return p
     if Path(name).is_file():
         return Path(name)
     raise CompanionError(f"photo {name} not found in the real photo index nor as a file",
-                         "give a file name from ../shared/data (held-out split) or the path of a photo")
+                         "give a file name from the shared data folder (held-out split) or the path of a photo")
 
 
 def _texture(photo: RealPhoto | Path, width_m: float) -> PhotoTexture:
@@ -93,8 +94,9 @@ def parse_recipe(text: str) -> PassRecipe:
 
 def build_pass(recipe: PassRecipe, *, root: Path | None = None, frames: int = 250, background_frames: int = 22,
                background_distance_m: float | None = None) -> PhotoPass:
-    """The :class:`PhotoPass` of a recipe (wall photo with its facade labels as alpha, background photo)."""
-    photos = list_real_photos(root)
+    """The :class:`PhotoPass` of a recipe (wall photo with its facade labels as alpha, background photo), its photos
+    from the shared data folder ``root`` (None: ``$COMPANION_SHARED_DATA``, ``evaluation.shared_data``)."""
+    photos = list_real_photos(shared_data_root(root))
     wall = _texture(_find(recipe.wall_photo, photos), recipe.wall_width_m)
     background = _texture(_find(recipe.background_photo, photos), 1.0)
     distance = background_distance_m if background_distance_m is not None else recipe.background_distance_m

@@ -215,6 +215,14 @@ def load_recording(path: str | Path) -> Recording:
     return Recording(path)
 
 
+def mission_file_meta(mission) -> dict:
+    """``{"mission_file": absolute path}`` when the mission came from a file, for meta.json: `companion cull` of
+    the recording finds its mission (camera, facade: the spool's scale) there without ``--mission``."""
+    if isinstance(mission, str | Path):
+        return {"mission_file": str(Path(mission).resolve())}
+    return {}
+
+
 def resolve_mission(mission):
     """A Mission object as is, or a mission YAML path loaded and validated."""
     if isinstance(mission, str | Path):
@@ -243,6 +251,7 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     from sim.camera.trajectory import KinematicFlight, scan_path
     from sim.camera.warp_render import make_renderer
 
+    source = mission_file_meta(mission)
     mission = resolve_mission(mission)
     if stride < 1:
         raise CompanionError(f"stride={stride} must be >= 1", "use stride=1 for every camera frame")
@@ -258,6 +267,7 @@ def generate_recording(mission, out_dir: str | Path, *, seed: int = 0, width_px:
     flight = KinematicFlight(frame, scan_path(plan), gimbal_pitch_deg=float(mission.gimbal_pitch_deg), seed=seed)
     meta = {
         "mission": mission.name,
+        **source,
         "seed": seed,
         "generator": {"kind": "kinematic", "stride": stride, "max_frames": max_frames,
                       "flight_duration_s": flight.duration_s, "telemetry_rate_hz": telemetry_rate_hz,

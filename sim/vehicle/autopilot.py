@@ -30,7 +30,7 @@ from sim.vehicle import rangefinder as rf
 from sim.vehicle.commands import CommandHandler
 from sim.vehicle.copter_yaw import CopterAutoYaw
 from sim.vehicle.environment import Battery, GpsError, Wind
-from sim.vehicle.firmware import FirmwareRules, lost_link_action
+from sim.vehicle.firmware import FirmwareRules, link_loss_after_s, lost_link_action, lost_link_ignored
 from sim.vehicle.gnss_bias import GnssBias, ned_to_enu
 from sim.vehicle.link import FaultyUdpLink
 from sim.vehicle.mission_server import MissionServer
@@ -341,7 +341,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         self.took_off = False
         self.on_arm_home()
         self.landed_since = None
-        self.battery_failsafe = self.link_failsafe = False
+        self.battery_failsafe = False  # the link failsafe is the link's state: arming does not clear it
         if self.mode in (fl.HOLD, fl.POSCTL, fl.GUIDED, fl.BRAKE):
             self.task = Hold(self.model.state.pos)
         log.info("armed")
@@ -536,6 +536,7 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.landed_since = None
 
     def _failsafes(self) -> None:
+        self._link_failsafe()  # tracked on the ground too, as the firmware tracks it
         if not (self.armed and not self.on_ground):
             return
         if (not self.battery_failsafe and self.battery.remaining < self.param("BAT_LOW_THR", 0.15)
@@ -543,16 +544,33 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
             self.battery_failsafe = True
             self.statustext(mavlink.MAV_SEVERITY_WARNING, "Low battery: returning to launch")
             self.set_mode(fl.RTL)
-        if self.last_gcs_wall is None or self.link_failsafe:
-            return
-        timeout = self.param("COM_DL_LOSS_T" if self.flavour.name == "px4" else "FS_GCS_TIMEOUT", 10.0)
+
+    def _link_failsafe(self) -> None:
+        """The lost link's onset and recovery by each firmware's rule (firmware.py), whatever the vehicle does; the
+        action only at the onset and only in the air. Copter::failsafe_gcs_check: nothing before a GCS was seen or
+        with FS_GCS_ENABLE 0; an onset while disarmed takes no action and, already in failsafe, a later take-off
+        none either; the next counted heartbeat clears it. (Arming used to clear it here, so a take-off right
+        after the companion became the GCS, its first heartbeat not yet counted, went straight to RTL.)"""
         action = lost_link_action(self.flavour.name, self.params)
-        if (time.monotonic() - self.last_gcs_wall > timeout and action is not None
-                and self.mode not in (fl.RTL, fl.LAND)):
-            self.link_failsafe = True
-            log.warning("data link lost for more than %.0f s: %s", timeout, action)
-            self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Data link lost: failsafe {action}")
-            self.set_mode({"rtl": fl.RTL, "land": fl.LAND, "hold": fl.HOLD}[action])
+        if self.last_gcs_wall is None or action is None:
+            return
+        timeout = link_loss_after_s(self.flavour.name, self.params)
+        if time.monotonic() - self.last_gcs_wall <= timeout:
+            if self.link_failsafe:
+                self.link_failsafe = False
+                log.info("data link regained")
+            return
+        if self.link_failsafe:
+            return
+        self.link_failsafe = True
+        if (not self.armed or self.on_ground or self.mode in (fl.RTL, fl.LAND)
+                or lost_link_ignored(self.flavour.name, self.params, self.mode)):
+            log.info("data link lost for more than %.0f s: no action (%s, %s)", timeout,
+                     "armed" if self.armed else "disarmed", self.mode)
+            return
+        log.warning("data link lost for more than %.0f s: %s", timeout, action)
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Data link lost: failsafe {action}")
+        self.set_mode({"rtl": fl.RTL, "land": fl.LAND, "hold": fl.HOLD}[action])
 
     def landed_state(self) -> int:
         st = self.model.state

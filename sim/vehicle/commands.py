@@ -13,6 +13,7 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages
 
 from sim.vehicle import flavours as fl
+from sim.vehicle.firmware import counts_for_link_failsafe
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +33,8 @@ class CommandHandler:
         t = msg.get_type()
         if t == "BAD_DATA" or msg.get_srcSystem() == self.cfg.system_id:
             return
-        self.last_gcs_wall = time.monotonic()
+        if counts_for_link_failsafe(self.flavour.name, self.params, msg, self.cfg.system_id):
+            self.last_gcs_wall = time.monotonic()
         if t == "HEARTBEAT":
             if self.gcs is None:
                 log.info("GCS heartbeat from system %d component %d", msg.get_srcSystem(), msg.get_srcComponent())

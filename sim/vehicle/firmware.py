@@ -17,7 +17,10 @@ Each rule here was seen on real firmware in SITL (shared/notes/real-firmware.md;
   HEARTBEAT only (no SYS_STATUS: ``AP_Vehicle::scheduler_delay_callback``) and, its mission storage not
   initialised, refuses any mission upload with NO_SPACE and "Only 0 items are supported"; then "ArduPilot Ready".
 * The failsafe parameters with the firmware defaults (FS_GCS_ENABLE 0 and RTL_ALT 1500 cm on ArduCopter,
-  NAV_DLL_ACT 0 and RTL_RETURN_ALT 30 m on PX4) and the lost-link action each of them selects.
+  NAV_DLL_ACT 0 and RTL_RETURN_ALT 30 m on PX4) and the lost-link action each of them selects. The link counts as
+  lost by each firmware's own rule (``counts_for_link_failsafe``): ArduCopter counts only the GCS system id's
+  heartbeats (MAV_GCS_SYSID, default 255; mavsdk's 245 does not count) for FS_GCS_TIMEOUT; PX4 any
+  MAV_TYPE_GCS heartbeat, COM_DL_LOSS_T after its 2.5 s, and ignores the loss in modes COM_DLL_EXCEPT names.
 * PX4 moves its home altitude in flight: for 120 s after take-off (commander HomePosition.cpp,
   ``kHomePositionCorrectionTimeWindow``, COM_HOME_EN 1) it shifts home by the barometer-vs-GPS altitude difference
   whenever that exceeds 1 m. The PX4 flavour does so by default, with SIH's sensor noise (``home_drift.py``: about
@@ -52,12 +55,15 @@ log = logging.getLogger(__name__)
 # Real defaults (PX4 main 2026-03: commander/navigator params; ArduCopter 4.7: Parameters.cpp / notes).
 FAILSAFE_DEFAULTS = {
     "px4": {"NAV_DLL_ACT": 0, "COM_DL_LOSS_T": 10, "RTL_RETURN_ALT": 30.0, "COM_DISARM_PRFLT": 10.0,
-            "GF_MAX_HOR_DIST": 0.0},
-    "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500},
+            "GF_MAX_HOR_DIST": 0.0, "COM_DLL_EXCEPT": 0},
+    # MAV_GCS_SYSID: the only source system whose heartbeats the GCS failsafe counts (HI 0: no range; GCS.cpp)
+    "ardupilot": {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500, "MAV_GCS_SYSID": 255,
+                  "MAV_GCS_SYSID_HI": 0},
 }
 # Simulated seconds after boot before the estimator uses GPS (ArduCopter 4.7 SITL: 35-40 s; PX4 SIH: a few).
 GPS_READY_AFTER_S = {"px4": 0.0, "ardupilot": 38.0}
 COPTER_PREARM_NO_POSITION = "PreArm: Need Position Estimate"
+COPTER_PREARM_GCS_FAILSAFE = "PreArm: GCS failsafe on"  # AP_Arming_Copter::gcs_failsafe_check
 # Wall seconds from (re)boot until the autopilot has initialised. Real ArduCopter 4.7 SITL (-w, wiped storage): its
 # first words ("ArduPilot Ready") came about 1 s after the first heartbeat at speed-up 1 and at 5 alike, so the
 # start-up is wall time (storage and sensor set-up), not simulated time. PX4 SITL answers from its first heartbeat.
@@ -73,6 +79,50 @@ def lost_link_action(flavour: str, params: dict) -> str | None:
     if flavour == "px4":
         return {1: "hold", 2: "rtl", 3: "land"}.get(int(params.get("NAV_DLL_ACT", 0)))
     return {1: "rtl", 3: "rtl", 4: "rtl", 5: "land", 6: "rtl", 7: "land"}.get(int(params.get("FS_GCS_ENABLE", 0)))
+
+
+# PX4 keeps a GCS heartbeat alive this long (telemetry_status HEARTBEAT_TIMEOUT_US) before COM_DL_LOSS_T starts
+PX4_HEARTBEAT_ALIVE_S = 2.5
+# ArduPilot: these messages from a GCS system id reset the GCS failsafe timer (GCS_Common.cpp sysid_mygcs_seen)
+COPTER_GCS_ALIVE_MESSAGES = frozenset({"HEARTBEAT", "RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL"})
+PX4_DLL_EXCEPT_MISSION, PX4_DLL_EXCEPT_AUTO = 1, 2  # COM_DLL_EXCEPT bits (commander_params.c)
+
+
+def counts_for_link_failsafe(flavour: str, params: dict, msg, own_system: int) -> bool:
+    """Whether ``msg`` keeps the lost-link failsafe from firing, as each firmware decides it.
+
+    ArduCopter (``GCS_MAVLINK::handle_heartbeat``, ``Copter::failsafe_gcs_check``): a HEARTBEAT, RC override or
+    MANUAL_CONTROL whose source system is a GCS id: MAV_GCS_SYSID (default 255), or MAV_GCS_SYSID ..
+    MAV_GCS_SYSID_HI when HI is not below it. Anything from another system id (mavsdk's 245) does not count: real
+    ArduCopter 4.7 flew on after the companion was killed. PX4 (``MavlinkReceiver::handle_message_heartbeat``): a
+    HEARTBEAT of type MAV_TYPE_GCS from any system, or any HEARTBEAT from its own system id."""
+    kind = msg.get_type()
+    if flavour == "px4":
+        return kind == "HEARTBEAT" and (msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcSystem() == own_system)
+    if kind not in COPTER_GCS_ALIVE_MESSAGES:
+        return False
+    low, high = int(params.get("MAV_GCS_SYSID", 255)), int(params.get("MAV_GCS_SYSID_HI", 0))
+    src = msg.get_srcSystem()
+    return low <= src <= high if high >= low else src == low
+
+
+def link_loss_after_s(flavour: str, params: dict) -> float:
+    """Seconds from the last counted heartbeat to the failsafe: ArduCopter FS_GCS_TIMEOUT (default 5); PX4
+    COM_DL_LOSS_T (default 10) after the heartbeat's own 2.5 s (Commander::dataLinkCheck)."""
+    if flavour == "px4":
+        return float(params.get("COM_DL_LOSS_T", 10)) + PX4_HEARTBEAT_ALIVE_S
+    return float(params.get("FS_GCS_TIMEOUT", 5.0))
+
+
+def lost_link_ignored(flavour: str, params: dict, mode: str) -> bool:
+    """PX4 ignores a lost link in Mission with COM_DLL_EXCEPT bit 0, in its other auto modes with bit 1
+    (``Failsafe::isFailsafeIgnored``); ArduCopter has no such exception by default (FS_OPTIONS 0)."""
+    if flavour != "px4":
+        return False
+    bits = int(params.get("COM_DLL_EXCEPT", 0))
+    if mode == fl.MISSION:
+        return bool(bits & PX4_DLL_EXCEPT_MISSION)
+    return mode in (fl.HOLD, fl.TAKEOFF, fl.RTL, fl.LAND) and bool(bits & PX4_DLL_EXCEPT_AUTO)
 
 
 def _same_items(a: list, b: list) -> bool:
@@ -145,12 +195,14 @@ class FirmwareRules:
         return self.t >= self.gps_ready_after_s
 
     def prearm_refusal(self) -> str | None:
-        """The firmware's refusal text: the estimator not using GPS yet, or (PX4) Mission mode without a valid
-        mission, which PX4 does not arm in."""
+        """The firmware's refusal text: the estimator not using GPS yet, (PX4) Mission mode without a valid
+        mission, which PX4 does not arm in, or (ArduCopter) its GCS failsafe on."""
         if not self.position_ready:
             return COPTER_PREARM_NO_POSITION if self.flavour.name == "ardupilot" else "Preflight Fail: No position"
         if self.flavour.name == "px4" and self.mode == fl.MISSION and (not self.mission or self.mission_refused):
             return "Arming denied: no valid mission"
+        if self.flavour.name == "ardupilot" and self.link_failsafe:
+            return COPTER_PREARM_GCS_FAILSAFE
         return None
 
     def armable_now(self) -> bool:
@@ -341,6 +393,7 @@ class FirmwareRules:
         self.mission_prev = None
         self.mission_refused = False
         self.link_failsafe = self.battery_failsafe = False
+        self.last_gcs_wall = None  # a restarted firmware has seen no GCS yet (Copter: gcs_last_seen_ms 0)
         self.battery = Battery()
         self.rates = dict(self.flavour.default_rates_hz)
         self._next_due = {}

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 
 from companion.attitude import camera_rotation_enu
-from companion.depth.realdata import RealPhoto, Split, facade_mask, list_real_photos, load_image
+from companion.depth.training.realdata import RealPhoto, Split, facade_mask, list_real_photos, load_image
 from companion.errors import CompanionError
 
 log = logging.getLogger(__name__)

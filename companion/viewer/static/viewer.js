@@ -241,13 +241,13 @@
     el('summary', 'viewer-title', box, D.title);
     var facts = [];
     if (D.mm_per_px) { facts.push(D.mm_per_px.toFixed(2) + ' mm/px, ' + F.width_px + ' x ' + F.height_px + ' px'); }
-    else { facts.push('scale unknown (no telemetry): lengths in map pixels'); }
+    else { facts.push('scale unknown' + (D.scale_note ? ' (' + D.scale_note + ')' : '') + ': lengths in map pixels'); }
     if (D.coverage.fraction !== null && D.coverage.fraction !== undefined) {
       facts.push('coverage ' + (100 * D.coverage.fraction).toFixed(1) + ' %, ' + D.refly.length + ' re-fly area(s)' +
         ((D.relief || []).length ? ', ' + D.relief.length + ' relief area(s)' : ''));
     }
     facts.push(D.keyframes.length ? D.keyframes.length + ' keyframe footprints: click the map to see the photos of a point'
-      : 'no keyframe footprints (they need the telemetry poses)');
+      : 'no keyframe footprints (they need telemetry poses on the mission\'s wall)');
     facts.forEach(function (f) { el('div', '', box, f); });
     if (D.refly.length) {
       var list = el('ol', 'refly-list', box);
@@ -268,5 +268,10 @@
   };
   info.addTo(map);
 
-  map.fitBounds(bounds);
+  // The whole wall in view beside the info panel, not under it (its right end and re-fly areas were hidden); in a
+  // narrow window the panel may cover up to half the width, and it folds away with a click on its title.
+  var panelWidth = info.getContainer().offsetWidth;
+  var pad = Math.min(panelWidth + 20, map.getSize().x / 2);
+  map.fitBounds(bounds, { paddingTopLeft: [10, 10], paddingBottomRight: [pad, 10] });  // Leaflet's two corners
+  api.fitPaddingPx = pad;
 })();

@@ -2,13 +2,14 @@
 
 A textured wall (random multi-scale blobs and edges, optionally a repetitive window grid) is viewed by a
 pinhole camera at a constant standoff; what lies beyond the wall edges is a far, differently textured plane
-(the "background" the masks must remove). Camera poses are written as telemetry (optionally noisy) in the
-spool format of docs/STITCH.md, so the worker is exercised exactly as in flight.
+(the "background" the masks must remove). Camera poses are reported as telemetry would (optionally noisy), and
+the spool is written by the product's spool writer (``companion.spool.writer``), so the worker reads exactly what
+a flight leaves: the same file names, sidecars, EXIF and pose form. The camera sits on a stabilised gimbal, as the
+product's poses describe it (``companion.records.Pose``): it has no roll, its pitch is the gimbal's.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,8 +19,12 @@ import pymap3d
 
 from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
-from companion.spool.layout import MANIFEST, META
+from companion.records import Frame, GateDecision, GimbalSource, Keyframe, Pose
+from companion.spool.writer import KeyframeSpool
 from companion.stitch.inputs import CameraModel
+
+# capture times of synthetic keyframes: Unix seconds (a fixed day), one keyframe per second
+CAPTURE_EPOCH_S = 1_780_000_000.0
 
 
 @dataclass(frozen=True)
@@ -33,9 +38,10 @@ class SyntheticWall:
 
 @dataclass(frozen=True)
 class TelemetryErrors:
-    """How a GNSS/IMU misreports each keyframe's pose: Gaussian noise on every keyframe (position per axis, and
-    yaw, pitch and roll), plus a jump that moves the reported position of a run of keyframes by ``jump_m``
-    (along, up): GNSS multipath next to a building gives metre-level steps that last several seconds."""
+    """How a GNSS/IMU misreports each keyframe's pose: Gaussian noise on every keyframe (position per axis, and yaw,
+    pitch and roll; the gimbal levels the camera, so the roll error does not reach the camera), plus a jump that moves
+    the reported position of a run of keyframes by ``jump_m`` (along, up): GNSS multipath next to a building gives
+    metre-level steps that last several seconds."""
 
     noise_m: float = 0.0
     noise_deg: float = 0.0
@@ -44,10 +50,16 @@ class TelemetryErrors:
     # a non-RTK receiver's slowly varying error, constant over a pass: (along, out, up) metres added to every
     # reported position (out negative: the telemetry puts the camera nearer the wall than it was)
     bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # ... which is not constant over a flight: it wanders by a metre over minutes. Added to the bias per keyframe
+    # position, so keyframe k is reported with bias_m + k * drift_m_per_keyframe
+    drift_m_per_keyframe: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def jump_at(self, k: int) -> tuple[float, float]:
         first, stop = self.jump_keyframes
         return self.jump_m if first <= k < stop else (0.0, 0.0)
+
+    def bias_at(self, k: int) -> tuple[float, float, float]:
+        return tuple(b + k * d for b, d in zip(self.bias_m, self.drift_m_per_keyframe, strict=True))
 
 
 def wall_for_texture(texture: np.ndarray, mm_per_px: float, seed: int = 0) -> SyntheticWall:
@@ -161,7 +173,8 @@ def make_spool(
     errors: TelemetryErrors | None = None,
     missing_m: tuple[float, float, float, float] | None = None,
 ) -> dict:
-    """Writes images, masks, manifest.jsonl and spool.json; returns the truth (texture, camera, frame, views).
+    """Writes a keyframe spool of the wall through the product's writer (one keyframe per view, its index the
+    view's number); returns the truth (texture, camera, frame, views).
 
     ``texture`` (BGR, row 0 = top of the wall) replaces the generated one, e.g. a real photograph of a wall; it
     must cover ``wall`` at ``wall.texture_mm_per_px`` (see :func:`wall_for_texture`). ``errors`` replaces
@@ -169,7 +182,6 @@ def make_spool(
     (along0, along1, up0, up1): no keyframe whose footprint reaches into this wall rectangle is written, so no
     keyframe shows it (a re-fly target; ``hole_m`` is instead a patch every keyframe shows and masks out)."""
     out = Path(out_dir)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     camera = CameraModel.from_hfov(width, height, hfov_deg)
     frame = _wall_frame(wall)
@@ -179,7 +191,9 @@ def make_spool(
     fh = standoff_m * height / camera.focal_px
     alongs = _centres(wall.length_m, fw, overlap, margin_m)
     ups = _centres(wall.height_m, fh, overlap, margin_m)
-    views, lines = [], []
+    spool = KeyframeSpool(out, meta=_spool_meta(frame, wall, width, height, hfov_deg, standoff_m),
+                          settings={"synthetic": True})
+    views = []
     for c, al in enumerate(alongs):  # vertical strips, up then down (the planner's 'vertical' pattern)
         for up in ups if c % 2 == 0 else ups[::-1]:
             if missing_m is not None and _reaches(missing_m, float(al), float(up), fw, fh):
@@ -187,40 +201,19 @@ def make_spool(
             k = len(views)
             yaw_off = float(rng.normal(0, jitter_deg)) if jitter_deg else 0.0
             pitch = float(rng.normal(0, jitter_deg)) if jitter_deg else 0.0
-            img, mask, _ = view(
-                texture,
-                wall,
-                camera,
-                frame,
-                float(al),
-                float(up),
-                standoff_m,
-                yaw_offset_deg=yaw_off,
-                pitch_deg=pitch,
-                background=bg,
-                hole_m=hole_m,
-            )
-            name = f"frames/{k:06d}.jpg"
-            cv2.imwrite(str(out / name), img, [cv2.IMWRITE_JPEG_QUALITY, 92])
-            cv2.imwrite(str(out / f"frames/{k:06d}_mask.png"), mask)
+            img, mask, _ = view(texture, wall, camera, frame, float(al), float(up), standoff_m,
+                                yaw_offset_deg=yaw_off, pitch_deg=pitch, background=bg, hole_m=hole_m)
             pose = None
             if with_poses:
                 true_pose = (float(al), standoff_m, float(up), pitch, yaw_off)
                 if errors is None:
-                    pose = _telemetry_pose(rng, frame, true_pose, pose_noise_m, yaw_noise_deg)
+                    pose = _telemetry_pose(rng, frame, true_pose, pose_noise_m, yaw_noise_deg, k)
                 else:
                     pose = reported_pose(rng, frame, true_pose, errors, k)
-            entry = {
-                "index": k,
-                "image": name,
-                "mask": f"frames/{k:06d}_mask.png",
-                "pose": pose,
-                "overlap_to_previous": None if k == 0 else round(overlap * 100, 1),
-            }
-            lines.append(json.dumps(entry))
+            decision = GateDecision() if k == 0 else GateDecision(overlap_to_previous=round(overlap * 100, 1),
+                                                                   reason="overlap", previous_index=k - 1)
+            spool.append(Keyframe(Frame(k, CAPTURE_EPOCH_S + k, img), pose, mask, decision))
             views.append({"along_m": float(al), "up_m": float(up)})
-    (out / META).write_text(json.dumps(_spool_meta(frame, wall, width, height, hfov_deg, standoff_m), indent=1))
-    (out / MANIFEST).write_text("\n".join(lines) + "\n")
     return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}
 
 
@@ -265,41 +258,39 @@ def _centres(extent_m: float, footprint_m: float, overlap: float, margin_m: floa
     return centres
 
 
-def _telemetry_pose(rng, frame: FacadeFrame, true_pose, pose_noise_m: float, yaw_noise_deg: float) -> dict:
-    """The spool's pose record of a camera at facade (along, out, up) with (pitch, yaw offset), as a GNSS/IMU
+def _telemetry_pose(rng, frame: FacadeFrame, true_pose, pose_noise_m: float, yaw_noise_deg: float, k: int) -> Pose:
+    """The pose of keyframe ``k``, a camera at facade (along, out, up) with (pitch, yaw offset), as a GNSS/IMU
     would report it: position and attitude with Gaussian noise."""
     along, out, up, pitch, yaw_off = true_pose
     na, nu, no = rng.normal(0, pose_noise_m, 3) if pose_noise_m else (0.0, 0.0, 0.0)
-    lat, lon, alt = frame.facade_to_geodetic(along + na, out + no, up + nu)
     pitch_noise = float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0
     yaw_noise = float(rng.normal(0, yaw_noise_deg)) if yaw_noise_deg else 0.0
-    return {
-        "lat": float(lat),
-        "lon": float(lon),
-        "alt_amsl_m": float(alt),
-        "roll_deg": 0.0,
-        "pitch_deg": pitch + pitch_noise,
-        "yaw_deg": (frame.yaw_facing_wall_deg + yaw_off + yaw_noise) % 360.0,
-    }
+    return _pose(frame, (along + na, out + no, up + nu), 0.0, pitch + pitch_noise,
+                 frame.yaw_facing_wall_deg + yaw_off + yaw_noise, float(k))
 
 
-def reported_pose(rng, frame: FacadeFrame, true_pose, errors: TelemetryErrors, k: int) -> dict:
-    """The spool's pose record of keyframe ``k`` at facade (along, out, up) with (pitch, yaw offset), as a
-    GNSS/IMU with ``errors`` reports it."""
+def reported_pose(rng, frame: FacadeFrame, true_pose, errors: TelemetryErrors, k: int,
+                  time_s: float | None = None) -> Pose:
+    """The pose of keyframe ``k`` at facade (along, out, up) with (pitch, yaw offset), as a GNSS/IMU with
+    ``errors`` reports it, stamped ``time_s`` (default ``k`` seconds) on the autopilot's clock."""
     along, out, up, pitch, yaw_off = true_pose
     na, no, nu = rng.normal(0, errors.noise_m, 3) if errors.noise_m else (0.0, 0.0, 0.0)
     dy, dp, dr = rng.normal(0, errors.noise_deg, 3) if errors.noise_deg else (0.0, 0.0, 0.0)
     ja, ju = errors.jump_at(k)
-    ba, bo, bu = errors.bias_m
-    lat, lon, alt = frame.facade_to_geodetic(along + na + ja + ba, out + no + bo, up + nu + ju + bu)
-    return {
-        "lat": float(lat),
-        "lon": float(lon),
-        "alt_amsl_m": float(alt),
-        "roll_deg": float(dr),
-        "pitch_deg": pitch + float(dp),
-        "yaw_deg": (frame.yaw_facing_wall_deg + yaw_off + float(dy)) % 360.0,
-    }
+    ba, bo, bu = errors.bias_at(k)
+    position = (along + na + ja + ba, out + no + bo, up + nu + ju + bu)
+    return _pose(frame, position, float(dr), pitch + float(dp), frame.yaw_facing_wall_deg + yaw_off + float(dy),
+                 float(k) if time_s is None else time_s)
+
+
+def _pose(frame: FacadeFrame, facade_m: tuple[float, float, float], roll_deg: float, camera_pitch_deg: float,
+          yaw_deg: float, time_s: float) -> Pose:
+    """A telemetry pose at facade (along, out, up): the vehicle's attitude, the camera's pitch on its gimbal."""
+    lat, lon, alt = frame.facade_to_geodetic(*facade_m)
+    return Pose(time_s=time_s, lat=float(lat), lon=float(lon), alt_amsl_m=float(alt),
+                relative_alt_m=float(alt) - frame.origin.alt_amsl_m, roll_deg=roll_deg, pitch_deg=camera_pitch_deg,
+                yaw_deg=yaw_deg % 360.0, gimbal_pitch_deg=camera_pitch_deg, gimbal_yaw_deg=0.0,
+                gimbal_source=GimbalSource.TELEMETRY)
 
 
 def spool_meta(frame: FacadeFrame, wall: SyntheticWall, width, height, hfov_deg, standoff_m) -> dict:

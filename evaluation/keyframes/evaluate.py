@@ -17,8 +17,8 @@ import numpy as np
 from companion.errors import CompanionError
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.keyframes.motion import WallMotionPredictor
-from companion.keyframes.synthetic import masked_frame
 from companion.records import MaskedFrame, Pose, TaggedFrame
+from evaluation.keyframes.synthetic import masked_frame
 
 
 @dataclass

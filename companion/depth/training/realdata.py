@@ -1,4 +1,7 @@
-"""The real photographs in ``../shared/data``: where they are, their facade/background truth, and the fixed split.
+"""The real photographs of the project's shared data folder: where they are in it, their facade/background truth,
+and the fixed split. The folder is always given by the caller (``companion depth train --real-photos``, or
+``evaluation.shared_data`` for the benches and tests): a checkout keeps it in ../shared/data, an install has no
+such place.
 
 One module owns the split so that training and every figure agree on it: a photo that training may see is never
 one a figure is reported on. The split is a pure function of the file name (SHA-1 of the stem), so it does not
@@ -51,11 +54,6 @@ class RealPhoto:
         return split_of(self.image)
 
 
-def default_data_root() -> Path:
-    """``../shared/data`` beside the checkout (where CI and the developers' machines keep it)."""
-    return Path(__file__).resolve().parents[2].parent / "shared" / "data"
-
-
 def split_of(path: Path) -> Split:
     """'heldout' for unlabelled test-only sets and for one stem in ``HELDOUT_MODULUS`` by hash, else 'train'."""
     parts = set(Path(path).parts)
@@ -65,13 +63,13 @@ def split_of(path: Path) -> Split:
     return "heldout" if digest[0] % HELDOUT_MODULUS == 0 else "train"
 
 
-def list_real_photos(root: Path | None = None, split: Split | None = None) -> list[RealPhoto]:
-    """Every real photo under ``root`` (default ``../shared/data``), optionally only one split, in a stable order."""
-    root = Path(root) if root is not None else default_data_root()
+def list_real_photos(root: Path, split: Split | None = None) -> list[RealPhoto]:
+    """Every real photo under the shared data folder ``root``, optionally only one split, in a stable order."""
+    root = Path(root)
     facades = root / "real-facades"
     if not facades.is_dir():
         raise CompanionError(f"real photo folder {facades} not found",
-                             "put the project's shared data beside the checkout (../shared/data/real-facades)")
+                             "give the shared data folder that holds real-facades/ (../shared/data beside a checkout)")
     photos: list[RealPhoto] = []
     for img in sorted((facades / "facades" / "cmp" / "images").glob("*.jpg")):
         photos.append(RealPhoto(img, facades / "facades" / "cmp" / "labels" / f"{img.stem}.png", "cmp", "facade",

@@ -1,0 +1,1 @@
+"""The depth mask measured against the simulator's true masks."""

@@ -1,0 +1,1 @@
+"""Synthetic keyframe spools with exact truth, and the map measured against the wall's texture."""

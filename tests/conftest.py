@@ -1,0 +1,42 @@
+"""What more than one test module needs: the shared data folder (../shared/data beside the checkout, unless
+``$COMPANION_SHARED_DATA`` names another: evaluation/shared_data.py), one small recording, and a parameter
+journal (companion/flight/param_journal.py) in a temporary directory, never in the state directory of the user
+running the suite: a flight test that ends with its link dead leaves a journal there, and the next
+`companion fly` of that user would restore it onto a real vehicle with the same system id."""
+
+from __future__ import annotations
+
+import atexit
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+
+from companion.cli import main
+from companion.flight.param_journal import STATE_DIR_ENV
+
+os.environ.setdefault("COMPANION_SHARED_DATA", str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+# Set at import, before any test module builds a subprocess environment from os.environ at its own import.
+_SESSION_STATE = tempfile.mkdtemp(prefix="companion-test-state-")
+os.environ[STATE_DIR_ENV] = _SESSION_STATE
+atexit.register(shutil.rmtree, _SESSION_STATE, True)
+
+SMALL_WALL = Path(__file__).parent / "data" / "small-wall.yaml"
+
+
+@pytest.fixture(autouse=True)
+def _own_state_dir(tmp_path_factory, monkeypatch):
+    """Each test its own journal directory (in-process flights and subprocesses started with os.environ)."""
+    monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path_factory.mktemp("state")))
+
+
+@pytest.fixture(scope="session")
+def small_recording(tmp_path_factory) -> Path:
+    """A fast `companion record` of tests/data/small-wall.yaml: 24 frames of 320 px (6 keyframes when culled);
+    read-only: a test copies what it damages."""
+    rec = tmp_path_factory.mktemp("small_recording") / "rec"
+    assert main(["record", str(SMALL_WALL), "--out", str(rec), "--fast", "--width", "320", "--max-frames", "24",
+                 "--stride", "8"]) == 0
+    return rec

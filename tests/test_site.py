@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -197,6 +198,7 @@ def test_the_cog_opens_in_gdal_at_the_reports_scale_also_from_a_tiled_map(site, 
 
     root, spools, _ = site
     out, _ = single
+    assert shutil.which("gdalinfo"), "gdalinfo is missing: apt-get install gdal-bin (as for tests/test_outputs_map.py)"
     tiled = build_facade(FacadeTask(FacadeJob("face0", (spools[0], spools[2])), tmp_path / "face0",
                                     StitchConfig(max_in_memory_px=1e5, tile_px=128)))
     assert tiled.status == "done" and "map_vrt" in tiled.files and "map" not in tiled.files

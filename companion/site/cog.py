@@ -18,9 +18,10 @@ from companion.files import atomic_path
 COG_NAME = "map_cog.tif"
 
 
-def write_cog(face_dir: Path, files: dict[str, str]) -> Path | None:
+def write_cog(face_dir: Path, files: dict[str, str], threads: int = 0) -> Path | None:
     """``face_dir/map_cog.tif`` from the face's map (``files``: the stitcher's file list); None when the map has
-    no georeferencing (scale unknown: nothing to put it in metres)."""
+    no georeferencing (scale unknown: nothing to put it in metres). ``threads`` compress blocks side by side (0:
+    every core; on a worker, its own threads: compression was 3x the stitch's time single-threaded)."""
     source = files.get("map_vrt") or (files.get("map") if files.get("world_file") else None)
     if source is None:
         return None
@@ -33,5 +34,6 @@ def write_cog(face_dir: Path, files: dict[str, str]) -> Path | None:
     out = face_dir / COG_NAME
     with rasterio.Env(GDAL_CACHEMAX=256), atomic_path(out) as tmp:
         rasterio.shutil.copy(str(source), str(tmp), driver="COG", compress="DEFLATE", blocksize=512,
-                             overviews="AUTO", resampling="average")
+                             overviews="AUTO", resampling="average",
+                             num_threads=str(threads) if threads > 0 else "ALL_CPUS")
     return out

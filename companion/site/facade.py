@@ -115,7 +115,7 @@ def build_facade(task: FacadeTask) -> FacadeOutcome:
         inp, _ = merge_spools(list(task.job.spools))
         res = stitch(inp, task.out_dir, cfg, progress=False)
         files = dict(res.files)
-        if task.cog and (cog := write_cog(task.out_dir, files)) is not None:
+        if task.cog and (cog := write_cog(task.out_dir, files, task.threads)) is not None:
             files["cog"] = str(cog)
     except CompanionError as exc:
         return replace(base, problem=exc.problem, fix=exc.fix, seconds=time.perf_counter() - start)

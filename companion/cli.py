@@ -18,12 +18,13 @@ from companion.export import commands as export_commands
 from companion.flight import commands as flight_commands
 from companion.mission import commands as mission_commands
 from companion.onboard import commands as onboard_commands
+from companion.site import commands as site_commands
 from companion.stitch import commands as stitch_commands
 
 # Each module here defines ``register(subparsers)`` adding its subcommands; a subcommand's parser sets
 # ``func`` (called with the parsed args; returns an exit code or None).
 COMMAND_MODULES = (onboard_commands, flight_commands, mission_commands, depth_commands, stitch_commands,
-                   export_commands)
+                   site_commands, export_commands)
 
 
 def _missing_plugin(module: str):

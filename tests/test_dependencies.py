@@ -158,3 +158,20 @@ def test_the_cycle_finder_finds_a_cycle_and_the_walk_sees_imports_inside_functio
                      "    importlib.import_module('sim.demo')\n")
     names = [name for name, _ in imports(probe, module="companion.probe")]
     assert "sim.rig" in names and "sim.demo" in names
+
+
+def test_only_the_command_line_uses_site_and_only_its_engine_imports_dask():
+    """``companion.site`` sits on top of the stitcher: no part of companion imports it but the command line (the
+    stitcher must stay usable on the companion computer without it), and Dask is imported in one module only,
+    ``site/engine.py`` (single-process mode and every other command run without Dask installed)."""
+    graph = part_graph()
+    users = {part for part, targets in graph.items() if "site" in targets}
+    assert users == {"cli"}, users
+    dask = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for path in sorted(PACKAGE.rglob("*.py"))
+        for target, line in imports(path)
+        if target.split(".")[0] in ("dask", "distributed") and path != PACKAGE / "site" / "engine.py"
+    ]
+    assert not dask, dask
+    assert set(graph["site"]) <= {"stitch", "spool", "keyframes", "files", "errors", "progress", "geo"}

@@ -1,4 +1,5 @@
-"""`companion stitch SPOOL --out DIR`: the facade map from a keyframe spool (or a simulator recording)."""
+"""`companion stitch SPOOL [SPOOL...] --out DIR`: the facade map from a keyframe spool (or a simulator recording);
+several spools of one wall (a main flight and its re-flies) make one map (``merge.py``)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from companion.files import removed_on_failure
 from companion.stitch import view_command
 from companion.stitch.follow import follow
 from companion.stitch.inputs import load_input
+from companion.stitch.merge import merge_spools
 from companion.stitch.unscaled import ScaleNote, area_text
 from companion.stitch.worker import StitchConfig, StitchResult, stitch
 
@@ -25,18 +27,30 @@ def _cells(text: str) -> tuple[int, int]:
 
 
 def register(sub) -> None:
-    defaults = StitchConfig()
     p = sub.add_parser(
         "stitch",
         help="stitch keyframes into the rectified facade map",
         description=__doc__,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    p.add_argument("spool", help="keyframe spool directory (manifest.jsonl) or a simulator recording")
+    p.add_argument("spool", nargs="+",
+                   help="keyframe spool directory (manifest.jsonl) or a simulator recording; several spools of one "
+                        "wall (main flight first, then its re-flies) make one map")
     p.add_argument("--out", required=True, help="output directory (map, coverage, report; cache for resuming)")
     p.add_argument("--follow", action="store_true", help="keep updating the map while keyframes arrive")
     p.add_argument("--poll-s", type=float, default=2.0, help="follow mode: manifest polling period")
     p.add_argument("--idle-timeout-s", type=float, default=600.0, help="follow mode: stop after this long idle")
+    add_map_arguments(p)
+    p.add_argument("--stride", type=int, default=1, help="recording input: use every N-th frame")
+    p.add_argument("--debug-dir", default=None, help="also dump what each stage decided here (docs/STITCH.md)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+    view_command.register(sub)  # `companion view MAPDIR`: the map's viewer
+
+
+def add_map_arguments(p: argparse.ArgumentParser) -> None:
+    """The map's settings (scale, mesh, telemetry, tiles): shared with `companion site`, which makes the same maps."""
+    defaults = StitchConfig()
     p.add_argument("--mm-per-px", type=float, default=None, help="map scale (default: keyframes' native)")
     p.add_argument("--cells", type=_cells, default=defaults.cells, help="APAP mesh Cx x Cy per keyframe")
     p.add_argument(
@@ -54,12 +68,12 @@ def register(sub) -> None:
     p.add_argument("--no-measure-wall", action="store_true",
                    help="take the wall's distance (the map's scale) and the map's place from the telemetry alone, "
                         "as before the wall was measured (for comparison)")
-    p.add_argument("--stride", type=int, default=1, help="recording input: use every N-th frame")
     p.add_argument("--tile-px", type=int, default=defaults.tile_px, help="render tile size (bounds memory)")
-    p.add_argument("--debug-dir", default=None, help="also dump what each stage decided here (docs/STITCH.md)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
-    view_command.register(sub)  # `companion view MAPDIR`: the map's viewer
+
+
+def config_from_args(args) -> StitchConfig:
+    """The :class:`StitchConfig` of :func:`add_map_arguments`' options, checked (errors say the fix)."""
+    return _config(args)
 
 
 def _config(args) -> StitchConfig:
@@ -114,11 +128,20 @@ def _print(res: StitchResult) -> None:
     print(f"viewer (open in a browser, or `companion view {res.out_dir}`): {res.files['viewer']}")
 
 
+def _input(args):
+    if len(args.spool) > 1:
+        return merge_spools(args.spool)[0]
+    return load_input(args.spool[0], **({"stride": args.stride} if args.stride != 1 else {}))
+
+
 def run(args) -> int:
     cfg = _config(args)
+    if args.follow and len(args.spool) > 1:
+        raise CompanionError("--follow takes one spool",
+                             "follow the flight in progress; stitch the finished spools together afterwards")
     if args.follow:
         res = follow(
-            args.spool,
+            args.spool[0],
             args.out,
             cfg,
             poll_s=args.poll_s,
@@ -129,7 +152,7 @@ def run(args) -> int:
         if res is None:
             raise CompanionError("no map was made: fewer than 2 keyframes arrived", "check that the gate is running")
     else:
-        inp = load_input(args.spool, **({"stride": args.stride} if args.stride != 1 else {}))
+        inp = _input(args)
         with removed_on_failure(args.out):  # a failed stitch leaves no empty or half-made map folder
             res = stitch(inp, args.out, cfg, progress=not args.quiet, debug_dir=args.debug_dir)
     _print(res)

@@ -186,6 +186,19 @@ class MaskedFrame:
         return self.tagged.frame.image
 
 
+class GateReason(StrEnum):
+    """Why the keyframe gate kept a frame (``GateDecision.reason``). A StrEnum so that the sidecar, the manifest
+    and the reports keep the same strings, while the gate and its readers compare members, not typed-out text."""
+
+    FIRST = "first"  # the stream's first keyframe: nothing to compare with
+    OVERLAP = "overlap"  # the last frame at or above Rth, kept when the next fell below it
+    TRACKING_LOST = "tracking_lost"  # the candidate (or, with none, the frame) where tracking against the key broke
+    LOW_OVERLAP = "low_overlap"  # kept below Rth: no frame in between was at or above it
+    END_OF_STREAM = "end_of_stream"  # the held candidate, kept when the stream ended
+    END_OF_SEGMENT = "end_of_segment"  # the held candidate, kept when the scan was left
+    NEW_SEGMENT = "new_segment"  # the first keyframe after the scan resumed
+
+
 @dataclass(frozen=True)
 class GateDecision:
     """Why the keyframe gate kept a frame and what it measured (written to the keyframe's sidecar as is).
@@ -195,8 +208,7 @@ class GateDecision:
     overlap_to_previous: float | None = None  # None for the first keyframe or after a gap
     inliers: int = 0
     gap_before: bool = False  # tracking was lost, or the scan left and resumed, since the previous keyframe
-    # first | overlap | tracking_lost | low_overlap | end_of_stream | end_of_segment | new_segment
-    reason: str = "first"
+    reason: GateReason = GateReason.FIRST
     segment: int = 0  # tracking segment (a gap starts a new one)
     previous_index: int | None = None
     frames_since_previous: int = 0

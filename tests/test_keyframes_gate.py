@@ -10,6 +10,7 @@ import pytest
 
 from companion.errors import CompanionError
 from companion.keyframes import FeatureConfig, GateConfig, GateEventKind, KeyframeGate
+from companion.records import GateReason
 from evaluation.keyframes.synthetic import View, masked_frame, render, sweep, textured_wall, true_overlap
 
 W, H = 480, 360
@@ -56,7 +57,7 @@ def test_paper_example_keeps_i4_and_rejects_i5(tex):
     kfs = _run(_gate(), tex, views)
     assert _indices(kfs)[:2] == [0, 3]
     assert kfs[1].overlap_to_previous == pytest.approx(82.9, abs=0.5)
-    assert kfs[0].overlap_to_previous is None and kfs[0].decision.reason == "first"
+    assert kfs[0].overlap_to_previous is None and kfs[0].decision.reason == GateReason.FIRST
 
 
 @pytest.mark.parametrize("step", [14.0, 23.0, 31.0])
@@ -286,12 +287,12 @@ def test_a_segment_ended_by_leaving_the_scan_restarts_fresh(tex):
     for i, v in enumerate(first):
         kfs += gate.push(masked_frame(i, render(tex, v)))
     kfs += gate.end_segment()
-    assert _indices(kfs)[-1] == 5 and kfs[-1].decision.reason == "end_of_segment"
+    assert _indices(kfs)[-1] == 5 and kfs[-1].decision.reason == GateReason.END_OF_SEGMENT
     for i, v in enumerate(later, start=len(first)):
         kfs += gate.push(masked_frame(i, render(tex, v)))
     kfs += gate.flush()
     opened = next(k for k in kfs if k.index == len(first))
-    assert opened.decision.reason == "new_segment" and opened.gap_before and opened.decision.segment == 1
+    assert opened.decision.reason == GateReason.NEW_SEGMENT and opened.gap_before and opened.decision.segment == 1
     assert opened.overlap_to_previous is None and opened.decision.previous_index is None
     assert not any(k.decision.low_overlap for k in kfs)
     kinds = [e.kind for e in gate.pop_events()]

@@ -18,7 +18,7 @@ from PIL import Image
 from PIL.ExifTags import GPS, IFD, Base
 
 from companion.files import TEMP_GLOB
-from companion.records import Frame, GateDecision, Keyframe, Pose
+from companion.records import Frame, GateDecision, GateReason, Keyframe, Pose
 from companion.spool import KeyframeSpool, SpoolFullError
 from companion.spool import writer as spool_writer
 from companion.spool.exif import read_xmp
@@ -42,7 +42,7 @@ def _keyframe(index: int, lat=37.5665123, lon=126.9781234) -> Keyframe:
         gimbal_pitch_deg=0.0,
         mission_item=5,
     )
-    decision = GateDecision(overlap_to_previous=81.5, inliers=150, reason="overlap")
+    decision = GateDecision(overlap_to_previous=81.5, inliers=150, reason=GateReason.OVERLAP)
     return Keyframe(Frame(index, 1_700_000_000.123 + index, image), pose, mask, decision)
 
 
@@ -73,6 +73,7 @@ def test_keyframe_files_and_tags(tmp_path):
     assert entry.mask == entry.image.replace(".jpg", "_mask.png")
     side = json.loads((tmp_path / entry.sidecar).read_text())
     assert side["overlap_to_previous"] == 81.5 and side["inliers"] == 150 and side["pose"]["mission_item"] == 5
+    assert '"reason": "overlap"' in (tmp_path / entry.sidecar).read_text()  # the enum is written as its string
     # The stitching worker reads exactly this spool.
     from companion.spool.reader import load_spool
 

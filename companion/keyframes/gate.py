@@ -43,7 +43,7 @@ from companion.keyframes.features import FeatureConfig, FeatureExtractor, Featur
 from companion.keyframes.motion import WallMotion, WallMotionPredictor
 from companion.keyframes.overlap import OverlapConfig, OverlapEstimate, OverlapEstimator
 from companion.keyframes.sharpness import SharpnessReference, laplacian_variance
-from companion.records import GateDecision, Keyframe, MaskedFrame
+from companion.records import GateDecision, GateReason, Keyframe, MaskedFrame
 
 
 @dataclass(frozen=True)
@@ -262,7 +262,7 @@ class KeyframeGate:
         if self._cand is not None:
             why = self._no_wall_to_add(self._key, self._cand)
             if why is None:
-                self._promote(step, reason="end_of_stream" if end_of_stream else "end_of_segment")
+                self._promote(step, reason=GateReason.END_OF_STREAM if end_of_stream else GateReason.END_OF_SEGMENT)
             else:
                 cand, self._cand = self._cand, None
                 self.last_dropped += 1
@@ -355,13 +355,13 @@ class KeyframeGate:
         if self._key is None:
             step.role = "keyframe"
             if not self._segment_ended:
-                self._emit(item, step, overlap=None, gap=False, reason="first")
+                self._emit(item, step, overlap=None, gap=False, reason=GateReason.FIRST)
                 return
             self._segment += 1
             step.events.append(GateEvent(GateEventKind.SEGMENT, item.index,
                                          f"scan resumed at frame {item.index}: new segment {self._segment}, not "
                                          "judged against the keyframes before the frames off the scan"))
-            self._emit(item, step, overlap=None, gap=True, reason="new_segment")
+            self._emit(item, step, overlap=None, gap=True, reason=GateReason.NEW_SEGMENT)
             return
         if len(item.features) < self.config.overlap.min_matches:
             self._unusable(item, step, f"only {len(item.features)} features in the ROI")
@@ -373,7 +373,7 @@ class KeyframeGate:
         if est.known:
             self._warn_if_falling(item, est, step)
             if self._cand is not None:
-                self._promote(step, reason="overlap")
+                self._promote(step, reason=GateReason.OVERLAP)
                 self._after_promotion(item, step)
             else:
                 self._low_overlap_keyframe(item, est, step)
@@ -383,7 +383,7 @@ class KeyframeGate:
             self._unusable(item, step, f"blurred and unmatched ({est.status})")
             return
         if self._cand is not None:
-            self._promote(step, reason="tracking_lost")
+            self._promote(step, reason=GateReason.TRACKING_LOST)
             self._after_promotion(item, step)
         else:
             self._gap_keyframe(item, est, step)
@@ -435,7 +435,7 @@ class KeyframeGate:
         )
         item.estimate = est
         step.role = "keyframe"
-        self._emit(item, step, overlap=est, gap=False, reason="low_overlap")
+        self._emit(item, step, overlap=est, gap=False, reason=GateReason.LOW_OVERLAP)
 
     def _gap_keyframe(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
         step.events.append(
@@ -448,7 +448,7 @@ class KeyframeGate:
         self._segment += 1
         item.estimate = est
         step.role = "keyframe"
-        self._emit(item, step, overlap=None, gap=True, reason="tracking_lost")
+        self._emit(item, step, overlap=None, gap=True, reason=GateReason.TRACKING_LOST)
 
     def _unusable(self, item: _Held, step: GateStep, why: str) -> None:
         """A frame the gate cannot measure. One whose ROI is next to nothing (the camera leaving the wall at a
@@ -460,7 +460,7 @@ class KeyframeGate:
         step.role = "unusable"
         step.events.append(GateEvent(GateEventKind.UNUSABLE_FRAME, item.index, f"frame {item.index} skipped: {why}"))
 
-    def _promote(self, step: GateStep, reason: str) -> None:
+    def _promote(self, step: GateStep, reason: GateReason) -> None:
         cand, self._cand = self._cand, None
         self._emit(cand, step, overlap=cand.estimate, gap=False, reason=reason)
 
@@ -508,7 +508,8 @@ class KeyframeGate:
             return replace(est, R_telemetry=predicted)
         return replace(est, R=predicted, source="telemetry", R_telemetry=predicted)
 
-    def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool, reason: str) -> None:
+    def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool,
+              reason: GateReason) -> None:
         est = overlap
         kf = Keyframe.of(
             item.masked,

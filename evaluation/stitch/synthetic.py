@@ -19,7 +19,7 @@ import pymap3d
 
 from companion.attitude import camera_rotation_enu
 from companion.geo import FacadeFrame, GeoPoint
-from companion.records import Frame, GateDecision, GimbalSource, Keyframe, Pose
+from companion.records import Frame, GateDecision, GateReason, GimbalSource, Keyframe, Pose
 from companion.spool.writer import KeyframeSpool
 from companion.stitch.inputs import CameraModel
 
@@ -211,7 +211,7 @@ def make_spool(
                 else:
                     pose = reported_pose(rng, frame, true_pose, errors, k)
             decision = GateDecision() if k == 0 else GateDecision(overlap_to_previous=round(overlap * 100, 1),
-                                                                   reason="overlap", previous_index=k - 1)
+                                                                   reason=GateReason.OVERLAP, previous_index=k - 1)
             spool.append(Keyframe(Frame(k, CAPTURE_EPOCH_S + k, img), pose, mask, decision))
             views.append({"along_m": float(al), "up_m": float(up)})
     return {"texture": texture, "camera": camera, "frame": frame, "views": views, "wall": wall}

@@ -38,6 +38,7 @@ import numpy as np
 from companion.depth.masker import Masker
 from companion.depth.parallax import (
     ParallaxParams,
+    PlainRule,
     camera_translation,
     carried_wall,
     dense_flow,
@@ -58,8 +59,8 @@ sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a s
 EVAL_WIDTH = 480
 VARIANTS: dict[str, ParallaxParams] = {
     "today": PARALLAX_RULES["fixed-15m"],
-    "ratio": ParallaxParams(plain_rule="network"),
-    "ratio+continuity": ParallaxParams(plain_rule="continuity"),
+    "ratio": ParallaxParams(plain_rule=PlainRule.NETWORK),
+    "ratio+continuity": ParallaxParams(plain_rule=PlainRule.CONTINUITY),
     "ratio+calibrated": ParallaxParams(),
     "ratio+calibrated+in-view": ParallaxParams(wall_in_view_rule=True),
 }

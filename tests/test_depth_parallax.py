@@ -214,7 +214,7 @@ def test_a_background_nearer_than_the_metric_limit_is_far_against_the_walls_own_
     far. The wall stays near under both rules."""
     import cv2
 
-    from companion.depth.parallax import ParallaxParams
+    from companion.depth.parallax import NearRule, ParallaxParams
 
     wall = PhotoTexture("wall", _texture(600, 1200, 1), 12.0)
     bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
@@ -223,7 +223,7 @@ def test_a_background_nearer_than_the_metric_limit_is_far_against_the_walls_own_
     a, b = r.render(93), r.render(95)
     assert 0.2 < b.wall_fraction < 0.8
     t = camera_translation(R, np.array([a.along_m, 4.0, a.up_m]), R, np.array([b.along_m, 4.0, b.up_m]))
-    fixed = parallax_depth(a.image, b.image, t, CAM.fx, ParallaxParams(near_rule="fixed"))
+    fixed = parallax_depth(a.image, b.image, t, CAM.fx, ParallaxParams(near_rule=NearRule.FIXED))
     ratio = parallax_depth(a.image, b.image, t, CAM.fx)
     truth = cv2.resize(b.roi_mask, ratio.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     assert fixed.near[~truth & fixed.trusted].mean() > 0.7  # the old rule: the background is "near"
@@ -237,7 +237,7 @@ def test_plain_patches_take_the_side_of_the_trusted_pixels_around_them():
     is background. With the plain rule off both keep the network's mistake."""
     import cv2
 
-    from companion.depth.parallax import ParallaxParams
+    from companion.depth.parallax import ParallaxParams, PlainRule
 
     wall_tex = _plain_patch_texture(600, 1200, 1, (slice(200, 400), slice(900, 1100)))
     bg_tex = _plain_patch_texture(600, 800, 2, (slice(200, 330), slice(665, 740)))  # lands right of the wall
@@ -253,7 +253,7 @@ def test_plain_patches_take_the_side_of_the_trusted_pixels_around_them():
     assert plain_wall.mean() > 0.03 and plain_bg.mean() > 0.01
     network = np.where(wall_px & ~plain_wall, 255, 0).astype(np.uint8)  # cuts the plain wall patch ...
     network[plain_bg] = 255  # ... and keeps a plain patch of background
-    for rule, expect in (("continuity", True), ("network", False)):
+    for rule, expect in ((PlainRule.CONTINUITY, True), (PlainRule.NETWORK, False)):
         par = parallax_depth(a.image, b.image, t, CAM.fx, ParallaxParams(plain_rule=rule))
         fused, dropped = fuse_with_network(network, par)
         assert not dropped

@@ -11,13 +11,14 @@ default because each kept background on a measured pass (docs/DEPTH.md).
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from companion.depth.masker import Masker
-from companion.depth.parallax import ParallaxParams, ParallaxResult, SequenceParallax, plain_vote
+from companion.depth.parallax import ParallaxParams, ParallaxResult, PlainRule, SequenceParallax, plain_vote
 from companion.records import Frame, Pose, TaggedFrame
 from evaluation.depth.parallax_rules import PARALLAX_RULES
 from sim.camera.model import CameraModel
@@ -60,11 +61,11 @@ def _with_background_in_view(near, far):
 def test_plain_bands_at_the_bottom_are_wall_but_patches_at_the_top_stay_the_networks_with_background_in_view():
     near, far, network, bottom_band, pilaster, corner_sky = _scene()
     near, far = _with_background_in_view(near, far)
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near, far, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near, far, network)
     assert (vote[bottom_band] >= 0.5).all(), "a plain band along the bottom edge with only wall around it is wall"
     assert (vote[pilaster] < 0.5).all(), "with background in view a patch touching the top edge is the network's"
     assert (vote[corner_sky] < 0.5).all(), "a plain patch spanning the top and a side (sky) stays the network's"
-    before = replace(PARALLAX_RULES["before-borders"], plain_rule="continuity")
+    before = replace(PARALLAX_RULES["before-borders"], plain_rule=PlainRule.CONTINUITY)
     vote = _vote(before, near, far, network)
     assert (vote[bottom_band | pilaster] < 0.5).all(), "the rule before left every border patch to the network"
 
@@ -75,13 +76,13 @@ def test_with_no_background_in_view_plain_patches_touching_the_top_are_wall():
     and on the real-texture passes that was most of the wall lost: docs/DEPTH.md). A few far pixels (mistracked
     railings, flow noise: under 1 % of the frame) do not count as a background in view."""
     near, far, network, bottom_band, pilaster, corner_sky = _scene()
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near, far, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near, far, network)
     assert (vote[bottom_band | pilaster | corner_sky] >= 0.5).all()
     speck = np.zeros_like(near)
     speck[30:33, 60:63] = True  # 0.15 % of the frame trusted far, away from the patches
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near & ~speck, far | speck, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near & ~speck, far | speck, network)
     assert (vote[pilaster | corner_sky] >= 0.5).all()
-    before = replace(PARALLAX_RULES["before-top"], plain_rule="continuity")
+    before = replace(PARALLAX_RULES["before-top"], plain_rule=PlainRule.CONTINUITY)
     vote = _vote(before, near, far, network)
     assert (vote[pilaster | corner_sky] < 0.5).all(), "the rule before left the top to the network"
     assert (vote[bottom_band] >= 0.5).all()
@@ -99,24 +100,24 @@ def test_a_speck_of_far_pixels_beside_a_plain_patch_does_not_veto_it_in_a_frame_
     near, far, network, _, pilaster, _ = _scene()
     speck = np.zeros_like(near)
     speck[25:28, 47:53] = True  # 0.3 % of the frame trusted far, just under the pilaster's lower end
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near & ~speck, far | speck, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near & ~speck, far | speck, network)
     assert (vote[pilaster] >= 0.5).all(), "a far speck in a frame with no background vetoed a plain wall patch"
-    before = replace(PARALLAX_RULES["before-speck"], plain_rule="continuity")
+    before = replace(PARALLAX_RULES["before-speck"], plain_rule=PlainRule.CONTINUITY)
     vote = _vote(before, near & ~speck, far | speck, network)
     assert (vote[pilaster] < 0.5).all(), "the rule before let the speck veto it"
     edge = np.zeros_like(near)
     edge[:6, 55:58] = True  # as few far pixels, but reaching the frame's top beside the pilaster: the sky's edge
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near & ~edge, far | edge, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near & ~edge, far | edge, network)
     assert (vote[pilaster] < 0.5).all(), "far pixels coming in from a border still veto"
     near_bg, far_bg = _with_background_in_view(near & ~speck, far | speck)
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near_bg, far_bg, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near_bg, far_bg, network)
     assert (vote[pilaster] < 0.5).all(), "with a background in view the top stays the network's, as before"
 
 
 def test_the_top_alone_rule_takes_a_pilaster_hanging_from_the_top_but_not_sky_spanning_it():
     near, far, network, bottom_band, pilaster, corner_sky = _scene()
     near, far = _with_background_in_view(near, far)
-    vote = _vote(replace(PARALLAX_RULES["borders-top-alone"], plain_rule="continuity"), near, far, network)
+    vote = _vote(replace(PARALLAX_RULES["borders-top-alone"], plain_rule=PlainRule.CONTINUITY), near, far, network)
     assert (vote[bottom_band | pilaster] >= 0.5).all()
     assert (vote[corner_sky] < 0.5).all()
 
@@ -130,7 +131,7 @@ def test_a_plain_border_patch_with_far_pixels_around_it_stays_cut():
     ring &= ~bottom_band
     far |= ring
     near &= ~ring
-    vote = _vote(ParallaxParams(plain_rule="continuity"), near, far, network)
+    vote = _vote(ParallaxParams(plain_rule=PlainRule.CONTINUITY), near, far, network)
     assert (vote[bottom_band] < 0.5).all()
 
 
@@ -217,3 +218,15 @@ def test_a_misspelt_parallax_rule_is_refused_with_the_names_it_takes(field, valu
     with pytest.raises(CompanionError, match=field):
         ParallaxParams(**{field: value})
     assert all(isinstance(rules, ParallaxParams) for rules in PARALLAX_RULES.values())
+
+
+def test_a_parallax_rule_given_by_name_becomes_its_member_and_prints_as_the_name():
+    from companion.depth.parallax import Border, SpeckVeto
+
+    named = ParallaxParams(plain_rule="continuity", continuity_speck_veto="every",
+                           continuity_wall_borders="bottom, top")
+    assert named.plain_rule is PlainRule.CONTINUITY and named.continuity_speck_veto is SpeckVeto.EVERY
+    assert named.continuity_wall_borders == {Border.BOTTOM, Border.TOP}
+    assert ParallaxParams(continuity_wall_borders="").continuity_wall_borders == frozenset()
+    assert ParallaxParams() == ParallaxParams(continuity_wall_borders="bottom,left,right", plain_rule="calibrated")
+    assert f"{ParallaxParams().plain_rule}" == "calibrated" and json.dumps(SpeckVeto.BORDER) == '"border"'

@@ -14,13 +14,62 @@ plain surfaces have no trackable texture and are left to the network.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
+from enum import StrEnum
 
 import cv2
 import numpy as np
 
 from companion.attitude import camera_rotation_enu
 from companion.errors import CompanionError
+
+
+class NearRule(StrEnum):
+    """Which trusted pixels are near (``ParallaxParams.near_rule``)."""
+
+    WALL_RATIO = "wall_ratio"
+    FIXED = "fixed"
+
+
+class PlainRule(StrEnum):
+    """How plain (untracked) pixels are decided (``ParallaxParams.plain_rule``)."""
+
+    CALIBRATED = "calibrated"
+    CONTINUITY = "continuity"
+    NETWORK = "network"
+
+
+class PlaneDropRule(StrEnum):
+    """The wall-plane check's evidence that a frame is all background (``ParallaxParams.plane_drop_rule``)."""
+
+    FIT = "fit"
+    NEAR = "near"
+
+
+class SpeckVeto(StrEnum):
+    """Which far pixels of a frame with no background in view veto a wall patch
+    (``ParallaxParams.continuity_speck_veto``)."""
+
+    BORDER = "border"
+    EVERY = "every"
+    NONE = "none"
+
+
+class Border(StrEnum):
+    """A frame border a plain patch judged wall may touch (``ParallaxParams.continuity_wall_borders``)."""
+
+    BOTTOM = "bottom"
+    LEFT = "left"
+    RIGHT = "right"
+    TOP = "top"
+    TOP_ALONE = "top-alone"  # the top edge alone, not the top and a side
+
+
+# The rule fields and their choices. Enums, not strings, because every rule is chosen by comparing with one name:
+# a misspelt string would silently act as another rule. StrEnum keeps each printed or written value the same text.
+_RULE_KINDS: dict[str, type[StrEnum]] = {"near_rule": NearRule, "plain_rule": PlainRule,
+                                         "plane_drop_rule": PlaneDropRule, "continuity_speck_veto": SpeckVeto}
 
 
 @dataclass(frozen=True)
@@ -37,7 +86,7 @@ class ParallaxParams:
     # come within by flow noise.
     # 2.5 as the ROI's near ratio 0.4: windows and recesses a metre or two off the wall are at most ~1.5x farther
     # at a 4 m standoff, a background at 20 m or more 5x. "fixed": nearer than ``max_near_depth_m`` only.
-    near_rule: str = "wall_ratio"
+    near_rule: NearRule = NearRule.WALL_RATIO
     wall_ratio: float = 2.5
     min_wall_share: float = 0.05
     # Plain (untracked) pixels: "continuity" labels each connected plain patch by the trusted pixels around it
@@ -51,17 +100,17 @@ class ParallaxParams:
     # orders near and far well on real photos but puts the split in the wrong place (a street 40 m behind read
     # at 14 m, inside its 15 m limit). Only where its ordering holds (at most ``calibrate_max_error`` of the
     # trusted pixels on the wrong side). Otherwise, or without the network's depth, "continuity".
-    plain_rule: str = "calibrated"
+    plain_rule: PlainRule = PlainRule.CALIBRATED
     continuity_max_dissent: float = 0.05
     # Which frame borders a plain patch the network cut may touch and still be judged wall by its trusted
     # neighbours (all near). The top is left to the network: plain sky above a roof line touches it with the roof's
     # near pixels below and nothing far. A plain band along the bottom or a side of the frame with only wall around
     # it (balcony bases, a plinth, plain stone at the frame's edge, which the network reads as far) is wall: a
-    # background beside the wall shows its own far texture there. "" (no border): the rule before. "top-alone"
+    # background beside the wall shows its own far texture there. No border: the rule before. ``TOP_ALONE``
     # also takes a patch hanging from the top edge alone (a plain pilaster between windows; measured, docs/DEPTH.md:
     # more wall on the held-out passes, but on a validation pass it kept background seen through a hole in the
     # facade hanging from the frame's top, where the flow had called the background near).
-    continuity_wall_borders: str = "bottom,left,right"
+    continuity_wall_borders: frozenset[Border] = frozenset({Border.BOTTOM, Border.LEFT, Border.RIGHT})
     # A frame whose trusted pixels show (almost) no far texture (at most this share of the frame is trusted far)
     # gives no sign of a background anywhere: there a plain patch touching the top whose trusted neighbours are all
     # near (plain render between windows running up out of the frame, a plain band beside the balconies, the plain
@@ -78,7 +127,7 @@ class ParallaxParams:
     # border (a background beside the wall's end or above the roof comes in from a border; a window pane reflecting
     # the scene behind the camera, tracked as far, is enclosed by the wall: 0.1 % of a held-out all-wall frame,
     # it vetoed the plain render beside it and 6 % of the frame was lost); "none" (docs/DEPTH.md "A far speck").
-    continuity_speck_veto: str = "border"
+    continuity_speck_veto: SpeckVeto = SpeckVeto.BORDER
     calibrate_min_share: float = 0.03
     calibrate_max_error: float = 0.15
     min_texture: float = 6.0  # local gradient magnitude (grey levels per pixel) below which flow is not trusted
@@ -146,7 +195,7 @@ class ParallaxParams:
     # "fit": the drop evidence is the share of the frame that moves like the wall AND fits the wall's motion
     # within ``plane_fit_max`` grey levels (a real wall matches up to JPEG noise; a background patch the wall's
     # motion happens to fit better than the far ones rarely fits it closely); "near": the near share above
-    plane_drop_rule: str = "fit"
+    plane_drop_rule: PlaneDropRule = PlaneDropRule.FIT
     plane_fit_max: float = 4.0
     plane_drop_max_fit_share: float = 0.0007
     # True: a pixel DIS calls far stays far only where the far motion fits clearly better; False: unless the wall's
@@ -178,18 +227,28 @@ class ParallaxParams:
     unjudged_far_cut_ratio: float | None = None
 
     def __post_init__(self) -> None:
-        """A misspelt rule name would silently act as another rule (every check is ``==`` one name): refuse it."""
-        named = {"near_rule": ("wall_ratio", "fixed"), "plain_rule": ("calibrated", "continuity", "network"),
-                 "plane_drop_rule": ("fit", "near"), "continuity_speck_veto": ("border", "every", "none")}
-        for field, allowed in named.items():
-            if getattr(self, field) not in allowed:
-                raise CompanionError(f"parallax rule {field}={getattr(self, field)!r} is not one of {allowed}",
+        """Each rule becomes its enum member: one given by name (``plain_rule="continuity"``, borders as a comma
+        list ``"bottom,left"``) is converted, so the checks compare members, and a misspelt name is refused
+        rather than silently acting as another rule."""
+        for field, kind in _RULE_KINDS.items():
+            value = getattr(self, field)
+            if value not in set(kind):
+                allowed = tuple(str(m) for m in kind)
+                raise CompanionError(f"parallax rule {field}={value!r} is not one of {allowed}",
                                      f"set {field} to one of {', '.join(allowed)}")
-        borders = {b.strip() for b in self.continuity_wall_borders.split(",") if b.strip()}
-        unknown = borders - {"bottom", "left", "right", "top", "top-alone"}
-        if unknown:
-            raise CompanionError(f"continuity_wall_borders names unknown borders {sorted(unknown)}",
-                                 "use a comma list of bottom, left, right, top, top-alone")
+            object.__setattr__(self, field, kind(value))
+        object.__setattr__(self, "continuity_wall_borders", _borders(self.continuity_wall_borders))
+
+
+def _borders(borders: str | Iterable[str]) -> frozenset[Border]:
+    """``ParallaxParams.continuity_wall_borders`` as a set of :class:`Border` (also from a comma list of names)."""
+    names = borders.split(",") if isinstance(borders, str) else borders
+    names = {str(b).strip() for b in names if str(b).strip()}
+    unknown = names - set(Border)
+    if unknown:
+        raise CompanionError(f"continuity_wall_borders names unknown borders {sorted(unknown)}",
+                             f"use a set of {', '.join(Border)} (or a comma list of them)")
+    return frozenset(Border(b) for b in names)
 
 
 @dataclass(frozen=True)
@@ -345,7 +404,7 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
         depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
     near = flow.trusted & (depth < p.max_near_depth_m)
     k = int(p.min_wall_share * depth.size)
-    if p.near_rule == "wall_ratio" and k >= 2 and int(near.sum()) >= k:
+    if p.near_rule == NearRule.WALL_RATIO and k >= 2 and int(near.sum()) >= k:
         # the wall: the nearest trusted pixels covering min_wall_share of the frame (their median depth), so a
         # background that fills most of the frame does not set the scale, and a few mistracked pixels do not
         near_depths = depth[near]
@@ -468,8 +527,10 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     dropped, net = _all_background(network_mask, parallax, network_depth_m)
     if parallax.before_plane is not None:
         pp = parallax.params
-        evidence = float(parallax.near.mean()) <= pp.plane_drop_max_near_share if pp.plane_drop_rule == "near" \
-            else parallax.wall_fit_share <= pp.plane_drop_max_fit_share
+        if pp.plane_drop_rule == PlaneDropRule.NEAR:
+            evidence = float(parallax.near.mean()) <= pp.plane_drop_max_near_share
+        else:
+            evidence = parallax.wall_fit_share <= pp.plane_drop_max_fit_share
         dropped = _all_background(network_mask, parallax.before_plane, network_depth_m)[0] and evidence
     if dropped:
         return np.zeros((h, w), np.uint8), True
@@ -504,12 +565,12 @@ def plain_vote(network_mask: np.ndarray, parallax: ParallaxResult,
     net = cv2.resize(network_mask, (pw, ph), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
     rule = parallax.params.plain_rule
     split = None
-    if rule == "calibrated" and network_depth_m is not None:
+    if rule == PlainRule.CALIBRATED and network_depth_m is not None:
         depth = cv2.resize(np.asarray(network_depth_m, np.float32), (pw, ph), interpolation=cv2.INTER_LINEAR)
         split = calibrated_split_m(depth, parallax)
         if split is not None:
             net = np.where(parallax.trusted, net, (depth <= split).astype(np.float32))
-    if rule in ("continuity", "calibrated") and split is None:
+    if rule in (PlainRule.CONTINUITY, PlainRule.CALIBRATED) and split is None:
         net = plain_by_continuity(net, parallax)
     return net
 
@@ -563,18 +624,18 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     top, bottom, left, right = (np.zeros(n, bool) for _ in range(4))
     for flag, edge in ((top, labels[0]), (bottom, labels[-1]), (left, labels[:, 0]), (right, labels[:, -1])):
         flag[np.unique(edge)] = True
-    allowed = {b.strip() for b in p.continuity_wall_borders.split(",") if b.strip()}
+    allowed = p.continuity_wall_borders
     closed_border = np.zeros(n, bool)  # borders a plain patch judged wall may not touch
-    for name, flag in (("bottom", bottom), ("left", left), ("right", right)):
+    for name, flag in ((Border.BOTTOM, bottom), (Border.LEFT, left), (Border.RIGHT, right)):
         if name not in allowed:
             closed_border |= flag
     # no background in view (``continuity_top_max_far_share``): the top is judged like the other borders
     no_far_in_view = p.continuity_top_max_far_share is not None \
         and float(parallax.far.mean()) <= p.continuity_top_max_far_share
-    if "top" not in allowed and not no_far_in_view:
-        # "top-alone": a patch hanging from the top edge between near pixels (a plain pilaster under the frame's
+    if Border.TOP not in allowed and not no_far_in_view:
+        # TOP_ALONE: a patch hanging from the top edge between near pixels (a plain pilaster under the frame's
         # top) is judged too; one that also reaches a side (sky spanning the frame above a roof line) is not
-        closed_border |= top & (left | right) if "top-alone" in allowed else top
+        closed_border |= top & (left | right) if Border.TOP_ALONE in allowed else top
     # a full-height plain strip at one side of the frame: the wall's end entering or leaving the view (sky touches
     # the top, not the bottom; a background street the bottom, not the top; a plain background filling the frame's
     # height spans from side to side)
@@ -585,8 +646,9 @@ def plain_by_continuity(net: np.ndarray, parallax: ParallaxResult) -> np.ndarray
     # in a frame with no background in view, far pixels the wall encloses (a window pane reflecting the scene behind
     # the camera) are no background either: they do not veto a wall patch (``continuity_speck_veto``)
     dissent = far_votes
-    if no_far_in_view and p.continuity_speck_veto != "every":
-        vetoing = _reaching_border(parallax.far) if p.continuity_speck_veto == "border" else np.zeros_like(plain)
+    if no_far_in_view and p.continuity_speck_veto != SpeckVeto.EVERY:
+        border_only = p.continuity_speck_veto == SpeckVeto.BORDER
+        vetoing = _reaching_border(parallax.far) if border_only else np.zeros_like(plain)
         touches_vetoing = cv2.dilate(vetoing.astype(np.uint8), ring).astype(bool) & plain
         dissent = np.bincount(labels[touches_vetoing], minlength=n)
     wall = (near_votes > 0) & (dissent <= p.continuity_max_dissent * votes) & ~closed_border & (kept < size)

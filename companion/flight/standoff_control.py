@@ -25,6 +25,7 @@ import math
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 from companion.errors import CompanionError
 
@@ -32,17 +33,36 @@ RANGEFINDER_SIGMA_M = 0.03  # a laser rangefinder's noise (the simulator's: 2 cm
 FACING_LIMIT_DEG = 15.0  # a rangefinder reading counts only when the vehicle faces the wall within this
 DEFAULT_FLOOR_FRACTION = 0.6  # safety floor: 60 % of the planned standoff unless the mission sets min_distance_m
 
-ON_PLAN = "on plan"
-CORRECT = "correct"
-TOO_CLOSE = "too close"
-NO_MEASUREMENT = "no measurement"
-MEASURING = "measuring"  # measured, not yet for long enough (or not consistently) to act
-CAPPED = "capped"  # off the plan, but the correction cap says not now
-NOT_JUDGED = "not judged"  # not on a scan leg
-SETTLING = "settling"  # right after a correction: the vehicle is moving to the new path
-BACKING_OFF = "backing off"  # too close, moved out, waiting for the measurement to recover
-RECOVERED = "recovered"
-ABORT = "abort"  # too close and not recovered in time: the flight ends
+
+class StandoffAction(StrEnum):
+    """What the controller decided (``StandoffDecision.action``). An enum so that the flight loop's branches compare
+    members, not typed-out text; a StrEnum so that logs and messages print the same words."""
+
+    ON_PLAN = "on plan"
+    CORRECT = "correct"
+    TOO_CLOSE = "too close"
+    NO_MEASUREMENT = "no measurement"
+    MEASURING = "measuring"  # measured, not yet for long enough (or not consistently) to act
+    CAPPED = "capped"  # off the plan, but the correction cap says not now
+    NOT_JUDGED = "not judged"  # not on a scan leg
+    SETTLING = "settling"  # right after a correction: the vehicle is moving to the new path
+    BACKING_OFF = "backing off"  # too close, moved out, waiting for the measurement to recover
+    RECOVERED = "recovered"
+    ABORT = "abort"  # too close and not recovered in time: the flight ends
+
+
+# the module's names for the actions, as its callers and tests import them
+ON_PLAN = StandoffAction.ON_PLAN
+CORRECT = StandoffAction.CORRECT
+TOO_CLOSE = StandoffAction.TOO_CLOSE
+NO_MEASUREMENT = StandoffAction.NO_MEASUREMENT
+MEASURING = StandoffAction.MEASURING
+CAPPED = StandoffAction.CAPPED
+NOT_JUDGED = StandoffAction.NOT_JUDGED
+SETTLING = StandoffAction.SETTLING
+BACKING_OFF = StandoffAction.BACKING_OFF
+RECOVERED = StandoffAction.RECOVERED
+ABORT = StandoffAction.ABORT
 
 
 @dataclass(frozen=True)
@@ -101,7 +121,7 @@ class Measurement:
 
 @dataclass(frozen=True)
 class StandoffDecision:
-    action: str
+    action: StandoffAction
     measured: Measurement | None = None
     shift_out_m: float = 0.0  # CORRECT / TOO_CLOSE: move the remaining scan this far out (negative: in)
     reason: str = ""

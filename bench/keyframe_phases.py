@@ -40,7 +40,7 @@ from companion.geo import FacadeFrame  # noqa: E402
 from companion.keyframes.motion import WallMotionPredictor  # noqa: E402
 from companion.mission.geometry import wall_ends  # noqa: E402
 from companion.onboard.setup import scan_scope  # noqa: E402
-from companion.records import Pose  # noqa: E402
+from companion.records import OverlapSource, Pose  # noqa: E402
 
 PHASES = ("take-off/transit/landing", "approach", "strip", "strip end", "turn", "exit")
 _NOMINAL_W, _NOMINAL_H = 1600, 900  # overlap depends on the lens and aspect only
@@ -140,7 +140,7 @@ def main() -> int:
             continue
         t = [x[0] for x in v if x[0] is not None]
         r = [x[1] for x in v if x[1] is not None]
-        tel = sum(x[2] in ("telemetry", "telemetry_veto") for x in v)
+        tel = sum(x[2] in (OverlapSource.TELEMETRY, OverlapSource.TELEMETRY_VETO) for x in v)
         tm = f"{np.mean(t):.1f} / {min(t):.1f}" if t else "-"
         print(f"{phase:26s} {len(v):9d} {tm:>24s} {f'{np.mean(r):.1f}' if r else '-':>18s} {tel:16d}")
     scan = len(rows) - len(table.get("take-off/transit/landing", []))

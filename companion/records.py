@@ -199,6 +199,15 @@ class GateReason(StrEnum):
     NEW_SEGMENT = "new_segment"  # the first keyframe after the scan resumed
 
 
+class OverlapSource(StrEnum):
+    """Where an overlap R came from (``OverlapEstimate.source``, ``GateDecision.overlap_source``). A StrEnum: the
+    sidecar and the reports keep the same strings, the gate and its readers compare members."""
+
+    IMAGE = "image"  # the images' own match
+    TELEMETRY = "telemetry"  # the poses' prediction: the image held too little wall to measure
+    TELEMETRY_VETO = "telemetry_veto"  # the poses' prediction overruled an image R >= Rth
+
+
 @dataclass(frozen=True)
 class GateDecision:
     """Why the keyframe gate kept a frame and what it measured (written to the keyframe's sidecar as is).
@@ -219,9 +228,7 @@ class GateDecision:
     R_polygon: float | None = None
     sharpness: float = 0.0
     low_overlap: bool = False
-    # where R came from: "image", or the telemetry prediction ("telemetry": the image held too little wall to
-    # measure; "telemetry_veto": the poses overruled an image R >= Rth); None without a comparison
-    overlap_source: str | None = None
+    overlap_source: OverlapSource | None = None  # where R came from; None without a comparison
     R_image: float | None = None
     R_telemetry: float | None = None
     prediction_miss_px: float | None = None

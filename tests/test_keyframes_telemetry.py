@@ -21,6 +21,7 @@ from companion.keyframes.motion import WallMotionPredictor
 from companion.keyframes.overlap import OverlapStatus
 from companion.onboard.chain import CullChain
 from companion.onboard.crosscheck import OverlapCrossCheck
+from companion.records import OverlapSource
 from companion.spool import KeyframeSpool
 from evaluation.keyframes.evaluate import evaluate_gate, format_table, minimum_keyframes, telemetry_poses
 from evaluation.keyframes.synthetic import WallCamera, WallScene, textured_wall
@@ -88,7 +89,7 @@ def test_static_background_cannot_decide_r(scene, predictor):
     prior = predictor.predict(scene.pose(a), scene.pose(b), W, H)
     assert prior.overlap_percent == pytest.approx(truth, abs=0.2)
     wall = est.estimate(fa, fb, prior=prior)
-    assert wall.status == OverlapStatus.OK and wall.source == "image"
+    assert wall.status == OverlapStatus.OK and wall.source == OverlapSource.IMAGE
     assert pytest.approx(truth, abs=1.0) == wall.R
     assert wall.rejected_matches > 0 and wall.hypotheses >= 2
 
@@ -145,7 +146,8 @@ def test_no_mask_pass_off_the_walls_end_keeps_every_pair_above_rth(scene, predic
                          pose=telemetry_poses(rec, scene.frame))
     assert min(ours.keyframe_pair_truth) >= 77.0
     assert len(ours.keyframes) <= len(ours.minimum_keyframes) * 1.1 + 1
-    assert ours.sources.get("image", 0) > 0 and ours.sources.get("telemetry", 0) > 0  # wall in view, then poses
+    # wall in view, then poses
+    assert ours.sources.get(OverlapSource.IMAGE, 0) > 0 and ours.sources.get(OverlapSource.TELEMETRY, 0) > 0
     table = format_table([("none", "images", today), ("none", "telemetry", ours)], 0.80)
     assert "| none | telemetry | 22 -> " in table and f"| 0 of {len(ours.keyframes) - 1} |" in table
 
@@ -161,7 +163,7 @@ def test_thin_wall_strip_does_not_keep_every_frame(scene, predictor):
     assert len(ours) <= _minimum(scene, cams) + 1
     assert min(_pair_truth(scene, cams, ours)) >= 77.0
     assert not any(k.gap_before for k in kfs)
-    told = [k for k in kfs[1:] if k.decision.overlap_source == "telemetry"]
+    told = [k for k in kfs[1:] if k.decision.overlap_source == OverlapSource.TELEMETRY]
     assert told and all(k.decision.R_image is None and k.decision.R_telemetry is not None for k in told)
 
 
@@ -191,7 +193,7 @@ def test_pair_the_poses_put_below_rth_is_never_accepted(scene, predictor):
     kfs = list(gate.run(frames))
     assert [k.index for k in kfs] == [0, 1]
     second = kfs[1].decision
-    assert second.overlap_source == "telemetry_veto" and second.low_overlap
+    assert second.overlap_source == OverlapSource.TELEMETRY_VETO and second.low_overlap
     assert second.R_image == pytest.approx(80.9, abs=1.0) and second.R_telemetry < 77.0
     assert kfs[1].overlap_to_previous == pytest.approx(second.R_telemetry)
     assert gate.telemetry_vetoes == 1
@@ -206,7 +208,7 @@ def test_frames_without_poses_keep_todays_decisions(scene, predictor):
     assert kfs[0].overlap_to_previous is None and today_kfs[0].overlap_to_previous is None
     for k, t in zip(kfs[1:], today_kfs[1:], strict=True):  # FLANN's random trees: equal to a few hundredths
         assert k.overlap_to_previous == pytest.approx(t.overlap_to_previous, abs=0.05)
-    assert all(k.decision.overlap_source in (None, "image") for k in kfs)
+    assert all(k.decision.overlap_source in (None, OverlapSource.IMAGE) for k in kfs)
 
 
 def test_chain_cross_check_decides_in_the_gate(scene, tmp_path):

@@ -43,7 +43,7 @@ from companion.keyframes.features import FeatureConfig, FeatureExtractor, Featur
 from companion.keyframes.motion import WallMotion, WallMotionPredictor
 from companion.keyframes.overlap import OverlapConfig, OverlapEstimate, OverlapEstimator
 from companion.keyframes.sharpness import SharpnessReference, laplacian_variance
-from companion.records import GateDecision, GateReason, Keyframe, MaskedFrame
+from companion.records import GateDecision, GateReason, Keyframe, MaskedFrame, OverlapSource
 
 
 @dataclass(frozen=True)
@@ -334,7 +334,7 @@ class KeyframeGate:
         """Homography from the keyframe's pixels to the candidate's: the image's where it measured the wall,
         else the poses' prediction, else the measured shift (None: nothing known)."""
         est = cand.estimate
-        if est is not None and est.source == "image" and est.H is not None:
+        if est is not None and est.source == OverlapSource.IMAGE and est.H is not None:
             return np.asarray(est.H, dtype=np.float64)
         prior = self._predict(key, cand)
         if prior is not None:
@@ -429,7 +429,7 @@ class KeyframeGate:
                 GateEventKind.LOW_OVERLAP,
                 item.index,
                 f"frame {item.index} kept at R {est.R:.1f} % < {self.rth_percent:.0f} %"
-                f"{'' if est.source == 'image' else ' (from telemetry)'}: no frame in between",
+                f"{'' if est.source == OverlapSource.IMAGE else ' (from telemetry)'}: no frame in between",
                 est.R,
             )
         )
@@ -476,8 +476,8 @@ class KeyframeGate:
     def _compare(self, key: _Held, item: _Held, step: GateStep) -> OverlapEstimate:
         est = self._looked_est.get((key.index, item.index))
         if est is not None:  # measured already; counted now that it decides
-            self.telemetry_vetoes += int(est.source == "telemetry_veto")
-            self.telemetry_fallbacks += int(est.source == "telemetry")
+            self.telemetry_vetoes += int(est.source == OverlapSource.TELEMETRY_VETO)
+            self.telemetry_fallbacks += int(est.source == OverlapSource.TELEMETRY)
         else:
             est = self._estimate(key, item, count=True)
         step.comparisons.append(Comparison(key.index, item.index, est))
@@ -493,8 +493,8 @@ class KeyframeGate:
         if prior is not None:
             est = self._with_telemetry(est, prior)
             if count:
-                self.telemetry_vetoes += int(est.source == "telemetry_veto")
-                self.telemetry_fallbacks += int(est.source == "telemetry")
+                self.telemetry_vetoes += int(est.source == OverlapSource.TELEMETRY_VETO)
+                self.telemetry_fallbacks += int(est.source == OverlapSource.TELEMETRY)
         return est
 
     def _with_telemetry(self, est: OverlapEstimate, prior: WallMotion) -> OverlapEstimate:
@@ -504,9 +504,10 @@ class KeyframeGate:
         floor = self.rth_percent - 100.0 * self.config.telemetry_margin
         if est.known:
             if est.percent >= self.rth_percent and predicted < floor:
-                return replace(est, R=predicted, source="telemetry_veto", R_image=est.R, R_telemetry=predicted)
+                return replace(est, R=predicted, source=OverlapSource.TELEMETRY_VETO, R_image=est.R,
+                               R_telemetry=predicted)
             return replace(est, R_telemetry=predicted)
-        return replace(est, R=predicted, source="telemetry", R_telemetry=predicted)
+        return replace(est, R=predicted, source=OverlapSource.TELEMETRY, R_telemetry=predicted)
 
     def _emit(self, item: _Held, step: GateStep, overlap: OverlapEstimate | None, gap: bool,
               reason: GateReason) -> None:
@@ -529,7 +530,7 @@ class KeyframeGate:
                 sharpness=item.sharpness,
                 low_overlap=est is not None and est.known and est.percent < self.rth_percent,
                 overlap_source=None if est is None else est.source,
-                R_image=None if est is None else (est.R_image if est.source != "image" else est.R),
+                R_image=None if est is None else (est.R_image if est.source != OverlapSource.IMAGE else est.R),
                 R_telemetry=None if est is None else est.R_telemetry,
                 prediction_miss_px=None if est is None else est.prediction_miss_px,
                 background_matches_rejected=0 if est is None else est.rejected_matches,

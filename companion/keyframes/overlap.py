@@ -26,6 +26,7 @@ from companion.keyframes.features import FeatureSet
 from companion.matching import DescriptorIndex, MatcherSettings
 from companion.polygons import convex_intersection_area
 from companion.ransac import ransac_affine, ransac_homography
+from companion.records import OverlapSource
 
 if TYPE_CHECKING:
     from companion.keyframes.motion import WallMotion
@@ -91,7 +92,7 @@ class OverlapEstimate:
     R_polygon: float | None = None
     model: str = ""  # "homography", or "similarity" when the homography was ill-posed
     # Set when a telemetry prior was used (see KeyframeGate): where R came from and how the image agreed.
-    source: str = "image"  # "image"; "telemetry" (no wall in the image); "telemetry_veto" (poses overruled it)
+    source: OverlapSource = OverlapSource.IMAGE
     R_image: float | None = None  # the image's own R when the telemetry replaced it
     R_telemetry: float | None = None  # overlap predicted from the two poses (percent)
     prediction_miss_px: float | None = None  # median distance of the chosen inliers from the predicted wall

@@ -23,7 +23,7 @@ from companion.onboard.crosscheck import OverlapCrossCheck
 from companion.onboard.standoff_watch import StandoffWatch
 from companion.onboard.tracked import MeasureSchedule, TrackedSelection
 from companion.onboard.working import FullResolution, WorkingCopy
-from companion.records import EncodedFrame, Frame, Keyframe, MaskedFrame, StandoffEstimate, TaggedFrame
+from companion.records import EncodedFrame, Frame, Keyframe, MaskedFrame, OverlapSource, StandoffEstimate, TaggedFrame
 from companion.spool import KeyframeSpool, SpoolEntry, SpoolFullError
 
 log = logging.getLogger(__name__)
@@ -407,7 +407,7 @@ class CullChain:
         """The keyframe as spooled: a new record flagged ``telemetry_overlap_suspect`` where the poses contradict
         the image's overlap."""
         pose = kf.pose
-        if kf.decision.overlap_source in ("telemetry", "telemetry_veto"):
+        if kf.decision.overlap_source in (OverlapSource.TELEMETRY, OverlapSource.TELEMETRY_VETO):
             self.stats.telemetry_overlap_keyframes += 1
         if self.crosscheck is not None and not kf.gap_before:
             predicted = self.crosscheck.suspect(

@@ -31,7 +31,7 @@ from companion.keyframes.gate import KeyframeGate
 from companion.keyframes.motion import WallMotion, WallMotionPredictor
 from companion.keyframes.overlap import OverlapEstimate
 from companion.keyframes.tracker import TrackerConfig, WallTracker
-from companion.records import Keyframe, MaskedFrame, TaggedFrame
+from companion.records import Keyframe, MaskedFrame, OverlapSource, TaggedFrame
 
 
 @dataclass(frozen=True)
@@ -240,7 +240,7 @@ class TrackedSelection:
         if masked is None:
             return None
         est = self.gate.measure(masked)
-        if est is not None and est.dx is not None and est.source == "image":
+        if est is not None and est.dx is not None and est.source == OverlapSource.IMAGE:
             self.tracker.correct(tagged.frame.index, est.dx, est.dy)
         return est
 
@@ -279,7 +279,7 @@ class TrackedSelection:
         last = step.comparisons[-1].estimate
         if step.comparisons[-1].frame_index != index or self.gate.keyframe_index != step.comparisons[-1].ref_index:
             return
-        if last.dx is not None and last.source == "image":
+        if last.dx is not None and last.source == OverlapSource.IMAGE:
             if self.tracker.predicted(index) is None:
                 self.tracker.anchor(index, masked.image, masked.mask,
                                     keyframe_index=self.gate.keyframe_index, offset=(last.dx, last.dy))

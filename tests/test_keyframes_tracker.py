@@ -8,7 +8,7 @@ import pytest
 from companion.errors import CompanionError
 from companion.keyframes.motion import WallMotion
 from companion.keyframes.overlap import eq2_overlap
-from companion.keyframes.tracker import TrackerConfig, WallTracker
+from companion.keyframes.tracker import TrackerConfig, TrackSource, WallTracker
 from evaluation.keyframes.synthetic import render, sweep, textured_wall, true_overlap
 
 W, H = 640, 360
@@ -32,7 +32,7 @@ def test_overlap_follows_truth_every_frame(texture):
     errors = []
     for i, view in enumerate(views[1:], start=1):
         track = tracker.track(i, render(texture, view))
-        assert track.source == "flow" and track.anchor_index == 0
+        assert track.source == TrackSource.FLOW and track.anchor_index == 0
         errors.append(abs(track.overlap_percent - 100.0 * true_overlap(views[0], view)))
         # the camera moves right: the wall's content moves left in the image
         assert track.dx == pytest.approx(-6.0 * i, abs=0.02 * 6.0 * i + 1.0)
@@ -49,10 +49,10 @@ def test_dropped_frames_are_bridged_by_the_telemetry_prior(texture):
             step = _shift_prior(-8.0 * (b - a)) if prior else None
             track = tracker.track(b, render(texture, views[b]), step_prior=step)
         if prior:
-            assert track.source == "flow"
+            assert track.source == TrackSource.FLOW
             assert track.overlap_percent == pytest.approx(100.0 * true_overlap(views[0], views[40]), abs=0.5)
         else:
-            assert track.source == "lost"
+            assert track.source == TrackSource.LOST
 
 
 def test_reanchor_and_correction_shift_later_frames(texture):
@@ -77,9 +77,9 @@ def test_textureless_wall_falls_back_to_telemetry_then_lost():
     tracker = WallTracker()
     tracker.anchor(0, blank)
     track = tracker.track(1, blank, anchor_prior=_shift_prior(-64.0))
-    assert track.source == "telemetry" and track.overlap_percent == pytest.approx(90.0)
+    assert track.source == TrackSource.TELEMETRY and track.overlap_percent == pytest.approx(90.0)
     lost = tracker.track(2, blank)
-    assert lost.source == "lost" and lost.overlap_percent is None and not lost.known
+    assert lost.source == TrackSource.LOST and lost.overlap_percent is None and not lost.known
 
 
 def test_points_are_picked_inside_the_mask_only(texture):
@@ -106,6 +106,6 @@ def test_flow_that_contradicts_the_telemetry_gives_way_to_it(texture):
     tracker = WallTracker()
     tracker.anchor(0, image)
     agree = tracker.track(1, image, anchor_prior=_shift_prior(-3.2))  # within the tolerance: the flow decides
-    assert agree.source == "flow" and agree.overlap_percent == pytest.approx(100.0, abs=0.1)
+    assert agree.source == TrackSource.FLOW and agree.overlap_percent == pytest.approx(100.0, abs=0.1)
     track = tracker.track(2, image, anchor_prior=_shift_prior(-128.0))
-    assert track.source == "telemetry" and track.overlap_percent == pytest.approx(80.0)
+    assert track.source == TrackSource.TELEMETRY and track.overlap_percent == pytest.approx(80.0)

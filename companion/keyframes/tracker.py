@@ -11,13 +11,14 @@ How: points are picked inside the last ROI mask (wall, not background) and follo
 previous frame (``WallMotion``), so a dropped frame or a fast leg does not lose the track. A forward-backward check
 throws out points that do not come back to where they started. The median displacement of the survivors, summed
 since the anchor (the last keyframe), gives the paper's Eq. 2 overlap. When too few points survive, the telemetry
-prediction against the anchor stands in (``source="telemetry"``) and the track is picked up again on the next
+prediction against the anchor stands in (``TrackSource.TELEMETRY``) and the track is picked up again on the next
 frame; with neither, the track is ``lost`` and the caller measures.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import cv2
 import numpy as np
@@ -54,14 +55,23 @@ class TrackerConfig:
                                  "use e.g. min_points=12, max_points=120")
 
 
+class TrackSource(StrEnum):
+    """What placed a frame relative to the anchor (``WallTrack.source``); an enum so readers compare members."""
+
+    FLOW = "flow"  # tracked points
+    TELEMETRY = "telemetry"  # too few points: the poses' prediction
+    ANCHOR = "anchor"  # the anchor itself
+    LOST = "lost"  # neither: no overlap known
+
+
 @dataclass(frozen=True)
 class WallTrack:
     """Where the tracker puts one frame relative to the anchor (the last keyframe).
 
     ``dx``/``dy``: the wall's image shift from the anchor to this frame (full-resolution px, this frame minus the
     anchor, the sign of ``OverlapEstimate``); ``overlap_percent``: paper Eq. 2 of that shift, None when ``lost``;
-    ``source``: "flow" (tracked points), "telemetry" (too few points: the poses' prediction), "anchor" (the anchor
-    itself) or "lost"; ``points``: points that survived the forward-backward check on this frame.
+    ``source``: what placed it (:class:`TrackSource`); ``points``: points that survived the forward-backward
+    check on this frame.
     """
 
     frame_index: int
@@ -69,7 +79,7 @@ class WallTrack:
     dx: float
     dy: float
     overlap_percent: float | None
-    source: str
+    source: TrackSource
     points: int
 
     @property
@@ -106,7 +116,7 @@ class WallTracker:
         self._points = self._seed(gray)
         self._anchor_index = frame_index if keyframe_index is None else keyframe_index
         self._offsets = {frame_index: (float(offset[0]), float(offset[1]))}
-        return self._record(frame_index, float(offset[0]), float(offset[1]), "anchor", len(self._points))
+        return self._record(frame_index, float(offset[0]), float(offset[1]), TrackSource.ANCHOR, len(self._points))
 
     def predicted(self, frame_index: int) -> float | None:
         """Eq. 2 overlap of a tracked frame with the anchor as known now (after re-anchoring and corrections)."""
@@ -157,15 +167,15 @@ class WallTracker:
             dx, dy = prev[0] + sx, prev[1] + sy
             if anchor_prior is None or (eq2_overlap(dx, dy, w, h) - anchor_prior.overlap_percent
                                         <= self.config.max_telemetry_disagreement):
-                return self._record(frame_index, dx, dy, "flow", n)
+                return self._record(frame_index, dx, dy, TrackSource.FLOW, n)
         self._points = self._seed(gray)  # pick the track up again from this frame
         if anchor_prior is not None:
-            return self._record(frame_index, anchor_prior.dx, anchor_prior.dy, "telemetry", 0)
+            return self._record(frame_index, anchor_prior.dx, anchor_prior.dy, TrackSource.TELEMETRY, 0)
         self._offsets.pop(frame_index, None)
-        return WallTrack(frame_index, self._anchor_index, 0.0, 0.0, None, "lost", 0)
+        return WallTrack(frame_index, self._anchor_index, 0.0, 0.0, None, TrackSource.LOST, 0)
 
     # -- internals ----------------------------------------------------------------------------------------
-    def _record(self, frame_index: int, dx: float, dy: float, source: str, points: int) -> WallTrack:
+    def _record(self, frame_index: int, dx: float, dy: float, source: TrackSource, points: int) -> WallTrack:
         self._offsets[frame_index] = (dx, dy)
         w, h = self._size
         return WallTrack(frame_index, self._anchor_index, dx, dy, eq2_overlap(dx, dy, w, h), source, points)

@@ -12,6 +12,7 @@ import statistics
 import pytest
 
 from companion.flight import fly_mission_sync
+from companion.flight.fly import FlightAbort
 from companion.flight.standoff_loop import ScanLegs, StandoffOptions
 from companion.flight.start import first_item_seq
 from companion.flight.telemetry_log import read_telemetry_log
@@ -108,7 +109,7 @@ def test_below_the_floor_without_correction_the_flight_ends(plan, tmp_path):
     """--no-standoff-correction: the standoff is measured and reported only; under the safety floor (2.3 m against
     2.4 m) the flight still ends: pause, return to launch, landed, ``aborted='standoff'`` with the reason."""
     result, _, rows = _fly(plan, tmp_path, BIAS_M, standoff=StandoffOptions(correct=False))
-    assert not result.completed and result.aborted == "standoff", result
+    assert not result.completed and result.aborted == FlightAbort.STANDOFF, result
     assert "standoff measured 2." in result.problem and "below the safety floor of 2.40 m" in result.problem
     assert "--no-standoff-correction" in result.problem and "moving" not in result.problem
     assert result.landed and result.disarmed and result.standoff_corrections == []

@@ -10,7 +10,7 @@ import asyncio
 import time
 from types import SimpleNamespace
 
-from companion.flight.fly import _Supervisor
+from companion.flight.fly import FlightAbort, _Supervisor
 from companion.flight.telemetry_log import TelemetryRecorder
 from companion.mission import items as mi
 
@@ -101,7 +101,7 @@ def test_vehicle_never_armed_waits_for_the_timeout():
     rec = _Recorder(item=0, armed=False, in_air=False, was_in_air=False, was_armed=False)
     vehicle = _Vehicle()
     reason, _ = _run(_supervisor(rec, vehicle, stop_wait_s=1.0), rec)
-    assert reason == "timeout" and vehicle.rtl_commands == 1
+    assert reason == FlightAbort.TIMEOUT and vehicle.rtl_commands == 1
 
 
 def test_disarmed_without_take_off_is_a_refused_start_within_seconds():
@@ -111,7 +111,7 @@ def test_disarmed_without_take_off_is_a_refused_start_within_seconds():
     rec.say("CRITICAL", "Geofence violation for waypoint 3")
     rec.say("INFO", "Disarmed by auto preflight disarming")
     reason, took = _run(sup, rec)
-    assert reason == "refused" and took < 2.0
+    assert reason == FlightAbort.REFUSED and took < 2.0
     assert "disarmed without taking off" in sup.problem and "Geofence violation for waypoint 3" in sup.problem
 
 
@@ -122,7 +122,7 @@ def test_critical_text_on_the_ground_ends_the_start_while_still_armed():
     sup = _supervisor(rec, flight_timeout_s=600.0)
     rec.say("CRITICAL", "Switching to Mission is currently not available")  # real PX4's words
     reason, took = _run(sup, rec)
-    assert reason == "refused" and took < 3.0
+    assert reason == FlightAbort.REFUSED and took < 3.0
     assert "did not take off" in sup.problem and "Switching to Mission is currently not available" in sup.problem
     assert "old text" not in sup.problem
 
@@ -132,7 +132,7 @@ def test_autopilot_restart_fails_the_flight_even_when_progress_says_done():
     rec.reboot = "the autopilot restarted: its time since boot went back from 95.0 s to 3.2 s"
     sup = _supervisor(rec, flight_timeout_s=600.0)
     reason, _ = _run(sup, rec)
-    assert reason == "reboot"
+    assert reason == FlightAbort.REBOOT
     assert "restarted" in sup.problem and "cannot be trusted" in sup.problem
 
 
@@ -140,7 +140,7 @@ def test_dead_link_ends_supervision_at_the_limit_and_counts_the_open_loss():
     rec = _Recorder(item=3, armed=True, in_air=True, was_in_air=True, silent_for_s=0.0)
     sup = _supervisor(rec, link_loss_s=0.3, link_dead_s=1.0, flight_timeout_s=600.0)
     reason, took = _run(sup)
-    assert reason == "link" and 0.9 <= took < 3.0
+    assert reason == FlightAbort.LINK and 0.9 <= took < 3.0
     assert "no telemetry for" in sup.problem and "limit 1 s" in sup.problem
     assert len(sup.link_losses) == 1 and sup.link_losses[0].closed is False
 
@@ -150,7 +150,7 @@ def test_failed_rtl_after_a_timeout_is_reported_not_swallowed():
     vehicle = _Vehicle(rtl_fails=True)
     sup = _supervisor(rec, vehicle, flight_timeout_s=0.2, stop_wait_s=0.5)
     reason, took = _run(sup, rec)
-    assert reason == "timeout" and vehicle.rtl_commands == 3  # tried, and said
+    assert reason == FlightAbort.TIMEOUT and vehicle.rtl_commands == 3  # tried, and said
     assert sup.problem.index("longer than") < sup.problem.index("NOT sent home")  # both said, in order ...
     assert took < 8.0  # ... and the wait for the landing is bounded by stop_wait_s
 
@@ -186,7 +186,7 @@ def test_home_moved_down_in_flight_ends_the_scan_with_rtl():
     vehicle = _Vehicle()
     sup = _supervisor(rec, vehicle, flight_timeout_s=600.0, stop_wait_s=0.5)
     reason, took = _run(sup, rec)
-    assert reason == "home" and vehicle.rtl_commands == 1 and took < 5.0
+    assert reason == FlightAbort.HOME and vehicle.rtl_commands == 1 and took < 5.0
     assert "moved home's altitude by -4.50 m" in sup.problem and "0.50 m above the take-off ground" in sup.problem
 
 

@@ -28,6 +28,7 @@ import signal
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 from companion.errors import CompanionError
@@ -74,6 +75,20 @@ class LinkLoss:
     closed: bool = True  # False: the link had not come back when supervision ended
 
 
+class FlightAbort(StrEnum):
+    """Why supervision ended a flight early (``FlightResult.aborted``). An enum so that the flight's ending and its
+    callers compare members; a StrEnum so that messages and logs print the same word as before."""
+
+    SIGNAL = "signal"  # a stop request (Ctrl-C, SIGTERM)
+    TIMEOUT = "timeout"  # longer than the flight limit
+    FAILSAFE = "failsafe"  # landed early
+    REBOOT = "reboot"  # the autopilot restarted
+    LINK = "link"  # silent longer than the limit
+    HOME = "home"  # home moved so low that a waypoint ahead nears the ground
+    STANDOFF = "standoff"  # below the safety floor and not recovered, or a correction that could not be made
+    REFUSED = "refused"  # the vehicle refused the mission start
+
+
 @dataclass
 class FlightResult:
     """What happened. ``completed``: every mission item was reached and the vehicle ended landed + disarmed.
@@ -86,7 +101,7 @@ class FlightResult:
     completed: bool
     landed: bool
     disarmed: bool
-    aborted: str | None
+    aborted: FlightAbort | None
     items_total: int
     items_reached: int
     autopilot: str
@@ -246,7 +261,7 @@ class _Supervisor:
         return [f"{sev}: {text}" for t, sev, text in self.rec.status_events
                 if t >= since and sev in _REFUSAL_SEVERITIES]
 
-    async def run(self) -> str | None:
+    async def run(self) -> FlightAbort | None:
         """Returns the abort reason or None."""
         st = self.rec.state
         total = len(self.items)
@@ -259,19 +274,19 @@ class _Supervisor:
                 now = time.monotonic()
                 gap = self._track_link(now)
                 if self.signalled.is_set():
-                    return "signal"
+                    return FlightAbort.SIGNAL
                 if self.rec.reboot is not None:
                     self._fail(f"{self.rec.reboot}; mission progress after a restart cannot be trusted (the vehicle "
                                f"had reached item {self.max_reached} of {total}); the flight failed")
-                    return "reboot"
+                    return FlightAbort.REBOOT
                 if self.lost_since is not None and gap > self.link_dead_s:
                     self._fail(f"no telemetry for {gap:.0f} s (limit {self.link_dead_s:g} s): supervision ends; "
                                f"the vehicle is on its own and its lost-link failsafe decides")
-                    return "link"
+                    return FlightAbort.LINK
                 if now - self.t0 > self.flight_timeout_s:
                     self._fail(f"flight took longer than {self.flight_timeout_s:.0f} s: returning to launch")
                     await self._rtl_and_wait(timeout_s=min(self.stop_wait_s, 120.0))
-                    return "timeout"
+                    return FlightAbort.TIMEOUT
                 if self.lost_since is None:
                     current = max(0, int(st["mission_item"]))
                     self.max_reached = max(self.max_reached, min(current, total))
@@ -279,9 +294,9 @@ class _Supervisor:
                     if st["in_air"] or self.rec.was_in_air:  # latched: the flight may predate this loop
                         airborne = True
                     if await self._home_moved_too_low(current, airborne):
-                        return "home"
+                        return FlightAbort.HOME
                     if airborne and await self._standoff_failed(current):
-                        return "standoff"
+                        return FlightAbort.STANDOFF
                     if not airborne:
                         reason = self._start_refused(refusal_seen, now)
                         if reason is not None:
@@ -309,7 +324,7 @@ class _Supervisor:
                         if not done:
                             self._fail(f"the vehicle landed and disarmed at item {self.max_reached} of {total} "
                                        "(a failsafe or the pilot ended the mission early)")
-                        return None if done else "failsafe"
+                        return None if done else FlightAbort.FAILSAFE
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(self.signalled.wait(), 0.1)
         finally:
@@ -408,7 +423,7 @@ class _Supervisor:
         self.home.on_home(home.absolute_altitude_m)
         self.home_latlon_before_arming = (home.latitude_deg, home.longitude_deg)
 
-    def _start_refused(self, refusal_seen: float | None, now: float) -> str | None:
+    def _start_refused(self, refusal_seen: float | None, now: float) -> FlightAbort | None:
         """Before take-off: the vehicle disarmed again (PX4 refuses the takeoff of an infeasible mission and
         disarms on the ground), or it reported a critical error. Ends within seconds, quoting the vehicle."""
         st = self.rec.state
@@ -420,7 +435,7 @@ class _Supervisor:
         said = "; ".join(texts) if texts else "no reason given (no STATUSTEXT)"
         what = "disarmed without taking off" if disarmed else "did not take off"
         self._fail(f"the vehicle refused the mission start: it {what}; it said: {said}")
-        return "refused"
+        return FlightAbort.REFUSED
 
     async def _rtl_and_wait(self, timeout_s: float) -> None:
         st = self.rec.state
@@ -579,11 +594,11 @@ async def _arm_and_start(vehicle: Vehicle, rec: TelemetryRecorder, first_seq: in
 
 
 async def _handle_ending(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, params: FlightParameters,
-                         reason: str | None, stop_wait_s: float) -> None:
+                         reason: FlightAbort | None, stop_wait_s: float) -> None:
     """Act on why supervision ended: a dead link, a refused start (an error), or a stop request (RTL + wait)."""
-    if reason == "link":
+    if reason == FlightAbort.LINK:
         params.unreachable = "the link is dead"
-    if reason == "refused":
+    if reason == FlightAbort.REFUSED:
         if rec.state["armed"]:
             try:
                 await vehicle.action.disarm()
@@ -592,12 +607,12 @@ async def _handle_ending(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecor
         raise CompanionError(sup.problem or "the vehicle refused the mission start",
                              "fix what the vehicle reports (e.g. move the mission inside its geofence, or "
                              "check the mission's feasibility on the ground station), then retry")
-    if reason == "signal":
+    if reason == FlightAbort.SIGNAL:
         await sup._rtl_and_wait(timeout_s=stop_wait_s)
 
 
 def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, params: FlightParameters, items,
-                   reason: str | None, duration_s: float, telemetry_log: Path | str | None,
+                   reason: FlightAbort | None, duration_s: float, telemetry_log: Path | str | None,
                    warnings: list[str]) -> FlightResult:
     """The flight's outcome, read after the recorder has closed (its exit flushes the last rows)."""
     st = rec.state

@@ -174,7 +174,9 @@ def run_fly(args: argparse.Namespace) -> int:
     print(flight_summary(result), file=sys.stderr)
     if result.problem:
         print(f"error: {result.problem}", file=sys.stderr)
-    if result.aborted == "signal":
+    from companion.flight.fly import FlightAbort  # fly_scan has imported it: the flight's modules load when flown
+
+    if result.aborted == FlightAbort.SIGNAL:
         return 130
     return 0 if result.completed else 1
 

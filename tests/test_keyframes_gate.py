@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from companion.errors import CompanionError
-from companion.keyframes import FeatureConfig, GateConfig, GateEventKind, KeyframeGate
+from companion.keyframes import FeatureConfig, GateConfig, GateEventKind, KeyframeGate, StepRole
 from companion.records import GateReason
 from evaluation.keyframes.synthetic import View, masked_frame, render, sweep, textured_wall, true_overlap
 
@@ -117,7 +117,7 @@ def test_black_frame_is_skipped_without_gap(tex):
         img = np.zeros((H, W, 3), np.uint8) if i == 5 else render(tex, v)
         kfs += gate.push(masked_frame(i, img))
         if i == 5:
-            assert gate.last_step.role == "unusable"
+            assert gate.last_step.role == StepRole.UNUSABLE
     kfs += gate.flush()
     assert 5 not in _indices(kfs)
     assert not any(k.gap_before for k in kfs)
@@ -224,7 +224,7 @@ def test_a_last_candidate_whose_roi_holds_next_to_no_wall_is_not_kept(tex):
     kfs = []
     for i, mf in enumerate(frames):
         kfs += gate.push(_with_mask(mf, sliver) if i == 3 else mf)
-    assert gate.candidate_index == 3 and gate.last_step.role == "candidate"  # the image did match it
+    assert gate.candidate_index == 3 and gate.last_step.role == StepRole.CANDIDATE  # the image did match it
     kfs += gate.flush()
     assert _indices(kfs) == [0]
     assert gate.last_dropped == 1 and gate.keyframe_index is None
@@ -267,7 +267,7 @@ def test_a_segment_ending_on_an_unusable_frame_is_a_gap_only_when_that_frame_sho
             if i == 1:
                 mf = _with_mask(mf, sliver) if last is not None else masked_frame(i, np.zeros((H, W, 3), np.uint8))
             kfs += gate.push(mf)
-        assert gate.last_step.role == "unusable"
+        assert gate.last_step.role == StepRole.UNUSABLE
         kfs += gate.end_segment()
         events = gate.pop_events()
         gaps = [e for e in events if e.kind == GateEventKind.GAP]

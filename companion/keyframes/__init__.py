@@ -8,6 +8,7 @@ from companion.keyframes.gate import (
     GateEventKind,
     GateStep,
     KeyframeGate,
+    StepRole,
 )
 from companion.keyframes.overlap import (
     OverlapConfig,
@@ -33,6 +34,7 @@ __all__ = [
     "OverlapEstimate",
     "OverlapEstimator",
     "OverlapStatus",
+    "StepRole",
     "eq2_overlap",
     "laplacian_variance",
     "polygon_overlap",

@@ -94,6 +94,16 @@ class GateEventKind(StrEnum):
     SEGMENT = "segment"  # the scan resumed after a stretch off it: a new segment, not judged against the old one
 
 
+class StepRole(StrEnum):
+    """What one push made of its frame (``GateStep.role``)."""
+
+    KEYFRAME = "keyframe"
+    CANDIDATE = "candidate"  # at or above Rth: held, may become the next keyframe
+    REJECTED = "rejected"  # neither kept nor held (a sharper neighbour is the candidate)
+    UNUSABLE = "unusable"  # the gate could not measure it
+    FLUSH = "flush"  # no frame: the segment or stream ended (``end_segment``)
+
+
 @dataclass(frozen=True)
 class GateEvent:
     kind: GateEventKind
@@ -113,10 +123,10 @@ class Comparison:
 
 @dataclass
 class GateStep:
-    """What one push did. ``role``: keyframe | candidate | rejected | unusable."""
+    """What one push did."""
 
     frame_index: int
-    role: str
+    role: StepRole
     sharpness: float
     blurred: bool
     comparisons: list[Comparison] = field(default_factory=list)
@@ -221,7 +231,7 @@ class KeyframeGate:
         item = self._held(masked)
         self._sharp_ref.update(item.sharpness)
         frame = masked.frame
-        step = GateStep(frame.index, "rejected", item.sharpness, item.blurred)
+        step = GateStep(frame.index, StepRole.REJECTED, item.sharpness, item.blurred)
         self.last_step = step
         self.frames_in += 1
         self._out = []
@@ -255,7 +265,7 @@ class KeyframeGate:
     def end_segment(self, end_of_stream: bool = False) -> list[Keyframe]:
         """The scan was left (or the stream ended): the held candidate, the segment's last view, becomes its last
         keyframe unless it has no wall to add; the next frame pushed opens a new segment."""
-        step = GateStep(-1, "flush", 0.0, False)
+        step = GateStep(-1, StepRole.FLUSH, 0.0, False)
         self.last_step = step
         self._out = []
         where = "stream" if end_of_stream else "segment"
@@ -353,7 +363,7 @@ class KeyframeGate:
     def _decide(self, item: _Held, step: GateStep) -> None:
         rth = self.rth_percent
         if self._key is None:
-            step.role = "keyframe"
+            step.role = StepRole.KEYFRAME
             if not self._segment_ended:
                 self._emit(item, step, overlap=None, gap=False, reason=GateReason.FIRST)
                 return
@@ -403,10 +413,10 @@ class KeyframeGate:
         self._prev_R = est.R
         cand = self._cand
         if cand is not None and item.blurred and not cand.blurred:
-            step.role = "rejected"  # keep the sharper neighbour, which is still >= Rth
+            step.role = StepRole.REJECTED  # keep the sharper neighbour, which is still >= Rth
             return
         self._cand = item
-        step.role = "candidate"
+        step.role = StepRole.CANDIDATE
 
     def _warn_if_falling(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
         rth = self.rth_percent
@@ -434,7 +444,7 @@ class KeyframeGate:
             )
         )
         item.estimate = est
-        step.role = "keyframe"
+        step.role = StepRole.KEYFRAME
         self._emit(item, step, overlap=est, gap=False, reason=GateReason.LOW_OVERLAP)
 
     def _gap_keyframe(self, item: _Held, est: OverlapEstimate, step: GateStep) -> None:
@@ -447,7 +457,7 @@ class KeyframeGate:
         )
         self._segment += 1
         item.estimate = est
-        step.role = "keyframe"
+        step.role = StepRole.KEYFRAME
         self._emit(item, step, overlap=None, gap=True, reason=GateReason.TRACKING_LOST)
 
     def _unusable(self, item: _Held, step: GateStep, why: str) -> None:
@@ -457,7 +467,7 @@ class KeyframeGate:
         roi = _small_mask(item.masked.mask) > 127
         if roi.size == 0 or float(roi.mean()) < self.config.min_last_roi:
             self._unusable_bare_since_key += 1
-        step.role = "unusable"
+        step.role = StepRole.UNUSABLE
         step.events.append(GateEvent(GateEventKind.UNUSABLE_FRAME, item.index, f"frame {item.index} skipped: {why}"))
 
     def _promote(self, step: GateStep, reason: GateReason) -> None:

@@ -62,7 +62,7 @@ async def _first_parameter(vehicle: Vehicle, names: tuple[str, ...]):
         except CompanionError as exc:
             problems.append(exc.problem)
     raise CompanionError("cannot read the GCS system id the lost-link failsafe watches: " + "; ".join(problems),
-                         f"check the link; set {' (or '.join(names)}{')' * (len(names) - 1)} to "
+                         f"check the link; set {' or '.join(names)} (whichever the firmware has) to "
                          f"{vehicle.own_system_id} by hand, or fly without --lost-link-action")
 
 

@@ -117,7 +117,7 @@ class _PartFit:
     positions: tuple[int, ...]  # keyframe positions, in spool order
     shifts_m: np.ndarray  # measured true distance - telemetry distance, per keyframe
     common_sigma_m: float  # the part's shared uncertainty (the layout scale's fit)
-    layout: _PartLayout | None = None  # what the fit was made from, for the windows' local fits
+    layout: _PartLayout  # what the fit was made from, for the windows' local fits
 
 
 @dataclass(frozen=True)
@@ -128,6 +128,23 @@ class _PartLayout:
     told: np.ndarray  # (n, 2) the same centres where the telemetry puts them (metres on the wall)
     distance_m: np.ndarray  # the telemetry's camera-wall distance per keyframe
     footprint_ratio: np.ndarray  # footprint scale in the images' layout over the telemetry's, per keyframe
+
+    def window(self, sl: slice) -> _PartLayout:
+        return _PartLayout(self.chained[sl], self.told[sl], self.distance_m[sl], self.footprint_ratio[sl])
+
+    def fit(self) -> tuple[np.ndarray, float] | None:
+        """Each keyframe's measured true distance - telemetry distance, and the uncertainty all of them share (the
+        layout scale's fit); None when the keyframes span too little or the fit fails. The images' layout against
+        the telemetry's centres gives the layout's scale (the root's true distance); a keyframe's footprint in it,
+        brought to metres (/ ratio), over its telemetry footprint gives its own."""
+        y = self.told
+        if float(np.sqrt(np.mean(np.sum((y - y.mean(axis=0)) ** 2, axis=1)))) < MIN_SPREAD_M:
+            return None
+        ratio, ratio_sigma = _robust_scale(self.chained, y)
+        if ratio is None or ratio <= 0 or not math.isfinite(ratio_sigma):
+            return None
+        rel = self.footprint_ratio / ratio
+        return self.distance_m * (rel - 1.0), float(np.median(self.distance_m * rel)) * ratio_sigma / ratio
 
 
 @dataclass(frozen=True)
@@ -141,10 +158,9 @@ def measure_wall_distance(inp: StitchInput, priors: PlanePriors, pairs: Register
     """The wall distance the accepted pairs measure (see the module's docstring)."""
     if not priors.use_poses:  # no poses, or no wall to measure them against (a spool without spool.json)
         return WallDistance(0.0, None, None, 0.0, 0, 0, "no telemetry poses on a known wall")
-    told = [kf.pose for kf in inp.keyframes if kf.pose is not None]
     telemetry = {k: camera_distance_to_wall(kf.pose, inp.facade) for k, kf in enumerate(inp.keyframes)
                  if kf.pose is not None}
-    telemetry_m = float(np.median(list(telemetry.values()))) if told else 0.0
+    telemetry_m = float(np.median(list(telemetry.values()))) if telemetry else 0.0
     fits = _part_fits(priors, pairs, inp.camera, telemetry)
     if not fits:
         return WallDistance(telemetry_m, None, None, 0.0, 0, 0,
@@ -185,22 +201,17 @@ def _windows(fit: _PartFit, floor_m: float) -> list[_Window]:
     out against the telemetry on its own, so the offset it measures is the bias of its time."""
     lay = fit.layout
     n = len(fit.positions)
-    if lay is None or n < 2 * MIN_KEYFRAMES:
+    if n < 2 * MIN_KEYFRAMES:
         return []
     size = min(WINDOW_KEYFRAMES, max(2 * MIN_KEYFRAMES, n // 3))  # a short pass still gets three windows
     starts = sorted({*range(0, n - size + 1, max(size // 2, 1)), n - size})
     out = []
     for a in starts:
         sl = slice(a, a + size)
-        y = lay.told[sl]
-        if float(np.sqrt(np.mean(np.sum((y - y.mean(axis=0)) ** 2, axis=1)))) < MIN_SPREAD_M:
+        fitted = lay.window(sl).fit()
+        if fitted is None:
             continue
-        ratio, ratio_sigma = _robust_scale(lay.chained[sl], y)
-        if ratio is None or ratio <= 0 or not math.isfinite(ratio_sigma):
-            continue
-        d = lay.distance_m[sl]
-        shifts = d * (lay.footprint_ratio[sl] / ratio - 1.0)
-        common = float(np.median(d)) * ratio_sigma / ratio
+        shifts, common = fitted
         sigma = max(math.hypot(common, _median_sigma(shifts)), floor_m)
         out.append(_Window(float(np.mean(fit.positions[sl])), float(np.median(shifts)), sigma))
     return out
@@ -230,9 +241,9 @@ def _varying_shifts(fits: list[_PartFit], windows: list[_Window], n: int) -> tup
 
 def _part_fits(priors: PlanePriors, pairs: RegisteredPairs, camera: CameraModel,
                telemetry: dict[int, float]) -> list[_PartFit]:
-    """Per connected part: the images' layout against the telemetry's centres gives the layout's scale (the
-    root's true distance); each keyframe's footprint in that layout against its telemetry footprint gives its
-    own true distance, so one keyframe's GNSS noise across the wall (the root's too) is not passed to the rest."""
+    """Per connected part of the pair graph, its keyframes laid out by the images and fitted to the telemetry
+    (``_PartLayout.fit``): each keyframe's own true distance, so one keyframe's GNSS noise across the wall (the
+    root's too) is not passed to the rest."""
     n = len(priors.priors)
     edges = pair_graph(pairs.results, np.linalg.inv(camera.K))
     centre = np.zeros((1, 2))
@@ -241,21 +252,13 @@ def _part_fits(priors: PlanePriors, pairs: RegisteredPairs, camera: CameraModel,
         told = [k for k in sorted(part) if priors.priors[k] is not None and k in telemetry]
         if len(told) < MIN_KEYFRAMES:
             continue
-        x = np.array([apply_h(chained[k], centre)[0] for k in told])  # where the images put the centres
-        y = np.array([apply_h(priors.priors[k], centre)[0] for k in told])  # where the telemetry does
-        spread = float(np.sqrt(np.mean(np.sum((y - y.mean(axis=0)) ** 2, axis=1))))
-        if spread < MIN_SPREAD_M:
-            continue
-        ratio, ratio_sigma = _robust_scale(x, y)
-        if ratio is None or ratio <= 0:
-            continue
-        # true distance / telemetry distance of keyframe k: its footprint in the images' layout, brought to
-        # metres (/ ratio), over its telemetry footprint
-        d = np.array([telemetry[k] for k in told])
-        footprint = np.array([_footprint_scale(chained[k]) / _footprint_scale(priors.priors[k]) for k in told])
-        rel = footprint / ratio
-        fits.append(_PartFit(tuple(told), d * (rel - 1.0), float(np.median(d * rel)) * ratio_sigma / ratio,
-                             _PartLayout(x, y, d, footprint)))
+        lay = _PartLayout(np.array([apply_h(chained[k], centre)[0] for k in told]),  # where the images put them
+                          np.array([apply_h(priors.priors[k], centre)[0] for k in told]),  # where the telemetry does
+                          np.array([telemetry[k] for k in told]),
+                          np.array([_footprint_scale(chained[k]) / _footprint_scale(priors.priors[k]) for k in told]))
+        fitted = lay.fit()
+        if fitted is not None:
+            fits.append(_PartFit(tuple(told), fitted[0], fitted[1], lay))
     return fits
 
 

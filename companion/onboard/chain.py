@@ -154,7 +154,8 @@ class CullChain:
         return out
 
     def _before_telemetry(self, tagged: TaggedFrame) -> bool:
-        """No pose yet, and none ever seen: the frame cannot be placed on the map, so it is not culled."""
+        """No pose yet, and none ever seen: the frame cannot be placed on the map, so it is not culled. Notes the
+        first pose, after which a frame without one is judged (flagged stale, not dropped)."""
         if tagged.pose is None and not self._seen_pose and self.require_telemetry:
             return True
         self._seen_pose = self._seen_pose or tagged.pose is not None
@@ -182,7 +183,7 @@ class CullChain:
         if work is None:  # an encoded frame that is not an image: counted with the camera's corrupt frames
             return FrameFate.UNDECODABLE, []
         out = self._offer(frame, replace(tagged, frame=work))
-        self.record.telemetry_vetoes(self.gate.telemetry_vetoes)
+        self.record.telemetry_vetoes(self.gate.telemetry_vetoes)  # read here only, as the report always has
         self.pending.release_decided(tagged.index)
         return FrameFate.OFFERED, out
 

@@ -87,7 +87,7 @@ def _check_home_window(plan):
     floor = PX4_HOME_MOVE_MAX_M + MIN_GROUND_CLEARANCE_M
     assert plan.moving_home and e.px4_window_floor_m == pytest.approx(floor)
     leave = _fastest_departures(plan)
-    low = [k for k, w in enumerate(wps) if 0 < k and w.kind != "land" and w.rel_alt_m < floor - 1e-6]
+    low = [k for k, w in enumerate(wps) if k > 0 and w.kind != "land" and w.rel_alt_m < floor - 1e-6]
     for k in low:  # the leg down to it starts after the window, however fast the vehicle flies
         assert leave[k - 1] >= m.margins.home_settle_s + HOME_SETTLE_SLACK_S - 1e-6, (k, leave[k - 1])
     if low:

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=MIN_AREA_M2,
         metavar="M2",
         help=f"with --refly: leave out uncovered areas smaller than this (default {MIN_AREA_M2} m2: a patch not "
-        "worth strips and PX4's home-settle hold)",
+        "worth strips)",
     )
     p.set_defaults(func=run_plan)
 

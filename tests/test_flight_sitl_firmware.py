@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pymap3d
 import pytest
 
@@ -56,5 +57,25 @@ def test_demo_scan_faces_the_wall_at_the_planned_speed(plan, autopilot, tmp_path
     assert len(reports) == len(flown.scan_legs) == plan.estimates.strips + (autopilot == "px4"), reports
     assert all(r.samples > 50 for r in reports), reports
     speed_error, yaw_error = worst(reports)
+    if autopilot == "px4":
+        _px4_scans_while_home_may_move(flown, read_truth_log(truth))
     assert yaw_error < 3.0, [round(r.max_yaw_error_deg, 2) for r in reports]
     assert speed_error < 0.15, [round(r.median_speed_m_s, 3) for r in reports]
+
+
+def _px4_scans_while_home_may_move(plan, rows: list[dict]) -> None:
+    """No idle hover (issue 31): PX4's demo took 450 s from take-off to landing with its 116 s hold above the wall
+    (simulator, main cc0293a); flying the strips' upper parts in the window it takes about 340 s. Within 125 s of
+    take-off nothing at the standoff is flown lower than the window's floor (3.5 m above home; this simulator keeps
+    home still)."""
+    air = [r for r in rows if r["in_air"]]
+    t0, t1 = air[0]["t_s"], air[-1]["t_s"]
+    assert t1 - t0 < 450.0 - 90.0, t1 - t0
+    o = plan.frame.origin
+    lat, lon = np.array([r["lat"] for r in air]), np.array([r["lon"] for r in air])
+    _, out, _ = plan.frame.geodetic_to_facade(lat, lon, np.full_like(lat, o.alt_amsl_m))
+    height = np.array([r["alt_amsl_m"] for r in air]) - plan.home.alt_amsl_m
+    t = np.array([r["t_s"] for r in air]) - t0
+    scan = np.abs(np.asarray(out) - plan.mission.standoff_m) < 0.5
+    assert height[scan & (t < 125.0)].min() > plan.estimates.px4_window_floor_m - 0.15
+    assert height[scan].min() == pytest.approx(plan.footprint.height_m / 2.0, abs=0.15)  # the band, after it

@@ -314,6 +314,11 @@ def test_px4_holds_above_the_floor_only_for_what_is_missing_when_the_part_above_
     assert _fastest_departures(plan)[k] == pytest.approx(due, abs=0.2)
     assert wps[k].rel_alt_m >= e.px4_window_floor_m
     assert f"after holding {e.px4_home_settle_hold_s:.0f} s at the last waypoint above" in format_estimates(plan)
+    # entering the scan under the floor: nothing could hold above it (the take-off item holds nothing)
+    from companion.errors import CompanionError
+
+    with pytest.raises(CompanionError, match="under the 3.5 m PX4 needs"):
+        plan_scan(m.model_copy(update={"transit_alt_m": 3.0, "facade": m.facade.model_copy(update={"height_m": 1.0})}))
     flat = plan_scan(_mission(37.0, 127.0, 90.0, 20.0, 12.0, 4.0, 0.8, "horizontal"))
     _check_plan(flat)
     ups = [w.up_m for w in flat.waypoints if w.kind == "scan"]

@@ -547,6 +547,12 @@ def _wait_for_home_below_floor(m: Mission, wps: list[Waypoint]) -> tuple[list[Wa
     k = settle_waypoint_index(wps, floor)
     if k < 0:  # the whole flight stays above the floor
         return wps, _HomeWindow(floor_m=floor)
+    if k == 0:  # only a waypoint can hold: the take-off item cannot
+        raise CompanionError(
+            f"the vehicle enters the scan {wps[1].rel_alt_m:g} m above home, under the {floor:g} m PX4 needs for what "
+            f"it flies in the {m.margins.home_settle_s:g} s after take-off (PX4 moves home's altitude then)",
+            f"raise entrance_alt_m / transit_alt_m to {floor:g} m or more, or set margins.home_settle_s: 0 for an "
+            f"autopilot that keeps home where it armed")
     due = m.margins.home_settle_s + HOME_SETTLE_SLACK_S + HOME_PUT_BACK_S
     fastest = _fastest_arrival_s(wps, k)
     planned = wps[k].hold_s

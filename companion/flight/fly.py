@@ -347,9 +347,7 @@ class _Supervisor:
         restore_to = self.home.restore_step(since)
         if restore_to is not None:
             await self._send_home(restore_to)
-        if self.home.settling(current_seq, since):
-            return False  # high above the wall, waiting for home to settle: its last position is what counts
-        low = self.home.too_low(current_seq)
+        low = self.home.check(current_seq, since)  # while home may move: only what is flown until it settles
         if low is None:
             return False
         self._fail(low.problem(self.home.min_clearance_m))
@@ -569,11 +567,12 @@ def standoff_loop_for(plan, items, first_seq: int, options: StandoffOptions, rec
 def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str | Autopilot,
                    restore_home: bool = False) -> HomeWatch:
     """The flight's home watch: the autopilot's correction window (PX4 moves home for 120 s after take-off;
-    ArduPilot keeps it where it armed); a ScanPlan holds above the wall until then at its settle waypoint;
+    ArduPilot keeps it where it armed); until then a ScanPlan flies only what home's largest move leaves clear of
+    the ground, up to its settle waypoint (where it holds if that part ends sooner);
     ``restore_home`` (a SITL profile's, asked for) puts home back after it."""
     window_s = autopilot_for(autopilot).home_correction_window_s
     settle = -1
-    if window_s > 0 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
+    if window_s > 0 and getattr(plan, "moving_home", False) and plan.settle_waypoint_index >= 0:
         settle = settle_item_seq(items, plan.settle_waypoint_index)
     return HomeWatch(items, window_s=window_s, settle_seq=settle, restore=window_s > 0 and restore_home)
 
@@ -713,6 +712,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     sup: _Supervisor | None = None
     try:
         journal = await restore_before_flight(vehicle, state_dir)  # before anything else (restore.py)
+        if hasattr(plan, "for_autopilot"):  # PX4 flies the part near the ground after its home correction window
+            plan = plan.for_autopilot(vehicle.autopilot)
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
         wanted, warnings, first_seq = await _prepare_vehicle(

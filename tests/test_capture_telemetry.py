@@ -108,3 +108,23 @@ def test_a_silent_link_costs_one_wait_not_one_per_frame():
     tagged = tagger.tag(Frame(30, 12.2, None))
     thread.join()
     assert tagged.pose.roll_deg == pytest.approx(5.0)
+
+
+def test_a_frame_the_chain_reaches_a_minute_late_is_tagged_from_the_live_buffer():
+    """The live buffer (``live._telemetry_samples``: the backlog's minute + 2 min at the asked rate x1.5) reaches
+    back past the chain's whole backlog: a frame tagged 60 s after its capture, with 30 Hz telemetry flowing in the
+    meantime, gets the interpolated pose, as it would have at once. (test_onboard_sitl's stale poses under load
+    were telemetry gaps of up to 1 s in the autopilot's own stream, not the chain's lateness: tests/
+    test_keyframes_gate_scope.py has what they did to the scan.)"""
+    from companion.onboard.live import _telemetry_samples
+    from companion.onboard.runner import TRACKED_BACKLOG
+
+    buf = TelemetryBuffer(max_samples=_telemetry_samples(TRACKED_BACKLOG, 30.0))
+    tagger = FrameTagger(buf, ClockMap(fixed_offset_s=0.0), wait_for_telemetry_s=0.5)
+    rate = 30.0 * 1.5  # samples may come faster than asked
+    for k in range(int(240 * rate)):
+        buf.add(_pose(k / rate, lat=37.0 + 1e-6 * k / rate))
+    for t in (60.0, 100.05, 179.99):  # the newest sample is at ~240 s: up to three minutes behind
+        tagged = tagger.tag(Frame(int(t * 3), t, None))
+        assert not tagged.pose_stale and tagged.pose.lat == pytest.approx(37.0 + 1e-6 * t, abs=1e-10)
+    assert tagger.tag(Frame(1, 40.0, None)).pose_stale  # older than the ring: the limit is beyond the backlog

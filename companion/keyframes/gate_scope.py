@@ -15,7 +15,8 @@ The rules here are deliberately loose, so that no frame of the scan is lost to a
 scan only when its camera is more than ``max_distance_factor`` times the standoff from the wall plane (twice the
 planned GSD and more; at the demo's 4 m, beyond 8 m: a position error that large would have flown the vehicle
 into the wall), or when its footprint misses the scan extent (the wall plus the mission's margins) by more than
-``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before: the images decide.
+``extent_tolerance_m``. Frames without a pose, or with a stale one, are judged as before inside an open segment
+(the images decide); once the stream has had poses, such a frame never opens a segment (``ScanPhase``).
 
 Those loose rules are too loose to say which frames the scan is made of (issue 17's judged run at 30 fps): a frame
 of the transit 7.8 m out at the 18 m transit height (the camera looking level, its footprint's bottom edge at
@@ -154,7 +155,8 @@ class ScanScope:
     def opens_scan(self, pose: Pose | None, stale: bool = False) -> bool:
         """True when the frame may open a scan segment: its camera within ``open_band`` x the standoff of the
         standoff and its footprint on the wall itself (``wall``, else the scan extent; no tolerance). Frames
-        without a usable pose open it (the images decide, as before)."""
+        without a usable pose open it (the images decide) only in a stream that has had none: ``ScanPhase``
+        keeps them from opening one once poses came."""
         if stale:
             return True
         distance = self.distance_m(pose)
@@ -187,13 +189,21 @@ class ScanPhase:
         self.scope = scope
         self.is_open = False
         self.openings = 0  # scan segments opened so far
+        self.seen_pose = False  # a frame with a usable pose came: the stream has telemetry
 
     def step(self, pose: Pose | None, stale: bool = False) -> ScopeStep:
+        posed = not stale and self.scope.distance_m(pose) is not None
+        self.seen_pose = self.seen_pose or posed
         if self.is_open:
             if self.scope.off_scan(pose, stale) or not self.scope.shows_wall(pose, stale):
                 self.is_open = False
                 return ScopeStep.LEAVES
             return ScopeStep.SCAN
+        if not posed and self.seen_pose:
+            # No pose in a stream that has them (a telemetry gap: test_onboard_sitl on a loaded machine, the
+            # autopilot's positions a second apart): nothing says this frame shows the wall from the standoff, and
+            # opening on it let the images alone spool keyframes without a pose. The next posed frame decides.
+            return ScopeStep.OFF
         if self.scope.off_scan(pose, stale) or not self.scope.opens_scan(pose, stale):
             return ScopeStep.OFF
         self.is_open = True

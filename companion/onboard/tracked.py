@@ -98,6 +98,7 @@ class TrackedSelection:
         self._tracked = self._measured = self._searches = self._lost = self._held_dropped = 0
         self._skipped = self._skip_run = 0
         self._anchor_motion: tuple | None = None  # (frame index, prediction from the anchor, (width, height))
+        self._seen_pose = False  # a frame with a pose was offered: the flight has telemetry (``_posed_keyframe``)
 
     @property
     def counts(self) -> TrackedCounts:
@@ -134,6 +135,7 @@ class TrackedSelection:
         return [t.frame.index for t in self._held]
 
     def offer(self, tagged: TaggedFrame) -> list[Keyframe]:
+        self._seen_pose = self._seen_pose or _posed(tagged)
         if self.tracker.anchor_index is None or self.gate.keyframe_index is None:
             return self._measure_and_push(tagged)
         h, w = tagged.frame.image.shape[:2]
@@ -191,6 +193,7 @@ class TrackedSelection:
         held, rth = self._held, self.gate.rth_percent
         start = max((i for i, t in enumerate(held) if self._predicted(t, 0.0) >= rth), default=0)
         last_above, first_below = self._bracket(start)
+        last_above = self._posed_keyframe(last_above)
         plan = [held[i] for i in (last_above, first_below) if i is not None]
         if not plan:  # nothing measurable held: the newest frame decides, as without a tracker
             plan = [held[-1]]
@@ -225,6 +228,22 @@ class TrackedSelection:
             below = k
             break
         return i, below
+
+    def _posed_keyframe(self, last_above: int | None) -> int | None:
+        """The held frame to make the keyframe instead of ``last_above`` when that one has no pose (a telemetry
+        gap) in a flight that has poses: the nearest earlier held frame with a pose whose measured R is >= Rth too
+        (more overlap with the keyframe before, so the target still holds; the next keyframe is judged against it).
+        None found: ``last_above`` as before (the stitcher places a keyframe without a pose by its images)."""
+        held, rth = self._held, self.gate.rth_percent
+        if last_above is None or not self._seen_pose or _posed(held[last_above]):
+            return last_above
+        for k in range(last_above - 1, -1, -1):
+            if not _posed(held[k]):
+                continue
+            est = self._measure(held[k])
+            if est is not None and est.known and est.percent >= rth:
+                return k
+        return last_above
 
     # -- measuring -----------------------------------------------------------------------------------------
     def _masked_frame(self, tagged: TaggedFrame) -> MaskedFrame | None:
@@ -303,3 +322,7 @@ class TrackedSelection:
             return None
         w, h = size or b.frame.image.shape[1::-1]
         return self.predictor.predict(a.pose, b.pose, w, h, overlap=overlap)
+
+
+def _posed(tagged: TaggedFrame) -> bool:
+    return tagged.pose is not None and not tagged.pose_stale

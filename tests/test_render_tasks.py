@@ -5,10 +5,9 @@ guard: refused by default over ``max_map_px``, with the option that allows it na
 
 from __future__ import annotations
 
+import argparse
 import pickle
 import shutil
-
-import argparse
 
 import cv2
 import numpy as np
@@ -61,6 +60,25 @@ def test_render_tasks_draw_the_tiles_the_stitcher_draws(face, tmp_path):
         pa, pb = (cv2.imread(str(d / name), cv2.IMREAD_UNCHANGED) for d in (tmp_path / "own", tmp_path / "tasks"))
         assert np.array_equal(pa, pb), name
     assert tasks.coverage_fraction == own.coverage_fraction and tasks.uncovered == own.uncovered
+
+
+def test_a_coarser_plan_on_a_larger_map_draws_the_same_tiles(face, tmp_path, monkeypatch):
+    """Maps over ``PLAN_MAX_BLOCKS`` plan on coarser blocks (a gigapixel map: 16 px), so the plan's memory does not
+    grow with the map; the tiles are the same pixels (here: this map's plan forced onto 32 px blocks)."""
+    from companion.stitch import canvas
+
+    cfg = StitchConfig(tile_px=128, max_in_memory_px=1e4, workers=2)
+    fine = stitch(merge_spools(list(face))[0], tmp_path / "fine", cfg, progress=False)
+    assert canvas.plan_block_px(fine.grid.width, fine.grid.height) == 8
+    monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 1e3)
+    assert canvas.plan_block_px(fine.grid.width, fine.grid.height) == 32
+    monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 4e6)
+    assert canvas.plan_block_px(40000, 25000) == 16  # a gigapixel map, at the default limit
+    monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 1e3)
+    shutil.copytree(tmp_path / "fine" / "cache", tmp_path / "coarse" / "cache")
+    stitch(merge_spools(list(face))[0], tmp_path / "coarse", cfg, progress=False)
+    a, b = _tiles(tmp_path / "fine"), _tiles(tmp_path / "coarse")
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
 def test_a_map_over_the_limit_is_refused_naming_the_option_that_allows_it(face, tmp_path):

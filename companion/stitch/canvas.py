@@ -277,7 +277,8 @@ def _schedule(
     else:
         # the seam weights, in the plan's order, decoded side by side on the pool's threads
         weights = _ordered_map(pool, weight_of, [p.position for p in order], ahead=worker_count(cfg))
-        plan = plan_render(order, weights, gw, gh, cfg.tile_px, cfg.feather_px, cache_size)
+        plan = plan_render(order, weights, gw, gh, cfg.tile_px, cfg.feather_px, cache_size,
+                           block_px=plan_block_px(gw, gh))
         tiles, needs = plan.order, plan.needs
         per_tile = [len(v) for v in needs.values() if v]
         planned = {
@@ -292,6 +293,20 @@ def _schedule(
     # with the plan, the cache knows every request ahead and keeps what is needed soonest
     cache_schedule = None if legacy else [p.position for tile in tiles for p in drawn[tile]]
     return _TileSchedule(tiles, drawn, cache_schedule, planned)
+
+
+PLAN_BLOCK_PX = 8  # the render plan's block (render_plan.py), on maps up to PLAN_MAX_BLOCKS of them
+PLAN_MAX_BLOCKS = 4e6  # larger maps get coarser blocks: the plan's bounds (float32 a block) do not grow with the map
+
+
+def plan_block_px(width: int, height: int) -> int:
+    """The plan's block size for a ``width`` x ``height`` map: 8 px, doubled until the map has at most
+    ``PLAN_MAX_BLOCKS`` blocks (a 1 GP map: 16 px). Coarser blocks only make the plan more cautious (a tile may
+    draw a keyframe more), never change a pixel."""
+    block = PLAN_BLOCK_PX
+    while (width / block) * (height / block) > PLAN_MAX_BLOCKS:
+        block *= 2
+    return block
 
 
 def _ordered_map(pool: Executor, fn, items: list, *, ahead: int) -> Iterator:

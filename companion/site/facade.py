@@ -116,6 +116,7 @@ def build_facade(task: FacadeTask, tiles: TileRunner | None = None) -> FacadeOut
     try:
         inp, _ = merge_spools(list(task.job.spools))
         res = stitch(inp, task.out_dir, cfg, progress=False, tiles=tiles)
+        res = replace(res, map_image=None, coverage=None)  # an in-memory map's pixels: written, not held for the COG
         files = dict(res.files)
         if task.cog and (cog := write_cog(task.out_dir, files, task.threads)) is not None:
             files["cog"] = str(cog)

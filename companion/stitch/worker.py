@@ -203,7 +203,9 @@ class Stitcher:
         files = {**files, **write_georeferencing(result, run.input)}
         # the inspector's viewer (docs/OUTPUTS.md), from the report as it stands (report.json is written after it)
         images = {kf.index: kf.image_path for kf in run.input.keyframes}
-        files["viewer"] = write_viewer(out, images, report=replace(report, files=dict(files)).as_dict())
+        in_memory = (run.rendered.canvas, run.rendered.coverage) if run.rendered.canvas is not None else None
+        files["viewer"] = write_viewer(out, images, report=replace(report, files=dict(files)).as_dict(),
+                                       image=in_memory)
         files["report"] = str(out / "report.json")
         report = replace(report, files=files)
         write_atomic(out / "report.json", json.dumps(report.as_dict(), indent=1), durable=True)

@@ -92,3 +92,4 @@ def test_a_map_over_the_limit_is_refused_naming_the_option_that_allows_it(face, 
     assert config_from_args(parser.parse_args([])).max_map_px == StitchConfig().max_map_px == 4e8
     with pytest.raises(CompanionError, match="must be at least 1 pixel"):
         config_from_args(parser.parse_args(["--max-map-px", "0"]))
+

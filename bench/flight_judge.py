@@ -263,8 +263,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="metres from a leg, in the wall's plane, for a sample to count on it (default 1)")
     ap.add_argument("--max-out", type=float, default=2.0,
                     help="metres from the standoff distance for a sample to count on a leg (default 2)")
+    ap.add_argument("--autopilot", choices=("px4", "ardupilot"), default="px4",
+                    help="the firmware that flew it: the two fly different plans (PX4 flies the strips' bottoms "
+                         "after its home window; default px4)")
     args = ap.parse_args(argv)
-    plan = plan_scan(load_mission(args.mission))
+    plan = plan_scan(load_mission(args.mission)).for_autopilot(args.autopilot)
     print(f"{args.mission.name}: {len(plan.scan_legs)} scan legs, wall-facing heading "
           f"{plan.frame.yaw_facing_wall_deg:.2f} deg, standoff {plan.mission.standoff_m} m, "
           f"planned scan speed {plan.estimates.scan_speed_m_s:.3f} m/s; log {args.telemetry_log}")

@@ -1,6 +1,6 @@
 """Stitching speed at full camera resolution: N keyframes at 3840x2160 (the paper stitched 35 such images in
 about 38 min on a Xeon E5-2630 v4), per stage in wall and CPU seconds, side by side with another checkout of the
-code (``--compare-with``, e.g. main) and with the per-pixel numpy renderer (``--renderers warp,pullback``).
+code (``--compare-with``, e.g. main).
 
 Every frame of the recording is a keyframe; the true overlap of consecutive frames is printed so the input can
 be compared with the paper's (Rth = 80 %). Each run is its own process (its own peak memory and CPU count; the
@@ -9,7 +9,6 @@ staged stitcher can be timed). ``--compare-with DIR`` runs the stitcher of DIR (
 main``) and this one alternately, each from a fresh cache, ``--rounds`` times: on a shared machine compare the
 CPU seconds (user + sys, all threads) of the two, and the wall seconds only within one round. The pairs each
 accepted, the local residuals and the coverage are printed with the largest and mean map difference where both
-drew. The pullback reference starts from a copy of the first run's cache, so both align the same pairs.
 ``--cache-from DIR`` starts every run from a copy of DIR's feature and pair cache (a finished run's ``--out``),
 so two checkouts are compared on their render and report stages alone, from the same alignment.
 ``--peers scans`` first runs cv2.Stitcher SCANS on the same keyframes and ROI masks, in its own process.
@@ -18,9 +17,9 @@ so two checkouts are compared on their render and report stages alone, from the 
         'missions/demo-facade.yaml', '/tmp/rec4k', stride=20, width_px=3840, max_frames=35)"
     python bench/stitch_speed.py --recording /tmp/rec4k --out /tmp/stitch_speed
     mkdir /tmp/main && git archive main | tar -x -C /tmp/main
-    python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --rounds 2
-    python bench/stitch_speed.py --recording /tmp/rec4k --renderers warp --compare-with /tmp/main --peers scans
-    python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --cache-from /tmp/stitch_speed/warp
+    python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --rounds 2
+    python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --peers scans
+    python bench/stitch_speed.py --recording /tmp/rec4k --compare-with /tmp/main --cache-from /tmp/stitch_speed/run
 """
 
 from __future__ import annotations
@@ -60,7 +59,7 @@ def run_one(args) -> dict:
     inp = load_recording_input(
         Path(args.recording), frames=frames, pose_noise_m=args.pose_noise_m, attitude_noise_deg=args.attitude_noise_deg
     )
-    stitcher = Stitcher(StitchConfig(mm_per_px=args.mm_per_px, renderer=args.renderer), progress=False)
+    stitcher = Stitcher(StitchConfig(mm_per_px=args.mm_per_px), progress=False)
     wall_s: dict[str, float] = {}
     cpu_s: dict[str, float] = {}
     for name in STAGES:
@@ -83,7 +82,6 @@ def run_one(args) -> dict:
     report = res.report
     return {
         "code": str(Path(sys.modules["companion"].__file__).resolve().parents[1]),
-        "renderer": args.renderer,
         "machine": f"{platform.machine()} {platform.system()}, {os.cpu_count()} CPUs, python "
         f"{sys.version.split()[0]}, cv2 {cv2.__version__} ({cv2.getNumThreads()} threads)",
         "load_average_start": round(args.load0, 1),
@@ -219,10 +217,10 @@ def _pair_difference(a: dict, b: dict) -> dict:
     return {"pairs_accepted_by_both": len(pa & pb), "only_other": sorted(pa - pb), "only_this": sorted(pb - pa)}
 
 
-def _launch(args, run_out: Path, renderer: str, code: Path | None) -> dict:
+def _launch(args, run_out: Path, code: Path | None) -> dict:
     if args.cache_from and not (run_out / "cache").exists():
         shutil.copytree(args.cache_from / "cache", run_out / "cache")
-    cmd = [sys.executable, __file__, "--recording", args.recording, "--out", str(run_out), "--renderer", renderer]
+    cmd = [sys.executable, __file__, "--recording", args.recording, "--out", str(run_out), "--one-run"]
     cmd += ["--pose-noise-m", str(args.pose_noise_m), "--attitude-noise-deg", str(args.attitude_noise_deg)]
     if args.mm_per_px:
         cmd += ["--mm-per-px", str(args.mm_per_px)]
@@ -253,18 +251,18 @@ def main(argv=None) -> int:
     ap.add_argument("--mm-per-px", type=float, default=None, help="map scale (default native)")
     ap.add_argument("--pose-noise-m", type=float, default=0.3)
     ap.add_argument("--attitude-noise-deg", type=float, default=0.5)
-    ap.add_argument("--renderers", default="warp,pullback", help="run these, in this order (first: fresh cache)")
+    ap.add_argument("--no-run", action="store_true", help="with --peers: the peers alone")
     ap.add_argument("--compare-with", type=Path, default=None, help="another checkout, run alternately with this")
     ap.add_argument("--rounds", type=int, default=1, help="with --compare-with: how many alternations")
     ap.add_argument("--cache-from", type=Path, default=None, help="start every run from this run folder's cache")
-    ap.add_argument("--renderer", default=None, help=argparse.SUPPRESS)  # one run in this process
+    ap.add_argument("--one-run", action="store_true", help=argparse.SUPPRESS)  # one run in this process
     ap.add_argument("--peers", default="", help="also run these on the same keyframes, each in its own process: scans")
     ap.add_argument("--peer-run", default=None, help=argparse.SUPPRESS)  # one peer in this process
     ap.add_argument("--load0", type=float, default=0.0, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.cache_from and not (args.cache_from / "cache").is_dir():
         ap.error(f"--cache-from {args.cache_from}: it holds no cache/ folder; give the --out folder of a finished run")
-    if args.renderer:
+    if args.one_run:
         print(json.dumps(run_one(args), default=float))
         return 0
     if args.peer_run:
@@ -290,7 +288,7 @@ def main(argv=None) -> int:
         for k in range(args.rounds):
             runs = {}
             for label, code in (("other", args.compare_with.resolve()), ("this", None)):
-                runs[label] = _launch(args, out / f"round{k}" / label, "warp", code)
+                runs[label] = _launch(args, out / f"round{k}" / label, code)
                 print(json.dumps(runs[label], indent=1, default=float), flush=True)
             diff = compare_maps(out / f"round{k}" / "other", out / f"round{k}" / "this")
             diff |= _pair_difference(runs["other"], runs["this"])
@@ -298,23 +296,10 @@ def main(argv=None) -> int:
             print(f"round {k}: " + _summary("this", runs["this"]))
             print(f"round {k}: maps {diff}", flush=True)
         return 0
-    runs = []
-    names = [n for n in args.renderers.split(",") if n]  # --renderers "" with --peers: the peers alone
-    for k, renderer in enumerate(names):
-        run_out = out / renderer
-        if k > 0:  # the same features and pairs as the first run: the maps differ only by the renderer
-            shutil.copytree(out / names[0] / "cache", run_out / "cache")
-        runs.append(_launch(args, run_out, renderer, None))
-        print(json.dumps(runs[-1], indent=1, default=float), flush=True)
-        print(_summary(renderer, runs[-1]), flush=True)
-    if len(runs) >= 2:
-        diff = compare_maps(out / names[0], out / names[1])
-        ratio = runs[1]["wall_s"]["render"] / max(runs[0]["wall_s"]["render"], 1e-9)
-        print(
-            f"render: {names[0]} {runs[0]['wall_s']['render']:.1f} s, {names[1]} {runs[1]['wall_s']['render']:.1f}"
-            f" s ({ratio:.1f}x); keyframe decodes {runs[0]['render']['keyframe_decodes']} vs "
-            f"{runs[1]['render']['keyframe_decodes']}; maps: {diff}"
-        )
+    if not args.no_run:
+        run = _launch(args, out / "run", None)
+        print(json.dumps(run, indent=1, default=float), flush=True)
+        print(_summary("this", run), flush=True)
     return 0
 
 

@@ -19,9 +19,9 @@ def test_the_plan_keeps_enough_camera_frames_between_keyframes():
     mission = load_mission(MISSION)
     full = plan_scan(mission)
     assert plan_for_camera(MISSION, mission.camera.fps).estimates == full.estimates  # the camera's own rate
-    # the demo's PX4 moves home as real PX4 SIH does: the plan holds above the wall until it has settled, as a real
-    # flight's does (the simulator is not special-cased)
-    assert full.estimates.px4_home_settle_hold_s > 90
+    # the demo's PX4 moves home as real PX4 SIH does: the plan flies the strips' bottoms after PX4's home window, as
+    # a real flight's does (the simulator is not special-cased), and scans instead of hovering through it
+    assert full.estimates.px4_low_after_s > 120 and full.estimates.px4_home_settle_hold_s == 0.0
     ten = plan_for_camera(MISSION, 10.0).estimates
     # at 10 frames/s the frames-per-keyframe limit slows the scan to 10 frames per keyframe spacing; the last frame
     # still >= Rth is then the 9th, so the rule keeps more keyframes than at 30 fps (companion.mission.keyframe_count)

@@ -54,12 +54,12 @@ def test_nan_where_ardupilot_allows_it_is_not_a_refusal():
 def test_copter_holds_are_whole_seconds_rounded_up(plan):
     ap = [it for it in plan.mavlink_items("ardupilot") if it.command == mi.MAV_CMD_NAV_WAYPOINT][1:]
     px4 = [it for it in plan.mavlink_items("px4") if it.command == mi.MAV_CMD_NAV_WAYPOINT]
-    assert len(ap) == len(px4)
-    settle = px4[plan.settle_waypoint_index - 1]  # NAV_WAYPOINTs start after the take-off
-    assert settle.param1 == plan.estimates.px4_home_settle_hold_s > 90  # PX4 only: waits for its home to settle
-    assert {it.param1 for it in px4 if it is not settle} == {0.0, 0.5}
+    steady = [w for w in plan.for_autopilot("ardupilot").waypoints if w.kind not in ("takeoff", "land")]
+    assert len(ap) == len(steady)
+    # PX4 flies the strips' bottoms after its home window instead of hovering through it: only the 0.5 s settles
+    assert {it.param1 for it in px4} == {0.0, 0.5} and plan.estimates.px4_home_settle_hold_s == 0.0
     assert {it.param1 for it in ap} == {0.0, 1.0}  # the 0.5 s settle is kept as 1 s, never dropped
-    assert all((a.param1 > 0) == (p.param1 > 0) for a, p in zip(ap, px4, strict=True) if p is not settle)
+    assert all((a.param1 > 0) == (w.hold_s > 0) for a, w in zip(ap, steady, strict=True))
     assert whole_seconds(2.0) == 2.0 and whole_seconds(0.0) == 0.0
 
 

@@ -103,13 +103,13 @@ def test_only_waypoints_still_ahead_count(demo_items):
 
 def _fly_demo_with_home_moved(tmp_path, *extra: str, speedup: float = 20.0) -> tuple[subprocess.CompletedProcess, str]:
     """The demo mission on the simulator's PX4, which moves home 1.2 m down 30 s after take-off (inside PX4's 120 s
-    window, while the vehicle holds above the wall): the strip bottoms (1.55 m above home) would be flown 0.35 m
-    above the ground."""
+    window, while the vehicle flies the strips' upper parts, 3.5 m above home and up): the strips' bottoms (1.55 m
+    above home, flown after the window) would be flown 0.35 m above the ground."""
     cmd = [sys.executable, "-m", "companion.cli", "fly", "--connect-timeout", "60", str(DEMO), "--sitl",
            "--speedup", f"{speedup:g}", "--no-progress", "--telemetry-log", str(tmp_path / "t.jsonl"),
            "--sim-arg", f"truth-log={tmp_path / 'truth.jsonl'}",
            "--sim-arg", "home-shift-after-takeoff=30", "--sim-arg", "home-shift-m=-1.2", *extra]
-    # ~600 s simulated (the 2-minute hold included): 30-60 s of wall time at speed-up 20 on a quiet machine, but a
+    # ~450 s simulated: 30-60 s of wall time at speed-up 20 on a quiet machine, but a
     # starved simulator (load average 39 on 2 cores) ran it at about 1x
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                           timeout=1800)
@@ -207,9 +207,9 @@ def test_a_put_back_the_vehicle_ignores_is_given_up_and_the_watch_decides(demo_i
 
 @pytest.mark.sitl
 def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_planned(demo_items, tmp_path):
-    """Asked for (``--sitl-profile sim/sitl/px4-sih.yaml``, as for PX4 SIH): the vehicle holds above the wall until
-    PX4's window is over, then home is put back where it was at arming, and every strip bottom is flown 1.55 m above
-    the true ground. Without the profile the flight ends (exit 1) with RTL and no scan (the next test)."""
+    """Asked for (``--sitl-profile sim/sitl/px4-sih.yaml``, as for PX4 SIH): the vehicle flies the strips' upper parts
+    until PX4's window is over, then home is put back where it was at arming, and the strips' bottoms are flown 1.55 m
+    above the true ground. Without the profile the flight ends (exit 1) with RTL before them (the next test)."""
     proc, out = _fly_demo_with_home_moved(tmp_path, "--sitl-profile", str(PX4_SIH_PROFILE))
     assert proc.returncode == 0, out[-4000:]
     assert "window is over: home moved 1 time in it (each at debug level, -v) and is now -1.20 m" in out, out[-4000:]
@@ -224,16 +224,15 @@ def test_px4_sih_home_moved_while_holding_is_put_back_and_the_strips_fly_where_p
 
 
 @pytest.mark.sitl
-def test_a_real_px4_home_moved_too_low_ends_the_flight_at_the_hold_above_the_wall(demo_items, tmp_path):
+def test_a_real_px4_home_moved_too_low_ends_the_flight_before_the_strips_bottoms(demo_items, tmp_path):
     """PX4 without a SITL profile (a real vehicle, or the simulator flown as one: the companion detects no simulator
-    and never puts home back) moves home 1.2 m down while the vehicle holds above the wall: when the window is over
-    the flight ends there, with RTL and a clear error, before any strip.
-    Before (no hold, the move ended the scan when it came), the vehicle had started its first strip.
+    and never puts home back) moves home 1.2 m down while the vehicle flies the strips' upper parts: the move ends
+    nothing in the window (they stay 2.3 m above the ground or more); when the window is over the flight ends there,
+    with RTL and a clear error, before any waypoint below 3.5 m above home.
+    Before (a 116 s hold above the wall), it ended at the hold, 18 m up; before that (no hold) on the first strip.
 
-    Speed-up 5, not 20: the hold ends 2 s of autopilot time after the window (``planner.HOME_SETTLE_SLACK_S`` less
-    ``home_watch.SETTLE_SLACK_S``), and the companion polls every 0.1 s of wall time, as on a real vehicle. At 20x a
-    poll is 2 s of autopilot time, the whole margin: in a CI run beside other tests the companion saw the window's
-    end late and the vehicle had reached its first scan waypoint. At 5x the margin is 4 polls."""
+    Speed-up 5, not 20: the companion polls every 0.1 s of wall time, as on a real vehicle; at 20x a poll is 2 s of
+    autopilot time."""
     proc, out = _fly_demo_with_home_moved(tmp_path, speedup=5.0)
     assert proc.returncode == 1, out[-4000:]
     assert "window is over: home moved 1 time in it (each at debug level, -v) and is now -1.20 m" in out, out[-4000:]
@@ -242,11 +241,14 @@ def test_a_real_px4_home_moved_too_low_ends_the_flight_at_the_hold_above_the_wal
     assert "landed and disarmed after RTL" in out and "put home back" not in out, out[-4000:]
     assert "SITL profile" not in out and "EKF2" not in out, out[-4000:]  # nothing a simulator needs, unasked
     assert "parameter MPC_Z_V_AUTO_DN restored to 1.5" in out, out[-4000:]  # what it set for the flight is restored
-    settle = settle_item_seq(demo_items, plan_scan(load_mission(DEMO)).settle_waypoint_index)
+    plan = plan_scan(load_mission(DEMO))
+    settle = settle_item_seq(demo_items, plan.settle_waypoint_index)
     flown = [r["mission_item"] for r in read_telemetry_log(tmp_path / "t.jsonl") if r["in_air"]]
-    assert settle in flown and max(flown) <= settle + 1, sorted(set(flown))  # no scan waypoint was flown to
+    assert max(flown) <= settle, sorted(set(flown))  # no waypoint below 3.5 m above home was flown to
+    first_strip = next(it.seq for it in demo_items if it.command == mi.MAV_CMD_NAV_WAYPOINT and it.z < 12.6)
     heights = _true_heights_by_item(tmp_path)
-    assert min(heights[settle]) > 15.0  # held high above the ground until the flight ended
+    on_strips = [min(h) for seq, h in heights.items() if seq > first_strip]
+    assert on_strips and min(on_strips) > 2.0, heights.keys()  # 3.5 m above a home 1.2 m low, never lower
 
 
 def test_sim_px4_moves_home_and_later_items_fly_above_the_new_home():
@@ -278,3 +280,43 @@ def test_sim_px4_moves_home_and_later_items_fly_above_the_new_home():
         assert v._global_position().relative_alt / 1000.0 == pytest.approx(true_height + 1.5, abs=0.05)
     finally:
         v.close()
+
+
+def test_px4_plan_flies_only_what_home_s_largest_move_leaves_clear_while_home_may_move(demo_items):
+    """The PX4 plan flies the strips' upper parts in PX4's 120 s window, not a 116 s hover: the watch's settle item is
+    the last waypoint of that part, every waypoint up to it is 3.5 m above home or more, the strips' bottoms come
+    after it; ArduPilot, which keeps home where it armed, has no window and no settle item."""
+    from companion.flight.fly import home_watch_for
+
+    plan = plan_scan(load_mission(DEMO))
+    watch = home_watch_for(plan, demo_items, "px4")
+    wps = [it for it in demo_items if it.command == mi.MAV_CMD_NAV_WAYPOINT]
+    assert watch.window_s == 120.0 and watch.settle_seq == settle_item_seq(demo_items, plan.settle_waypoint_index)
+    assert min(it.z for it in wps if it.seq <= watch.settle_seq) == pytest.approx(3.5)
+    assert min(it.z for it in wps if it.seq > watch.settle_seq) == pytest.approx(1.546, abs=1e-3)
+    steady = plan.for_autopilot("ardupilot")
+    cu = home_watch_for(steady, steady.mavlink_items("ardupilot"), "ardupilot")
+    assert cu.window_s == 0.0 and cu.settle_seq == -1
+
+
+def test_a_move_in_the_window_ends_the_scan_only_when_it_brings_what_is_flown_in_it_near_the_ground(demo_items):
+    """In the window the vehicle flies the strips' upper parts (3.5 m above home and up): home 1.51 m low (as real
+    PX4 SIH left it) would put the strips' bottoms, flown after the window, 0.04 m above the ground, but what is flown
+    now 1.99 m above it: nothing ends until the window is over, when the settled home decides. A move beyond any seen
+    (-2.8 m) puts the window's own waypoints 0.7 m above the ground: the scan ends at once."""
+    plan = plan_scan(load_mission(DEMO))
+    settle = settle_item_seq(demo_items, plan.settle_waypoint_index)
+    first_strip = next(it.seq for it in demo_items if it.command == mi.MAV_CMD_NAV_WAYPOINT and it.z < 12.6)
+    watch = HomeWatch(demo_items, window_s=120.0, settle_seq=settle)
+    watch.on_home(30.0)
+    watch.on_airborne()
+    watch.on_home(28.49)  # -1.51 m at 40 s, the vehicle on its first strip
+    assert watch.settling(first_strip, 40.0) and watch.check(first_strip, 40.0) is None
+    low = watch.check(first_strip, 124.0)  # the window is over (+3 s slack): the settled home counts
+    assert low is not None and low.planned_m == pytest.approx(1.546, abs=1e-3)
+    assert low.clearance_m == pytest.approx(0.036, abs=1e-3) and low.seq > settle
+    watch.on_home(27.2)  # -2.8 m, still in the window
+    worst = watch.check(first_strip, 50.0)
+    assert worst is not None and worst.planned_m == pytest.approx(3.5) and worst.seq <= settle
+    assert worst.clearance_m == pytest.approx(0.7)
+    assert watch.check(settle + 1, 50.0) is not None  # past the settle item early: everything ahead counts

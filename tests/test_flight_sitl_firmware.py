@@ -9,6 +9,10 @@ afterwards. Speed-up 25: about 300 simulated seconds per flight.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+import pymap3d
 import pytest
 
 from companion.flight import fly_mission_sync
@@ -25,6 +29,17 @@ def plan():
     return plan_scan(load_mission(ROOT / "missions/demo-facade.yaml"))
 
 
+def _until_the_scan_ends(plan, rows: list[dict]) -> list[dict]:
+    """The truth rows up to the last scan waypoint: the exit climb goes back up the column the scan ended on (the last
+    strip's; PX4's: the first strip's, where the bottom band ends), and its samples on that leg would be judged as the
+    leg flown the other way."""
+    h, end = plan.home, plan.waypoints[plan.scan_legs[-1][1]]
+    n, e, d = pymap3d.geodetic2ned(end.lat, end.lon, h.alt_amsl_m + end.rel_alt_m, h.lat, h.lon, h.alt_amsl_m)
+    near = [k for k, r in enumerate(rows) if r.get("in_air", True)
+            and math.dist((r["north_m"], r["east_m"], r["down_m"]), (n, e, d)) < 0.5]
+    return rows[: near[-1] + 1] if near else rows
+
+
 @pytest.mark.parametrize("autopilot", ["px4", "ardupilot"])
 def test_demo_scan_faces_the_wall_at_the_planned_speed(plan, autopilot, tmp_path):
     truth = tmp_path / "truth.jsonl"
@@ -37,8 +52,30 @@ def test_demo_scan_faces_the_wall_at_the_planned_speed(plan, autopilot, tmp_path
     assert result.completed and result.landed and result.disarmed, result
     assert set(flight_parameters(plan, autopilot)) <= {c.name for c in result.parameter_changes}, result
     assert result.items_reached == result.items_total == len(plan.mavlink_items(autopilot))
-    reports = scan_leg_reports(plan, read_truth_log(truth))
-    assert len(reports) == plan.estimates.strips and all(r.samples > 50 for r in reports), reports
+    flown = plan.for_autopilot(autopilot)  # PX4: the strips' bottoms as a pass along the wall after its home window
+    reports = scan_leg_reports(flown, _until_the_scan_ends(flown, read_truth_log(truth)))
+    assert len(reports) == len(flown.scan_legs) == plan.estimates.strips + (autopilot == "px4"), reports
+    assert all(r.samples > 50 for r in reports), reports
     speed_error, yaw_error = worst(reports)
+    if autopilot == "px4":
+        _px4_scans_while_home_may_move(flown, read_truth_log(truth))
     assert yaw_error < 3.0, [round(r.max_yaw_error_deg, 2) for r in reports]
     assert speed_error < 0.15, [round(r.median_speed_m_s, 3) for r in reports]
+
+
+def _px4_scans_while_home_may_move(plan, rows: list[dict]) -> None:
+    """No idle hover (issue 31): PX4's demo took 450 s from take-off to landing with its 116 s hold above the wall
+    (simulator, main cc0293a); flying the strips' upper parts in the window it takes about 340 s. Within 125 s of
+    take-off nothing at the standoff is flown lower than the window's floor (3.5 m above home; this simulator keeps
+    home still)."""
+    air = [r for r in rows if r["in_air"]]
+    t0, t1 = air[0]["t_s"], air[-1]["t_s"]
+    assert t1 - t0 < 450.0 - 90.0, t1 - t0
+    o = plan.frame.origin
+    lat, lon = np.array([r["lat"] for r in air]), np.array([r["lon"] for r in air])
+    _, out, _ = plan.frame.geodetic_to_facade(lat, lon, np.full_like(lat, o.alt_amsl_m))
+    height = np.array([r["alt_amsl_m"] for r in air]) - plan.home.alt_amsl_m
+    t = np.array([r["t_s"] for r in air]) - t0
+    scan = np.abs(np.asarray(out) - plan.mission.standoff_m) < 0.5
+    assert height[scan & (t < 125.0)].min() > plan.estimates.px4_window_floor_m - 0.15
+    assert height[scan].min() == pytest.approx(plan.footprint.height_m / 2.0, abs=0.15)  # the band, after it

@@ -35,7 +35,9 @@ def _rows(plan, bias_along_m: float, bias_out_m: float, *, with_estimate: bool =
 
 
 def test_a_biased_vehicle_is_measured_where_it_really_flew():
-    plan = plan_scan(load_mission(SMALL_WALL))
+    # vertical strips only (ArduPilot's plain plan; PX4's ends with a pass along the wall, which an along bias does
+    # not take off its leg)
+    plan = plan_scan(load_mission(SMALL_WALL)).for_autopilot("ardupilot")
     legs = flown_standoff(plan, _rows(plan, bias_along_m=1.0, bias_out_m=1.5))
     assert len(legs) == len(plan.scan_legs) and all(leg.samples > 20 for leg in legs)
     assert all(leg.median_m == pytest.approx(2.5, abs=1e-3) for leg in legs)

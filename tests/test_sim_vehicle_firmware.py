@@ -158,7 +158,7 @@ def _without(items, drop):
 def test_copter_as_first_flown_faces_along_the_wall_and_climbs_at_wpnav_speeds():
     """The recorded real upload (waypoint yaw in param4, DO_CHANGE_SPEED type 1 only): real Copter flew it 90 degrees
     off the wall, 2.3-2.5 m/s up and 1.5 m/s down; so must the simulator."""
-    plan = plan_scan(load_mission(f"{ROOT}/missions/demo-facade.yaml"))
+    plan = plan_scan(load_mission(f"{ROOT}/missions/demo-facade.yaml")).for_autopilot("ardupilot")
     items = recorded("ardupilot", "demo-facade", "uploaded")
     home = recorded("ardupilot", "demo-facade", "downloaded")[0]
     reports = scan_leg_reports(plan, fly_in_process(plan, "ardupilot", items,

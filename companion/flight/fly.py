@@ -347,9 +347,7 @@ class _Supervisor:
         restore_to = self.home.restore_step(since)
         if restore_to is not None:
             await self._send_home(restore_to)
-        if self.home.settling(current_seq, since):
-            return False  # high above the wall, waiting for home to settle: its last position is what counts
-        low = self.home.too_low(current_seq)
+        low = self.home.check(current_seq, since)  # while home may move: only what is flown until it settles
         if low is None:
             return False
         self._fail(low.problem(self.home.min_clearance_m))
@@ -569,11 +567,12 @@ def standoff_loop_for(plan, items, first_seq: int, options: StandoffOptions, rec
 def home_watch_for(plan, items: Sequence[mi.MissionItem], autopilot: str | Autopilot,
                    restore_home: bool = False) -> HomeWatch:
     """The flight's home watch: the autopilot's correction window (PX4 moves home for 120 s after take-off;
-    ArduPilot keeps it where it armed); a ScanPlan holds above the wall until then at its settle waypoint;
+    ArduPilot keeps it where it armed); until then a ScanPlan flies only what home's largest move leaves clear of
+    the ground, up to its settle waypoint (where it holds if that part ends sooner);
     ``restore_home`` (a SITL profile's, asked for) puts home back after it."""
     window_s = autopilot_for(autopilot).home_correction_window_s
     settle = -1
-    if window_s > 0 and hasattr(plan, "estimates") and plan.estimates.px4_home_settle_hold_s > 0:
+    if window_s > 0 and getattr(plan, "moving_home", False) and plan.settle_waypoint_index >= 0:
         settle = settle_item_seq(items, plan.settle_waypoint_index)
     return HomeWatch(items, window_s=window_s, settle_seq=settle, restore=window_s > 0 and restore_home)
 
@@ -635,6 +634,39 @@ def _flight_result(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, p
         standoff_corrections=list(sup.standoff.controller.corrections) if sup.standoff is not None else [])
 
 
+def _standoff_options(plan, standoff: StandoffOptions | None) -> StandoffOptions:
+    """The flight's standoff options (default ``StandoffOptions()``); an impossible tolerance or floor for a
+    ScanPlan is refused here, before anything connects."""
+    standoff = standoff if standoff is not None else StandoffOptions()
+    if hasattr(plan, "frame"):
+        settings_for(plan, standoff)
+    return standoff
+
+
+def _install_stop_handlers(loop: asyncio.AbstractEventLoop, sup: _Supervisor, installed: list[int]) -> None:
+    """SIGINT and SIGTERM ask the supervisor to stop (bounded Ctrl-C); each signal installed is appended to
+    ``installed`` as it is, so the caller removes exactly those whatever happens next."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+            loop.add_signal_handler(sig, sup.on_signal, sig)
+            installed.append(sig)
+
+
+async def _fly_supervised(vehicle: Vehicle, sup: _Supervisor, rec: TelemetryRecorder, params: FlightParameters,
+                          first_seq: int, stop_wait_s: float) -> tuple[FlightAbort | None, float]:
+    """The flight itself, once everything is set: home read, the companion's heartbeat counted by the lost-link
+    failsafe, armed and started, supervised to its end, the ending acted on, home handed back. Returns why
+    supervision ended (None: the mission ran out) and the seconds from the start."""
+    await sup.read_home_before_arming()
+    await until_heartbeat_counted(params.applied)  # link_watch.py: no arming in a stale GCS failsafe
+    await _arm_and_start(vehicle, rec, first_seq)
+    sup.t0 = time.monotonic()
+    reason = await sup.run()
+    await _handle_ending(vehicle, sup, rec, params, reason, stop_wait_s)
+    await sup.hand_home_back()
+    return reason, time.monotonic() - sup.t0
+
+
 async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                       telemetry_log: Path | str | None = None, autopilot: str = "auto",
                       connect_timeout_s: float = FLIGHT_DEFAULTS.connect_timeout_s,
@@ -673,15 +705,15 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
     starting, including a start the vehicle refuses.
     """
     _check_flight_options(end_action, link_loss_s, link_dead_s, stop_wait_s)
-    standoff = standoff if standoff is not None else StandoffOptions()
-    if hasattr(plan, "frame"):
-        settings_for(plan, standoff)  # refuse an impossible tolerance or floor before anything connects
+    standoff = _standoff_options(plan, standoff)
     vehicle = await connect(connect_url, timeout_s=connect_timeout_s, autopilot=autopilot)
     loop = asyncio.get_running_loop()
     installed: list[int] = []
     sup: _Supervisor | None = None
     try:
         journal = await restore_before_flight(vehicle, state_dir)  # before anything else (restore.py)
+        if hasattr(plan, "for_autopilot"):  # PX4 flies the part near the ground after its home correction window
+            plan = plan.for_autopilot(vehicle.autopilot)
         items = mission_items_for(plan, vehicle.autopilot)
         await request_rates(vehicle, telemetry_rate_hz)
         wanted, warnings, first_seq = await _prepare_vehicle(
@@ -697,18 +729,8 @@ async def fly_mission(plan, connect_url: str = FLIGHT_DEFAULTS.connect_url, *,
                               stop_wait_s=stop_wait_s, first_seq=first_seq, telemetry_rate_hz=telemetry_rate_hz,
                               home_watch=home_watch_for(plan, items, vehicle.autopilot, restore_home), standoff=loop_)
             if handle_signals:
-                for sig in (signal.SIGINT, signal.SIGTERM):
-                    with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-                        loop.add_signal_handler(sig, sup.on_signal, sig)
-                        installed.append(sig)
-            await sup.read_home_before_arming()
-            await until_heartbeat_counted(params.applied)  # link_watch.py: no arming in a stale GCS failsafe
-            await _arm_and_start(vehicle, rec, first_seq)
-            sup.t0 = time.monotonic()
-            reason = await sup.run()
-            await _handle_ending(vehicle, sup, rec, params, reason, stop_wait_s)
-            await sup.hand_home_back()
-            duration_s = time.monotonic() - sup.t0
+                _install_stop_handlers(loop, sup, installed)
+            reason, duration_s = await _fly_supervised(vehicle, sup, rec, params, first_seq, stop_wait_s)
         return _flight_result(vehicle, sup, rec, params, items, reason, duration_s, telemetry_log, warnings)
     finally:
         for sig in installed:

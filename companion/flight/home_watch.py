@@ -13,10 +13,12 @@ lowest waypoint still ahead closer than ``MIN_GROUND_CLEARANCE_M`` to that groun
 autopilot's correction window are expected (PX4 SIH makes 30+ of them while the plan holds), so each is said at DEBUG
 (``-v``) and the window's net move once, as a warning, when it closes; a move outside the window is always a warning.
 
-Waiting for home to settle: the PX4 plan holds above the wall until its correction window is over
-(``planner.home_settle_hold_s``). While the autopilot may still move home and the vehicle has not left that hold
-(``settling``), a move is said but ends nothing: the vehicle is high above the ground and home's last position
-is the one the strips will be flown from. Once the window is over:
+Flying while home may still move: the PX4 plan flies only waypoints at least home's largest move + 1 m above home in
+the correction window (``planner.window_floor_m``: the strips' upper parts) and the part below after it, holding at
+the last waypoint above when that part would come sooner (``planner.plan_scan``). While the autopilot may still move
+home and the vehicle has not gone past that waypoint (``settling``), a move ends the scan only when it brings one of
+the waypoints still ahead up to it under the minimum clearance (``check``); the part below is judged with home's
+last position, the one it will be flown from. Once the window is over:
 
 * when asked (``restore``: a SITL profile's ``restore_home``, ``sitl_profile.py``, e.g. PX4's SIH simulator) home
   is put back where it was at arming (``restore_step``): SIH's GPS altitude is the truth plus 0.5 m of white noise
@@ -37,15 +39,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from companion.mission import items as mi
+from companion.mission.planner import MIN_GROUND_CLEARANCE_M
 
 log = logging.getLogger(__name__)
 
 # A move smaller than this is within what the autopilot's own altitude estimate wanders; larger ones are said.
 HOME_MOVE_REPORT_M = 0.3
-# The lowest a waypoint still ahead may come to the take-off ground after home moved. The demo's strip bottoms are
-# planned 1.55 m above home; PX4 SIH's home ended up to 1.51 m low (ground contact at 0.04 m). 1 m keeps the rotor
-# wash, the altitude estimate's wander (PX4 SIH: 0.5 m white GPS altitude noise) and a landing-gear height clear.
-MIN_GROUND_CLEARANCE_M = 1.0
+# The lowest a waypoint still ahead may come to the take-off ground after home moved (``MIN_GROUND_CLEARANCE_M``,
+# 1 m, shared with the planner). The demo's strip bottoms are planned 1.55 m above home; PX4 SIH's home ended up to
+# 1.51 m low (ground contact at 0.04 m).
+__all__ = ["MIN_GROUND_CLEARANCE_M", "HomeTooLow", "HomeWatch", "settle_item_seq"]
 # PX4 stamps its take-off when its land detector sees it (about as mavsdk's in-air flag does); a home update
 # streams at 0.5 Hz: the window counts as over this long after it should be.
 SETTLE_SLACK_S = 3.0
@@ -232,12 +235,21 @@ class HomeWatch:
         self._restore_sent_wall = self._wall_clock()
         return target
 
-    def too_low(self, current_seq: int) -> HomeTooLow | None:
-        """The lowest waypoint from ``current_seq`` on, when home's move puts it under the minimum clearance."""
+    def check(self, current_seq: int, since_takeoff_s: float | None) -> HomeTooLow | None:
+        """What ends the scan now, if anything: while ``settling``, a waypoint up to the settle item (those flown
+        while home may still move) under the minimum clearance; after it, any waypoint still ahead."""
+        if self.settling(current_seq, since_takeoff_s):
+            return self.too_low(current_seq, until_seq=self.settle_seq)
+        return self.too_low(current_seq)
+
+    def too_low(self, current_seq: int, until_seq: int | None = None) -> HomeTooLow | None:
+        """The lowest waypoint from ``current_seq`` on (up to ``until_seq``), when home's move puts it under the
+        minimum clearance."""
         offset = self.offset_m
         if offset is None or not self.airborne:
             return None
-        ahead = [it for it in self.items[max(0, current_seq):]
+        last = len(self.items) if until_seq is None else until_seq + 1
+        ahead = [it for it in self.items[max(0, current_seq):last]
                  if it.command in _FLOWN_TO and it.frame in _RELATIVE_FRAMES]
         if not ahead:
             return None

@@ -211,6 +211,11 @@ class KeyframeGate:
     def candidate_index(self) -> int | None:
         return None if self._cand is None else self._cand.index
 
+    def held_indices(self) -> list[int]:
+        """Frames the gate holds that may still become a keyframe: its candidate (the keyframe is decided). The
+        same question the chain asks its other holds (``companion.onboard.pending.Hold``)."""
+        return [] if self._cand is None else [self._cand.index]
+
     def measure(self, masked: MaskedFrame) -> OverlapEstimate | None:
         """R(current keyframe, this frame) without deciding anything (None before the first keyframe or when the
         ROI has too few features). A scheduler uses it to find the last frame still >= Rth among frames it held

@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=MIN_AREA_M2,
         metavar="M2",
         help=f"with --refly: leave out uncovered areas smaller than this (default {MIN_AREA_M2} m2: a patch not "
-        "worth strips and PX4's home-settle hold)",
+        "worth strips)",
     )
     p.set_defaults(func=run_plan)
 
@@ -64,12 +64,34 @@ def format_estimates(plan: ScanPlan) -> str:
         elif params:
             listed = ", ".join(f"{k}={v:g}" for k, v in params.items())
             lines.append(f"  {autopilot} flight parameters: {listed} (see docs/FLIGHT.md)")
-    if e.px4_home_settle_hold_s > 0:
-        lines.append(f"  px4: holds {e.px4_home_settle_hold_s:.0f} s above the wall before the scan, which starts "
-                     f"{plan.mission.margins.home_settle_s:g} s after take-off or later: PX4 moves home's altitude, "
-                     f"and every strip with it, for 120 s after take-off (margins.home_settle_s; docs/FLIGHT.md)")
+    lines += _home_window_lines(plan)
     lines += [f"  warning: {w}" for w in plan.warnings]
     return "\n".join(lines)
+
+
+def _home_window_lines(plan: ScanPlan) -> list[str]:
+    """What the PX4 plan does about PX4 moving home's altitude (and every waypoint with it) for 120 s after take-off,
+    and what ArduPilot, which keeps home where it armed, flies instead."""
+    e, steady = plan.estimates, plan.steady_home
+    if not plan.moving_home or steady is None:
+        return []
+    settle = plan.mission.margins.home_settle_s
+    floor = f"{e.px4_window_floor_m:g} m above home"
+    if e.px4_low_after_s <= 0:
+        lines = [f"  px4: the whole flight stays {floor} or higher, clear of the ground whatever PX4 does with home's "
+                 f"altitude in the {settle:g} s after take-off"]
+    else:
+        what = (f"then the strips' bottoms as {e.px4_bottom_band_rows} pass{'es' if e.px4_bottom_band_rows > 1 else ''}"
+                f" along the wall" if e.px4_bottom_band_rows else "then the part below")
+        wait = (f", after holding {e.px4_home_settle_hold_s:.0f} s at the last waypoint above"
+                if e.px4_home_settle_hold_s > 0 else "")
+        lines = [f"  px4: flies the scan down to {floor} first, {what}, from {e.px4_low_after_s:.0f} s after take-off"
+                 f"{wait}: PX4 moves home's altitude, and every waypoint with it, for {settle:g} s after take-off "
+                 f"(margins.home_settle_s; docs/FLIGHT.md)"]
+    s = steady.estimates
+    lines.append(f"  ardupilot (keeps home where it armed): the strips in plain order, path {s.path_length_m:.0f} m, "
+                 f"flight time ~{s.flight_time_s / 60:.1f} min, ~{s.expected_keyframes} keyframes")
+    return lines
 
 
 def plan_to_dir(mission_path: Path, out: Path) -> tuple[ScanPlan, list[Path]]:

@@ -309,7 +309,7 @@ def flight_parameters_by_autopilot(plan: ScanPlan) -> dict[str, dict]:
     out: dict[str, dict] = {}
     for autopilot in Flavour:
         try:
-            out[str(autopilot)] = autopilot_for(autopilot).flight_parameters(plan)
+            out[str(autopilot)] = autopilot_for(autopilot).flight_parameters(plan.for_autopilot(autopilot))
         except CompanionError as exc:
             out[str(autopilot)] = {"error": exc.problem, "fix": exc.fix}
     return out

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pymap3d
@@ -13,7 +13,7 @@ from companion.errors import CompanionError
 from companion.geo import FacadeFrame, GeoPoint
 from companion.mission import items as mi
 from companion.mission.autopilot import DEFAULT_FLAVOUR, Autopilot, autopilot_for
-from companion.mission.autopilot.px4 import PX4_MAX_CLIMB_M_S
+from companion.mission.autopilot.px4 import PX4_HOME_MOVE_MAX_M, PX4_MAX_CLIMB_M_S
 from companion.mission.geometry import footprint_enu, polyline_clearance, wall_frame
 from companion.mission.keyframe_count import PathPoint, ScanView, expected_keyframes
 from companion.mission.spec import Mission
@@ -26,6 +26,14 @@ SCAN_ACCEPTANCE_M = 0.3
 TRANSIT_ACCEPTANCE_M = 1.0
 SCAN_START_HOLD_S = 0.5  # let the vehicle settle at the standoff before each strip
 STANDOFF_TOLERANCE_M = 0.05
+# The lowest a waypoint may come to the take-off ground after the autopilot moved home: 1 m keeps the rotor wash, the
+# altitude estimate's wander (PX4 SIH: 0.5 m white GPS altitude noise) and a landing-gear height clear. The PX4 plan
+# keeps it in PX4's home correction window whatever home does (``PX4_HOME_MOVE_MAX_M`` more), the flight's home watch
+# after it (``companion.flight.home_watch``).
+MIN_GROUND_CLEARANCE_M = 1.0
+# The bottom band flown after PX4's window overlaps the lowest frames of the strips flown in it by at least this
+# share of a frame's height (more rows when one is not enough).
+BAND_MIN_OVERLAP = 1.0 / 3.0
 
 
 @dataclass(frozen=True)
@@ -87,9 +95,14 @@ class PlanEstimates:
     strip_spacing_m: float
     side_overlap_achieved: float
     uncovered_bottom_m: float
-    # PX4 only: how long the vehicle holds above the wall before the scan, so that the scan starts no earlier than
-    # ``margins.home_settle_s`` after take-off (PX4 moves home's altitude for 120 s after take-off)
+    # PX4 only (PX4 moves home's altitude, and every waypoint with it, for 120 s after take-off): what the plan flies
+    # in that window is at least ``px4_window_floor_m`` above home (home's largest move + 1 m); the part below it
+    # starts no earlier than ``px4_low_after_s`` after take-off (the fastest PX4 can get there, holding
+    # ``px4_home_settle_hold_s`` before it when the part above is flown sooner than ``margins.home_settle_s`` + slack)
     px4_home_settle_hold_s: float = 0.0
+    px4_window_floor_m: float = 0.0
+    px4_low_after_s: float = 0.0
+    px4_bottom_band_rows: int = 0  # horizontal passes flown after the window for the strips' bottoms
 
     def as_dict(self) -> dict:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
@@ -105,6 +118,11 @@ class ScanPlan:
     footprint: Footprint
     estimates: PlanEstimates
     warnings: list[str] = field(default_factory=list)
+    # planned for an autopilot that moves home in flight (PX4): the part below ``estimates.px4_window_floor_m`` is
+    # flown after its correction window; ``steady_home`` is the plan for one that keeps home where it armed
+    # (ArduPilot), None when the two are the same plan (``margins.home_settle_s`` 0)
+    moving_home: bool = False
+    steady_home: ScanPlan | None = None
 
     @property
     def wall_length_m(self) -> float:
@@ -113,9 +131,24 @@ class ScanPlan:
     def mavlink_items(self, flavour: str | Autopilot = DEFAULT_FLAVOUR) -> list[mi.MissionItem]:
         return build_mission_items(self, flavour)
 
+    def for_autopilot(self, flavour: str | Autopilot) -> ScanPlan:
+        """The plan to fly on ``flavour``: PX4 (which moves home for 120 s after take-off) flies the part near the
+        ground after that window; ArduPilot keeps home where it armed and flies the strips in their plain order."""
+        ap = autopilot_for(flavour)
+        if ap.home_correction_window_s <= 0:
+            return self.steady_home if self.steady_home is not None else self
+        if self.moving_home or self.mission.margins.home_settle_s <= 0:
+            return self
+        raise CompanionError(f"this plan is for an autopilot that keeps home where it armed, not for {ap.label}, "
+                             f"which moves home in flight", "fly the plan plan_scan() returned on it")
+
     @property
     def settle_waypoint_index(self) -> int:
-        """The waypoint a PX4 flight holds at until its home has settled (``home_settle_hold_s``)."""
+        """The last waypoint a PX4 flight flies while its home may still move: the last one before the first
+        below ``estimates.px4_window_floor_m`` (it holds there when the part above ends before the window); -1 when
+        the whole flight stays above it."""
+        if self.moving_home:
+            return settle_waypoint_index(self.waypoints, self.estimates.px4_window_floor_m)
         return settle_waypoint_index(self.waypoints)
 
 
@@ -369,61 +402,165 @@ def plan_scan(mission: Mission, regions: Sequence[WallRegion] | None = None) -> 
 
     v_scan, limited_by = _scan_speed(m, fp, kf_spacing)
     altitudes = _entrance_exit_altitudes(m, takeoff.up_to_rel_m)
-    wps, scan_legs = _waypoints(m, frame, takeoff, strips, altitudes, _PathSpeeds(v_scan, m.max_speed_m_s))
+    speeds = _PathSpeeds(v_scan, m.max_speed_m_s)
 
-    _check_clearance(m, frame, takeoff.home, wps, m.standoff_m)
-    _check_geofence(m, takeoff.home, wps)
+    def assemble(strips_flown: list, moving_home: bool) -> ScanPlan:
+        wps, scan_legs = _waypoints(m, frame, takeoff, strips_flown, altitudes, speeds)
+        window = _HomeWindow()
+        if moving_home:
+            wps, window = _wait_for_home_below_floor(m, wps)
+        _check_clearance(m, frame, takeoff.home, wps, m.standoff_m)
+        _check_geofence(m, takeoff.home, wps)
+        path_len, flight_time = _path_estimates(wps)
+        est = PlanEstimates(
+            path_length_m=path_len,
+            flight_time_s=flight_time,
+            scan_speed_m_s=v_scan,
+            speed_limited_by=limited_by,
+            keyframe_spacing_m=kf_spacing,
+            expected_keyframes=_expected_keyframes(m, wps, fp, extent),
+            frames_per_keyframe=effective_fps(m) * kf_spacing / v_scan,
+            motion_blur_px=v_scan * m.camera.exposure_s / (fp.gsd_mm_per_px / 1000.0),
+            gsd_mm_per_px=fp.gsd_mm_per_px,
+            footprint_width_m=fp.width_m,
+            footprint_height_m=fp.height_m,
+            strips=len(strips),
+            strip_spacing_m=float(abs(strip_step)),
+            side_overlap_achieved=float(side_achieved),
+            uncovered_bottom_m=max(0.0, extent.up_min_m),
+            px4_home_settle_hold_s=window.hold_s,
+            px4_window_floor_m=window.floor_m,
+            px4_low_after_s=window.low_after_s,
+            px4_bottom_band_rows=window_rows if moving_home else 0,
+        )
+        return ScanPlan(m, frame, takeoff.home, wps, scan_legs, fp, est, warnings, moving_home=moving_home)
 
-    path_len, flight_time = _path_estimates(wps)
-    est = PlanEstimates(
-        path_length_m=path_len,
-        flight_time_s=flight_time,
-        scan_speed_m_s=v_scan,
-        speed_limited_by=limited_by,
-        keyframe_spacing_m=kf_spacing,
-        expected_keyframes=_expected_keyframes(m, wps, fp, extent),
-        frames_per_keyframe=effective_fps(m) * kf_spacing / v_scan,
-        motion_blur_px=v_scan * m.camera.exposure_s / (fp.gsd_mm_per_px / 1000.0),
-        gsd_mm_per_px=fp.gsd_mm_per_px,
-        footprint_width_m=fp.width_m,
-        footprint_height_m=fp.height_m,
-        strips=len(strips),
-        strip_spacing_m=float(abs(strip_step)),
-        side_overlap_achieved=float(side_achieved),
-        uncovered_bottom_m=max(0.0, extent.up_min_m),
-        px4_home_settle_hold_s=home_settle_hold_s(m, wps),
-    )
-    return ScanPlan(m, frame, takeoff.home, wps, scan_legs, fp, est, warnings)
+    steady = assemble(strips, moving_home=False)
+    if m.margins.home_settle_s <= 0:
+        return steady
+    floor_up = window_floor_m() - takeoff.up_to_rel_m
+    window_strips, window_rows = _window_first(m, fp, strips, floor_up)
+    plan = assemble(window_strips, moving_home=True)
+    return replace(plan, steady_home=steady)
 
 
 HOME_SETTLE_SLACK_S = 5.0  # PX4 detects take-off about 1 s after lift-off; HOME_POSITION streams at 0.5 Hz
+# A SITL profile's put-back of home after the window is confirmed or given up within 3 tries 5 s apart
+# (``home_watch.RESTORE_TRIES`` x ``RESTORE_WAIT_S``): the part below the floor waits for that too.
+HOME_PUT_BACK_S = 15.0
 
 
-def settle_waypoint_index(wps: Sequence[Waypoint]) -> int:
-    """The waypoint the vehicle holds at while PX4's home settles: the last one before the first scan waypoint
-    (the transit above the first strip, above the roof line), or the take-off when the scan follows it."""
-    first_scan = next(k for k, w in enumerate(wps) if w.kind == "scan")
-    return max(0, first_scan - 1)
+def window_floor_m() -> float:
+    """The lowest a waypoint flown in PX4's home correction window may be above home: home's largest move down
+    (``PX4_HOME_MOVE_MAX_M``) plus the minimum ground clearance."""
+    return PX4_HOME_MOVE_MAX_M + MIN_GROUND_CLEARANCE_M
 
 
-def home_settle_hold_s(m: Mission, wps: Sequence[Waypoint]) -> float:
-    """How long to hold above the wall so the scan starts no earlier than ``margins.home_settle_s`` after take-off.
+def _window_first(m: Mission, fp: Footprint, strips: list, floor_up: float) -> tuple[list, int]:
+    """The strips reordered for an autopilot that moves home for a while after take-off: first every frame
+    centre at or above ``floor_up`` (facade height), then what lies below it; and how many bottom band rows that
+    takes (0 when no strip crosses the floor).
 
-    Why: PX4 moves home's altitude for 120 s after take-off (``autopilot.px4.PX4_HOME_CORRECTION_WINDOW_S``) and
-    every mission altitude moves with it; on PX4 SIH home ended up to 1.51 m low, and strip bottoms planned 1.55 m above
-    home flew into the ground. Raising the strip bottoms by that much would leave the wall's bottom 1.5 m unseen
-    (the demo's frames are 3.1 m high and the bottom strip's frame already reaches the ground), so the scan waits
-    instead, high above the ground, until home has stopped moving; the flight's home watch then sees the final home
-    before any low waypoint. The hold is the settle time less the fastest the vehicle can reach the hold point
-    (climbing at PX4's MPC_Z_VEL_MAX_UP, each transit leg at its speed without acceleration), plus a few seconds.
-    """
-    if m.margins.home_settle_s <= 0:
-        return 0.0
-    k = settle_waypoint_index(wps)
+    A vertical strip that crosses the floor is flown down to it only, in its place; the strips' bottoms below it
+    are flown afterwards as a band of horizontal passes (one for the demo) along the clipped strips, its top row
+    overlapping their lowest frames by ``BAND_MIN_OVERLAP`` at least: a pass along the wall costs about what the
+    strips' bottoms did, where flying each bottom on its own would add a sideways hop per strip. Strips wholly
+    below the floor (a horizontal pattern's low rows, a low re-fly region) keep their order after the rest."""
+    eps = 1e-6
+    high: list = []
+    clipped: list[tuple[float, float]] = []  # (along, bottom frame centre) of each vertical strip crossing the floor
+    low: list = []
+    for s, e in strips:
+        lo, hi = min(s[1], e[1]), max(s[1], e[1])
+        if lo >= floor_up - eps:
+            high.append((s, e))
+        elif hi <= floor_up + eps or abs(s[0] - e[0]) > eps:
+            low.append((s, e))
+        else:
+            high.append(((s[0], max(s[1], floor_up)), (e[0], max(e[1], floor_up))))
+            clipped.append((s[0], lo))
+    bands: list[list[float]] = []  # [along from, along to, bottom] of neighbouring clipped strips
+    for a, z in sorted(clipped):
+        if bands and abs(bands[-1][2] - z) < eps and a - bands[-1][1] <= fp.width_m + eps:
+            bands[-1][1] = a
+        else:
+            bands.append([a, a, z])
+    ordered = list(high)
+    rows_flown = 0
+    top_needed = floor_up - (1.0 - BAND_MIN_OVERLAP) * fp.height_m  # the top row's centre reaches this
+    step = fp.height_m * (1.0 - m.side_overlap)
+    for a0, a1, z in bands:
+        n = 1 if top_needed <= z + eps else math.ceil((top_needed - z) / step - 1e-9) + 1
+        rows = [float(v) for v in np.linspace(z, max(z, top_needed), n)]
+        if a1 - a0 < eps:  # one strip: its bottom part as a strip of its own
+            ordered.append(_nearest_first(ordered, (a0, floor_up), (a0, z)))
+            continue
+        rows_flown += len(rows)
+        for r in reversed(rows):  # from the top: the vehicle comes from above
+            ordered.append(_nearest_first(ordered, (a0, r), (a1, r)))
+    for s, e in low:
+        ordered.append(_nearest_first(ordered, s, e))
+    return ordered, rows_flown
+
+
+@dataclass(frozen=True)
+class _HomeWindow:
+    """What the plan does about an autopilot moving home after take-off (none: all zero)."""
+
+    floor_m: float = 0.0
+    hold_s: float = 0.0
+    low_after_s: float = 0.0
+
+
+def settle_waypoint_index(wps: Sequence[Waypoint], floor_m: float | None = None) -> int:
+    """The last waypoint flown while PX4's home may still move: the one before the first waypoint below
+    ``floor_m`` above home after the take-off (-1 when none is: the landing aside); without a floor, the one before
+    the first scan waypoint."""
+    if floor_m is None:
+        first_scan = next(k for k, w in enumerate(wps) if w.kind == "scan")
+        return max(0, first_scan - 1)
+    low = [k for k, w in enumerate(wps) if k > 0 and w.kind in ("scan", "transit") and w.rel_alt_m < floor_m - 1e-6]
+    return low[0] - 1 if low else -1
+
+
+def _fastest_arrival_s(wps: Sequence[Waypoint], k: int) -> float:
+    """The soonest after take-off the vehicle can reach waypoint ``k``: climbing at PX4's MPC_Z_VEL_MAX_UP, each
+    leg at its speed without acceleration, each hold before ``k`` held."""
     fastest = wps[0].rel_alt_m / PX4_MAX_CLIMB_M_S
     for prev, wp in zip(wps[: k], wps[1: k + 1], strict=True):
         fastest += math.dist((prev.along_m, prev.out_m, prev.up_m), (wp.along_m, wp.out_m, wp.up_m)) / wp.speed_m_s
-    return max(0.0, round(m.margins.home_settle_s + HOME_SETTLE_SLACK_S - fastest, 1))
+        fastest += prev.hold_s
+    return fastest
+
+
+def _wait_for_home_below_floor(m: Mission, wps: list[Waypoint]) -> tuple[list[Waypoint], _HomeWindow]:
+    """PX4: nothing below the window floor before ``margins.home_settle_s`` (+ slack) after take-off.
+
+    Why: PX4 moves home's altitude for 120 s after take-off (``autopilot.px4.PX4_HOME_CORRECTION_WINDOW_S``) and
+    every waypoint activated later moves with it; on PX4 SIH home ended up to 1.51 m low, and strip bottoms planned
+    1.55 m above home flew into the ground. The waypoints flown in the window are at least ``window_floor_m()`` above
+    home, so home's largest move still leaves 1 m; the part below (``_window_first`` puts it last) starts no earlier
+    than the window + ``HOME_SETTLE_SLACK_S`` + ``HOME_PUT_BACK_S``, counting the fastest PX4 can get there, and
+    the last waypoint above the floor holds for what is missing (nothing when the part above takes longer, as the
+    demo's does); the flight's home watch sees the final home before any waypoint below the floor."""
+    floor = window_floor_m()
+    k = settle_waypoint_index(wps, floor)
+    if k < 0:  # the whole flight stays above the floor
+        return wps, _HomeWindow(floor_m=floor)
+    if k == 0:  # only a waypoint can hold: the take-off item cannot
+        raise CompanionError(
+            f"the vehicle enters the scan {wps[1].rel_alt_m:g} m above home, under the {floor:g} m PX4 needs for what "
+            f"it flies in the {m.margins.home_settle_s:g} s after take-off (PX4 moves home's altitude then)",
+            f"raise entrance_alt_m / transit_alt_m to {floor:g} m or more, or set margins.home_settle_s: 0 for an "
+            f"autopilot that keeps home where it armed")
+    due = m.margins.home_settle_s + HOME_SETTLE_SLACK_S + HOME_PUT_BACK_S
+    fastest = _fastest_arrival_s(wps, k)
+    planned = wps[k].hold_s
+    hold = max(planned, round(due - fastest, 1))
+    if hold > planned:
+        wps = [*wps[:k], replace(wps[k], hold_s=hold), *wps[k + 1:]]
+    return wps, _HomeWindow(floor_m=floor, hold_s=hold if hold > planned else 0.0,
+                            low_after_s=round(fastest + hold, 1))
 
 
 def _path_estimates(wps: list[Waypoint]) -> tuple[float, float]:
@@ -482,13 +619,13 @@ def _check_geofence(m: Mission, home: GeoPoint, wps: list[Waypoint]) -> None:
 def build_mission_items(plan: ScanPlan, flavour: str | Autopilot = DEFAULT_FLAVOUR) -> list[mi.MissionItem]:
     """Raw MAVLink mission, in the form the firmware accepts and honours: its home (``companion.mission.autopilot``)
     gives what differs (a home placeholder, what an unused param holds, the speed items, each waypoint's items
-    and how it faces the wall). Where the firmware moves home in flight (PX4), the waypoint before the scan holds
-    until home has settled (``home_settle_hold_s``)."""
+    and how it faces the wall), from the plan for that firmware (``ScanPlan.for_autopilot``: PX4 flies the part near
+    the ground after its home correction window)."""
     ap = autopilot_for(flavour)
+    plan = plan.for_autopilot(ap)
     rows: list[tuple] = list(ap.home_rows(plan.home))  # (frame, command, p1, p2, p3, p4, lat, lon, z)
     pitch = plan.mission.gimbal_pitch_deg
     unused = ap.no_value
-    settle_k = settle_waypoint_index(plan.waypoints) if ap.home_correction_window_s > 0 else -1
     wps = plan.waypoints
     speed = None
     for k, wp in enumerate(wps):
@@ -511,8 +648,7 @@ def build_mission_items(plan: ScanPlan, flavour: str | Autopilot = DEFAULT_FLAVO
         if is_last_before_land and plan.mission.end_action == "rtl":
             rows.append((mi.MAV_FRAME_MISSION, mi.MAV_CMD_NAV_RETURN_TO_LAUNCH, 0, 0, 0, 0, 0, 0, 0))
             break
-        hold = max(wp.hold_s, plan.estimates.px4_home_settle_hold_s) if k == settle_k else wp.hold_s
-        rows += ap.waypoint_rows(wp, hold)
+        rows += ap.waypoint_rows(wp, wp.hold_s)
     items = []
     for seq, (frm, cmd, p1, p2, p3, p4, lat, lon, z) in enumerate(rows):
         items.append(

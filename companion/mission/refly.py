@@ -36,8 +36,8 @@ WALL_MATCH_TOLERANCE_M = 1.0
 # and its area at least MIN_AREA_M2; anything smaller is listed as left out, not flown. Why: thinner areas are
 # slivers (the map's edge missing the wall's by rounding, a seam between strips a few cells wide; the stitcher's
 # cells are 10 cm, so 20 cm is two cells) and a re-fly for one costs whole strips (a 0.1 m x 7.5 m seam gave two
-# full-height strips 0.13 m apart) plus PX4's home-settle hold (116 s); a smaller patch than 0.5 m x 0.5 m is
-# better looked at in the keyframes around it.
+# full-height strips 0.13 m apart), and on PX4 a low patch waits for its 120 s home window; a smaller patch than
+# 0.5 m x 0.5 m is better looked at in the keyframes around it.
 MIN_AREA_SIZE_M = 0.2
 MIN_AREA_M2 = 0.25
 # A clip to the scan extent by less than this (below the stitcher's 10 cm cells) is rounding, not worth a note.

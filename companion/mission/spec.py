@@ -95,9 +95,11 @@ class Margins(_Strict):
     ends_m: float = Field(default=2.0, ge=0.0, le=50.0)  # past each wall end
     roof_m: float = Field(default=2.0, ge=0.0, le=50.0)  # above the roof line
     bottom_clearance_m: float = Field(default=2.0, ge=0.5, le=50.0)  # lowest flight height above ground
-    # PX4 only: the scan starts no earlier than this long after take-off (the vehicle holds above the wall first),
+    # PX4 only: nothing less than home's largest move + 1 m above home (3.5 m) is flown until this long after
+    # take-off (the strips' upper parts first, their bottoms after; a hold above only when that part is shorter),
     # because PX4 moves home's altitude, and every mission altitude with it, for 120 s after take-off
-    # (docs/FLIGHT.md); 0 starts at once (the flight's home watch still stops a scan that home moved too low)
+    # (docs/FLIGHT.md); 0 flies the plain plan at once (the flight's home watch still stops a scan that home moved
+    # too low)
     home_settle_s: float = Field(default=120.0, ge=0.0, le=600.0)
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from companion.capture.tagging import FrameTagger
-from companion.onboard.chain import ChainStats
+from companion.onboard.chain_stats import ChainStats
 
 
 class EmptyCause(Enum):

@@ -21,7 +21,7 @@ from companion.capture.tagging import FrameTagger
 from companion.capture.telemetry import ClockMap, TelemetryBuffer, pose_from_log_row
 from companion.errors import CompanionError
 from companion.files import write_atomic
-from companion.onboard.chain import ChainStats
+from companion.onboard.chain_stats import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.runner import TRACKED_BACKLOG, Backlog, LiveRunner
 from companion.onboard.setup import build_chain

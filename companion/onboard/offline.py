@@ -14,7 +14,7 @@ from companion.capture.telemetry import ClockMap, buffer_from_log
 from companion.capture.telemetry_file import load_telemetry_file
 from companion.errors import CompanionError
 from companion.files import NewOutput, write_atomic
-from companion.onboard.chain import ChainStats
+from companion.onboard.chain_stats import ChainStats
 from companion.onboard.diagnose import EmptyCause, EmptyCull, explain_empty_cull
 from companion.onboard.setup import build_chain
 from companion.progress import progress_bar

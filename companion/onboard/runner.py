@@ -26,7 +26,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from companion.capture.sources import FrameSource
-from companion.onboard.chain import CullChain, one_line
+from companion.onboard.chain import CullChain
+from companion.onboard.chain_stats import one_line
 from companion.records import EncodedFrame, Frame
 
 log = logging.getLogger(__name__)

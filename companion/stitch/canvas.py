@@ -8,7 +8,7 @@ A map kept as tiles can also be drawn by a :class:`TileRunner` (the site's Dask 
 cut into runs of tiles (:class:`TileBatch`: paths, meshes and gains, no pixels), each drawn by
 :func:`render_batch` wherever the runner sends it, which writes its tiles' files itself (atomically, on the
 shared output path) and returns only their preview pieces and coverage counts. The tiles are the same pixels as
-drawn here: the same keyframes, gains and renderer per tile.
+drawn here: the same keyframes and gains per tile.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from companion.files import write_atomic
 from companion.progress import progress_bar
 from companion.stitch.align import AlignedKeyframes
 from companion.stitch.config import StitchConfig, worker_count
-from companion.stitch.exposure import apply_gain, apply_gain_numpy, solve_gains
+from companion.stitch.exposure import apply_gain, solve_gains
 from companion.stitch.features import load_image_and_mask, load_mask
 from companion.stitch.inputs import KeyframeInput, StitchInput
 from companion.stitch.layout import MapLayout
@@ -51,14 +51,14 @@ class RenderedMap:
     covered_px: int  # map pixels drawn
     tiles_dir: Path | None
     gains: np.ndarray  # per keyframe position: exposure gain applied
-    info: dict  # renderer, tiles, keyframe decodes (and the plan's figures)
+    info: dict  # tiles, keyframe decodes (and the plan's figures)
 
 
 @dataclass(frozen=True)
 class _TileSchedule:
     tiles: list[Tile]  # in drawing order
     drawn: dict[Tile, list[PlacedKeyframe]]  # the keyframes each tile draws
-    cache_schedule: list[int] | None  # every keyframe request in order (the cache evicts by next use)
+    cache_schedule: list[int]  # every keyframe request in order (the cache evicts by next use)
     planned: dict
 
 
@@ -78,33 +78,31 @@ def render_map(
     inp: StitchInput, aligned: AlignedKeyframes, layout: MapLayout, cfg: StitchConfig, out: Path, *, progress: bool,
     tiles: TileRunner | None = None,
 ) -> RenderedMap:
-    """The map drawn tile by tile; with ``tiles`` (and a map kept as tiles, drawn by the OpenCV renderer), the
-    tiles are drawn as tasks of the runner instead of on this process's threads."""
+    """The map drawn tile by tile; with ``tiles`` (and a map kept as tiles), the tiles are drawn as tasks of the
+    runner instead of on this process's threads."""
     kfs = inp.keyframes
     W, H = inp.camera.width, inp.camera.height
     gains = solve_gains(len(kfs), aligned.accepted) if cfg.gain_compensation else np.ones(len(kfs))
-    legacy = cfg.renderer == "pullback"  # the render stage as it was before the OpenCV renderer (reference)
 
     def load(k):
         img, mask = load_image_and_mask(kfs[k])
-        return (apply_gain_numpy if legacy else apply_gain)(img, float(gains[k])), mask
+        return apply_gain(img, float(gains[k])), mask
 
     def weight_of(k):
         return drawable(load_mask(kfs[k], (W, H)))[1]
 
     # decoded keyframes kept for neighbouring tiles: image + float32 seam weight (7 bytes a pixel), within
-    # ~600 MB (and, with the OpenCV renderer, the next one decoded ahead on a second thread while tiles are drawn)
+    # ~600 MB (and the next one decoded ahead on a second thread while tiles are drawn)
     cache_size = int(np.clip(6e8 / (W * H * 7), 3, 16))
     workers = worker_count(cfg)
     sink = _MapSink(layout, cfg, out / "tiles")
-    if tiles is not None and not legacy and not sink.in_memory:
+    if tiles is not None and not sink.in_memory:
         with ThreadPoolExecutor(workers) as pool:
-            schedule = _schedule(layout, cfg, weight_of, cache_size, legacy, pool)
+            schedule = _schedule(layout, cfg, weight_of, cache_size, pool)
         return _render_as_tasks(schedule, kfs, gains, layout, cfg, sink, cache_size, tiles)
     with ThreadPoolExecutor(workers) as pool, ThreadPoolExecutor(workers) as draw:
-        schedule = _schedule(layout, cfg, weight_of, cache_size, legacy, pool)
-        ahead = None if legacy else pool
-        sources = SourceCache(load, size=cache_size, schedule=schedule.cache_schedule, prefetch=ahead)
+        schedule = _schedule(layout, cfg, weight_of, cache_size, pool)
+        sources = SourceCache(load, size=cache_size, schedule=schedule.cache_schedule, prefetch=pool)
         drawing: deque[tuple[Tile, Future]] = deque()
         for x0, y0 in progress_bar(schedule.tiles, desc="render", disable=not progress, leave=False, unit="it"):
             # the keyframes are taken from the cache here, in the plan's order (the cache's schedule), and the
@@ -121,7 +119,6 @@ def render_map(
             (tx, ty), done = drawing.popleft()
             sink.put(tx, ty, *done.result())
     info = {
-        "renderer": cfg.renderer,
         "tiles": len(schedule.tiles),
         "keyframe_decodes": sources.decoded,
         **schedule.planned,
@@ -174,7 +171,7 @@ def render_batch(batch: TileBatch) -> tuple[int, list[TileDone]]:
         w, h = min(batch.tile_px, batch.width - x0), min(batch.tile_px, batch.height - y0)
         near = batch.drawn[(x0, y0)]
         taken = _Taken({p.position: sources.get(p.position) for p in near})
-        img, cov = render_tile(x0, y0, w, h, near, taken, feather_px=batch.feather_px, renderer="warp")
+        img, cov = render_tile(x0, y0, w, h, near, taken, feather_px=batch.feather_px)
         _write_tile_file(batch.tiles_dir, x0, y0, img, cov, blanks)
         done.append(TileDone(x0, y0, cv2.countNonZero(cov), preview_piece(x0, y0, img, cov, *batch.preview)))
     return sources.decoded, done
@@ -203,7 +200,7 @@ def _render_as_tasks(schedule: _TileSchedule, kfs, gains: np.ndarray, layout: Ma
         decoded += decodes
         for t in done:
             sink.put_piece(t.covered, t.piece)
-    info = {"renderer": cfg.renderer, "tiles": len(order), "render_tasks": len(batches),
+    info = {"tiles": len(order), "render_tasks": len(batches),
             "keyframe_decodes": decoded, **schedule.planned}
     return sink.finish(gains, info)
 
@@ -259,39 +256,33 @@ def _done(value) -> Future:
 def _draw_tile(x0: int, y0: int, near, taken: _Taken, layout: MapLayout, cfg: StitchConfig, sink: _MapSink):
     """One tile drawn (and written, when the map is kept as tiles): what a drawing thread does."""
     w, h = min(cfg.tile_px, layout.grid.width - x0), min(cfg.tile_px, layout.grid.height - y0)
-    img, cov = render_tile(x0, y0, w, h, near, taken, feather_px=cfg.feather_px, renderer=cfg.renderer)
+    img, cov = render_tile(x0, y0, w, h, near, taken, feather_px=cfg.feather_px)
     sink.write_tile(x0, y0, img, cov)
     return img, cov
 
 
-def _schedule(
-    layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, legacy: bool, pool: Executor
-) -> _TileSchedule:
-    """Which tiles, in which order, each drawing which keyframes. The reference renderer draws row by row with
-    every keyframe whose box reaches the tile; the plan skips keyframes whose seam weight loses everywhere."""
+def _schedule(layout: MapLayout, cfg: StitchConfig, weight_of, cache_size: int, pool: Executor) -> _TileSchedule:
+    """Which tiles, in which order, each drawing which keyframes: the plan skips keyframes whose seam weight loses
+    everywhere in a tile."""
     gw, gh = layout.grid.width, layout.grid.height
     order = sorted(layout.placed.values(), key=lambda p: p.bbox[0])
-    needs, planned = None, {}
-    if legacy:
-        tiles = [(x, y) for y in range(0, gh, cfg.tile_px) for x in range(0, gw, cfg.tile_px)]
-    else:
-        # the seam weights, in the plan's order, decoded side by side on the pool's threads
-        weights = _ordered_map(pool, weight_of, [p.position for p in order], ahead=worker_count(cfg))
-        plan = plan_render(order, weights, gw, gh, cfg.tile_px, cfg.feather_px, cache_size,
-                           block_px=plan_block_px(gw, gh))
-        tiles, needs = plan.order, plan.needs
-        per_tile = [len(v) for v in needs.values() if v]
-        planned = {
-            "planned_decodes": plan.decodes,
-            "keyframes_per_tile": {"max": max(per_tile, default=0), "mean": round(float(np.mean(per_tile or [0])), 2)},
-        }
+    # the seam weights, in the plan's order, decoded side by side on the pool's threads
+    weights = _ordered_map(pool, weight_of, [p.position for p in order], ahead=worker_count(cfg))
+    plan = plan_render(order, weights, gw, gh, cfg.tile_px, cfg.feather_px, cache_size,
+                       block_px=plan_block_px(gw, gh))
+    tiles, needs = plan.order, plan.needs
+    per_tile = [len(v) for v in needs.values() if v]
+    planned = {
+        "planned_decodes": plan.decodes,
+        "keyframes_per_tile": {"max": max(per_tile, default=0), "mean": round(float(np.mean(per_tile or [0])), 2)},
+    }
     drawn: dict[Tile, list[PlacedKeyframe]] = {}
     for x0, y0 in tiles:
         w, h = min(cfg.tile_px, gw - x0), min(cfg.tile_px, gh - y0)
         near = [p for p in order if p.bbox[0] < x0 + w and p.bbox[2] > x0 and p.bbox[1] < y0 + h and p.bbox[3] > y0]
-        drawn[(x0, y0)] = near if needs is None else [p for p in near if p.position in needs[(x0, y0)]]
+        drawn[(x0, y0)] = [p for p in near if p.position in needs[(x0, y0)]]
     # with the plan, the cache knows every request ahead and keeps what is needed soonest
-    cache_schedule = None if legacy else [p.position for tile in tiles for p in drawn[tile]]
+    cache_schedule = [p.position for tile in tiles for p in drawn[tile]]
     return _TileSchedule(tiles, drawn, cache_schedule, planned)
 
 

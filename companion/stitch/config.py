@@ -9,8 +9,6 @@ from dataclasses import dataclass, replace
 from companion.keyframes.features import FeatureConfig
 from companion.matching import MatcherSettings
 
-RENDERERS = ("warp", "pullback")  # "warp": per-cell cv2.warpPerspective; "pullback": the per-pixel numpy reference
-
 # The stitcher's features: the gate's extraction (FeatureConfig's CLAHE before SIFT, contrast threshold 0.01 and ROI
 # erosion: the settings that find matchable features on plain walls, where plain SIFT left 39 of 90 pairs of a plain
 # wall unregistered, issue 15) on a larger working copy with more features, for the map's accuracy. 4K keyframes are
@@ -62,7 +60,6 @@ class StitchConfig:
     tile_px: int = 1024
     max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
     feather_px: float = 4.0
-    renderer: str = "warp"  # one of RENDERERS
     workers: int = 0  # threads for features, pair matching and keyframe decoding; 0: one per CPU core
     gain_compensation: bool = True
     preview_width: int = 3000

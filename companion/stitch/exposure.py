@@ -36,15 +36,9 @@ def solve_gains(n: int, pairs: list[PairResult], *, prior_weight: float = 0.05, 
 
 def apply_gain(image: np.ndarray, gain: float) -> np.ndarray:
     """The image times ``gain``, rounded and saturated: one 256-entry lookup table (``cv2.LUT``), the same
-    values as the float computation in :func:`apply_gain_numpy` at a fraction of its cost on 4K keyframes."""
+    values as the per-pixel float computation (the reference renderer's, evaluation/stitch/reference_render.py)
+    at a fraction of its cost on 4K keyframes."""
     if abs(gain - 1.0) < 1e-3:
         return image
     lut = np.clip(np.arange(256, dtype=np.float32) * gain + 0.5, 0, 255).astype(np.uint8)
     return cv2.LUT(image, lut)
-
-
-def apply_gain_numpy(image: np.ndarray, gain: float) -> np.ndarray:
-    """Per-pixel float version of :func:`apply_gain` (the reference renderer's)."""
-    if abs(gain - 1.0) < 1e-3:
-        return image
-    return np.clip(image.astype(np.float32) * gain + 0.5, 0, 255).astype(np.uint8)

@@ -170,10 +170,11 @@ def next_use(uses: dict[int, list[int]], k: int, now: int) -> float:
     return lst[i] if i < len(lst) else math.inf
 
 
-def _region_quads(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int):
+def region_quads(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int):
     """(cell number, quad in region pixels) of every mesh cell that reaches the region, in drawing order.
 
-    A later cell wins the pixels on an edge it shares with an earlier one (both renderers keep this order)."""
+    A later cell wins the pixels on an edge it shares with an earlier one (the reference renderer the tests hold
+    this one to, evaluation/stitch/reference_render.py, keeps the same order)."""
     cy, cx = pk.src_px.shape[0] - 1, pk.src_px.shape[1] - 1
     off = np.array([x0, y0], dtype=float)
     m = pk.mesh_px
@@ -183,26 +184,6 @@ def _region_quads(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int):
             if quad[:, 0].max() < 0 or quad[:, 1].max() < 0 or quad[:, 0].min() >= w or quad[:, 1].min() >= h:
                 continue
             yield r * cx + c, quad
-
-
-def _pullback(pk: PlacedKeyframe, x0: int, y0: int, w: int, h: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Reference renderer: per map pixel of the region, the keyframe pixel it shows (-1 outside the mesh), from
-    the cell label of every pixel and its cell's homography in numpy (a 3x3 matrix gathered per pixel)."""
-    label = np.zeros((h, w), np.int32)
-    for k, quad in _region_quads(pk, x0, y0, w, h):
-        cv2.fillConvexPoly(label, np.round(quad * 16).astype(np.int32), k + 1, lineType=cv2.LINE_8, shift=4)
-    ys, xs = np.nonzero(label)
-    if len(xs) == 0:
-        return None
-    Hinv = pk.cell_inv[label[ys, xs] - 1]
-    u, v = xs + float(x0), ys + float(y0)
-    den = Hinv[:, 2, 0] * u + Hinv[:, 2, 1] * v + Hinv[:, 2, 2]
-    sx = (Hinv[:, 0, 0] * u + Hinv[:, 0, 1] * v + Hinv[:, 0, 2]) / den
-    sy = (Hinv[:, 1, 0] * u + Hinv[:, 1, 1] * v + Hinv[:, 1, 2]) / den
-    mx = np.full((h, w), -1.0, np.float32)
-    my = np.full((h, w), -1.0, np.float32)
-    mx[ys, xs], my[ys, xs] = sx, sy
-    return mx, my
 
 
 _INVERSE = cv2.WARP_INVERSE_MAP
@@ -252,7 +233,7 @@ def _warp_seams(pk, weight, x0, y0, w, h) -> tuple[np.ndarray, np.ndarray, list[
     m = np.zeros((h, w), np.uint8)
     d = np.zeros((h, w), np.float32)
     cells = []
-    for k, quad in _region_quads(pk, x0, y0, w, h):
+    for k, quad in region_quads(pk, x0, y0, w, h):
         fixed = np.round(quad * 16).astype(np.int32)
         # the quad's box (one pixel of margin), clipped to the region: the same pixels as rasterising the region
         bx0 = max(int(np.floor(quad[:, 0].min())) - 1, 0)
@@ -309,9 +290,20 @@ def _compare(a: np.ndarray, value: float, op: int) -> np.ndarray:
     return cv2.compare(a, value, op)
 
 
-def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
-    """The fast renderer: seam weights of every keyframe first, then each keyframe's image is warped and blended
-    only where its weight matters (``MIN_BLEND_WEIGHT``); all per-pixel work in OpenCV."""
+def render_tile(
+    x0: int,
+    y0: int,
+    w: int,
+    h: int,
+    placed: list[PlacedKeyframe],
+    sources: SourceCache,
+    *,
+    feather_px: float = 4.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(BGR uint8 tile, coverage uint8 0/255) for one map region: seam weights of every keyframe first, then each
+    keyframe's image is warped and blended only where its weight matters (``MIN_BLEND_WEIGHT``); all per-pixel
+    work in OpenCV. tests/test_stitch_render.py holds it to the per-pixel numpy reference
+    (evaluation/stitch/reference_render.py)."""
     layers: list[_Layer] = []
     for pk in placed:
         bx0, by0, bx1, by1 = pk.bbox
@@ -361,57 +353,3 @@ def _render_tile_warp(x0, y0, w, h, placed, sources, feather_px):
     inv = np.reciprocal(wsum, where=wsum > 0, out=np.zeros_like(wsum))
     out = cv2.multiply(acc, cv2.merge((inv, inv, inv)))
     return cv2.convertScaleAbs(out), covered
-
-
-def render_tile(
-    x0: int,
-    y0: int,
-    w: int,
-    h: int,
-    placed: list[PlacedKeyframe],
-    sources: SourceCache,
-    *,
-    feather_px: float = 4.0,
-    renderer: str = "warp",
-) -> tuple[np.ndarray, np.ndarray]:
-    """(BGR uint8 tile, coverage uint8 0/255) for one map region.
-
-    ``renderer="pullback"`` is the renderer as it was before the OpenCV one: per-pixel pull-back and blending
-    in numpy. It is kept as the reference the fast one is tested against and for side-by-side figures."""
-    if renderer == "warp":
-        return _render_tile_warp(x0, y0, w, h, placed, sources, feather_px)
-    layers = []
-    for pk in placed:
-        bx0, by0, bx1, by1 = pk.bbox
-        rx0, ry0, rx1, ry1 = max(bx0, x0), max(by0, y0), min(bx1, x0 + w), min(by1, y0 + h)
-        if rx1 <= rx0 or ry1 <= ry0:
-            continue
-        maps = _pullback(pk, rx0, ry0, rx1 - rx0, ry1 - ry0)
-        if maps is None:
-            continue
-        img, weight = sources.get(pk.position)
-        mx, my = maps
-        nearest = cv2.remap(weight, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        m = _compare(nearest, 0.0, cv2.CMP_GT)  # the ROI mask's nearest pixel
-        if not m.any():
-            continue
-        im = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        d = cv2.remap(weight, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        d = np.where(m > 0, np.maximum(d, 1e-3), 0.0).astype(np.float32)
-        layers.append((pk.position, (rx0 - x0, ry0 - y0), im, d))
-    out = np.zeros((h, w, 3), np.float32)
-    if not layers:
-        return out.astype(np.uint8), np.zeros((h, w), np.uint8)
-    dmax = np.zeros((h, w), np.float32)
-    for _pos, (ox, oy), _im, d in layers:
-        sl = (slice(oy, oy + d.shape[0]), slice(ox, ox + d.shape[1]))
-        dmax[sl] = np.maximum(dmax[sl], d)
-    wsum = np.zeros((h, w), np.float32)
-    for _pos, (ox, oy), im, d in layers:
-        sl = (slice(oy, oy + d.shape[0]), slice(ox, ox + d.shape[1]))
-        wgt = np.where(d > 0, np.exp((d - dmax[sl]) / max(feather_px, 1e-3)), 0.0).astype(np.float32)
-        out[sl] += im.astype(np.float32) * wgt[..., None]
-        wsum[sl] += wgt
-    covered = wsum > 0
-    out[covered] /= wsum[covered][:, None]
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8), np.where(covered, 255, 0).astype(np.uint8)

@@ -120,9 +120,9 @@ def check_wall(
 
         def witness(direction) -> None:
             a, b, H, g = direction
-            planes = _far_homographies(H, K, s, (*s.far_depth_ratios, 0.5))  # 0.5: twice the standoff
-            off, decided, wall = _witness(grey[a], grey[b], H, planes[:-1], g, s, midway=planes[-1:],
-                                          contrast_a=contrast[a])
+            # 0.5: twice the standoff; -0.5: as far beyond the far planes (the same shift the other way)
+            planes = _far_homographies(H, K, s, (*s.far_depth_ratios, 0.5, -0.5))
+            off, decided, wall = _witness(grey[a], grey[b], H, planes[:-2], g, s, midway=planes[-2:])
             with lock:  # sums of 0/1 maps: exact in float32 whatever the order the threads finish in
                 votes[a] += off
                 checks[a] += decided
@@ -214,6 +214,26 @@ def _local_contrast(grey: np.ndarray, size: int = 9) -> np.ndarray:
     return np.sqrt(np.maximum(cv2.blur(grey * grey, (size, size)) - mean * mean, 0.0))
 
 
+def _contrast_along(grey: np.ndarray, direction: np.ndarray, size: int = 9) -> np.ndarray:
+    """Standard deviation of the grey levels on a ``size`` px line along ``direction`` (unit vector) through each
+    pixel: an edge along the direction has none, however sharp across it."""
+    kernel = np.zeros((size, size), np.float32)
+    c = size // 2
+    end = np.round(np.asarray(direction, float) * c).astype(int)
+    cv2.line(kernel, (int(c - end[0]), int(c - end[1])), (int(c + end[0]), int(c + end[1])), 1.0, 1)
+    kernel /= kernel.sum()
+    mean = cv2.filter2D(grey, -1, kernel)
+    return np.sqrt(np.maximum(cv2.filter2D(grey * grey, -1, kernel) - mean * mean, 0.0))
+
+
+def _motion_direction(H: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """The unit direction in which H moves the frame's centre (``size``: width, height)."""
+    centre = np.array([[size[0] / 2.0, size[1] / 2.0]])
+    d = (apply_h(H, centre) - centre)[0]
+    n = float(np.linalg.norm(d))
+    return d / n if n > 1e-9 else np.array([1.0, 0.0])
+
+
 def _motion(H: np.ndarray, pts: np.ndarray) -> float:
     return float(np.median(np.linalg.norm(apply_h(H, pts) - pts, axis=1)))
 
@@ -246,8 +266,7 @@ def _far_homographies(H: np.ndarray, K: np.ndarray, s: WallCheckSettings, ratios
     return [K @ ((1.0 - r) * R + r * G) @ Kinv for r in (s.far_depth_ratios if ratios is None else ratios)]
 
 
-def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings, midway: list[np.ndarray] = (),
-             contrast_a: np.ndarray | None = None):
+def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings, midway: list[np.ndarray] = ()):
     """What keyframe b says about each pixel of a (b sampled at H(x), away from b's frame edge), as three 0/1
     maps: off the wall (its wall point in b shows something else, beyond ``grey_tolerance``, or a far plane
     explains it better by ``far_margin``); decided (off, or on its wall point within ``wall_agreement``; in
@@ -256,14 +275,16 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
 
     Past b's frame edge on the wall (the outer side of a strip's first or last keyframe, which no other keyframe
     sees on the wall) a far scene is still in b's view: it moves a fraction of the wall's motion. There a
-    textured pixel that a far plane explains within ``wall_agreement`` is off, provided the explanation is
-    distinctive: the plane ``midway`` (twice the standoff) does worse by ``far_margin`` (a plain wall looks alike
-    under every shift and is never cut this way)."""
+    pixel textured along the motion that a far plane explains within ``wall_agreement`` is off, provided the
+    explanation is distinctive: each plane of ``midway`` (twice the standoff; and as far beyond the far planes, the
+    same shift the other way) whose point b shows does worse by twice ``far_margin``, and b shows at least one. A
+    plain wall, and the wall's edge along the motion (its end in a vertical strip, a roof line in a horizontal
+    one: contrast across the motion only), look alike under every shift along the motion and are never cut this
+    way. A point past b's frame edge is no evidence: b reads black there, which made any explanation look
+    distinctive and, with the edge's contrast taken for texture, cut a sliver of wall along the wall's end (5-10 cm
+    at the synthetic wall's left end, tests/test_stitch_worker.py::test_outputs_on_disk)."""
     h, w = ga.shape
-    nearest = cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP
-    ones = np.full(gb.shape, 255, np.uint8)
-    edge = np.ones((9, 9), np.uint8)
-    valid = cv2.erode(cv2.warpPerspective(ones, H, (w, h), flags=nearest), edge) > 0
+    valid = _seen(H, gb.shape, (w, h))
     on_wall = _difference(ga, gb, H, gain)
     off = on_wall > s.grey_tolerance
     agrees = on_wall <= s.wall_agreement
@@ -273,18 +294,26 @@ def _witness(ga, gb, H, far: list[np.ndarray], gain: float, s: WallCheckSettings
         best_far = np.minimum.reduce([_difference(ga, gb, Hf, gain) for Hf in far])
         off |= best_far + s.far_margin < on_wall
         confirmed = agrees & (best_far > on_wall + s.far_margin)
-        far_seen = cv2.erode(cv2.warpPerspective(ones, far[0], (w, h), flags=nearest), edge) > 0
+        far_seen = _seen(far[0], gb.shape, (w, h))
         # with no wall evidence to weigh it against, the far explanation must be twice as tight and as distinctive
-        if contrast_a is None:
-            contrast_a = _local_contrast(ga)
-        far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & (contrast_a >= 2 * s.min_texture)
-        if midway:
-            far_only &= _difference(ga, gb, midway[0], gain) > best_far + 2 * s.far_margin
-        else:
-            far_only[:] = False
+        textured = _contrast_along(ga, _motion_direction(H, (w, h))) >= 2 * s.min_texture
+        far_only = far_seen & ~valid & (best_far <= s.wall_agreement / 2) & textured
+        seen_by_any = np.zeros_like(far_only)
+        for Hm in midway:
+            seen = _seen(Hm, gb.shape, (w, h))
+            far_only &= ~seen | (_difference(ga, gb, Hm, gain) > best_far + 2 * s.far_margin)
+            seen_by_any |= seen
+        far_only &= seen_by_any
     decided = off | agrees
     return (((valid & off) | far_only).astype(np.float32), ((valid & decided) | far_only).astype(np.float32),
             (valid & confirmed).astype(np.float32))
+
+
+def _seen(H: np.ndarray, b_shape: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    """Where a's pixels (``size``: width, height) carried by H land inside b's frame, 4 px clear of its edge."""
+    ones = np.full(b_shape, 255, np.uint8)
+    warped = cv2.warpPerspective(ones, H, size, flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP)
+    return cv2.erode(warped, np.ones((9, 9), np.uint8)) > 0
 
 
 def _difference(ga, gb, H, gain: float) -> np.ndarray:

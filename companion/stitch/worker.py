@@ -29,7 +29,7 @@ from companion.errors import CompanionError
 from companion.files import write_atomic
 from companion.stitch.align import AlignedKeyframes, align_keyframes
 from companion.stitch.canvas import RenderedMap, TileRunner, render_map
-from companion.stitch.config import RENDERERS, StitchConfig, worker_count
+from companion.stitch.config import StitchConfig, worker_count
 from companion.stitch.debug import StageDebug
 from companion.stitch.features import KeyframeFeatures, find_features
 from companion.stitch.inputs import StitchInput
@@ -85,8 +85,6 @@ class Stitcher:
         self.progress = progress
         self.tiles = tiles  # where a map kept as tiles is drawn (the site's cluster); None: this process's threads
         self.debug = StageDebug(debug_dir)
-        if self.config.renderer not in RENDERERS:
-            raise CompanionError(f"unknown renderer {self.config.renderer!r}", f"use one of {', '.join(RENDERERS)}")
 
     def stitch(self, inp: StitchInput, out_dir: str | Path) -> StitchResult:
         out = self._prepare(inp, out_dir)

@@ -85,7 +85,8 @@ def autopilot_from_heartbeat(mav_autopilot: int) -> Autopilot:
 
 def flight_parameters(plan, flavour: str | Autopilot) -> dict[str, float]:
     """The parameters ``plan`` needs set for its flight on ``flavour`` (``Autopilot.flight_parameters``)."""
-    return autopilot_for(flavour).flight_parameters(plan)
+    ap = autopilot_for(flavour)
+    return ap.flight_parameters(plan.for_autopilot(ap) if hasattr(plan, "for_autopilot") else plan)
 
 
 __all__ = ["DEFAULT_FLAVOUR", "Autopilot", "Flavour", "autopilot_for", "autopilot_from_heartbeat", "homes",

@@ -108,9 +108,11 @@ class Autopilot(ABC):
     mav_autopilot: ClassVar[int]
     arming_mode: ClassVar[ArmingMode]
     first_item_seq: ClassVar[int]  # the first item of the mission proper (ArduPilot keeps home at 0)
-    # how long after take-off the firmware may move home's altitude on its own (0: never); the plan then holds above
-    # the wall until it is over, and the flight watches the moves (``companion.flight.home_watch``)
+    # how long after take-off the firmware may move home's altitude on its own (0: never) and how far down it is taken
+    # to move it in that time: the plan flies only what stays clear of the ground by then in the window, the rest
+    # after it (``planner.plan_scan``), and the flight watches the moves (``companion.flight.home_watch``)
     home_correction_window_s: ClassVar[float]
+    home_move_max_m: ClassVar[float] = 0.0
     failsafe: ClassVar[FailsafeNames]
     link_watch: ClassVar[LinkWatch]
     no_value: ClassVar[float]  # what a param the item does not use holds (NaN where the firmware takes it)

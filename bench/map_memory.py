@@ -6,7 +6,8 @@ work before the render stays the same, so what grows is the render, the map's fi
 and the COG. Each size runs as `companion site` runs it: a fresh embedded LocalCluster of one worker process (one
 thread, OpenCV limited to it), the keyframe feature tasks then the face's task (stitch, viewer, COG), into a fresh
 folder. Printed per size: the map's pixels, the worker's peak RSS (``ru_maxrss`` of the worker process: the whole
-job on that worker), the job's wall time and the face's stage times, the tiles and bytes written.
+job on that worker; with ``--workers 2`` each worker's), the job's wall time and the face's stage times, the tiles
+and bytes written.
 
     PYTHONPATH=. python bench/map_memory.py --out /tmp/map_memory --mm-per-px 0.3 0.085 --max-map-px 2e9
 """
@@ -41,11 +42,11 @@ def _size_mb(path: Path) -> float:
     return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file()) / 1e6
 
 
-def run_face(spools: list[Path], out: Path, cfg: StitchConfig, cog: bool) -> dict:
+def run_face(spools: list[Path], out: Path, cfg: StitchConfig, cog: bool, workers: int = 1) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     plan = plan_site(spools)
     tasks = [FacadeTask(job, out / job.name, cfg, cog=cog) for job in plan.facades]
-    engine = open_engine(EngineSpec(workers=1))
+    engine = open_engine(EngineSpec(workers=workers))
     try:
         t = time.perf_counter()
         outcomes = list(engine.run(tasks))
@@ -65,6 +66,9 @@ def run_face(spools: list[Path], out: Path, cfg: StitchConfig, cog: bool) -> dic
         "map_px": [w, h],
         "megapixels": round(w * h / 1e6, 1),
         "worker_peak_rss_mb": round(max(peaks.values())),
+        "each_worker_peak_rss_mb": sorted(round(v) for v in peaks.values()),
+        "each_worker_cpu_s": sorted(round(v, 1) for v in cpu.values()),
+        "render_tasks": report["render"].get("render_tasks"),
         "job_wall_s": round(wall, 1),
         "worker_cpu_s": round(sum(cpu.values()), 1),
         "face_task_s": o.seconds,
@@ -84,6 +88,7 @@ def main() -> None:
     ap.add_argument("--mm-per-px", type=float, nargs="+", default=[0.3, 0.085], help="map scales, one run each")
     ap.add_argument("--max-map-px", type=float, default=2e9, help="StitchConfig.max_map_px for the runs")
     ap.add_argument("--no-cog", action="store_true", help="leave the COG out")
+    ap.add_argument("--workers", type=int, default=1, help="worker processes of the embedded cluster (one thread each)")
     ap.add_argument("--keep", action="store_true", help="keep each size's map folder (default: removed after)")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
@@ -95,7 +100,8 @@ def main() -> None:
     base = StitchConfig(max_map_px=args.max_map_px)
     for mm in args.mm_per_px:
         load = os.getloadavg()[0]
-        r = run_face(spools, args.out / f"mm{mm:g}", replace(base, mm_per_px=mm), cog=not args.no_cog)
+        r = run_face(spools, args.out / f"mm{mm:g}", replace(base, mm_per_px=mm), cog=not args.no_cog,
+                     workers=args.workers)
         print(f"{mm:g} mm/px (load at start {load:.2f}): {json.dumps(r)}", flush=True)
         if not args.keep:
             shutil.rmtree(args.out / f"mm{mm:g}", ignore_errors=True)

@@ -128,7 +128,9 @@ class ClusterTiles:
         from dask.distributed import as_completed, worker_client
 
         with worker_client() as client:
-            futures = client.map(fn, items, pure=False)
+            # before any face or keyframe task still queued: a worker's freed thread draws this face's tiles rather
+            # than start another face (whose state would then be held beside this one's)
+            futures = client.map(fn, items, pure=False, priority=10)
             for fut in as_completed(futures):
                 yield fut.result()
                 fut.release()

@@ -28,6 +28,7 @@ from companion.errors import CompanionError
 from companion.site.engine import EngineSpec
 from companion.site.facade import MARKER
 from companion.site.run import build_site
+from companion.stitch.config import StitchConfig
 from companion.stitch.merge import INDEX_STRIDE, merge_spools
 from tests.site_spools import SiteShape, make_site
 
@@ -212,3 +213,26 @@ def test_the_cog_opens_in_gdal_at_the_reports_scale_also_from_a_tiled_map(site, 
             rgba = cog.read()
         bgra = np.dstack([rgba[2], rgba[1], rgba[0], rgba[3]]).astype(int)
         assert bgra.shape == reference.shape and np.abs(bgra - reference).max() <= 1
+
+
+def _tiles(folder: Path) -> dict[str, np.ndarray]:
+    return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(int)
+            for p in sorted((folder / "tiles").glob("tile_y*_x*.png"))}
+
+
+def test_a_tiled_map_is_drawn_by_render_tasks_on_the_cluster_and_is_the_single_process_map(site, tmp_path):
+    """A face whose map is kept as tiles (a tiny in-memory limit): on the embedded cluster its tiles are render
+    tasks of their own (``canvas.render_batch``, written by the tasks), in this process they are drawn on the
+    stitcher's threads; the tiles are the same within one grey level."""
+    _, spools, _ = site
+    cfg = StitchConfig(max_in_memory_px=1e5, tile_px=128)
+    outs = {}
+    for name, engine in (("single", EngineSpec(workers=0)), ("cluster", EngineSpec(workers=2))):
+        res = build_site([spools[0], spools[2]], tmp_path / name, cfg, engine, progress=False, cog=False)
+        assert [o.status for o in res.facades] == ["done"]
+        outs[name] = tmp_path / name / "face0"
+    render = {k: json.loads((v / "report.json").read_text())["render"] for k, v in outs.items()}
+    assert "render_tasks" not in render["single"] and render["cluster"]["render_tasks"] > 1
+    a, b = _tiles(outs["single"]), _tiles(outs["cluster"])
+    assert len(a) == render["single"]["tiles"] > 8 and a.keys() == b.keys()
+    assert max(np.abs(a[k] - b[k]).max() for k in a) <= 1

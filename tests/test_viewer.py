@@ -355,3 +355,17 @@ def test_a_map_of_unknown_scale_is_shown_in_pixels(tmp_path):
     left, right, bottom, top = data["refly"][0]["rect"]  # page units: x right, y up (= minus the map row)
     assert [left, right, -top, -bottom] == pytest.approx([200, 300, 100, 150])
     assert data["scale_note"] == why  # the panel says why there is no scale, not "no telemetry"
+
+
+def test_the_map_the_stitcher_holds_reads_like_its_map_png(mapped):
+    """The stitcher hands the viewer its map in memory (BGR + coverage, no BGRA copy, no decode of map.png): the
+    same BGRA regions as map.png, inside the map, across its edge and outside it (and the stitch's own viewer,
+    made so, has map.png's tiles: test_full_resolution_tiles_are_the_map_and_coarser_levels_halve_it)."""
+    out = mapped[0]
+    png = cv2.imread(str(out / "map.png"), cv2.IMREAD_UNCHANGED)
+    bgr, alpha = np.ascontiguousarray(png[..., :3]), np.ascontiguousarray(png[..., 3])
+    held, read = MapReader.in_memory(bgr, alpha), MapReader.open(out)
+    h, w = png.shape[:2]
+    assert (held.width, held.height) == (read.width, read.height) == (w, h)
+    for x0, y0, rw, rh in ((0, 0, w, h), (w - 100, h - 50, 256, 256), (-30, 10, 64, 64), (w + 5, 0, 16, 16)):
+        assert np.array_equal(held.read(x0, y0, rw, rh), read.read(x0, y0, rw, rh))

@@ -110,8 +110,30 @@ class DaskEngine:
 
 def _after(task: FacadeTask, *_features: str | None) -> FacadeOutcome:
     """The face's task, run once its keyframes' feature tasks are done (their results are not needed: they
-    filled the face's feature cache)."""
-    return build_facade(task)
+    filled the face's feature cache); a map kept as tiles is drawn by render tasks of their own."""
+    return build_facade(task, tiles=ClusterTiles())
+
+
+class ClusterTiles:
+    """The render tasks of a face task, on the cluster it runs on: ``canvas.render_batch`` per run of tiles, each
+    writing its tiles to the shared output path. The face task secedes from its worker's thread while they run
+    (``worker_client``), so a worker of one thread draws tiles too, and waits for them holding no thread."""
+
+    def __init__(self):
+        from dask.distributed import get_client
+
+        self.slots = max(1, sum(get_client().nthreads().values()))
+
+    def map(self, fn, items: list):
+        from dask.distributed import as_completed, worker_client
+
+        with worker_client() as client:
+            # before any face or keyframe task still queued: a worker's freed thread draws this face's tiles rather
+            # than start another face (whose state would then be held beside this one's)
+            futures = client.map(fn, items, pure=False, priority=10)
+            for fut in as_completed(futures):
+                yield fut.result()
+                fut.release()
 
 
 def _result(fut, task: FacadeTask) -> FacadeOutcome:

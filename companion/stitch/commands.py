@@ -69,6 +69,9 @@ def add_map_arguments(p: argparse.ArgumentParser) -> None:
                    help="take the wall's distance (the map's scale) and the map's place from the telemetry alone, "
                         "as before the wall was measured (for comparison)")
     p.add_argument("--tile-px", type=int, default=defaults.tile_px, help="render tile size (bounds memory)")
+    p.add_argument("--max-map-px", type=float, default=defaults.max_map_px,
+                   help="refuse maps with more pixels than this (a guard against a wrong scale); raise it for a "
+                        "gigapixel facade, e.g. 2e9: the map is rendered and written tile by tile")
 
 
 def config_from_args(args) -> StitchConfig:
@@ -85,6 +88,9 @@ def _config(args) -> StitchConfig:
     if args.tile_px < 64:
         raise CompanionError(f"--tile-px {args.tile_px} is too small",
                              f"use at least 64 (default {StitchConfig().tile_px})")
+    if not args.max_map_px >= 1:
+        raise CompanionError(f"--max-map-px {args.max_map_px:g} must be at least 1 pixel",
+                             f"give the largest map to allow in pixels (default {StitchConfig().max_map_px:g})")
     return StitchConfig(
         mm_per_px=args.mm_per_px,
         cells=args.cells,
@@ -96,6 +102,7 @@ def _config(args) -> StitchConfig:
         gnss_sigma_m=args.gnss_sigma_m,
         measure_wall=not args.no_measure_wall,
         tile_px=args.tile_px,
+        max_map_px=args.max_map_px,
     )
 
 

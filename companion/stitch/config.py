@@ -53,7 +53,10 @@ class StitchConfig:
     rho_px: float | None = None  # Eq. 4 scale; default 10 % of the image width
     gamma: float = 0.01  # weight floor: far cells fall back to the global homography
     mm_per_px: float | None = None  # map scale; default the keyframes' median native resolution
-    max_map_px: float = 4e8  # refuse absurd map sizes (bad scale) before allocating anything
+    # refuse absurd map sizes (a bad scale or geometry) before allocating anything; a map really wanted larger (a
+    # gigapixel facade at a fine --mm-per-px) is asked for with --max-map-px: rendering and writing are tiled, so
+    # memory does not grow with the map (docs/SCALE.md)
+    max_map_px: float = 4e8
     tile_px: int = 1024
     max_in_memory_px: float = 6e7  # larger maps are written only as tiles (+ a preview)
     feather_px: float = 4.0

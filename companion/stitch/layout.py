@@ -101,15 +101,29 @@ def map_grid(
         facade = extent = content
     gw = int(math.ceil((extent[1] - extent[0]) / m_per_px))
     gh = int(math.ceil((extent[3] - extent[2]) / m_per_px))
-    if gw * gh > cfg.max_map_px or gw <= 0 or gh <= 0:
+    if gw <= 0 or gh <= 0:
         raise CompanionError(
             f"the map would be {gw}x{gh} px at {m_per_px * 1000:.2f} mm/px",
-            "pass a coarser --mm-per-px, or check the telemetry/facade geometry",
+            "check the telemetry/facade geometry",
+        )
+    if gw * gh > cfg.max_map_px:
+        raise CompanionError(
+            f"the map would be {gw}x{gh} px ({gw * gh / 1e6:.3g} MP) at {m_per_px * 1000:.3f} mm/px, over the "
+            f"limit of {cfg.max_map_px / 1e6:.3g} MP (StitchConfig.max_map_px, --max-map-px)",
+            f"pass a coarser --mm-per-px; or, if a map this large is meant, --max-map-px {_above(gw * gh)} "
+            "(rendered and written tile by tile: memory does not grow with it); or check the telemetry/facade "
+            "geometry (a wrong scale)",
         )
     grid = MapGrid(extent[0], extent[3], m_per_px, gw, gh)
     x0, y0 = np.round(grid.to_px(np.array([facade[0], facade[3]]))).astype(int)
     x1, y1 = np.round(grid.to_px(np.array([facade[1], facade[2]]))).astype(int)
     return grid, (max(0, int(x0)), max(0, int(y0)), min(gw, int(x1)), min(gh, int(y1)))
+
+
+def _above(px: int) -> str:
+    """A round limit just above ``px`` pixels, as the option takes it (``2e9``)."""
+    e = math.floor(math.log10(px))
+    return f"{math.ceil(px / 10**e)}e{e}"
 
 
 def _native_m_per_px(aligned: AlignedKeyframes, camera: CameraModel) -> float:

@@ -28,7 +28,7 @@ import numpy as np
 from companion.errors import CompanionError
 from companion.files import write_atomic
 from companion.stitch.align import AlignedKeyframes, align_keyframes
-from companion.stitch.canvas import RenderedMap, render_map
+from companion.stitch.canvas import RenderedMap, TileRunner, render_map
 from companion.stitch.config import StitchConfig, worker_count
 from companion.stitch.debug import StageDebug
 from companion.stitch.features import KeyframeFeatures, find_features
@@ -78,10 +78,12 @@ class Stitcher:
     earlier stages' records and returns its own."""
 
     def __init__(
-        self, config: StitchConfig | None = None, *, progress: bool = True, debug_dir: str | Path | None = None
+        self, config: StitchConfig | None = None, *, progress: bool = True, debug_dir: str | Path | None = None,
+        tiles: TileRunner | None = None,
     ):
         self.config = config or StitchConfig()
         self.progress = progress
+        self.tiles = tiles  # where a map kept as tiles is drawn (the site's cluster); None: this process's threads
         self.debug = StageDebug(debug_dir)
 
     def stitch(self, inp: StitchInput, out_dir: str | Path) -> StitchResult:
@@ -175,7 +177,7 @@ class Stitcher:
         return layout
 
     def render(self, found: KeyframeFeatures, aligned: AlignedKeyframes, layout: MapLayout, out: Path) -> RenderedMap:
-        return render_map(found.input, aligned, layout, self.config, out, progress=self.progress)
+        return render_map(found.input, aligned, layout, self.config, out, progress=self.progress, tiles=self.tiles)
 
     def report(self, run: StitchRun, out: Path) -> StitchResult:
         """Coverage, images, georeferencing and report.json; report.json is written last, so a finished report
@@ -199,7 +201,9 @@ class Stitcher:
         files = {**files, **write_georeferencing(result, run.input)}
         # the inspector's viewer (docs/OUTPUTS.md), from the report as it stands (report.json is written after it)
         images = {kf.index: kf.image_path for kf in run.input.keyframes}
-        files["viewer"] = write_viewer(out, images, report=replace(report, files=dict(files)).as_dict())
+        in_memory = (run.rendered.canvas, run.rendered.coverage) if run.rendered.canvas is not None else None
+        files["viewer"] = write_viewer(out, images, report=replace(report, files=dict(files)).as_dict(),
+                                       image=in_memory)
         files["report"] = str(out / "report.json")
         report = replace(report, files=files)
         write_atomic(out / "report.json", json.dumps(report.as_dict(), indent=1), durable=True)
@@ -213,6 +217,7 @@ def stitch(
     *,
     progress: bool = True,
     debug_dir: str | Path | None = None,
+    tiles: TileRunner | None = None,
 ) -> StitchResult:
     """The facade map of ``inp`` in ``out_dir`` (see :class:`Stitcher`)."""
-    return Stitcher(config, progress=progress, debug_dir=debug_dir).stitch(inp, out_dir)
+    return Stitcher(config, progress=progress, debug_dir=debug_dir, tiles=tiles).stitch(inp, out_dir)

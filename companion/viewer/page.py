@@ -133,7 +133,8 @@ def viewer_data(
 
 
 def write_viewer(
-    map_dir: str | Path, keyframe_images: Mapping[int | str, Path] | None = None, *, report: dict | None = None
+    map_dir: str | Path, keyframe_images: Mapping[int | str, Path] | None = None, *, report: dict | None = None,
+    image: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> str:
     """Writes ``viewer.html`` and ``viewer/`` into a finished map folder; returns the page's path.
 
@@ -141,6 +142,8 @@ def write_viewer(
     shows the original photo; without them (None) the photos of the viewer being replaced are kept, and the page
     still shows the footprints. ``report`` is the stitch report (default: the folder's ``report.json``; the
     stitcher passes it before writing that file, so a finished report means a finished folder, viewer included).
+    ``image``: the map's (BGR, coverage) when the stitcher still holds it (the map is not decoded again from
+    map.png: a 60 MP map's second copy was 240 MB).
     The old viewer is replaced only once the new one is complete.
     """
     out = Path(map_dir)
@@ -148,7 +151,7 @@ def write_viewer(
         keyframe_images = {p.name: p for p in (out / ASSETS / "keyframes").glob("*")}
     georef = _read_json(out / "map_georef.json")
     report = report if report is not None else _read_json(out / "report.json")
-    reader = MapReader.open(out)
+    reader = MapReader.in_memory(*image) if image is not None else MapReader.open(out)
     tmp, old = out / f".{ASSETS}.tmp", out / f".{ASSETS}.old"
     for stale in (tmp, old):
         shutil.rmtree(stale, ignore_errors=True)

@@ -55,13 +55,20 @@ class MapReader:
     """Reads BGRA regions of a stitched map: ``map.png`` (one image) or ``map.vrt`` (the stitcher's tiles)."""
 
     def __init__(
-        self, width: int, height: int, image: np.ndarray | None = None, tiles: list[_SourceTile] | None = None
+        self, width: int, height: int, image: np.ndarray | None = None, tiles: list[_SourceTile] | None = None,
+        planes: tuple[np.ndarray, np.ndarray] | None = None,
     ):
         self.width = width
         self.height = height
         self._image = image
+        self._planes = planes  # (BGR, alpha): the stitcher's map still in memory, read without a BGRA copy
         self._tiles = tiles or []
         self._cache: dict[_SourceTile, np.ndarray] = {}
+
+    @classmethod
+    def in_memory(cls, bgr: np.ndarray, alpha: np.ndarray) -> MapReader:
+        """The map the stitcher holds (BGR + coverage as alpha): no second copy of it decoded from map.png."""
+        return cls(bgr.shape[1], bgr.shape[0], planes=(bgr, alpha))
 
     @classmethod
     def open(cls, map_dir: Path) -> MapReader:
@@ -116,6 +123,11 @@ class MapReader:
             return out
         if self._image is not None:
             out[ya - y0 : yb - y0, xa - x0 : xb - x0] = self._image[ya:yb, xa:xb]
+            return out
+        if self._planes is not None:
+            bgr, alpha = self._planes
+            out[ya - y0 : yb - y0, xa - x0 : xb - x0, :3] = bgr[ya:yb, xa:xb]
+            out[ya - y0 : yb - y0, xa - x0 : xb - x0, 3] = alpha[ya:yb, xa:xb]
             return out
         # source tiles above this band are no longer needed: the pyramid cuts the map row by row
         for done in [t for t in self._cache if t.y0 + t.height <= y0]:

@@ -14,6 +14,7 @@ import pytest
 
 from companion.capture.telemetry import buffer_from_log, row_attitude_held
 from companion.flight.telemetry_log import TelemetryRecorder
+from companion.records import Pose
 
 
 class _Msg:
@@ -54,33 +55,35 @@ class _KeptOpen(io.StringIO):
 
 def _lagging_stream(duration_s: float, lag_s: float, burst_s: float, pos_dt: float = 0.1, att_dt: float = 0.04):
     """Positions arrive at their time; ATTITUDEs ``lag_s`` late, released in bursts every ``burst_s`` (a queue
-    drained by a starved task). Arrival order, positions first on a tie."""
+    drained by a starved task). Arrival order, ATTITUDEs first on a tie."""
     events = []
     for i in range(round(duration_s / pos_dt)):
         t = 10.0 + i * pos_dt
-        events.append((t, 0, "pos", _pos(t)))
+        events.append((t, 1, "pos", _pos(t)))
     for i in range(round(duration_s / att_dt)):
         t = 10.0 + i * att_dt
         arrival = math.ceil((t + lag_s) / burst_s) * burst_s
-        events.append((arrival, 1, "att", _att(t)))
+        events.append((arrival, 0, "att", _att(t)))
     events.sort(key=lambda e: (e[0], e[1]))
     return [(stream, msg) for _, _, stream, msg in events]
 
 
-def test_rows_wait_for_a_lagging_attitude_stream_and_carry_the_attitude_at_their_time():
-    rec, rows = _record(_lagging_stream(duration_s=6.0, lag_s=0.6, burst_s=0.5))
+@pytest.mark.parametrize("lag_s", [0.3, 0.6])
+def test_rows_wait_for_a_lagging_attitude_stream_and_carry_the_attitude_at_their_time(lag_s):
+    rec, rows = _record(_lagging_stream(duration_s=6.0, lag_s=lag_s, burst_s=0.5))
     assert len(rows) == 60
     times = [r["t_boot_s"] for r in rows]
     assert times == sorted(times)
     # the last ATTITUDE is at 15.96 s: every row up to it is interpolated, the old code held the last one (0.5 s)
-    # (the first rows, before any ATTITUDE arrived, are checked below: on the old code they carried none)
-    inner = [r for r in rows if 11.0 <= r["t_boot_s"] <= 15.96]
+    # rows that came before the first ATTITUDE (at 10.5 or 11.0 s): no attitude, never a wrong one (checked below)
+    first_att_arrival = math.ceil((10.0 + lag_s) / 0.5) * 0.5
+    inner = [r for r in rows if first_att_arrival <= r["t_boot_s"] <= 15.96]
     for r in inner:
         assert r["roll_deg"] == pytest.approx(_roll(r["t_boot_s"]), abs=0.02), r["t_boot_s"]
         assert r["pitch_deg"] == pytest.approx(-2.0) and r["yaw_deg"] == pytest.approx(90.0)
         assert "attitude_held" not in r and not row_attitude_held(r)
-    first = [r for r in rows if r["t_boot_s"] < 11.0]
-    assert all(r["roll_deg"] == pytest.approx(_roll(r["t_boot_s"]), abs=0.02) for r in first)
+    first = [r for r in rows if r["t_boot_s"] < first_att_arrival]
+    assert first and all(r["roll_deg"] is None and Pose.from_json(r) is None for r in first)
     assert rec.attitude_held_rows == 0
 
 

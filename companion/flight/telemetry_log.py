@@ -53,7 +53,7 @@ _GIMBAL_YAW_IN_EARTH_FRAME = 64
 _GIMBAL_REPORT_FRESH_S = 2.0  # a gimbal report older than this (monotonic seconds) is not the gimbal's angle now
 _RANGE_FRESH_S = 0.5  # a rangefinder reading further than this (autopilot seconds) from a row is not its distance
 _RANGE_KEEP = 32  # readings kept to find the one nearest a row (a row may wait a while for its ATTITUDE)
-_ATT_KEEP = 256  # ATTITUDE samples kept to interpolate a row's attitude (seconds of them, at any stream rate)
+_ATT_KEEP = 512  # ATTITUDE samples kept to interpolate a row's attitude (seconds of them, at any stream rate)
 _SENSOR_ROTATION_FORWARD = 0  # MAV_SENSOR_ROTATION_NONE: the sensor looks along the vehicle's nose
 
 
@@ -135,8 +135,9 @@ class TelemetryRecorder:
 
     REBOOT_BACKSTEP_S = 1.0  # time_boot_ms going back by more than this is a new boot, not reordering
     # How long a position row waits for the ATTITUDE after it (autopilot seconds of position stream past the row, or
-    # wall seconds since it arrived): above the 1.2 s lag seen on ArduCopter SITL at speed-up 5
-    ATTITUDE_WAIT_S = 2.0
+    # wall seconds since it arrived): above the 1.2 s lag seen in mavsdk's queues on ArduCopter SITL at speed-up 5
+    # and the simulator's 2.5 s stream stalls (tests/test_flight_sitl_endings.py)
+    ATTITUDE_WAIT_S = 3.0
 
     def __init__(self, vehicle, path: Path | None = None, *, planned_gimbal: PlannedGimbal | None = None):
         self.vehicle = vehicle
@@ -163,6 +164,7 @@ class TelemetryRecorder:
         self.progress_event = asyncio.Event()
         # raw ATTITUDE samples (autopilot s, roll, pitch, yaw) in time order, the newest last
         self._atts: list[tuple[float, float, float, float]] = []
+        self._att_seen = False  # an ATTITUDE has come (the history is emptied at a reboot)
         self._raw_pos: tuple | None = None  # latest raw GLOBAL_POSITION_INT; once it flows, rows come from it
         # position rows waiting for the ATTITUDE after them: (raw position, monotonic arrival time)
         self._pending: deque[tuple[tuple, float]] = deque()
@@ -294,6 +296,7 @@ class TelemetryRecorder:
                     self._write_row(*self._pending.popleft()[0])
                 self._atts.clear()
             self._atts.append((t, roll, pitch, yaw % 360.0))
+            self._att_seen = True
             if len(self._atts) > _ATT_KEEP:
                 del self._atts[: len(self._atts) - _ATT_KEEP]
             self._flush_positions()
@@ -365,8 +368,9 @@ class TelemetryRecorder:
         while self._pending:
             pos, arrived = self._pending[0]
             waited = (newest_t - pos[0] >= self.ATTITUDE_WAIT_S or now - arrived >= self.ATTITUDE_WAIT_S)
-            # before the first ATTITUDE, rows wait for it too (bounded likewise: a vehicle without it is still logged)
-            if not force and not waited and (att_t is None or pos[0] > att_t):
+            # before the first ATTITUDE nothing is waited for: a vehicle that sends none (mavsdk's attitude may come
+            # from ATTITUDE_QUATERNION) still gets its rows at once, with that attitude marked held
+            if not force and not waited and self._att_seen and (att_t is None or pos[0] > att_t):
                 return
             self._pending.popleft()
             self._write_row(*pos)

@@ -9,6 +9,7 @@ import asyncio
 import io
 import json
 import math
+import time
 
 import pytest
 
@@ -157,3 +158,28 @@ def test_a_reboot_writes_the_waiting_rows_and_starts_the_attitude_history_afresh
     assert rows[0]["attitude_held"] is True
     assert rows[1]["roll_deg"] == pytest.approx((_roll(0.96) + _roll(1.04)) / 2, abs=1e-6)
     assert "attitude_held" not in rows[1]
+
+
+def test_the_live_tailer_takes_a_held_rows_frames_as_stale(tmp_path):
+    from companion.capture.telemetry import TelemetryBuffer
+    from companion.onboard.live import TelemetryLogTailer
+
+    messages = [(s, m) for s, m in _lagging_stream(duration_s=3.0, lag_s=0.0, burst_s=0.04)
+                if s == "pos" or json.loads(m.fields_json)["time_boot_ms"] <= 10500]
+    _, rows = _record(messages)
+    assert any(row_attitude_held(r) for r in rows)
+    log = tmp_path / "telemetry.jsonl"
+    log.touch()
+    buffer = TelemetryBuffer()
+    tailer = TelemetryLogTailer(log, buffer)
+    tailer.start()
+    with open(log, "a") as fh:
+        fh.write("".join(json.dumps(r) + "\n" for r in rows))
+    deadline = time.monotonic() + 5.0
+    while len(buffer) < len(rows) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    tailer.stop()
+    tailer.join(timeout=5)
+    assert len(buffer) == len(rows)
+    assert not buffer.pose_at(10.25).stale
+    assert buffer.pose_at(11.25).stale and "held" in buffer.pose_at(11.25).reason

@@ -3,7 +3,9 @@
 Times are seconds on the AUTOPILOT's clock (MAVLink time_boot_ms / 1000). Frames are stamped by the camera's
 clock; ``ClockMap`` turns those into autopilot time. Position is interpolated linearly, attitude by quaternion
 slerp. A pose is flagged stale (and not used) when the telemetry around the capture time has a gap, or the
-capture time lies beyond the newest sample by more than a short extrapolation window.
+capture time lies beyond the newest sample by more than a short extrapolation window, or a sample it would use
+carries a held attitude (a telemetry-log row written before the ATTITUDE after it came, ``attitude_held``:
+``flight/telemetry_log.py``): its roll and pitch are an older sample's, not the ones at the frame's time.
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ class TelemetryBuffer:
         self.max_extrapolation_s = max_extrapolation_s
         self._times: deque[float] = deque(maxlen=max_samples)
         self._poses: deque[Pose] = deque(maxlen=max_samples)
+        self._held: deque[bool] = deque(maxlen=max_samples)  # the sample's attitude is held, not its own
         self._first_time_s: float | None = None  # the first sample ever (the ring forgets it on long flights)
         self._lock = threading.Lock()
         self._arrived = threading.Condition(self._lock)  # notified on every new sample (``wait_for``)
@@ -66,13 +69,15 @@ class TelemetryBuffer:
     def __len__(self) -> int:
         return len(self._times)
 
-    def add(self, pose: Pose) -> bool:
-        """Append a sample; out-of-order or duplicate times are ignored (returns False)."""
+    def add(self, pose: Pose, attitude_held: bool = False) -> bool:
+        """Append a sample; out-of-order or duplicate times are ignored (returns False). ``attitude_held``: its
+        attitude is an older one held (``row_attitude_held``); a frame tagged from it is stale."""
         with self._lock:
             if self._times and pose.time_s <= self._times[-1]:
                 return False
             self._times.append(pose.time_s)
             self._poses.append(pose)
+            self._held.append(bool(attitude_held))
             if self._first_time_s is None:
                 self._first_time_s = pose.time_s
             self._arrived.notify_all()
@@ -103,6 +108,7 @@ class TelemetryBuffer:
         with self._lock:
             times = list(self._times)
             poses = list(self._poses)
+            held = list(self._held)
         if not times:
             return TagResult(None, True, "no telemetry yet")
         if t < times[0] - self.max_extrapolation_s:
@@ -110,6 +116,10 @@ class TelemetryBuffer:
         if t > times[-1] + self.max_extrapolation_s:
             return TagResult(None, True, f"telemetry is {t - times[-1]:.2f} s behind the frame")
         k = bisect.bisect_right(times, t)
+        used = [i for i in (k - 1, k) if 0 <= i < len(times)]
+        if any(held[i] for i in used):
+            return TagResult(None, True, f"the telemetry's attitude at {t:.3f} s is held, not measured "
+                                         "(the ATTITUDE stream lagged the position stream)")
         if k == 0:
             return TagResult(_with_time(poses[0], t), False)
         if k == len(times):
@@ -163,11 +173,17 @@ def pose_from_log_row(row: dict) -> Pose | None:
     return Pose.from_json(row)
 
 
+def row_attitude_held(row: dict) -> bool:
+    """Whether a telemetry-log row's attitude is held from an older ATTITUDE, not its own (a log from before the
+    key: never)."""
+    return bool(row.get("attitude_held"))
+
+
 def buffer_from_log(rows: list[dict], max_gap_s: float = 0.5) -> TelemetryBuffer:
     """A buffer holding a whole recorded flight (offline culling)."""
     buf = TelemetryBuffer(max_samples=max(len(rows), 1), max_gap_s=max_gap_s)
     for row in rows:
         pose = pose_from_log_row(row)
         if pose is not None:
-            buf.add(pose)
+            buf.add(pose, attitude_held=row_attitude_held(row))
     return buf

@@ -12,11 +12,22 @@ reading nearest the row's autopilot time, within 0.5 s, and inside the sensor's 
 MAVLink's max + 1 "nothing in range", there is no distance). It is what a GNSS bias cannot move: the estimate says
 the planned standoff, the rangefinder the true one. Read from the raw MAVLink stream because mavsdk's
 ``distance_sensor()`` does not say which way the sensor points (a downward one would be taken for the wall).
+
+A row's attitude is the ATTITUDE at the row's autopilot time, interpolated between the ATTITUDE samples around it
+(a short history is kept). The two streams come through separate subscriptions, and under load the ATTITUDE stream
+lags the position stream (a 2-core companion with busy loops: rows 0.4 s long all carried the roll of one old
+ATTITUDE, and a keyframe was tagged 6 degrees off). So a position row waits for the ATTITUDE at or after its time,
+bounded: it is written anyway once the position stream has run ``ATTITUDE_WAIT_S`` of autopilot time past it, or it
+has waited that long on the wall clock (checked as messages arrive; the log's end writes all). Such a row carries the
+newest ATTITUDE before it, held, and says so: ``attitude_held: true`` and ``attitude_age_s`` (the row's time minus the
+held sample's, null when unknown). The keys are there only on held rows, so a log from before them reads as it did
+(every row interpolated); ``capture/telemetry.py`` takes a held row's pose as stale.
 """
 
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import json
 import logging
@@ -42,6 +53,7 @@ _GIMBAL_YAW_IN_EARTH_FRAME = 64
 _GIMBAL_REPORT_FRESH_S = 2.0  # a gimbal report older than this (monotonic seconds) is not the gimbal's angle now
 _RANGE_FRESH_S = 0.5  # a rangefinder reading further than this (autopilot seconds) from a row is not its distance
 _RANGE_KEEP = 32  # readings kept to find the one nearest a row (a row may wait a while for its ATTITUDE)
+_ATT_KEEP = 512  # ATTITUDE samples kept to interpolate a row's attitude (seconds of them, at any stream rate)
 _SENSOR_ROTATION_FORWARD = 0  # MAV_SENSOR_ROTATION_NONE: the sensor looks along the vehicle's nose
 
 
@@ -88,16 +100,29 @@ def _num(x: float) -> float | None:
     return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else x
 
 
-def _attitude_at(a, b, t: float) -> tuple[float, float, float] | None:
-    """Attitude at time t from the two latest ATTITUDE samples (time, roll, pitch, yaw), linear in time
-    (yaw the short way round); None when the samples are missing or more than 0.5 s away."""
-    if b is None or abs(b[0] - t) > 0.5:
-        return None
-    if a is None or b[0] <= a[0]:
+def _lerp_attitude(a, b, t: float) -> tuple[float, float, float]:
+    """Attitude at time t between samples a and b (time, roll, pitch, yaw), linear in time, yaw the short way."""
+    if b[0] <= a[0]:
         return b[1], b[2], b[3]
     s = min(1.0, max(0.0, (t - a[0]) / (b[0] - a[0])))
     dyaw = (b[3] - a[3] + 180.0) % 360.0 - 180.0
     return a[1] + s * (b[1] - a[1]), a[2] + s * (b[2] - a[2]), (a[3] + s * dyaw) % 360.0
+
+
+def _attitude_at(history: Sequence[tuple[float, float, float, float]], t: float):
+    """(roll, pitch, yaw, held age) at autopilot time t from ATTITUDE samples in time order.
+
+    Between two samples (or on one): interpolated, age None. After the newest: the newest held, age = t minus its
+    time. Before the oldest, or no samples: None."""
+    if not history or t < history[0][0]:
+        return None
+    k = bisect.bisect_left(history, t, key=lambda a: a[0])  # first sample at or after t
+    if k == len(history):
+        b = history[-1]
+        return b[1], b[2], b[3], t - b[0]
+    b = history[k]
+    a = history[k - 1] if k > 0 else b
+    return (*_lerp_attitude(a, b, t), None)
 
 
 class TelemetryRecorder:
@@ -109,6 +134,10 @@ class TelemetryRecorder:
     """
 
     REBOOT_BACKSTEP_S = 1.0  # time_boot_ms going back by more than this is a new boot, not reordering
+    # How long a position row waits for the ATTITUDE after it (autopilot seconds of position stream past the row, or
+    # wall seconds since it arrived): above the 1.2 s lag seen in mavsdk's queues on ArduCopter SITL at speed-up 5
+    # and the simulator's 2.5 s stream stalls (tests/test_flight_sitl_endings.py)
+    ATTITUDE_WAIT_S = 3.0
 
     def __init__(self, vehicle, path: Path | None = None, *, planned_gimbal: PlannedGimbal | None = None):
         self.vehicle = vehicle
@@ -133,10 +162,13 @@ class TelemetryRecorder:
         self.status_texts: list[str] = []
         self._tasks: list[asyncio.Task] = []
         self.progress_event = asyncio.Event()
-        self._raw_att: tuple[float, float, float, float] | None = None
-        self._prev_att: tuple[float, float, float, float] | None = None
-        self._raw_pos: tuple | None = None
-        self._pending: deque[tuple] = deque()  # latest raw GLOBAL_POSITION_INT; once it flows, rows come from it
+        # raw ATTITUDE samples (autopilot s, roll, pitch, yaw) in time order, the newest last
+        self._atts: list[tuple[float, float, float, float]] = []
+        self._att_seen = False  # an ATTITUDE has come (the history is emptied at a reboot)
+        self._raw_pos: tuple | None = None  # latest raw GLOBAL_POSITION_INT; once it flows, rows come from it
+        # position rows waiting for the ATTITUDE after them: (raw position, monotonic arrival time)
+        self._pending: deque[tuple[tuple, float]] = deque()
+        self.attitude_held_rows = 0  # rows written with a held (not interpolated) attitude
         # forward DISTANCE_SENSOR readings: (autopilot s, monotonic s, metres or None when outside min/max)
         self._ranges: deque[tuple[float, float, float | None]] = deque(maxlen=_RANGE_KEEP)
         # sees every row's pose JSON before it is written and returns keys to add to it (the standoff loop)
@@ -167,8 +199,7 @@ class TelemetryRecorder:
         return self
 
     async def __aexit__(self, *exc) -> None:
-        while self._pending:
-            self._write_row(*self._pending.popleft())
+        self._flush_positions(force=True)
         for task in self._tasks:
             task.cancel()
         for task in self._tasks:
@@ -237,7 +268,10 @@ class TelemetryRecorder:
             self.was_in_air = True
         if key == "armed" and value:
             self.was_armed = True
-        if changed and self._raw_pos is not None:
+        if changed and self._pending:
+            pass  # the rows waiting for their ATTITUDE are written with this state (an earlier row now would be
+            # out of time order, and the buffer drops those)
+        elif changed and self._raw_pos is not None:
             self._write_row(*self._raw_pos)
         elif changed and self._last_position is not None:
             self._write(self._last_position)
@@ -252,8 +286,19 @@ class TelemetryRecorder:
         with contextlib.suppress(ValueError, TypeError, KeyError):
             f = json.loads(msg.fields_json)
             roll, pitch, yaw = (math.degrees(f[k]) for k in ("roll", "pitch", "yaw"))
-            self._on_boot_time(f["time_boot_ms"] / 1000.0, "ATTITUDE")
-            self._prev_att, self._raw_att = self._raw_att, (f["time_boot_ms"] / 1000.0, roll, pitch, yaw % 360.0)
+            t = f["time_boot_ms"] / 1000.0
+            self._on_boot_time(t, "ATTITUDE")
+            if self._atts and t <= self._atts[-1][0]:
+                if t > self._atts[-1][0] - self.REBOOT_BACKSTEP_S:
+                    return  # a repeat or a reordered sample: the history stays in time order
+                # a new boot: no ATTITUDE will come after the rows of the old one still waiting (the new boot's wait)
+                while self._pending and self._pending[0][0][0] > t + self.REBOOT_BACKSTEP_S:
+                    self._write_row(*self._pending.popleft()[0])
+                self._atts.clear()
+            self._atts.append((t, roll, pitch, yaw % 360.0))
+            self._att_seen = True
+            if len(self._atts) > _ATT_KEEP:
+                del self._atts[: len(self._atts) - _ATT_KEEP]
             self._flush_positions()
 
     def _on_gimbal_status(self, msg) -> None:
@@ -305,41 +350,60 @@ class TelemetryRecorder:
         except (ValueError, TypeError, KeyError):
             return
         self._on_boot_time(self._raw_pos[0], "GLOBAL_POSITION_INT")
-        self._pending.append(self._raw_pos)
+        t = self._raw_pos[0]
+        if self._pending and t < self._pending[-1][0][0]:
+            self._flush_positions(force=True)  # the position clock went back: keep the log in time order
+        if self._atts and t < self._atts[-1][0] - self.ATTITUDE_WAIT_S and self.reboot is not None:
+            # a new boot seen first on this stream: the ATTITUDEs far ahead are the old boot's, not this row's
+            self._atts = [a for a in self._atts if a[0] <= t + self.ATTITUDE_WAIT_S]
+        self._pending.append((self._raw_pos, time.monotonic()))
         self._flush_positions()
 
-    def _flush_positions(self) -> None:
-        att_t = self._raw_att[0] if self._raw_att is not None else None
+    def _flush_positions(self, force: bool = False) -> None:
+        """Write the waiting rows whose ATTITUDE after them has come; those that waited ``ATTITUDE_WAIT_S`` (or all,
+        ``force``) with the attitude they can have. Rows stay in time order: one waiting holds back those after it."""
+        att_t = self._atts[-1][0] if self._atts else None
+        newest_t = self._pending[-1][0][0] if self._pending else None
+        now = time.monotonic()
         while self._pending:
-            t = self._pending[0][0]
-            # write when the attitude after it has arrived, or when attitude is missing/stale (never hold rows long)
-            if att_t is not None and t > att_t and len(self._pending) < 4:
+            pos, arrived = self._pending[0]
+            waited = (newest_t - pos[0] >= self.ATTITUDE_WAIT_S or now - arrived >= self.ATTITUDE_WAIT_S)
+            # before the first ATTITUDE nothing is waited for: a vehicle that sends none (mavsdk's attitude may come
+            # from ATTITUDE_QUATERNION) still gets its rows at once, with that attitude marked held
+            if not force and not waited and self._att_seen and (att_t is None or pos[0] > att_t):
                 return
-            self._write_row(*self._pending.popleft())
+            self._pending.popleft()
+            self._write_row(*pos)
 
     def _write_row(self, t_boot, lat, lon, alt, rel, vel) -> None:
         self.samples += 1
         if self._file is None and self.row_hook is None:
             return
         st = self.state
-        att = _attitude_at(self._prev_att, self._raw_att, t_boot)
+        att = _attitude_at(self._atts, t_boot)
+        held: dict = {}
         if att is not None:
-            roll, pitch, yaw = att
-        else:
+            roll, pitch, yaw, age = att
+        else:  # no ATTITUDE at or before the row: mavsdk's latest attitude, if any
             roll, pitch, yaw = st.get("roll_deg"), st.get("pitch_deg"), st.get("yaw_deg")
+            t_att = st.get("t_boot_s")
+            age = None if roll is None else (t_boot - t_att if t_att is not None else math.nan)
+        if age is not None:
+            held = {"attitude_held": True, "attitude_age_s": round(age, 3) if math.isfinite(age) else None}
+            self.attitude_held_rows += 1
         pose = pose_json(time_s=t_boot, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=rel, roll_deg=roll,
                          pitch_deg=pitch, yaw_deg=yaw, velocity_ned_m_s=vel, mission_item=st["mission_item"],
                          range_forward_m=self._range_at(t_boot), **self._gimbal())
-        self._emit(pose)
+        self._emit(pose, held)
 
-    def _row(self, pose: dict) -> dict:
+    def _row(self, pose: dict, held: dict | None = None) -> dict:
         st = self.state
         extra = self.row_hook(pose) if self.row_hook is not None else {}
-        return {"t_wall": round(time.time(), 4), **pose, "mission_total": st["mission_total"],
+        return {"t_wall": round(time.time(), 4), **pose, **(held or {}), "mission_total": st["mission_total"],
                 "flight_mode": st["flight_mode"], "armed": st["armed"], "in_air": st["in_air"], **extra}
 
-    def _emit(self, pose: dict) -> None:
-        row = self._row(pose)
+    def _emit(self, pose: dict, held: dict | None = None) -> None:
+        row = self._row(pose, held)
         if self._file is not None:
             self._file.write(json.dumps(row) + "\n")
 

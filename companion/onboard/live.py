@@ -18,7 +18,7 @@ from pathlib import Path
 from companion.capture.pacing import RECORDED_TIME_FIX, AutopilotPacedSource, check_recorded_times
 from companion.capture.sources import open_source
 from companion.capture.tagging import FrameTagger
-from companion.capture.telemetry import ClockMap, TelemetryBuffer, pose_from_log_row
+from companion.capture.telemetry import ClockMap, TelemetryBuffer, pose_from_log_row, row_attitude_held
 from companion.errors import CompanionError
 from companion.files import write_atomic
 from companion.onboard.chain_stats import ChainStats
@@ -84,7 +84,7 @@ class TelemetryLogTailer(threading.Thread):
                     continue
                 if self.wall_clock is not None and row.get("t_wall") is not None:  # before the pose can tag a frame
                     self.wall_clock.observe(float(row["t_wall"]), pose.time_s)
-                self.buffer.add(pose)
+                self.buffer.add(pose, attitude_held=row_attitude_held(row))
                 if self.clock is not None and row.get("t_wall") is not None:
                     self.clock.observe(float(row["t_wall"]), pose.time_s)
 

@@ -1,7 +1,8 @@
 """Pair matching as tasks (``pairs.match_batch``, what the site's Dask cluster runs) gives the pairs and the map the
-stitcher's own threads give: the batches go through pickle, as to a worker (keyframe paths, priors, settings;
-never features), their results through the content-keyed pair cache; a rerun after a task died part-way matches
-only the pairs missing from the cache."""
+stitcher's own threads give, whether the tasks matched every pair or none (the face's thread matches what they did
+not): the batches go through pickle, as to a worker (keyframe paths, priors, settings; never features), their
+results through the content-keyed pair cache; a rerun after a task died part-way matches only the pairs missing
+from the cache."""
 
 from __future__ import annotations
 
@@ -31,13 +32,31 @@ class _Pickled:
     def __init__(self):
         self.batches, self.matched = 0, 0
 
-    def map(self, fn, items):
+    def start(self, fn, items):
+        """Every task run before the face's thread goes on (a cluster with free workers): it then finds every pair
+        in the cache."""
         for item in items:
             assert fn is match_batch
             self.batches += 1
-            matched = pickle.loads(pickle.dumps(fn(pickle.loads(pickle.dumps(item)))))
-            self.matched += matched
-            yield matched
+            self.matched += pickle.loads(pickle.dumps(fn(pickle.loads(pickle.dumps(item)))))
+        return lambda: None
+
+
+class _Cancelled:
+    """Tasks that never started (no free worker): the face's own thread matches every pair."""
+
+    slots = 2
+
+    def __init__(self):
+        self.cancelled = 0
+
+    def start(self, fn, items):
+        assert items
+
+        def cancel():
+            self.cancelled += len(items)
+
+        return cancel
 
 
 def _pairs(folder):
@@ -71,3 +90,11 @@ def test_pair_tasks_give_the_pairs_and_map_of_the_stitchers_threads(face, tmp_pa
     assert again.matched == len(lost) > 0 and _pairs(rerun).keys() == a.keys()
     mc = cv2.imread(str(rerun / "map.png"), cv2.IMREAD_UNCHANGED).astype(int)
     assert np.array_equal(ma, mc)
+
+    # no task started: the face's thread matched them all, the same pairs and map
+    none = _Cancelled()
+    alone = stitch(merge_spools(list(face))[0], tmp_path / "alone", cfg, progress=False, pair_tasks=none)
+    assert none.cancelled > 1 and alone.report["pairs"] == own.report["pairs"] and _pairs(tmp_path / "alone").keys(
+    ) == a.keys()
+    md = cv2.imread(str(tmp_path / "alone" / "map.png"), cv2.IMREAD_UNCHANGED).astype(int)
+    assert np.array_equal(ma, md)

@@ -117,15 +117,32 @@ def _after(task: FacadeTask, *_features: str | None) -> FacadeOutcome:
 
 
 class ClusterTasks:
-    """The pair and render tasks of a face task, on the cluster it runs on: ``pairs.match_batch`` per run of
-    keyframes, writing each pair to the face's pair cache, and ``canvas.render_batch`` per run of tiles, writing
-    its tiles; both on the shared output path. The face task secedes from its worker's thread while they run
-    (``worker_client``), so a worker of one thread matches and draws too, and waits for them holding no thread."""
+    """The pair and render tasks of a face task, on the cluster it runs on, both writing to the shared output path.
+
+    ``start``: ``pairs.match_batch`` per run of keyframes, writing each pair to the face's pair cache; the face task
+    does not wait on them (it matches the same pairs from the other end and cancels what is left), so it keeps its
+    thread: a worker whose thread is free takes part of the matching, and no other face starts in its place.
+    ``map``: ``canvas.render_batch`` per run of tiles, writing its tiles; the face task secedes from its worker's
+    thread while they run (``worker_client``), so a worker of one thread draws tiles too, and waits for them
+    holding no thread."""
 
     def __init__(self):
         from dask.distributed import get_client
 
         self.slots = max(1, sum(get_client().nthreads().values()))
+
+    def start(self, fn, items: list):
+        from dask.distributed import get_client
+
+        client = get_client()
+        # before any face or keyframe task still queued, as the render tasks; submitted without seceding: the face
+        # task goes on matching on its own thread and never blocks on these
+        futures = client.map(fn, items, pure=False, priority=10)
+
+        def cancel() -> None:
+            client.cancel(futures)
+
+        return cancel
 
     def map(self, fn, items: list):
         from dask.distributed import as_completed, worker_client

@@ -17,7 +17,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from collections.abc import Callable, Iterable
+import os
+import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -27,7 +29,6 @@ import cv2
 import numpy as np
 
 from companion.errors import CompanionError
-from companion.files import atomic_path
 from companion.keyframes.features import FeatureConfig
 from companion.matching import DescriptorIndex, MatcherSettings
 from companion.progress import progress_bar
@@ -307,12 +308,19 @@ def _spread(pts: np.ndarray, w: int, h: int) -> float:
 
 
 def save_pair(path: Path, r: PairResult) -> None:
+    """Written atomically under a temporary name of this process and thread: a pair task and the face's own thread
+    may write the same pair at once (the same content; the last rename wins)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {"summary": np.array(json.dumps(r.summary()))}
     if r.accepted:
         arrays.update(H=r.H, pts_i=r.pts_i, pts_j=r.pts_j)
-    with atomic_path(path) as tmp:
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}-{threading.get_ident()}.tmp{path.suffix}")
+    try:
         np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def load_pair(path: Path) -> PairResult | None:
@@ -341,12 +349,12 @@ class RegisteredPairs:
 
 
 class PairRunner(Protocol):
-    """Runs pair tasks elsewhere (the site's cluster): ``slots`` of them at a time; ``map`` yields ``fn`` of each
-    item, in any order, as they finish (the same runner as the render tasks', ``canvas.TileRunner``)."""
+    """Runs pair tasks elsewhere (the site's cluster): ``slots`` of them at a time. ``start`` submits ``fn`` of each
+    item, in their order, and returns at once a function that cancels those not started."""
 
     slots: int
 
-    def map(self, fn: Callable, items: list) -> Iterable: ...
+    def start(self, fn: Callable, items: list) -> Callable[[], None]: ...
 
 
 BATCHES_PER_SLOT = 4  # the pairs still to match are cut into this many tasks per slot: balance, against re-reads
@@ -425,9 +433,12 @@ def register_pairs(
     only new pairs. Without telemetry, no registered pair at all is an error (nothing could place the images).
 
     ``runner`` (the site's cluster), with ``feature_dir`` (the feature cache the features stage filled): the pairs
-    not cached yet are matched by pair tasks (:func:`match_batch`) that write the same cache files; the results are
-    then read from the cache as a rerun reads them, so the map is the one this process's threads make. A pair a
-    task did not leave in the cache is matched here."""
+    not cached yet are also submitted as pair tasks (:func:`match_batch`, runs of keyframes from the first) that
+    write the same cache files, while this process's threads go through the pairs from the last keyframe: a pair
+    a task has written is read from the cache (as a rerun reads it), one it has not is matched here, and the tasks
+    not started when this is done are cancelled. So the face's task never waits on its pair tasks, never hands its
+    thread to another face, and a worker with a free thread takes part of its matching; every pair is the same
+    whoever matched it (each seeds its own RNG), so the map is the one this process's threads make."""
     cam = found.input.camera
     W, H = cam.width, cam.height
     to_norm = np.linalg.inv(cam.K)
@@ -481,12 +492,23 @@ def register_pairs(
             ))
         if batches:
             cache_dir.mkdir(parents=True, exist_ok=True)
-            for _ in runner.map(match_batch, batches):
-                pass
+            cancel = runner.start(match_batch, batches)
+            try:  # this thread matches too, from the other end (below): it never waits on the tasks
+                return _registered(candidates, groups, register, cfg, progress, priors, n, settings, reverse=True)
+            finally:
+                cancel()
+    return _registered(candidates, groups, register, cfg, progress, priors, n, settings)
+
+
+def _registered(candidates, groups, register, cfg, progress, priors, n, settings, *, reverse=False
+                ) -> RegisteredPairs:
+    """Every candidate pair, from the cache or matched on this process's threads (``reverse``: the last keyframes
+    first, so pair tasks started from the first meet them in the middle)."""
+    order = sorted(groups, reverse=reverse)
     # keyframes side by side in threads: matching and RANSAC run in OpenCV without the GIL, and every index and
     # pair seeds its own thread's RNG, so the results do not depend on the thread or the order
     with ThreadPoolExecutor(worker_count(cfg)) as pool:
-        done = pool.map(register, groups, groups.values())
+        done = pool.map(register, order, [groups[j] for j in order])
         bar = progress_bar(done, total=len(groups), desc="matching", disable=not progress, leave=False, unit="kf")
         by_pair = {(r.i, r.j): r for rs in bar for r in rs}
     results = [by_pair[pair] for pair in candidates]

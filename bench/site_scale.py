@@ -68,10 +68,11 @@ class _Recording:
     def __init__(self, slots: int):
         self.slots, self.batches = slots, []
 
-    def map(self, fn, items):
+    def start(self, fn, items):
         for batch in items:
             self.batches.append(batch)
-            yield fn(batch)
+            fn(batch)
+        return lambda: None
 
 
 def pair_task_sizes(main: Path, refly: Path, out: Path, slots: int = 2) -> dict:

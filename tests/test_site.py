@@ -67,6 +67,8 @@ def _same_maps(a: Path, b: Path) -> None:
         ma, mb = _map(a / face), _map(b / face)
         assert ma.shape == mb.shape, face
         assert np.abs(ma - mb).max() <= 1, face
+        ra, rb = (json.loads((d / face / "report.json").read_text()) for d in (a, b))
+        assert ra["pairs"] == rb["pairs"] and ra["pairs_rejected"] == rb["pairs_rejected"], face  # the same pairs
 
 
 def test_one_map_per_face_with_its_refly_merged_and_an_index(site, single):

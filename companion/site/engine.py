@@ -110,26 +110,46 @@ class DaskEngine:
 
 def _after(task: FacadeTask, *_features: str | None) -> FacadeOutcome:
     """The face's task, run once its keyframes' feature tasks are done (their results are not needed: they
-    filled the face's feature cache); a map kept as tiles is drawn by render tasks of their own."""
-    return build_facade(task, tiles=ClusterTiles())
+    filled the face's feature cache); its pairs are matched by pair tasks and a map kept as tiles is drawn by
+    render tasks, of their own."""
+    runner = ClusterTasks()
+    return build_facade(task, tiles=runner, pair_tasks=runner)
 
 
-class ClusterTiles:
-    """The render tasks of a face task, on the cluster it runs on: ``canvas.render_batch`` per run of tiles, each
-    writing its tiles to the shared output path. The face task secedes from its worker's thread while they run
-    (``worker_client``), so a worker of one thread draws tiles too, and waits for them holding no thread."""
+class ClusterTasks:
+    """The pair and render tasks of a face task, on the cluster it runs on, both writing to the shared output path.
+
+    ``start``: ``pairs.match_batch`` per run of keyframes, writing each pair to the face's pair cache; the face task
+    does not wait on them (it matches the same pairs from the other end and cancels what is left), so it keeps its
+    thread: a worker whose thread is free takes part of the matching, and no other face starts in its place.
+    ``map``: ``canvas.render_batch`` per run of tiles, writing its tiles; the face task secedes from its worker's
+    thread while they run (``worker_client``), so a worker of one thread draws tiles too, and waits for them
+    holding no thread."""
 
     def __init__(self):
         from dask.distributed import get_client
 
         self.slots = max(1, sum(get_client().nthreads().values()))
 
+    def start(self, fn, items: list):
+        from dask.distributed import get_client
+
+        client = get_client()
+        # before any face or keyframe task still queued, as the render tasks; submitted without seceding: the face
+        # task goes on matching on its own thread and never blocks on these
+        futures = client.map(fn, items, pure=False, priority=10)
+
+        def cancel() -> None:
+            client.cancel(futures)
+
+        return cancel
+
     def map(self, fn, items: list):
         from dask.distributed import as_completed, worker_client
 
         with worker_client() as client:
-            # before any face or keyframe task still queued: a worker's freed thread draws this face's tiles rather
-            # than start another face (whose state would then be held beside this one's)
+            # before any face or keyframe task still queued: a worker's freed thread matches / draws for this face
+            # rather than start another face (whose state would then be held beside this one's)
             futures = client.map(fn, items, pure=False, priority=10)
             for fut in as_completed(futures):
                 yield fut.result()

@@ -23,6 +23,7 @@ from companion.spool.layout import MANIFEST, META
 from companion.stitch.canvas import TileRunner
 from companion.stitch.config import StitchConfig
 from companion.stitch.merge import merge_spools
+from companion.stitch.pairs import PairRunner
 from companion.stitch.worker import stitch
 
 MARKER = "site_done.json"  # in the face's folder; written after everything else of the face
@@ -102,11 +103,13 @@ def done_before(task: FacadeTask) -> FacadeOutcome | None:
         return None  # no marker, or a torn / older one: make the face again
 
 
-def build_facade(task: FacadeTask, tiles: TileRunner | None = None) -> FacadeOutcome:
+def build_facade(task: FacadeTask, tiles: TileRunner | None = None, pair_tasks: PairRunner | None = None
+                  ) -> FacadeOutcome:
     """Make one face's map in ``task.out_dir`` (as `companion stitch` of its spools would) and write its marker
     last. A user-facing problem (a damaged spool, another camera) is returned as a failed outcome, not raised, so
     the site's other faces go on and a cluster does not retry what cannot succeed. ``tiles``: where a map kept as
-    tiles is drawn (the cluster's render tasks; None: this process)."""
+    tiles is drawn (the cluster's render tasks; None: this process); ``pair_tasks``: where the pairs are matched
+    (the cluster's pair tasks; None: this process)."""
     start, cpu = time.perf_counter(), time.process_time()
     spools = tuple(str(s) for s in task.job.spools)
     base = FacadeOutcome(task.job.name, task.out_dir, spools, "failed")
@@ -115,7 +118,7 @@ def build_facade(task: FacadeTask, tiles: TileRunner | None = None) -> FacadeOut
     cfg = replace(task.config, workers=task.threads) if task.threads else task.config
     try:
         inp, _ = merge_spools(list(task.job.spools))
-        res = stitch(inp, task.out_dir, cfg, progress=False, tiles=tiles)
+        res = stitch(inp, task.out_dir, cfg, progress=False, tiles=tiles, pair_tasks=pair_tasks)
         res = replace(res, map_image=None, coverage=None)  # an in-memory map's pixels: written, not held for the COG
         files = dict(res.files)
         if task.cog and (cog := write_cog(task.out_dir, files, task.threads)) is not None:

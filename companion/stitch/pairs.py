@@ -17,21 +17,26 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
+import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
 
 from companion.errors import CompanionError
-from companion.files import atomic_path
+from companion.keyframes.features import FeatureConfig
 from companion.matching import DescriptorIndex, MatcherSettings
 from companion.progress import progress_bar
 from companion.ransac import ransac_affine, ransac_homography
 from companion.stitch.config import STITCH_MATCHING, StitchConfig, worker_count
-from companion.stitch.features import Features, KeyframeFeatures
+from companion.stitch.features import Features, KeyframeFeatures, cached_features
 from companion.stitch.geometry import apply_h, is_sane_homography
+from companion.stitch.inputs import KeyframeInput
 from companion.stitch.priors import PlanePriors
 
 
@@ -303,12 +308,19 @@ def _spread(pts: np.ndarray, w: int, h: int) -> float:
 
 
 def save_pair(path: Path, r: PairResult) -> None:
+    """Written atomically under a temporary name of this process and thread: a pair task and the face's own thread
+    may write the same pair at once (the same content; the last rename wins)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {"summary": np.array(json.dumps(r.summary()))}
     if r.accepted:
         arrays.update(H=r.H, pts_i=r.pts_i, pts_j=r.pts_j)
-    with atomic_path(path) as tmp:
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}-{threading.get_ident()}.tmp{path.suffix}")
+    try:
         np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def load_pair(path: Path) -> PairResult | None:
@@ -336,12 +348,97 @@ class RegisteredPairs:
         return [r for r in self.results if r.accepted]
 
 
+class PairRunner(Protocol):
+    """Runs pair tasks elsewhere (the site's cluster): ``slots`` of them at a time. ``start`` submits ``fn`` of each
+    item, in their order, and returns at once a function that cancels those not started."""
+
+    slots: int
+
+    def start(self, fn: Callable, items: list) -> Callable[[], None]: ...
+
+
+BATCHES_PER_SLOT = 4  # the pairs still to match are cut into this many tasks per slot: balance, against re-reads
+
+
+@dataclass(frozen=True)
+class PairBatch:
+    """A pair task: the pairs (i, j) of a run of keyframes j, matched as ``register_pairs`` matches them on its
+    threads, each written to its cache file. It carries the keyframes' inputs (paths), the feature cache they are
+    read from (the face's, filled before), the priors (3x3 each) and the settings: never features or pixels."""
+
+    groups: tuple[tuple[int, tuple[int, ...]], ...]  # (j, the i's of the pairs (i, j)), keyframe positions
+    keyframes: dict[int, KeyframeInput]  # by position: those the groups name
+    priors: dict[int, np.ndarray | None]
+    paths: dict[tuple[int, int], Path]  # where each pair's result goes (the content-keyed pair cache)
+    feature_dir: Path
+    features: FeatureConfig
+    settings: PairSettings
+    pixel_to_norm: np.ndarray
+    threads: int = 0  # OpenCV's threads in the task (0: its default)
+
+
+def match_batch(batch: PairBatch) -> int:
+    """Matches the batch's pairs not in the cache yet and writes each result there (atomically, so a task rerun
+    after its worker died redoes only the pairs it had not written). Returns how many pairs it matched; the results
+    go through the cache, not the scheduler."""
+    if batch.threads > 0:
+        cv2.setNumThreads(batch.threads)
+    feats: dict[int, Features] = {}
+
+    def features(k: int) -> Features:
+        if k not in feats:
+            feats[k] = cached_features(batch.keyframes[k], batch.feature_dir, batch.features)
+        return feats[k]
+
+    matched = 0
+    for j, group in batch.groups:
+        index_j = None
+        for i in group:
+            path = batch.paths[(i, j)]
+            if path.exists():
+                continue
+            if index_j is None:
+                index_j = keyframe_index(j, features(j), batch.settings)
+            r = match_pair(i, j, features(i), features(j), settings=batch.settings, prior_i=batch.priors[i],
+                           prior_j=batch.priors[j], pixel_to_norm=batch.pixel_to_norm, index_j=index_j)
+            save_pair(path, r)
+            matched += 1
+    return matched
+
+
+def _batches(groups: dict[int, list[int]], paths: dict[tuple[int, int], Path], count: int) -> list[list[int]]:
+    """The keyframes j whose pairs are not all cached, cut into at most ``count`` runs of consecutive j with about
+    as many pairs each (a keyframe's neighbours are near it in the list: a run reads few feature files)."""
+    todo = [j for j, group in groups.items() if any(not paths[(i, j)].exists() for i in group)]
+    if not todo:
+        return []
+    total = sum(len(groups[j]) for j in todo)
+    per = max(1, math.ceil(total / max(1, count)))
+    runs, run, size = [], [], 0
+    for j in todo:
+        run.append(j)
+        size += len(groups[j])
+        if size >= per:
+            runs.append(run)
+            run, size = [], 0
+    return runs + ([run] if run else [])
+
+
 def register_pairs(
-    found: KeyframeFeatures, priors: PlanePriors, cfg: StitchConfig, cache_dir: Path, *, progress: bool
+    found: KeyframeFeatures, priors: PlanePriors, cfg: StitchConfig, cache_dir: Path, *, progress: bool,
+    runner: PairRunner | None = None, feature_dir: Path | None = None,
 ) -> RegisteredPairs:
     """Registers the candidate pairs (sequence neighbours and telemetry-overlapping keyframes), each cached on
     disk under a key of both keyframes' features and the settings, so a resumed or follow-mode run re-matches
-    only new pairs. Without telemetry, no registered pair at all is an error (nothing could place the images)."""
+    only new pairs. Without telemetry, no registered pair at all is an error (nothing could place the images).
+
+    ``runner`` (the site's cluster), with ``feature_dir`` (the feature cache the features stage filled): the pairs
+    not cached yet are also submitted as pair tasks (:func:`match_batch`, runs of keyframes from the first) that
+    write the same cache files, while this process's threads go through the pairs from the last keyframe: a pair
+    a task has written is read from the cache (as a rerun reads it), one it has not is matched here, and the tasks
+    not started when this is done are cancelled. So the face's task never waits on its pair tasks, never hands its
+    thread to another face, and a worker with a free thread takes part of its matching; every pair is the same
+    whoever matched it (each seeds its own RNG), so the map is the one this process's threads make."""
     cam = found.input.camera
     W, H = cam.width, cam.height
     to_norm = np.linalg.inv(cam.K)
@@ -358,12 +455,15 @@ def register_pairs(
     gate_tag = f"{priors.use_poses}-{settings}"
     kfs, feats, keys, P = found.input.keyframes, found.features, found.keys, priors.priors
 
+    def pair_path(i: int, j: int) -> Path:
+        tag = hashlib.sha1(f"{keys[i]}|{keys[j]}|{gate_tag}".encode()).hexdigest()[:16]
+        return cache_dir / f"{kfs[i].index:06d}-{kfs[j].index:06d}-{tag}.npz"
+
     def register(j: int, group: list[int]) -> list[PairResult]:
         """The pairs (i, j) of one keyframe j, each from the cache or matched against j's index (built once)."""
         index_j, out = None, []
         for i in group:
-            tag = hashlib.sha1(f"{keys[i]}|{keys[j]}|{gate_tag}".encode()).hexdigest()[:16]
-            path = cache_dir / f"{kfs[i].index:06d}-{kfs[j].index:06d}-{tag}.npz"
+            path = pair_path(i, j)
             r = load_pair(path)
             if r is None:
                 if index_j is None:
@@ -379,10 +479,36 @@ def register_pairs(
     groups: dict[int, list[int]] = {}
     for i, j in candidates:
         groups.setdefault(j, []).append(i)
+    if runner is not None and feature_dir is not None:
+        paths = {(i, j): pair_path(i, j) for i, j in candidates}
+        runs = _batches(groups, paths, BATCHES_PER_SLOT * max(1, runner.slots))
+        batches = []
+        for run in runs:
+            used = sorted({k for j in run for k in (j, *groups[j])})
+            batches.append(PairBatch(
+                tuple((j, tuple(groups[j])) for j in run), {k: kfs[k] for k in used}, {k: P[k] for k in used},
+                {(i, j): paths[(i, j)] for j in run for i in groups[j]}, feature_dir, cfg.features, settings, to_norm,
+                worker_count(cfg),
+            ))
+        if batches:
+            cache_dir.mkdir(parents=True, exist_ok=True)
+            cancel = runner.start(match_batch, batches)
+            try:  # this thread matches too, from the other end (below): it never waits on the tasks
+                return _registered(candidates, groups, register, cfg, progress, priors, n, settings, reverse=True)
+            finally:
+                cancel()
+    return _registered(candidates, groups, register, cfg, progress, priors, n, settings)
+
+
+def _registered(candidates, groups, register, cfg, progress, priors, n, settings, *, reverse=False
+                ) -> RegisteredPairs:
+    """Every candidate pair, from the cache or matched on this process's threads (``reverse``: the last keyframes
+    first, so pair tasks started from the first meet them in the middle)."""
+    order = sorted(groups, reverse=reverse)
     # keyframes side by side in threads: matching and RANSAC run in OpenCV without the GIL, and every index and
     # pair seeds its own thread's RNG, so the results do not depend on the thread or the order
     with ThreadPoolExecutor(worker_count(cfg)) as pool:
-        done = pool.map(register, groups, groups.values())
+        done = pool.map(register, order, [groups[j] for j in order])
         bar = progress_bar(done, total=len(groups), desc="matching", disable=not progress, leave=False, unit="kf")
         by_pair = {(r.i, r.j): r for rs in bar for r in rs}
     results = [by_pair[pair] for pair in candidates]

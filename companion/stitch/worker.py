@@ -35,7 +35,7 @@ from companion.stitch.features import KeyframeFeatures, find_features
 from companion.stitch.inputs import StitchInput
 from companion.stitch.layout import MapLayout, lay_out
 from companion.stitch.output import UncoveredArea, write_georeferencing
-from companion.stitch.pairs import RegisteredPairs, register_pairs
+from companion.stitch.pairs import PairRunner, RegisteredPairs, register_pairs
 from companion.stitch.priors import PlanePriors, plane_priors
 from companion.stitch.render import MapGrid
 from companion.stitch.report import StitchRun, build_report, measure_coverage, write_map_images
@@ -79,11 +79,12 @@ class Stitcher:
 
     def __init__(
         self, config: StitchConfig | None = None, *, progress: bool = True, debug_dir: str | Path | None = None,
-        tiles: TileRunner | None = None,
+        tiles: TileRunner | None = None, pair_tasks: PairRunner | None = None,
     ):
         self.config = config or StitchConfig()
         self.progress = progress
         self.tiles = tiles  # where a map kept as tiles is drawn (the site's cluster); None: this process's threads
+        self.pair_tasks = pair_tasks  # where the pairs are matched (the site's cluster); None: this process's threads
         self.debug = StageDebug(debug_dir)
 
     def stitch(self, inp: StitchInput, out_dir: str | Path) -> StitchResult:
@@ -142,7 +143,8 @@ class Stitcher:
         return wall, (self.priors(found, wall) if wall.applied else priors)
 
     def pairs(self, found: KeyframeFeatures, priors: PlanePriors, out: Path) -> RegisteredPairs:
-        pairs = register_pairs(found, priors, self.config, out / "cache" / "pairs", progress=self.progress)
+        pairs = register_pairs(found, priors, self.config, out / "cache" / "pairs", progress=self.progress,
+                               runner=self.pair_tasks, feature_dir=out / "cache" / "features")
         self.debug.pairs(found, pairs)
         return pairs
 
@@ -218,6 +220,8 @@ def stitch(
     progress: bool = True,
     debug_dir: str | Path | None = None,
     tiles: TileRunner | None = None,
+    pair_tasks: PairRunner | None = None,
 ) -> StitchResult:
     """The facade map of ``inp`` in ``out_dir`` (see :class:`Stitcher`)."""
-    return Stitcher(config, progress=progress, debug_dir=debug_dir, tiles=tiles).stitch(inp, out_dir)
+    return Stitcher(config, progress=progress, debug_dir=debug_dir, tiles=tiles, pair_tasks=pair_tasks).stitch(
+        inp, out_dir)

@@ -61,6 +61,20 @@ def _chain(scene, buf, spool_dir, scope):
                      scope=scope)  # fmt: skip
 
 
+def _cull_on_wall(scene, cams, tmp_path, lost_samples=()):
+    """The cameras' frames culled with the wall's scope, their poses in the telemetry but ``lost_samples``."""
+    buf = TelemetryBuffer()
+    for i, c in enumerate(cams):
+        if i not in lost_samples:
+            buf.add(scene.pose(c, i / 3.0))
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    chain = _chain(scene, buf, tmp_path / "spool", scope)
+    for i, c in enumerate(cams):
+        chain.process(scene.masked_frame(i, c, t_s=i / 3.0, mask="none").frame)
+    chain.finish()
+    return chain, buf
+
+
 def test_take_off_facing_the_wall_makes_no_keyframe_and_the_scan_is_culled_as_before(scene, tmp_path):
     climb = [WallCamera(6.0, 13.0, 1.0 + 0.25 * i) for i in range(16)]  # climbing 13 m out, facing the wall
     scan = [WallCamera(3.0 + 0.3 * i, STANDOFF, 3.0) for i in range(20)]
@@ -149,14 +163,7 @@ def test_the_approach_opens_on_the_planned_scan_not_on_the_transit(scene, tmp_pa
     above = [WallCamera(6.0, STANDOFF, top + 1.3 + hs) for _ in range(2)]
     descent = [WallCamera(6.0, STANDOFF, top + 0.5 + hs - 0.15 * i) for i in range(45)]
     cams = transit + above + descent
-    buf = TelemetryBuffer()
-    for i, c in enumerate(cams):
-        buf.add(scene.pose(c, i / 3.0))
-    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
-    chain = _chain(scene, buf, tmp_path / "spool", scope)
-    for i, c in enumerate(cams):
-        chain.process(scene.masked_frame(i, c, t_s=i / 3.0, mask="none").frame)
-    chain.finish()
+    chain, _ = _cull_on_wall(scene, cams, tmp_path)
     kept = [e.index for e in chain.spool.entries]
     opening = next(i for i, c in enumerate(cams) if i >= len(transit) and c.up_m - hs < WALL[3])
     assert kept[0] == opening  # the first frame showing the wall, not the transit nor the roof margin
@@ -208,15 +215,7 @@ def test_frames_without_a_pose_after_the_scan_was_left_open_no_segment_and_spool
     back = [WallCamera(9.8 + 0.3 * i, STANDOFF, 3.0) for i in range(8)]
     cams = first + away + gap + back
     in_gap = range(len(first) + len(away), len(first) + len(away) + len(gap))
-    buf = TelemetryBuffer()
-    for i, c in enumerate(cams):
-        if i not in in_gap:
-            buf.add(scene.pose(c, i / 3.0))
-    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
-    chain = _chain(scene, buf, tmp_path / "spool", scope)
-    for i, c in enumerate(cams):
-        chain.process(scene.masked_frame(i, c, t_s=i / 3.0, mask="none").frame)
-    chain.finish()
+    chain, _ = _cull_on_wall(scene, cams, tmp_path, lost_samples=set(in_gap))
     kept = [e.index for e in chain.spool.entries]
     st = chain.stats
     # the gap's frames have no pose, nor has the last frame away (its sample is the last before the gap)
@@ -235,17 +234,9 @@ def test_a_keyframe_falling_in_a_telemetry_gap_is_the_last_frame_before_it_with_
     R >= Rth is kept instead: more overlap with the keyframe before, and the next is judged against it."""
     cams = [WallCamera(1.0 + 0.15 * i, STANDOFF, 3.0) for i in range(60)]
     missing = {14, 28, 29, 42}  # samples lost: frames 13-14, 27-29, 41-42 lie in gaps over 0.5 s
-    buf = TelemetryBuffer()
-    for i, c in enumerate(cams):
-        if i not in missing:
-            buf.add(scene.pose(c, i / 3.0))
+    chain, buf = _cull_on_wall(scene, cams, tmp_path, lost_samples=missing)
     stale = {i for i in range(len(cams)) if buf.pose_at(i / 3.0).stale}
     assert stale == {13, 14, 27, 28, 29, 41, 42}
-    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
-    chain = _chain(scene, buf, tmp_path / "spool", scope)
-    for i, c in enumerate(cams):
-        chain.process(scene.masked_frame(i, c, t_s=i / 3.0, mask="none").frame)
-    chain.finish()
     kept = [e.index for e in chain.spool.entries]
     assert not set(kept) & stale, kept  # it used to keep 14, 28 and 42 (every 7th frame, posed or not)
     assert chain.stats.stale_pose == len(stale) and chain.stats.scan_segments == 1

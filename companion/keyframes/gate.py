@@ -25,8 +25,13 @@ to give (issue 15, the plain-wall pass: at the end of the stream the camera had 
 of the frame, 81 % of it background 120 m away, and the stitcher could not place it by images). A last candidate
 whose ROI is below ``min_last_roi`` of the frame, or whose ROI outside the previous keyframe's view (the pair's
 measured motion, or the poses' where the image could not measure it) is below ``min_last_new_roi`` of the frame,
-is dropped and said (``LAST_DROPPED``). After ``end_segment`` the next frame opens a new segment: it is judged
-against nothing before the gap, so it is neither a low-overlap pair nor a lost track (``SEGMENT``).
+is dropped and said (``LAST_DROPPED``). A segment ending on frames the gate could not measure after its last
+keyframe is a possible gap (``GAP``), unless each of them loses no wall: its ROI is below ``min_last_roi`` (the
+camera leaving the wall), or, with the poses and the mission's wall (``wall_unseen``, set by the chain from its
+scan scope), the last keyframe shows all the wall it shows (the exit climb past the roof line, the plain roof under
+the camera kept as ROI and too poor in features to measure); both are said (``BARE_END``). After ``end_segment``
+the next frame opens a new segment: it is judged against nothing before the gap, so it is neither a low-overlap
+pair nor a lost track (``SEGMENT``).
 """
 
 from __future__ import annotations

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -243,3 +244,60 @@ def test_a_keyframe_falling_in_a_telemetry_gap_is_the_last_frame_before_it_with_
     assert chain.stats.low_overlap_keyframes == 0 and chain.stats.gaps == 0
     pairs = [100.0 * scene.true_overlap(cams[a], cams[b]) for a, b in zip(kept, kept[1:], strict=False)]
     assert len(kept) <= 11 and min(pairs) >= 77.0, (kept, pairs)  # 10 with every pose there
+
+
+def test_the_wall_a_frame_shows_beyond_another_frames_view_is_measured_on_the_wall(scene):
+    """``ScanScope.wall_unseen``: the share of a frame showing wall the other frame's footprint does not show."""
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    hs = _half_height(scene, STANDOFF)
+    key = scene.pose(WallCamera(1.0, STANDOFF, WALL[3] + 0.3 * hs))
+    climbed = scene.pose(WallCamera(1.0, STANDOFF, WALL[3] + hs - 0.05))  # a 5 cm strip of wall: the key shows it
+    assert scope.wall_unseen(climbed, key) == 0.0 and scope.wall_unseen(key, key) == 0.0
+    low = scene.pose(WallCamera(1.0, STANDOFF, WALL[3] - 3.0 * hs))  # far below: none of the strip
+    assert 0.0 < scope.wall_unseen(climbed, low) < 0.05
+    assert scope.wall_unseen(key, low) > 0.2
+    assert scope.wall_unseen(None, key) is None and scope.wall_unseen(key, None) is None
+    assert ScanScope(scene.frame, STANDOFF).wall_unseen(climbed, key) is None  # neither wall nor extent known
+
+
+def test_an_unusable_last_frame_showing_only_wall_the_keyframe_shows_is_no_gap(scene, tmp_path):
+    """The judged 1280 px demo's exit climb up the wall's first column: the scan's last frame (its footprint 5 cm
+    into the wall's top) showed the roof under the camera, which the depth mask keeps as ROI (over 3 % of the
+    frame) and which is too plain to measure, so the segment ended on an unusable frame "showing wall": "possible
+    gap in coverage", while the last keyframe showed all of that wall. By the poses' footprints on the mission's
+    wall it is no gap; an unusable frame showing wall the keyframe does not show, or one without a pose, still is."""
+    from companion.keyframes import GateEventKind, StepRole
+    from companion.records import MaskedFrame, TaggedFrame
+
+    scope = ScanScope(scene.frame, STANDOFF, extent=EXTENT, hfov_deg=scene.hfov_deg, aspect=H / W, wall=WALL)
+    hs = _half_height(scene, STANDOFF)
+    last_cam = WallCamera(1.0, STANDOFF, WALL[3] + hs - 0.05)
+    assert scope.shows_wall(scene.pose(last_cam))  # still a frame of the scan
+
+    def run(key_up: float, wall_unseen, stale: bool = False):
+        gate = KeyframeGate(GateConfig(features=FeatureConfig(long_side_px=W, max_features=1000)))
+        gate.wall_unseen = wall_unseen
+        key_cam = WallCamera(1.0, STANDOFF, key_up)
+        assert gate.push(scene.masked_frame(0, key_cam, mask="none"))  # the first keyframe
+        last = scene.masked_frame(1, last_cam, mask="none")
+        image, roof = last.image.copy(), np.zeros((H, W), np.uint8)
+        roof[int(0.8 * H):] = 255  # the plain roof the depth mask keeps: 20 % of the frame
+        image[roof > 0] = 128
+        tagged = TaggedFrame(replace(last.frame, image=image), last.pose, pose_stale=stale)
+        gate.push(MaskedFrame(tagged, roof))
+        assert gate.last_step.role == StepRole.UNUSABLE
+        gate.end_segment()
+        events = gate.pop_events()
+        return [e for e in events if e.kind == GateEventKind.GAP], [e for e in events if e.kind ==
+                                                                    GateEventKind.BARE_END]
+
+    gaps, said = run(WALL[3] + 0.3 * hs, scope.wall_unseen)
+    assert not gaps and len(said) == 1 and "no gap" in said[0].message, said
+    assert len(run(WALL[3] + 0.3 * hs, None)[0]) == 1  # nothing to tell it by: a gap, as before
+    assert len(run(WALL[3] + 0.3 * hs, scope.wall_unseen, stale=True)[0]) == 1  # a stale pose: a gap
+    assert len(run(WALL[3] - 3.0 * hs, scope.wall_unseen)[0]) == 1  # the keyframe far below the strip: a real gap
+
+    chain = _chain(scene, TelemetryBuffer(), tmp_path / "spool", scope)  # the chain tells the gate its wall
+    assert chain.gate.wall_unseen == scope.wall_unseen
+    chain.scope = None
+    assert chain.gate.wall_unseen is None

@@ -25,8 +25,13 @@ to give (issue 15, the plain-wall pass: at the end of the stream the camera had 
 of the frame, 81 % of it background 120 m away, and the stitcher could not place it by images). A last candidate
 whose ROI is below ``min_last_roi`` of the frame, or whose ROI outside the previous keyframe's view (the pair's
 measured motion, or the poses' where the image could not measure it) is below ``min_last_new_roi`` of the frame,
-is dropped and said (``LAST_DROPPED``). After ``end_segment`` the next frame opens a new segment: it is judged
-against nothing before the gap, so it is neither a low-overlap pair nor a lost track (``SEGMENT``).
+is dropped and said (``LAST_DROPPED``). A segment ending on frames the gate could not measure after its last
+keyframe is a possible gap (``GAP``), unless each of them loses no wall: its ROI is below ``min_last_roi`` (the
+camera leaving the wall), or, with the poses and the mission's wall (``wall_unseen``, set by the chain from its
+scan scope), the last keyframe shows all the wall it shows (the exit climb past the roof line, the plain roof under
+the camera kept as ROI and too poor in features to measure); both are said (``BARE_END``). After ``end_segment``
+the next frame opens a new segment: it is judged against nothing before the gap, so it is neither a low-overlap
+pair nor a lost track (``SEGMENT``).
 """
 
 from __future__ import annotations
@@ -43,7 +48,7 @@ from companion.keyframes.features import FeatureConfig, FeatureExtractor, Featur
 from companion.keyframes.motion import WallMotion, WallMotionPredictor
 from companion.keyframes.overlap import OverlapConfig, OverlapEstimate, OverlapEstimator
 from companion.keyframes.sharpness import SharpnessReference, laplacian_variance
-from companion.records import GateDecision, GateReason, Keyframe, MaskedFrame, OverlapSource
+from companion.records import GateDecision, GateReason, Keyframe, MaskedFrame, OverlapSource, Pose
 
 
 @dataclass(frozen=True)
@@ -164,6 +169,9 @@ class KeyframeGate:
         self.config = config or GateConfig()
         self.predictor = predictor
         self.on_matches: Callable[[MaskedFrame, MaskedFrame, np.ndarray, tuple[int, int]], None] | None = None
+        # (frame's pose, keyframe's pose) -> share of the frame showing wall the keyframe does not show (None: cannot
+        # tell); the chain sets it from its scan scope (``ScanScope.wall_unseen``). Asked of unusable frames only.
+        self.wall_unseen: Callable[[Pose, Pose], float | None] | None = None
         self.telemetry_vetoes = 0  # comparisons where the poses overruled an image R >= Rth
         self.telemetry_fallbacks = 0  # comparisons decided by the poses because the image could not measure the wall
         self.last_dropped = 0  # segments' last candidates not kept: no wall to add (see the module docstring)
@@ -177,6 +185,7 @@ class KeyframeGate:
         self._segment = 0
         self._unusable_since_key = 0
         self._unusable_bare_since_key = 0  # ... of them with next to no ROI (< min_last_roi): no wall to lose
+        self._unusable_seen_since_key = 0  # ... of them whose wall the keyframe shows (by the poses): none to lose
         self._events: list[GateEvent] = []
         self._out: list[Keyframe] = []  # keyframes decided during the current push/flush
         self.last_step: GateStep | None = None
@@ -283,7 +292,8 @@ class KeyframeGate:
                 self.last_dropped += 1
                 step.events.append(GateEvent(GateEventKind.LAST_DROPPED, cand.index,
                                              f"last candidate {cand.index} of the {where} not kept: {why}"))
-        with_wall = self._unusable_since_key - self._unusable_bare_since_key
+        no_loss = self._unusable_bare_since_key + self._unusable_seen_since_key
+        with_wall = self._unusable_since_key - no_loss
         if with_wall:
             step.events.append(
                 GateEvent(
@@ -297,14 +307,16 @@ class KeyframeGate:
                 GateEvent(
                     GateEventKind.BARE_END,
                     -1,
-                    f"{where} ended with {self._unusable_since_key} unusable frame(s) after the last keyframe, each "
-                    f"with an ROI under {100 * self.config.min_last_roi:g} % of the frame (leaving the wall): no gap",
+                    f"{where} ended with {self._unusable_since_key} unusable frame(s) after the last keyframe, "
+                    f"{self._unusable_bare_since_key} with an ROI under {100 * self.config.min_last_roi:g} % of the "
+                    f"frame (leaving the wall), {self._unusable_seen_since_key} showing only wall keyframe "
+                    f"{self._key.index if self._key is not None else '-'} shows (by the poses): no gap",
                 )
             )
         self._segment_ended = self._segment_ended or self._key is not None
         self._key = None
         self._prev_R = 100.0
-        self._unusable_since_key = self._unusable_bare_since_key = 0
+        self._unusable_since_key = self._unusable_bare_since_key = self._unusable_seen_since_key = 0
         self._looked, self._looked_est = {}, {}
         self._events.extend(step.events)
         out, self._out = self._out, []
@@ -467,13 +479,32 @@ class KeyframeGate:
 
     def _unusable(self, item: _Held, step: GateStep, why: str) -> None:
         """A frame the gate cannot measure. One whose ROI is next to nothing (the camera leaving the wall at a
-        segment's end: too few features in a sliver) loses no wall, so a segment ending on it is no gap."""
+        segment's end: too few features in a sliver) loses no wall, so a segment ending on it is no gap. Nor does
+        one whose wall the keyframe shows, by the two poses' footprints on the mission's wall (``wall_unseen``):
+        the judged 1280 px demo's exit climb past the roof line, its last frame of the scan showing a few
+        centimetres of wall (all in the keyframe's view) under the roof, which the depth mask keeps as ROI (>= 3 %
+        of the frame) and which holds too few features to measure. A frame showing wall no keyframe shows, or
+        one without a fresh pose, still ends the segment with a gap."""
         self._unusable_since_key += 1
         roi = _small_mask(item.masked.mask) > 127
         if roi.size == 0 or float(roi.mean()) < self.config.min_last_roi:
             self._unusable_bare_since_key += 1
+        elif self._wall_seen_by_key(item):
+            self._unusable_seen_since_key += 1
         step.role = StepRole.UNUSABLE
         step.events.append(GateEvent(GateEventKind.UNUSABLE_FRAME, item.index, f"frame {item.index} skipped: {why}"))
+
+    def _wall_seen_by_key(self, item: _Held) -> bool:
+        """True when the poses say the keyframe shows all the wall this frame shows (less than
+        ``min_last_new_roi`` of the frame unseen); False when they cannot tell."""
+        key = self._key
+        if self.wall_unseen is None or key is None:
+            return False
+        a, b = key.masked, item.masked
+        if a.pose is None or b.pose is None or a.pose_stale or b.pose_stale:
+            return False
+        unseen = self.wall_unseen(b.pose, a.pose)
+        return unseen is not None and unseen < self.config.min_last_new_roi
 
     def _promote(self, step: GateStep, reason: GateReason) -> None:
         cand, self._cand = self._cand, None
@@ -553,7 +584,7 @@ class KeyframeGate:
         )
         self._key = item
         self._prev_R = 100.0
-        self._unusable_since_key = self._unusable_bare_since_key = 0
+        self._unusable_since_key = self._unusable_bare_since_key = self._unusable_seen_since_key = 0
         self.keyframes_out += 1
         self._out.append(kf)
         step.keyframe_indices.append(item.index)

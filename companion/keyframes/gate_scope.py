@@ -41,6 +41,7 @@ import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+import cv2
 import numpy as np
 
 from companion.attitude import camera_rotation_enu
@@ -119,6 +120,38 @@ class ScanScope:
         f = (w / 2.0) / math.tan(math.radians(self.hfov_deg) / 2.0)
         K = np.array([[f, 0.0, w / 2.0], [0.0, f, h / 2.0], [0.0, 0.0, 1.0]])
         return corner_footprint(K, w, h, centre, rotation)
+
+    def wall_unseen(self, pose: Pose | None, seen_from: Pose | None, grid_px: int = 160) -> float | None:
+        """The share of the frame taken from ``pose`` that shows the wall (``wall``, else the scan extent) where
+        the frame taken from ``seen_from`` does not: by the two footprints on the wall plane, sampled on a grid of
+        ``grid_px`` columns. None: nothing to tell it by (no wall nor extent, a pose missing, or a footprint not on
+        the wall plane ahead). The gate asks it of a frame it could not measure at a segment's end: one whose wall
+        the last keyframe shows loses no wall (``KeyframeGate.wall_unseen``)."""
+        region = self.wall or self.extent
+        if region is None:
+            return None
+        corners, seen = self._footprint_of(pose), self._footprint_of(seen_from)
+        if corners is None or seen is None:
+            return None
+        w, h = _NOMINAL_WIDTH_PX, _NOMINAL_WIDTH_PX * self.aspect
+        image = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]], dtype=np.float32)
+        try:
+            to_wall = cv2.getPerspectiveTransform(image, corners.astype(np.float32)).astype(np.float64)
+            to_seen = cv2.getPerspectiveTransform(seen.astype(np.float32), image).astype(np.float64)
+        except cv2.error:
+            return None
+        nx, ny = grid_px, max(1, round(grid_px * self.aspect))
+        xs, ys = np.meshgrid((np.arange(nx) + 0.5) * w / nx, (np.arange(ny) + 0.5) * h / ny)
+        pts = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)], axis=1) @ to_wall.T
+        along, up = pts[:, 0] / pts[:, 2], pts[:, 1] / pts[:, 2]
+        a0, a1, u0, u1 = region
+        on_wall = (along >= a0) & (along <= a1) & (up >= u0) & (up <= u1)
+        q = np.stack([along, up, np.ones(along.size)], axis=1) @ to_seen.T
+        ahead = np.sign(np.append(seen.mean(axis=0), 1.0) @ to_seen[2])  # the sign of a point in front of it
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+        shown = (np.sign(q[:, 2]) == ahead) & (x >= 0.0) & (x <= w) & (y >= 0.0) & (y <= h)
+        return float(np.count_nonzero(on_wall & ~shown)) / float(along.size)
 
     def misses_extent(self, pose: Pose | None, tolerance_m: float | None = None,
                       region: tuple[float, float, float, float] | None = None) -> bool:

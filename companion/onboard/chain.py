@@ -118,6 +118,8 @@ class CullChain:
     def scope(self, scope: ScanScope | None) -> None:
         self._scope = scope
         self.phase = None if scope is None else ScanPhase(scope)
+        # the gate tells a frame it cannot measure that shows only wall the keyframe shows (no gap) by the scope's wall
+        self.gate.wall_unseen = None if scope is None else scope.wall_unseen
 
     @property
     def standoff(self) -> StandoffEstimate | None:

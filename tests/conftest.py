@@ -40,3 +40,11 @@ def small_recording(tmp_path_factory) -> Path:
     assert main(["record", str(SMALL_WALL), "--out", str(rec), "--fast", "--width", "320", "--max-frames", "24",
                  "--stride", "8"]) == 0
     return rec
+
+
+@pytest.fixture(scope="module")
+def site_face(tmp_path_factory):
+    """Face 0 of tests/site_spools.py's building (main flight + re-fly spools), built once per test module."""
+    from tests.site_spools import make_face
+
+    return make_face(tmp_path_factory.mktemp("spools"), 0)

@@ -11,17 +11,10 @@ import shutil
 
 import cv2
 import numpy as np
-import pytest
 
 from companion.stitch import StitchConfig, stitch
 from companion.stitch.merge import merge_spools
 from companion.stitch.pairs import match_batch
-from tests.site_spools import make_face
-
-
-@pytest.fixture(scope="module")
-def face(tmp_path_factory):
-    return make_face(tmp_path_factory.mktemp("spools"), 0)
 
 
 class _Pickled:
@@ -63,11 +56,11 @@ def _pairs(folder):
     return {p.name: dict(np.load(p)) for p in sorted((folder / "cache" / "pairs").glob("*.npz"))}
 
 
-def test_pair_tasks_give_the_pairs_and_map_of_the_stitchers_threads(face, tmp_path):
+def test_pair_tasks_give_the_pairs_and_map_of_the_stitchers_threads(site_face, tmp_path):
     cfg = StitchConfig(workers=2)
-    own = stitch(merge_spools(list(face))[0], tmp_path / "own", cfg, progress=False)
+    own = stitch(merge_spools(list(site_face))[0], tmp_path / "own", cfg, progress=False)
     runner = _Pickled()
-    tasks = stitch(merge_spools(list(face))[0], tmp_path / "tasks", cfg, progress=False, pair_tasks=runner)
+    tasks = stitch(merge_spools(list(site_face))[0], tmp_path / "tasks", cfg, progress=False, pair_tasks=runner)
     tried = own.report["pairs_tried"]
     assert runner.batches > 1 and runner.matched == tried == tasks.report["pairs_tried"]
     assert own.report["pairs"] == tasks.report["pairs"] and own.report["pairs_rejected"] == tasks.report[
@@ -86,14 +79,14 @@ def test_pair_tasks_give_the_pairs_and_map_of_the_stitchers_threads(face, tmp_pa
     for p in lost:
         p.unlink()
     again = _Pickled()
-    stitch(merge_spools(list(face))[0], rerun, cfg, progress=False, pair_tasks=again)
+    stitch(merge_spools(list(site_face))[0], rerun, cfg, progress=False, pair_tasks=again)
     assert again.matched == len(lost) > 0 and _pairs(rerun).keys() == a.keys()
     mc = cv2.imread(str(rerun / "map.png"), cv2.IMREAD_UNCHANGED).astype(int)
     assert np.array_equal(ma, mc)
 
     # no task started: the face's thread matched them all, the same pairs and map
     none = _Cancelled()
-    alone = stitch(merge_spools(list(face))[0], tmp_path / "alone", cfg, progress=False, pair_tasks=none)
+    alone = stitch(merge_spools(list(site_face))[0], tmp_path / "alone", cfg, progress=False, pair_tasks=none)
     assert none.cancelled > 1 and alone.report["pairs"] == own.report["pairs"] and _pairs(tmp_path / "alone").keys(
     ) == a.keys()
     md = cv2.imread(str(tmp_path / "alone" / "map.png"), cv2.IMREAD_UNCHANGED).astype(int)

@@ -18,12 +18,6 @@ from companion.stitch import StitchConfig, stitch
 from companion.stitch.canvas import render_batch
 from companion.stitch.commands import add_map_arguments, config_from_args
 from companion.stitch.merge import merge_spools
-from tests.site_spools import make_face
-
-
-@pytest.fixture(scope="module")
-def face(tmp_path_factory):
-    return make_face(tmp_path_factory.mktemp("spools"), 0)
 
 
 class _Pickled:
@@ -45,8 +39,8 @@ def _tiles(folder):
     return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "tiles").glob("tile_*.png"))}
 
 
-def test_render_tasks_draw_the_tiles_the_stitcher_draws(face, tmp_path):
-    main, refly = face
+def test_render_tasks_draw_the_tiles_the_stitcher_draws(site_face, tmp_path):
+    main, refly = site_face
     cfg = StitchConfig(tile_px=128, max_in_memory_px=1e4, workers=2)
     own = stitch(merge_spools([main, refly])[0], tmp_path / "own", cfg, progress=False)
     shutil.copytree(tmp_path / "own" / "cache", tmp_path / "tasks" / "cache")  # the same features, pairs, masks
@@ -62,13 +56,13 @@ def test_render_tasks_draw_the_tiles_the_stitcher_draws(face, tmp_path):
     assert tasks.coverage_fraction == own.coverage_fraction and tasks.uncovered == own.uncovered
 
 
-def test_a_coarser_plan_on_a_larger_map_draws_the_same_tiles(face, tmp_path, monkeypatch):
+def test_a_coarser_plan_on_a_larger_map_draws_the_same_tiles(site_face, tmp_path, monkeypatch):
     """Maps over ``PLAN_MAX_BLOCKS`` plan on coarser blocks (a gigapixel map: 16 px), so the plan's memory does not
     grow with the map; the tiles are the same pixels (here: this map's plan forced onto 32 px blocks)."""
     from companion.stitch import canvas
 
     cfg = StitchConfig(tile_px=128, max_in_memory_px=1e4, workers=2)
-    fine = stitch(merge_spools(list(face))[0], tmp_path / "fine", cfg, progress=False)
+    fine = stitch(merge_spools(list(site_face))[0], tmp_path / "fine", cfg, progress=False)
     assert canvas.plan_block_px(fine.grid.width, fine.grid.height) == 8
     monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 1e3)
     assert canvas.plan_block_px(fine.grid.width, fine.grid.height) == 32
@@ -76,14 +70,14 @@ def test_a_coarser_plan_on_a_larger_map_draws_the_same_tiles(face, tmp_path, mon
     assert canvas.plan_block_px(40000, 25000) == 16  # a gigapixel map, at the default limit
     monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 1e3)
     shutil.copytree(tmp_path / "fine" / "cache", tmp_path / "coarse" / "cache")
-    stitch(merge_spools(list(face))[0], tmp_path / "coarse", cfg, progress=False)
+    stitch(merge_spools(list(site_face))[0], tmp_path / "coarse", cfg, progress=False)
     a, b = _tiles(tmp_path / "fine"), _tiles(tmp_path / "coarse")
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 
-def test_a_map_over_the_limit_is_refused_naming_the_option_that_allows_it(face, tmp_path):
+def test_a_map_over_the_limit_is_refused_naming_the_option_that_allows_it(site_face, tmp_path):
     with pytest.raises(CompanionError) as err:
-        stitch(merge_spools(list(face))[0], tmp_path / "big", StitchConfig(max_map_px=1e5), progress=False)
+        stitch(merge_spools(list(site_face))[0], tmp_path / "big", StitchConfig(max_map_px=1e5), progress=False)
     assert "688x421 px (0.29 MP)" in err.value.problem and "over the limit of 0.1 MP" in err.value.problem
     assert "--max-map-px 3e5" in err.value.fix  # the face's map at its native scale
     parser = argparse.ArgumentParser()

@@ -62,5 +62,6 @@ def test_table_has_every_mode_and_its_verdict_follows_its_numbers(bench, capsys)
         ok = (all(e <= 0.05 for e in row["error_mean"].values())
               and row["background_dropped"] >= 0.9 * row["background_frames"] and row["wall_frames_dropped"] == 0)
         assert ("**pass**" in line) == ok
+        assert ("*" in line.split(" | ")[3]) == any(e > 0.05 for e in row["error_mean"].values())
         assert row["cpu_ms_per_frame"] > 0
     assert "load average" in printed

@@ -15,6 +15,9 @@ held-out real outdoor photos behind it, exact truth masks), rendered at ``--widt
   ``companion/onboard/setup.py`` builds it, on ``--frames`` frames of the pass in capture order with exact telemetry
   poses (``bench/depth_real_passes.py``'s ``facade_pose``); every frame masked.
 
+``--command-standoff``: the command modes are told the stills' distance to the wall (``companion mask --standoff``),
+as a user who knows it would.
+
 Per (model, mode): mean error per pass, facade lost per pass (share of the true wall cut, mean over frames with
 wall), background-only frames dropped, frames showing wall dropped, CPU ms per frame, and the verdict against the
 issue's bars (mean error <= 5 % on every pass, >= 90 % of background-only frames dropped, no frame with wall

@@ -1,0 +1,90 @@
+"""`companion mask` one photo at a time (no --sequence, no telemetry) with each single-photo rule, side by side.
+
+Each real-texture pass (held-out: sim/camera/photo_passes.py; validation, training-split photos:
+bench/depth_error_regions.py VALIDATION) is rendered to photo files and masked by
+``companion.depth.photomask.mask_photos`` exactly as the command does, once per rule of
+``companion.depth.single_photo.SINGLE_PHOTO_RULES`` ("network" is the rule before issue 27). ``--sim-seeds``
+also masks the simulator's demo recordings of those seeds frame by frame with each rule (a simulator figure).
+
+    python bench/mask_single.py --passes val-b0309-120,val-b0169-40,val-coruna-120,val-montana-40   # validation
+    python bench/mask_single.py --models sim,real-nc --frames 50 --background-frames 10 --width 640   # held-out
+    python bench/mask_single.py --passes none --sim-seeds 200 --models sim
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # bench.* when run as a script
+
+from bench.mask_sequence import render_pass, score  # noqa: E402
+from companion.depth.masker import Masker  # noqa: E402
+from companion.depth.photomask import mask_photos  # noqa: E402
+from companion.depth.single_photo import SINGLE_PHOTO_RULES, SinglePhotoMasker  # noqa: E402
+from sim.camera.photo_passes import DEFAULT_PASSES  # noqa: E402
+
+MISSION = Path(__file__).resolve().parents[1] / "missions" / "demo-facade.yaml"
+
+
+def sim_rows(seeds: list[int], model: str, rules: list[str], gen_stride: int, data: Path) -> None:
+    """Mean / p95 mask error on the simulator's demo recordings (every frame a photo alone), per rule."""
+    from evaluation.depth.evaluate import evaluate_recording
+    from sim.camera.recording import generate_recording
+
+    for seed in seeds:
+        path = data / f"demo_seed{seed:04d}_g{gen_stride}"
+        if not (path / "meta.json").is_file():
+            generate_recording(MISSION, path, seed=seed, stride=gen_stride)
+        for rule in rules:
+            masker = SinglePhotoMasker(Masker(model, threads=1), rule)
+            s = evaluate_recording(path, masker).summary()
+            print(f"| sim seed {seed} (simulator) | {model} | {rule} | {100 * s['error_mean']:.2f} % / "
+                  f"{100 * s['error_p95']:.2f} % | - | dropped {s['dropped_empty']} (true empty {s['true_empty']}) | "
+                  f"{s['dropped_with_facade']} | - |", flush=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--passes", default=",".join(DEFAULT_PASSES), help="comma list; 'none' for no pass")
+    ap.add_argument("--models", default="sim", help="comma list of shipped model names or .onnx paths")
+    ap.add_argument("--rules", default=",".join(SINGLE_PHOTO_RULES), help="comma list of single-photo rules")
+    ap.add_argument("--frames", type=int, default=50, help="frames per pass (every 5th of the issue's 250)")
+    ap.add_argument("--background-frames", type=int, default=10)
+    ap.add_argument("--width", type=int, default=640, help="photo width in px (16:9, 69 deg hfov)")
+    ap.add_argument("--sim-seeds", type=int, nargs="*", default=[], help="demo recordings to mask too")
+    ap.add_argument("--gen-stride", type=int, default=60, help="camera frames between recorded sim frames")
+    ap.add_argument("--data", default="/tmp/companion-depth-eval", help="cache of the sim recordings")
+    args = ap.parse_args()
+    rules = [r for r in args.rules.split(",") if r]
+    models = [m for m in args.models.split(",") if m]
+    passes = [p for p in args.passes.split(",") if p and p != "none"]
+    print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    print(f"{args.frames} frames per pass ({args.background_frames} past the wall's end), {args.width} px wide")
+    print("\n| pass | model | rule | error mean / p95 | wall-only frames | background-only dropped | "
+          "frames with wall dropped | s |")
+    print("|---|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in passes:
+            folder = Path(tmp) / name
+            folder.mkdir()
+            truths = render_pass(name, args.frames, args.background_frames, args.width, folder)
+            for model in models:
+                masker = Masker(model, threads=1)
+                for rule in rules:
+                    t0 = time.perf_counter()
+                    out = Path(tmp) / f"{name}-{Path(model).stem}-{rule}"
+                    results = mask_photos([folder], out, masker, single_rule=rule)
+                    print(f"| {name} | {model} | {rule} | {score(results, truths)} | "
+                          f"{time.perf_counter() - t0:.0f} |", flush=True)
+    for model in models:
+        sim_rows(args.sim_seeds, model, rules, args.gen_stride, Path(args.data))
+
+
+if __name__ == "__main__":
+    main()

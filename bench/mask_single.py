@@ -32,6 +32,22 @@ from sim.camera.photo_passes import DEFAULT_PASSES  # noqa: E402
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "demo-facade.yaml"
 
 
+def oracle_split(folder: Path, truths, masker: Masker) -> str:
+    """What the best split of the network's depth could do, one photo at a time: each photo cut at the depth
+    threshold (41 quantiles, none, all) that gives the least error against ITS TRUTH. A bound on any rule that
+    splits the network's depth per photo (a histogram split, a wider ratio), not a method."""
+    import cv2
+    import numpy as np
+
+    errors = []
+    for path, truth in zip(sorted(folder.iterdir()), truths, strict=True):
+        disparity = np.squeeze(masker.session.disparity(cv2.imread(str(path), cv2.IMREAD_COLOR)))
+        t = cv2.resize(truth, (disparity.shape[1], disparity.shape[0]), interpolation=cv2.INTER_NEAREST) > 127
+        cuts = np.concatenate([[-1.0], np.quantile(disparity, np.linspace(0, 1, 41)), [2.0]])
+        errors.append(min(float(np.mean((disparity >= c) != t)) for c in cuts))
+    return f"{100 * np.mean(errors):.1f} %"
+
+
 def sim_rows(seeds: list[int], model: str, rules: list[str], gen_stride: int, data: Path) -> None:
     """Mean / p95 mask error on the simulator's demo recordings (every frame a photo alone), per rule."""
     from evaluation.depth.evaluate import evaluate_recording
@@ -60,6 +76,8 @@ def main() -> None:
     ap.add_argument("--sim-seeds", type=int, nargs="*", default=[], help="demo recordings to mask too")
     ap.add_argument("--gen-stride", type=int, default=60, help="camera frames between recorded sim frames")
     ap.add_argument("--data", default="/tmp/companion-depth-eval", help="cache of the sim recordings")
+    ap.add_argument("--oracle", action="store_true",
+                    help="also the best per-photo depth threshold chosen with the truth (a bound, not a method)")
     args = ap.parse_args()
     rules = [r for r in args.rules.split(",") if r]
     models = [m for m in args.models.split(",") if m]
@@ -82,6 +100,9 @@ def main() -> None:
                     results = mask_photos([folder], out, masker, single_rule=rule)
                     print(f"| {name} | {model} | {rule} | {score(results, truths)} | "
                           f"{time.perf_counter() - t0:.0f} |", flush=True)
+                if args.oracle:
+                    print(f"| {name} | {model} | oracle split (truth-chosen) | {oracle_split(folder, truths, masker)} "
+                          "| | | | |", flush=True)
     for model in models:
         sim_rows(args.sim_seeds, model, rules, args.gen_stride, Path(args.data))
 

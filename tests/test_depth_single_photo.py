@@ -72,3 +72,7 @@ def test_enclosed_patches_are_filled_but_not_those_open_to_the_top_or_a_side():
     assert out[0:10, 50:60].max() == 0 and out[25:35, 70:80].max() == 0
     assert fill_enclosed(mask, open_borders=())[45:60, 10:20].max() == 0
     assert fill_enclosed(np.zeros((8, 8), np.uint8)).max() == 0  # an all-background mask stays all background
+    # a photo bigger than the 640 px working copy gets the same answer, pixel for pixel
+    big = cv2.resize(mask, (80 * 16, 60 * 16), interpolation=cv2.INTER_NEAREST)
+    expected = cv2.resize(out, (80 * 16, 60 * 16), interpolation=cv2.INTER_NEAREST)
+    assert np.array_equal(fill_enclosed(big), expected)

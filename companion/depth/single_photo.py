@@ -3,9 +3,14 @@
 One photo at a time there is no parallax and no pose, only the network's depth and the photo itself. On real
 facades the shipped networks order near and far well enough but put the split in the wrong place: they read parts
 of the wall (its top, its edges, balconies, portals) 2.5-4x farther than the rest, and the ROI rules made for the
-onboard chain (``RoiParams``: background beyond 2.5x the nearest region, far cut at 2.5x the facade) cut them. Two
-post-processes of the network's mask, each named so a bench can show them side by side (docs/DEPTH.md, "Masks for
-anyone's photos"):
+onboard chain (``RoiParams``: background beyond 2.5x the nearest region, far cut at 2.5x the facade) cut them.
+Three post-processes of the network's mask, each named so a bench can show them side by side (docs/DEPTH.md,
+"Masks for anyone's photos"):
+
+* **one surface is kept whole** (``keep_whole_spread``): a photo whose network depth varies less than 3x from its
+  10th to its 90th percentile shows no background (a wall at 4 m and a background at 20 m or more differ 5x), so
+  the boundaries the ROI rules find inside it (the network's "top of the frame is far" habit on a wall-only view)
+  cut nothing.
 
 * **a wider split** (``near_ratio`` / ``far_cut_ratio``, named and off): the photo's regions and pixels are cut only
   when the network puts them farther than 1 / ratio times the facade. Whether a photo is kept at all (the masker's 15 m
@@ -41,6 +46,9 @@ class SinglePhotoRule:
     # frame borders a far patch may touch and still be filled (a portal opens on the bottom edge; the sky and the
     # street beside a wall touch the top or a side)
     fill_open_borders: tuple[str, ...] = ("bottom",)
+    # a photo whose network depth varies less than this from its 10th to its 90th percentile is one surface and is
+    # kept whole (a wall at 4 m and a background at 20 m or more differ 5x; None: off)
+    keep_whole_spread: float | None = None
 
 
 # Chosen on the validation passes (bench/depth_error_regions.py VALIDATION, training-split photos) with
@@ -52,6 +60,7 @@ SINGLE_PHOTO_RULES: dict[str, SinglePhotoRule] = {r.name: r for r in (
     SinglePhotoRule("network"),
     SinglePhotoRule("enclosed", fill_enclosed=True),
     SinglePhotoRule("wider", near_ratio=0.25, fill_enclosed=True),
+    SinglePhotoRule("uniform", fill_enclosed=True, keep_whole_spread=3.0),
 )}
 DEFAULT_RULE = "enclosed"
 
@@ -67,14 +76,33 @@ def single_photo_rule(name: str | SinglePhotoRule | None) -> SinglePhotoRule:
     return SINGLE_PHOTO_RULES[name]
 
 
-def fill_enclosed(mask: np.ndarray, open_borders: tuple[str, ...] = ("bottom",)) -> np.ndarray:
+def fill_enclosed(mask: np.ndarray, open_borders: tuple[str, ...] = ("bottom",), work_width: int = 640) -> np.ndarray:
     """``mask`` (uint8 0/255) with every background patch (4-connected) that touches no frame border except those
-    in ``open_borders`` set to 255."""
+    in ``open_borders`` set to 255.
+
+    The patches are found on a copy at most ``work_width`` wide: the mask was resized from the network's 640 px
+    output, so a bigger copy has no other holes, and a 12 MP photo costs a 640 px labelling, not a 12 MP one."""
     far = mask <= 127
     if not far.any() or far.all():
         return mask
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(far.astype(np.uint8), 4)
     h, w = mask.shape
+    small_size = (min(w, work_width), max(1, round(h * min(w, work_width) / w)))
+    small = far if small_size == (w, h) else \
+        cv2.resize(far.astype(np.uint8), small_size, interpolation=cv2.INTER_NEAREST).astype(bool)
+    holes = _enclosed(small, open_borders)
+    if holes is None:
+        return mask
+    if small_size != (w, h):
+        holes = cv2.resize(holes.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool) & far
+    out = mask.copy()
+    out[holes] = 255
+    return out
+
+
+def _enclosed(far: np.ndarray, open_borders: tuple[str, ...]) -> np.ndarray | None:
+    """The pixels of ``far``'s 4-connected patches that touch no border outside ``open_borders`` (None: none)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(far.astype(np.uint8), 4)
+    h, w = far.shape
     x, y = stats[:, cv2.CC_STAT_LEFT], stats[:, cv2.CC_STAT_TOP]
     x1, y1 = x + stats[:, cv2.CC_STAT_WIDTH], y + stats[:, cv2.CC_STAT_HEIGHT]
     touches = {"top": y == 0, "bottom": y1 == h, "left": x == 0, "right": x1 == w}
@@ -84,17 +112,22 @@ def fill_enclosed(mask: np.ndarray, open_borders: tuple[str, ...] = ("bottom",))
             closed |= hit
     fill = ~closed
     fill[0] = False  # label 0 is the kept mask
-    if not fill.any():
-        return mask
-    return np.where(fill[labels], 255, mask).astype(np.uint8)
+    return fill[labels] if fill.any() else None
 
 
-def apply_rule(roi: RoiResult, disparity: np.ndarray, params, rule: SinglePhotoRule) -> RoiResult:
+def apply_rule(roi: RoiResult, disparity: np.ndarray, params, rule: SinglePhotoRule,
+               depth_of=None) -> RoiResult:
     """The masker's ``roi`` of one photo (``params``: its RoiParams) post-processed by ``rule``; a dropped photo
-    stays dropped."""
+    stays dropped. ``depth_of``: the model's disparity -> metres (``ModelInfo.depth_from_disparity``), needed by
+    ``keep_whole_spread``."""
     if roi.empty:
         return roi
     mask = roi.mask
+    if rule.keep_whole_spread is not None and depth_of is not None:
+        z = np.asarray(depth_of(np.squeeze(disparity)[::4, ::4]), np.float32)
+        near, far = np.percentile(z, [10, 90])
+        if far < rule.keep_whole_spread * near:  # one surface: nothing in it is background
+            return replace(roi, mask=np.full_like(mask, 255), no_boundary=True, roi_fraction=1.0)
     if rule.near_ratio is not None or rule.far_cut_ratio is not None:
         wider = replace(params, near_ratio=rule.near_ratio or params.near_ratio,
                         far_cut_ratio=params.far_cut_ratio if rule.far_cut_ratio is None else rule.far_cut_ratio,
@@ -128,7 +161,8 @@ class SinglePhotoMasker:
         from companion.records import MaskedFrame
 
         _, roi, disparity = self.masker.mask_measured(tagged)
-        roi = apply_rule(roi, disparity, self.masker.params, self.rule)
+        roi = apply_rule(roi, disparity, self.masker.params, self.rule,
+                         self.masker.session.info.depth_from_disparity)
         return (None if roi.empty else MaskedFrame(tagged=tagged, mask=roi.mask)), roi, disparity
 
     def mask(self, tagged):

@@ -65,6 +65,41 @@ def sim_rows(seeds: list[int], model: str, rules: list[str], gen_stride: int, da
                   f"{s['dropped_with_facade']} | - |", flush=True)
 
 
+def labelled_rows(split: str, models: list[str], rules: list[str], stride: int) -> None:
+    """Labelled facade photos (CMP, LabelMeFacade) of one split of companion.depth.training.realdata, every
+    ``stride``-th, one at a time: mask error against the facade labels, facade lost, background kept, per rule
+    (the network runs once per photo; each rule post-processes the same answer, as ``companion mask`` does).
+    Caveat as in bench/depth_real_photos.py: a label's background is not always far (neighbours, street, cars)."""
+    import numpy as np
+    from checkout import use_checkout_shared_data
+
+    from companion.depth.single_photo import apply_rule, single_photo_rule
+    from companion.depth.training.realdata import facade_mask, list_real_photos, load_image
+
+    photos = [p for p in list_real_photos(use_checkout_shared_data(), split=split)
+              if p.source in ("cmp", "labelmefacade")][::stride]
+    assert all(p.split == split for p in photos)
+    for model in models:
+        masker = Masker(model, threads=1)
+        depth_of = masker.session.info.depth_from_disparity
+        scores = {(source, rule): [] for source in ("cmp", "labelmefacade") for rule in rules}
+        for photo in photos:
+            image, truth = load_image(photo), facade_mask(photo) > 0
+            disparity = np.squeeze(masker.session.disparity(image))
+            roi = masker.roi_from_disparity(disparity, image.shape[:2])
+            for rule in rules:
+                mask = apply_rule(roi, disparity, masker.params, single_photo_rule(rule), depth_of).mask > 127
+                mask &= not roi.empty
+                scores[photo.source, rule].append((
+                    np.count_nonzero(mask != truth) / truth.size,
+                    np.count_nonzero(truth & ~mask) / max(1, np.count_nonzero(truth)),
+                    np.count_nonzero(~truth & mask) / max(1, np.count_nonzero(~truth))))
+        for (source, rule), rows in scores.items():
+            e, lost, kept = (100 * np.mean(c) for c in zip(*rows, strict=True))
+            print(f"| {split} {source} photos ({len(rows)}) | {model} | {rule} | {e:.1f} % | "
+                  f"facade lost {lost:.1f} % | background kept {kept:.1f} % |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--passes", default=",".join(DEFAULT_PASSES), help="comma list; 'none' for no pass")
@@ -76,6 +111,9 @@ def main() -> None:
     ap.add_argument("--sim-seeds", type=int, nargs="*", default=[], help="demo recordings to mask too")
     ap.add_argument("--gen-stride", type=int, default=60, help="camera frames between recorded sim frames")
     ap.add_argument("--data", default="/tmp/companion-depth-eval", help="cache of the sim recordings")
+    ap.add_argument("--labelled", choices=["train", "heldout"], default=None,
+                    help="also the labelled facade photos of that split, one at a time")
+    ap.add_argument("--labelled-stride", type=int, default=5, help="every n-th labelled photo")
     ap.add_argument("--oracle", action="store_true",
                     help="also the best per-photo depth threshold chosen with the truth (a bound, not a method)")
     args = ap.parse_args()
@@ -103,6 +141,8 @@ def main() -> None:
                 if args.oracle:
                     print(f"| {name} | {model} | oracle split (truth-chosen) | {oracle_split(folder, truths, masker)} "
                           "| | | | |", flush=True)
+    if args.labelled:
+        labelled_rows(args.labelled, models, rules, args.labelled_stride)
     for model in models:
         sim_rows(args.sim_seeds, model, rules, args.gen_stride, Path(args.data))
 

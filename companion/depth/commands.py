@@ -238,8 +238,8 @@ def register(subparsers) -> None:
                         "motion parallax between neighbours corrects each mask (docs/DEPTH.md)")
     p.add_argument("--single-rule", default=None, choices=list(SINGLE_PHOTO_RULES),
                    help=f"without --sequence, how each photo's network mask is post-processed (default "
-                        f"{DEFAULT_RULE}: far patches the wall encloses are wall; network: the network's mask alone; "
-                        "docs/DEPTH.md)")
+                        f"{DEFAULT_RULE}: far patches that do not reach the frame's top are wall; network: the "
+                        "network's mask alone; docs/DEPTH.md)")
     _add_mask_telemetry_options(p)
     p.set_defaults(func=cmd_mask)
 

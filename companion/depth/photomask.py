@@ -6,7 +6,7 @@ near facade, 0 = background; a photo with no near surface gets an all-zero mask 
 than no file, so the tools never fall back to using the whole photo.
 
 Without ``--sequence`` each photo has only the network and itself: its mask gets the single-photo rule
-(companion/depth/single_photo.py; default: far patches the kept wall encloses are wall).
+(companion/depth/single_photo.py; default: far patches that do not reach the frame's top are wall).
 
 Images are read with OpenCV's default EXIF orientation handling, as OpenSfM reads them, so each mask lines up
 with the photo as those tools see it. One unreadable photo does not stop the others: every readable photo gets

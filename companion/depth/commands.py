@@ -152,7 +152,7 @@ def cmd_mask(args) -> int:
         print(f"{m.image}: {what}{how} -> {m.mask_path}", flush=True)
 
     results = mask_photos(args.images, args.out, _photo_masker(args), on_mask=report, sequence=args.sequence,
-                          bound=_photo_bound(args))
+                          bound=_photo_bound(args), single_rule=args.single_rule)
     dropped = sum(m.no_near_surface for m in results)
     print(f"{len(results)} masks written to {args.out} ({dropped} with no near surface)")
     if args.sequence and not any(m.by_parallax for m in results):
@@ -225,6 +225,8 @@ def register(subparsers) -> None:
     p.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     p.set_defaults(func=cmd_run)
 
+    from companion.depth.single_photo import DEFAULT_RULE, SINGLE_PHOTO_RULES
+
     p = subparsers.add_parser(
         "mask", help="write <image stem>_mask.png (255 facade, 0 background) for photos, for OpenDroneMap/Metashape")
     p.add_argument("images", nargs="+", help="photo files or folders of photos (jpg, png, tif)")
@@ -234,6 +236,10 @@ def register(subparsers) -> None:
     p.add_argument("--sequence", action="store_true",
                    help="the photos are one pass along the wall in capture order (folders: sorted by name): "
                         "motion parallax between neighbours corrects each mask (docs/DEPTH.md)")
+    p.add_argument("--single-rule", default=None, choices=list(SINGLE_PHOTO_RULES),
+                   help=f"without --sequence, how each photo's network mask is post-processed (default "
+                        f"{DEFAULT_RULE}: far patches that do not reach the frame's top are wall; network: the "
+                        "network's mask alone; docs/DEPTH.md)")
     _add_mask_telemetry_options(p)
     p.set_defaults(func=cmd_mask)
 

@@ -5,6 +5,9 @@ PNG per photo: 255 where the photo may be used, 0 where it must be ignored. Ours
 near facade, 0 = background; a photo with no near surface gets an all-zero mask (nothing of it is used) rather
 than no file, so the tools never fall back to using the whole photo.
 
+Without ``--sequence`` each photo has only the network and itself: its mask gets the single-photo rule
+(companion/depth/single_photo.py; default: far patches that do not reach the frame's top are wall).
+
 Images are read with OpenCV's default EXIF orientation handling, as OpenSfM reads them, so each mask lines up
 with the photo as those tools see it. One unreadable photo does not stop the others: every readable photo gets
 its mask, then the unreadable ones are reported together.
@@ -110,6 +113,17 @@ def _single_photo_masks(paths: list[Path], masker, read: _PhotoReader) -> _Masks
         yield n, (roi.mask if not roi.empty else np.zeros(image.shape[:2], np.uint8)), roi.empty, False
 
 
+def _with_single_rule(masker, rule):
+    """The masker with the single-photo rule (companion/depth/single_photo.py); a stand-in masker without a depth
+    session (tests) is used as it is."""
+    from companion.depth.single_photo import SinglePhotoMasker, single_photo_rule
+
+    if getattr(masker, "session", None) is None:
+        return masker
+    chosen = single_photo_rule(rule)
+    return masker if chosen.name == "network" else SinglePhotoMasker(masker, chosen)
+
+
 def _sequence_masks(paths: list[Path], masker, read: _PhotoReader, params=None) -> _Masks:
     """The same from the network and the pass's parallax (companion/depth/sequence.py)."""
     from companion.depth.sequence import mask_sequence
@@ -131,7 +145,7 @@ def _bounded(mask: np.ndarray, no_near_surface: bool, path: Path, bound: Bound |
 
 def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
                 on_mask: Callable[[PhotoMask], None] | None = None, *, sequence: bool = False,
-                bound: Bound | None = None, sequence_params=None) -> list[PhotoMask]:
+                bound: Bound | None = None, sequence_params=None, single_rule=None) -> list[PhotoMask]:
     """Mask each photo with the depth masker (default: the shipped model) and write ``<stem>_mask.png``.
 
     ``sequence``: the photos are one pass along the wall in capture order; the motion parallax between
@@ -141,6 +155,10 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
     ``bound``: where each photo can show the wall (``companion.depth.photo_pose.photo_bound`` with a mission):
     everything outside it is cut from the mask; a photo it gives no bound keeps its mask. ``sequence_params``: the
     parallax rules of ``sequence`` (``companion.depth.parallax.ParallaxParams``; default: the shipped ones).
+
+    ``single_rule``: without ``sequence``, how each photo's network mask is post-processed
+    (``companion.depth.single_photo.SINGLE_PHOTO_RULES`` name or rule; None: its ``DEFAULT_RULE``;
+    "network": the network's mask as the onboard chain makes it).
 
     Raises CompanionError before writing anything when two photos would get the same mask name or ``out_dir``
     is a file, and after writing every readable photo's mask when some photos could not be read.
@@ -152,6 +170,8 @@ def mask_photos(images: Iterable[str | Path], out_dir: str | Path, masker=None,
     output = NewOutput(out)
     out.mkdir(parents=True, exist_ok=True)
     masker = masker or Masker()
+    if not sequence:
+        masker = _with_single_rule(masker, single_rule)
     reader = _PhotoReader()
     masks = _sequence_masks(paths, masker, reader, sequence_params) if sequence else \
         _single_photo_masks(paths, masker, reader)

@@ -14,28 +14,25 @@ from companion.errors import CompanionError
 from companion.records import Frame, Keyframe, Pose
 from companion.spool.layout import MANIFEST, META
 from companion.spool.writer import KeyframeSpool
-from companion.stitch import StitchConfig, load_input, stitch
+from companion.stitch import load_input, stitch
 from companion.stitch.features import Features
 from companion.stitch.follow import follow
 from companion.stitch.pairs import PairSettings, match_pair
 from evaluation.stitch.evaluate import map_accuracy, truth_on_grid
 from evaluation.stitch.synthetic import SyntheticWall, make_spool
-
-WALL = SyntheticWall(length_m=8.0, height_m=4.0)
-HOLE = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: masked as background in every keyframe
+from tests.hole_wall import HOLE, WALL
 
 
 @pytest.fixture(scope="module")
-def spool(tmp_path_factory):
-    d = tmp_path_factory.mktemp("spool")
-    truth = make_spool(d, WALL, hole_m=HOLE)
-    return d, truth
+def spool(hole_wall_spool):
+    """tests/hole_wall.py's spool (the wall, with the patch ``HOLE`` masked as background in every keyframe)."""
+    return hole_wall_spool
 
 
 @pytest.fixture(scope="module")
-def result(spool, tmp_path_factory):
-    d, _ = spool
-    return stitch(load_input(d), tmp_path_factory.mktemp("out"), progress=False)
+def result(hole_wall_map):
+    """Its map, stitched once per session with the default settings (tests/conftest.py); read-only."""
+    return hole_wall_map
 
 
 def _accuracy(res, truth):
@@ -105,14 +102,14 @@ def test_resume_uses_the_cache_and_gives_the_same_map(spool, result, tmp_path):
     assert np.array_equal(again.map_image, result.map_image)
 
 
-def test_tiled_output_matches_in_memory(spool, result, tmp_path):
-    d, _ = spool
-    tiled = stitch(load_input(d), tmp_path, StitchConfig(tile_px=128, max_in_memory_px=1000), progress=False)
+def test_tiled_output_matches_in_memory(result, hole_wall_tiled):
+    tiled = hole_wall_tiled  # the same spool stitched with tile_px=128, max_in_memory_px=1000 (tests/conftest.py)
+    tiles_dir = tiled.out_dir / "tiles"
     assert tiled.map_image is None and tiled.files["tiles"]
-    tiles = sorted((tmp_path / "tiles").glob("*.png"))
+    tiles = sorted(tiles_dir.glob("*.png"))
     assert len(tiles) == -(-result.grid.width // 128) * -(-result.grid.height // 128)
     assert tiled.coverage_fraction == pytest.approx(result.coverage_fraction, abs=1e-9)
-    t = cv2.imread(str(tmp_path / "tiles" / "tile_y0000128_x0000256.png"), cv2.IMREAD_UNCHANGED)
+    t = cv2.imread(str(tiles_dir / "tile_y0000128_x0000256.png"), cv2.IMREAD_UNCHANGED)
     # each tile warps from its own origin: sample positions can differ in the last float bit (<= 1 grey level)
     diff = np.abs(t[..., :3].astype(int) - result.map_image[128:256, 256:384]).max(axis=2)
     assert diff.max() <= 1 and np.count_nonzero(diff) < 0.01 * diff.size

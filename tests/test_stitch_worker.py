@@ -218,8 +218,12 @@ def test_follow_mode_updates_as_keyframes_arrive(spool, tmp_path):
     assert last is updates[-1]
 
 
-def test_cli_one_shot(spool, tmp_path, capsys):
+def test_cli_one_shot(spool, result, tmp_path, capsys):
     d, _ = spool
+    # resumed from the session map's features and pairs (the cache is keyed by the files and every setting: what
+    # the CLI asks differently is computed again); the CLI's own alignment, wall check, mesh, render and report
+    shutil.copytree(result.out_dir / "cache" / "features", tmp_path / "cache" / "features")
+    shutil.copytree(result.out_dir / "cache" / "pairs", tmp_path / "cache" / "pairs")
     assert main(["stitch", str(d), "--out", str(tmp_path), "--quiet", "--cells", "8x4"]) == 0
     out = capsys.readouterr().out
     assert "mm/px" in out and "coverage" in out

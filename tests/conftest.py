@@ -77,3 +77,17 @@ def hole_wall_tiled(hole_wall_spool, tmp_path_factory):
 
     return stitch(load_input(hole_wall_spool[0]), tmp_path_factory.mktemp("hole_wall_tiled"),
                   StitchConfig(tile_px=128, max_in_memory_px=1000), progress=False)
+
+
+@pytest.fixture(scope="session")
+def missing_patch_map(tmp_path_factory):
+    """(spool folder, truth, map folder): tests/hole_wall.py's wall flown at 2 m so that no keyframe shows the patch
+    ``HOLE`` (small footprints), stitched by `companion stitch` with its defaults; for the stitcher's re-fly areas
+    (tests/test_stitch_worker.py) and the re-fly planned from them (tests/test_mission_refly.py). Read-only."""
+    from evaluation.stitch.synthetic import make_spool
+    from tests.hole_wall import HOLE, WALL
+
+    root = tmp_path_factory.mktemp("missing_patch")
+    truth = make_spool(root / "spool", WALL, standoff_m=2.0, missing_m=HOLE)
+    assert main(["stitch", str(root / "spool"), "--out", str(root / "map")]) == 0
+    return root / "spool", truth, root / "map"

@@ -1,7 +1,9 @@
 """Test helper: the 8 m x 4 m synthetic wall whose patch ``HOLE`` every keyframe masks out (a portal, a recess),
 spooled and stitched once per session by tests/conftest.py (``hole_wall_spool``, ``hole_wall_map``,
 ``hole_wall_tiled``) for the modules that each made and stitched the same spool alike: tests/test_stitch_worker.py,
-test_outputs_map.py and test_viewer.py. A stitch of it costs 7-11 s; three modules, two of them also tiled.
+test_outputs_map.py and test_viewer.py. A stitch of it costs 7-11 s; three modules, two of them also tiled. The same
+wall flown at 2 m with the patch in no keyframe (``missing_patch_map``): tests/test_stitch_worker.py and
+test_mission_refly.py, 10-16 s a stitch.
 
 The spool and the maps are read-only: a test that writes into a map folder works on its own copy (``map_copy``)."""
 

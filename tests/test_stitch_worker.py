@@ -73,12 +73,13 @@ def test_background_is_never_drawn_and_the_hole_is_reported_as_relief(result):
     assert not at_hole([a.as_dict() for a in result.uncovered]), result.uncovered
 
 
-def test_a_patch_no_keyframe_shows_is_a_refly_area_not_relief(tmp_path):
-    truth = make_spool(tmp_path / "spool", WALL, standoff_m=2.0, missing_m=HOLE)
-    res = stitch(load_input(tmp_path / "spool"), tmp_path / "map", progress=False)
+def test_a_patch_no_keyframe_shows_is_a_refly_area_not_relief(missing_patch_map):
+    _, truth, map_dir = missing_patch_map  # flown at 2 m, the patch HOLE in no keyframe; `companion stitch`'s map
+    report = json.loads((map_dir / "report.json").read_text())
     assert len(truth["views"]) >= 10
-    hits = [a for a in res.uncovered if a.along_min_m < 4.0 < a.along_max_m and a.up_min_m < 2.0 < a.up_max_m]
-    assert hits and not res.report["relief_areas_m"]
+    hits = [a for a in report["uncovered_areas_m"]
+            if a["along_min_m"] < 4.0 < a["along_max_m"] and a["up_min_m"] < 2.0 < a["up_max_m"]]
+    assert hits and not report["relief_areas_m"]
 
 
 def test_outputs_on_disk(result):

@@ -7,13 +7,13 @@ real-firmware.md), reproduced by the simulator (sim/vehicle/firmware.py), end to
 * a mission PX4 refuses at start (geofence) ends with the vehicle's reason within seconds;
 * a link that never comes back ends supervision at the configured limit, non-zero, and the loss is counted;
 * ArduCopter's EKF (GPS only ~38 s after boot): arming refused with its "PreArm:" text, the health wait covers it;
-* failsafe parameters set for the flight with explicit options and restored after.
+* failsafe parameters set for the flight with explicit options and restored after (the default failsafe's warnings:
+  tests/test_flight_sitl_firmware.py, on its ArduCopter demo flight).
 """
 
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import os
 import re
@@ -260,17 +260,3 @@ def test_failsafe_options_set_parameters_for_the_flight_and_restore_them(small_p
         assert asyncio.run(read_back()) == [0.0, 5.0]
     sim_log = (tmp_path / "sim.log").read_text()
     assert "data link lost" not in sim_log
-
-
-def test_default_failsafe_is_reported_as_unsafe_for_the_scan(tmp_path):
-    plan = plan_scan(load_mission(DEMO))
-    with SitlVehicle(speedup=20, autopilot="ardupilot", gps_ready_after=1, home=_home(plan),
-                     log_path=tmp_path / "sim.log") as v:
-        result = _fly(plan, v.url)
-    assert result.completed, result
-    text = " | ".join(result.warnings)
-    assert "FS_GCS_ENABLE=0" in text and "keeps flying" in text
-    assert "RTL_ALT is 15 m, below the transit altitude" in text
-    assert result.waypoints_total < result.items_total  # progress counts waypoints, not DO items
-    assert result.waypoints_reached == result.waypoints_total
-    json.dumps([w for w in result.warnings])  # plain strings, fit for a report

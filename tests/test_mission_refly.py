@@ -191,15 +191,13 @@ def test_map_without_georef_is_planned_with_a_note(tmp_path):
     assert refly.plan is not None and any("map_georef.json" in n for n in refly.notes)
 
 
-def test_refly_of_a_real_stitch_covers_its_hole(tmp_path):
-    """End to end: a synthetic spool whose keyframes all miss one wall patch, stitched by `companion stitch`,
-    re-flown by `companion plan --refly`: the re-fly frames cover the patch the map lacks."""
-    from evaluation.stitch.synthetic import SyntheticWall, make_spool
+def test_refly_of_a_real_stitch_covers_its_hole(missing_patch_map, tmp_path):
+    """End to end: a synthetic spool whose keyframes all miss one wall patch, stitched by `companion stitch`
+    (tests/conftest.py ``missing_patch_map``, shared with tests/test_stitch_worker.py), re-flown by `companion plan
+    --refly`: the re-fly frames cover the patch the map lacks."""
+    from tests.hole_wall import HOLE as hole  # along0, along1, up0, up1: no keyframe shows it (flown at 2 m)
 
-    hole = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: no keyframe shows it (flown at 2 m: small footprints)
-    truth = make_spool(tmp_path / "spool", SyntheticWall(length_m=8.0, height_m=4.0), standoff_m=2.0,
-                       missing_m=hole)
-    assert main(["stitch", str(tmp_path / "spool"), "--out", str(tmp_path / "map")]) == 0
+    _, truth, map_dir = missing_patch_map
     frame = truth["frame"]
     end_lat, end_lon, _ = frame.facade_to_geodetic(frame.length_m, 0.0, 0.0)
     mission = {
@@ -217,8 +215,8 @@ def test_refly_of_a_real_stitch_covers_its_hole(tmp_path):
     path = tmp_path / "wall.yaml"
     path.write_text(json.dumps(mission))  # JSON is YAML
     out = tmp_path / "refly"
-    assert main(["plan", str(path), "--refly", str(tmp_path / "map"), "--out", str(out)]) == 0
-    refly, _ = refly_to_dir(path, tmp_path / "map", tmp_path / "again")
+    assert main(["plan", str(path), "--refly", str(map_dir), "--out", str(out)]) == 0
+    refly, _ = refly_to_dir(path, map_dir, tmp_path / "again")
     assert (out / "synthetic-wall-refly.plan").is_file() and (out / "mavsdk_mission.json").is_file()
     frames = _camera_footprints(refly.plan)
     for a in np.linspace(hole[0], hole[1], 9):

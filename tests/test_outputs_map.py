@@ -18,12 +18,9 @@ import numpy as np
 import pytest
 
 from companion.spool.layout import META
-from companion.stitch import StitchConfig, load_input, stitch
+from companion.stitch import load_input
 from companion.stitch.output import WallAnchor, write_georeferencing
-from evaluation.stitch.synthetic import SyntheticWall, make_spool
-
-WALL = SyntheticWall(length_m=8.0, height_m=4.0)
-HOLE = (3.6, 4.4, 1.6, 2.4)
+from tests.hole_wall import HOLE, WALL, map_copy
 
 
 def gdal(tool: str, *args: str) -> str:
@@ -34,17 +31,16 @@ def gdal(tool: str, *args: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def spool(tmp_path_factory):
-    d = tmp_path_factory.mktemp("spool")
-    truth = make_spool(d, WALL, hole_m=HOLE)
-    return d, truth
+def spool(hole_wall_spool):
+    """tests/hole_wall.py's spool: stitched once per session (tests/conftest.py)."""
+    return hole_wall_spool
 
 
 @pytest.fixture(scope="module")
-def mapped(spool, tmp_path_factory):
+def mapped(spool, hole_wall_map, tmp_path_factory):
     d, _ = spool
     inp = load_input(d)
-    res = stitch(inp, tmp_path_factory.mktemp("out"), progress=False)
+    res = map_copy(hole_wall_map, tmp_path_factory.mktemp("out") / "map")  # its own folder to georeference again
     files = write_georeferencing(res, inp, name="synthetic wall")
     return res, inp, files
 
@@ -127,11 +123,12 @@ def test_sidecar_anchors_the_wall_and_the_keyframes(spool, mapped):
     assert centres[0][0] < centres[-1][0]
 
 
-def test_tiled_map_is_one_georeferenced_mosaic(spool, mapped, tmp_path):
+def test_tiled_map_is_one_georeferenced_mosaic(spool, mapped, hole_wall_tiled, tmp_path):
     d, _ = spool
     res, _, files = mapped
     inp = load_input(d)
-    tiled = stitch(inp, tmp_path, StitchConfig(tile_px=128, max_in_memory_px=1000), progress=False)
+    # the same spool stitched with tile_px=128, max_in_memory_px=1000 (tests/conftest.py), georeferenced again here
+    tiled = map_copy(hole_wall_tiled, tmp_path / "tiled")
     tfiles = write_georeferencing(tiled, inp)
     info = json.loads(gdal("gdalinfo", "-json", tfiles["map_vrt"]))
     assert info["size"] == [tiled.grid.width, tiled.grid.height]

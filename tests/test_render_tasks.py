@@ -39,39 +39,46 @@ def _tiles(folder):
     return {p.name: cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((folder / "tiles").glob("tile_*.png"))}
 
 
-def test_render_tasks_draw_the_tiles_the_stitcher_draws(site_face, tmp_path):
+TILED = StitchConfig(tile_px=128, max_in_memory_px=1e4, workers=2)
+
+
+@pytest.fixture(scope="module")
+def own(site_face, tmp_path_factory):
+    """The face's map kept as tiles, drawn on the stitcher's own threads: the map both tests compare with, stitched
+    once (read-only: a test copies its cache)."""
+    return stitch(merge_spools(list(site_face))[0], tmp_path_factory.mktemp("own"), TILED, progress=False)
+
+
+def test_render_tasks_draw_the_tiles_the_stitcher_draws(site_face, own, tmp_path):
     main, refly = site_face
-    cfg = StitchConfig(tile_px=128, max_in_memory_px=1e4, workers=2)
-    own = stitch(merge_spools([main, refly])[0], tmp_path / "own", cfg, progress=False)
-    shutil.copytree(tmp_path / "own" / "cache", tmp_path / "tasks" / "cache")  # the same features, pairs, masks
+    shutil.copytree(own.out_dir / "cache", tmp_path / "tasks" / "cache")  # the same features, pairs, masks
     runner = _Pickled()
-    tasks = stitch(merge_spools([main, refly])[0], tmp_path / "tasks", cfg, progress=False, tiles=runner)
+    tasks = stitch(merge_spools([main, refly])[0], tmp_path / "tasks", TILED, progress=False, tiles=runner)
     assert own.report["render"]["tiles"] > 8 and runner.batches == tasks.report["render"]["render_tasks"] > 1
-    a, b = _tiles(tmp_path / "own"), _tiles(tmp_path / "tasks")
+    a, b = _tiles(own.out_dir), _tiles(tmp_path / "tasks")
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
     assert not list((tmp_path / "tasks" / "tiles").glob(".*"))  # no temporary file left: each written atomically
     for name in ("map_preview.jpg", "coverage_preview.png"):
-        pa, pb = (cv2.imread(str(d / name), cv2.IMREAD_UNCHANGED) for d in (tmp_path / "own", tmp_path / "tasks"))
+        pa, pb = (cv2.imread(str(d / name), cv2.IMREAD_UNCHANGED) for d in (own.out_dir, tmp_path / "tasks"))
         assert np.array_equal(pa, pb), name
     assert tasks.coverage_fraction == own.coverage_fraction and tasks.uncovered == own.uncovered
 
 
-def test_a_coarser_plan_on_a_larger_map_draws_the_same_tiles(site_face, tmp_path, monkeypatch):
+def test_a_coarser_plan_on_a_larger_map_draws_the_same_tiles(site_face, own, tmp_path, monkeypatch):
     """Maps over ``PLAN_MAX_BLOCKS`` plan on coarser blocks (a gigapixel map: 16 px), so the plan's memory does not
     grow with the map; the tiles are the same pixels (here: this map's plan forced onto 32 px blocks)."""
     from companion.stitch import canvas
 
-    cfg = StitchConfig(tile_px=128, max_in_memory_px=1e4, workers=2)
-    fine = stitch(merge_spools(list(site_face))[0], tmp_path / "fine", cfg, progress=False)
+    fine = own  # drawn on the default plan
     assert canvas.plan_block_px(fine.grid.width, fine.grid.height) == 8
     monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 1e3)
     assert canvas.plan_block_px(fine.grid.width, fine.grid.height) == 32
     monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 4e6)
     assert canvas.plan_block_px(40000, 25000) == 16  # a gigapixel map, at the default limit
     monkeypatch.setattr(canvas, "PLAN_MAX_BLOCKS", 1e3)
-    shutil.copytree(tmp_path / "fine" / "cache", tmp_path / "coarse" / "cache")
-    stitch(merge_spools(list(site_face))[0], tmp_path / "coarse", cfg, progress=False)
-    a, b = _tiles(tmp_path / "fine"), _tiles(tmp_path / "coarse")
+    shutil.copytree(own.out_dir / "cache", tmp_path / "coarse" / "cache")
+    stitch(merge_spools(list(site_face))[0], tmp_path / "coarse", TILED, progress=False)
+    a, b = _tiles(own.out_dir), _tiles(tmp_path / "coarse")
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
 
 

@@ -191,22 +191,31 @@ def test_a_scheduler_and_two_workers_started_by_hand_make_the_same_maps_with_a_w
                 p.kill()
 
 
-def test_the_cog_opens_in_gdal_at_the_reports_scale_also_from_a_tiled_map(site, single, tmp_path):
+TILED = StitchConfig(max_in_memory_px=1e5, tile_px=128)  # a tiny in-memory limit: the map is written only as tiles
+
+
+@pytest.fixture(scope="module")
+def tiled_single(site, tmp_path_factory):
+    """Face 0 with its map kept as tiles, made in this process (its COG too): for the COG test and as the reference
+    of the cluster's render tasks, made once."""
+    _, spools, _ = site
+    out = tmp_path_factory.mktemp("tiled") / "single"
+    res = build_site([spools[0], spools[2]], out, TILED, EngineSpec(workers=0), progress=False)
+    return res, out / "face0"
+
+
+def test_the_cog_opens_in_gdal_at_the_reports_scale_also_from_a_tiled_map(single, tiled_single):
     """The COG of an in-memory map (the site's) and of a map written only as tiles (a tiny in-memory limit): GDAL
     reads a COG layout with overviews, the report's mm/px and the map's pixels."""
     rasterio = pytest.importorskip("rasterio")
-    from companion.site.facade import FacadeTask, build_facade
-    from companion.site.spools import FacadeJob
-    from companion.stitch.config import StitchConfig
 
-    root, spools, _ = site
     out, _ = single
     assert shutil.which("gdalinfo"), "gdalinfo is missing: apt-get install gdal-bin (as for tests/test_outputs_map.py)"
-    tiled = build_facade(FacadeTask(FacadeJob("face0", (spools[0], spools[2])), tmp_path / "face0",
-                                    StitchConfig(max_in_memory_px=1e5, tile_px=128)))
+    res, tiled_dir = tiled_single
+    tiled = res.facades[0]
     assert tiled.status == "done" and "map_vrt" in tiled.files and "map" not in tiled.files
     reference = _map(out / "face0")
-    for folder in (out / "face0", tmp_path / "face0"):
+    for folder in (out / "face0", tiled_dir):
         mm = json.loads((folder / "report.json").read_text())["map"]["mm_per_px"]
         info = subprocess.run(["gdalinfo", str(folder / "map_cog.tif")], capture_output=True, text=True, check=True)
         assert "LAYOUT=COG" in info.stdout and "Overviews:" in info.stdout
@@ -222,17 +231,18 @@ def _tiles(folder: Path) -> dict[str, np.ndarray]:
             for p in sorted((folder / "tiles").glob("tile_y*_x*.png"))}
 
 
-def test_a_tiled_map_is_drawn_by_render_tasks_on_the_cluster_and_is_the_single_process_map(site, tmp_path):
+def test_a_tiled_map_is_drawn_by_render_tasks_on_the_cluster_and_is_the_single_process_map(site, tiled_single,
+                                                                                          tmp_path):
     """A face whose map is kept as tiles (a tiny in-memory limit): on the embedded cluster its tiles are render
     tasks of their own (``canvas.render_batch``, written by the tasks), in this process they are drawn on the
     stitcher's threads; the tiles are the same within one grey level."""
     _, spools, _ = site
-    cfg = StitchConfig(max_in_memory_px=1e5, tile_px=128)
-    outs = {}
-    for name, engine in (("single", EngineSpec(workers=0)), ("cluster", EngineSpec(workers=2))):
-        res = build_site([spools[0], spools[2]], tmp_path / name, cfg, engine, progress=False, cog=False)
-        assert [o.status for o in res.facades] == ["done"]
-        outs[name] = tmp_path / name / "face0"
+    single, outs = tiled_single[0], {"single": tiled_single[1]}
+    assert [o.status for o in single.facades] == ["done"]
+    res = build_site([spools[0], spools[2]], tmp_path / "cluster", TILED, EngineSpec(workers=2), progress=False,
+                     cog=False)
+    assert [o.status for o in res.facades] == ["done"]
+    outs["cluster"] = tmp_path / "cluster" / "face0"
     render = {k: json.loads((v / "report.json").read_text())["render"] for k, v in outs.items()}
     assert "render_tasks" not in render["single"] and render["cluster"]["render_tasks"] > 1
     a, b = _tiles(outs["single"]), _tiles(outs["cluster"])

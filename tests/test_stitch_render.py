@@ -97,7 +97,9 @@ class _KeepsRenderInputs(Stitcher):
         return super().render(found, aligned, layout, out)
 
 
-def test_end_to_end_maps_of_both_renderers_agree(noisy_spool, tmp_path):
+def test_end_to_end_maps_of_both_renderers_agree(noisy_spool, noisy_cache, tmp_path):
+    # from the module's features and pairs (keyed by the files and settings): what is compared is the drawing
+    shutil.copytree(noisy_cache, tmp_path / "out" / "cache")
     stitcher = _KeepsRenderInputs(StitchConfig(), progress=False)
     new = stitcher.stitch(load_input(noisy_spool), tmp_path / "out")
     # the product's render stage (render plan, blend-weight cut, LUT gains, prefetch, drawing threads) against the

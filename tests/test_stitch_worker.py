@@ -14,28 +14,25 @@ from companion.errors import CompanionError
 from companion.records import Frame, Keyframe, Pose
 from companion.spool.layout import MANIFEST, META
 from companion.spool.writer import KeyframeSpool
-from companion.stitch import StitchConfig, load_input, stitch
+from companion.stitch import load_input, stitch
 from companion.stitch.features import Features
 from companion.stitch.follow import follow
 from companion.stitch.pairs import PairSettings, match_pair
 from evaluation.stitch.evaluate import map_accuracy, truth_on_grid
 from evaluation.stitch.synthetic import SyntheticWall, make_spool
-
-WALL = SyntheticWall(length_m=8.0, height_m=4.0)
-HOLE = (3.6, 4.4, 1.6, 2.4)  # along0, along1, up0, up1: masked as background in every keyframe
+from tests.hole_wall import HOLE, WALL
 
 
 @pytest.fixture(scope="module")
-def spool(tmp_path_factory):
-    d = tmp_path_factory.mktemp("spool")
-    truth = make_spool(d, WALL, hole_m=HOLE)
-    return d, truth
+def spool(hole_wall_spool):
+    """tests/hole_wall.py's spool (the wall, with the patch ``HOLE`` masked as background in every keyframe)."""
+    return hole_wall_spool
 
 
 @pytest.fixture(scope="module")
-def result(spool, tmp_path_factory):
-    d, _ = spool
-    return stitch(load_input(d), tmp_path_factory.mktemp("out"), progress=False)
+def result(hole_wall_map):
+    """Its map, stitched once per session with the default settings (tests/conftest.py); read-only."""
+    return hole_wall_map
 
 
 def _accuracy(res, truth):
@@ -76,12 +73,13 @@ def test_background_is_never_drawn_and_the_hole_is_reported_as_relief(result):
     assert not at_hole([a.as_dict() for a in result.uncovered]), result.uncovered
 
 
-def test_a_patch_no_keyframe_shows_is_a_refly_area_not_relief(tmp_path):
-    truth = make_spool(tmp_path / "spool", WALL, standoff_m=2.0, missing_m=HOLE)
-    res = stitch(load_input(tmp_path / "spool"), tmp_path / "map", progress=False)
+def test_a_patch_no_keyframe_shows_is_a_refly_area_not_relief(missing_patch_map):
+    _, truth, map_dir = missing_patch_map  # flown at 2 m, the patch HOLE in no keyframe; `companion stitch`'s map
+    report = json.loads((map_dir / "report.json").read_text())
     assert len(truth["views"]) >= 10
-    hits = [a for a in res.uncovered if a.along_min_m < 4.0 < a.along_max_m and a.up_min_m < 2.0 < a.up_max_m]
-    assert hits and not res.report["relief_areas_m"]
+    hits = [a for a in report["uncovered_areas_m"]
+            if a["along_min_m"] < 4.0 < a["along_max_m"] and a["up_min_m"] < 2.0 < a["up_max_m"]]
+    assert hits and not report["relief_areas_m"]
 
 
 def test_outputs_on_disk(result):
@@ -105,14 +103,14 @@ def test_resume_uses_the_cache_and_gives_the_same_map(spool, result, tmp_path):
     assert np.array_equal(again.map_image, result.map_image)
 
 
-def test_tiled_output_matches_in_memory(spool, result, tmp_path):
-    d, _ = spool
-    tiled = stitch(load_input(d), tmp_path, StitchConfig(tile_px=128, max_in_memory_px=1000), progress=False)
+def test_tiled_output_matches_in_memory(result, hole_wall_tiled):
+    tiled = hole_wall_tiled  # the same spool stitched with tile_px=128, max_in_memory_px=1000 (tests/conftest.py)
+    tiles_dir = tiled.out_dir / "tiles"
     assert tiled.map_image is None and tiled.files["tiles"]
-    tiles = sorted((tmp_path / "tiles").glob("*.png"))
+    tiles = sorted(tiles_dir.glob("*.png"))
     assert len(tiles) == -(-result.grid.width // 128) * -(-result.grid.height // 128)
     assert tiled.coverage_fraction == pytest.approx(result.coverage_fraction, abs=1e-9)
-    t = cv2.imread(str(tmp_path / "tiles" / "tile_y0000128_x0000256.png"), cv2.IMREAD_UNCHANGED)
+    t = cv2.imread(str(tiles_dir / "tile_y0000128_x0000256.png"), cv2.IMREAD_UNCHANGED)
     # each tile warps from its own origin: sample positions can differ in the last float bit (<= 1 grey level)
     diff = np.abs(t[..., :3].astype(int) - result.map_image[128:256, 256:384]).max(axis=2)
     assert diff.max() <= 1 and np.count_nonzero(diff) < 0.01 * diff.size
@@ -221,8 +219,12 @@ def test_follow_mode_updates_as_keyframes_arrive(spool, tmp_path):
     assert last is updates[-1]
 
 
-def test_cli_one_shot(spool, tmp_path, capsys):
+def test_cli_one_shot(spool, result, tmp_path, capsys):
     d, _ = spool
+    # resumed from the session map's features and pairs (the cache is keyed by the files and every setting: what
+    # the CLI asks differently is computed again); the CLI's own alignment, wall check, mesh, render and report
+    shutil.copytree(result.out_dir / "cache" / "features", tmp_path / "cache" / "features")
+    shutil.copytree(result.out_dir / "cache" / "pairs", tmp_path / "cache" / "pairs")
     assert main(["stitch", str(d), "--out", str(tmp_path), "--quiet", "--cells", "8x4"]) == 0
     out = capsys.readouterr().out
     assert "mm/px" in out and "coverage" in out

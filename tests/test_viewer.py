@@ -23,27 +23,23 @@ import numpy as np
 import pytest
 
 from companion.cli import main
-from companion.stitch import load_input, stitch
 from companion.stitch.output import UncoveredArea, tiles_vrt
 from companion.stitch.render import MapGrid
 from companion.stitch.unscaled import area_px
 from companion.viewer.page import ASSETS, PAGE, write_viewer
 from companion.viewer.serve import make_server
 from companion.viewer.tiles import MapReader, halve, halve_weighted, max_zoom_for
-from evaluation.stitch.synthetic import SyntheticWall, make_spool
+from tests.hole_wall import HOLE, WALL
 
-WALL = SyntheticWall(length_m=8.0, height_m=4.0)
-HOLE = (3.6, 4.4, 1.6, 2.4)
 LANDMARKS = ((1.2, 1.0), (6.8, 3.1))  # texture points (along, up) in metres; 5.98 m apart
 
 
 @pytest.fixture(scope="module")
-def mapped(tmp_path_factory):
-    spool = tmp_path_factory.mktemp("spool")
-    truth = make_spool(spool, WALL, hole_m=HOLE)
-    out = tmp_path_factory.mktemp("map")
-    res = stitch(load_input(spool), out, progress=False)
-    return out, res, truth, spool
+def mapped(hole_wall_spool, hole_wall_map):
+    """tests/hole_wall.py's map, stitched once per session (tests/conftest.py), with the viewer the stitch wrote;
+    read-only: a test that writes a viewer copies the folder first."""
+    spool, truth = hole_wall_spool
+    return hole_wall_map.out_dir, hole_wall_map, truth, spool
 
 
 def _data(out: Path) -> dict:

@@ -33,8 +33,12 @@ from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
 # photos whose dominant motion is beyond DIS's reach)
 SEQUENCE_RULES = {"yes": ParallaxParams(),
                   "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"),
-                                                 sequence_wall_depth=False),
-                  "no-wall-depth": ParallaxParams(sequence_wall_depth=False)}
+                                                 sequence_wall_depth=False, plane_far_step_px=None,
+                                                 sequence_zero_prior=False),
+                  "no-wall-depth": ParallaxParams(sequence_wall_depth=False),
+                  # the rules before issue 27 item 3's last step: two far motions, no zero-motion flow
+                  "before-far-step": ParallaxParams(plane_far_step_px=None, sequence_zero_prior=False),
+                  "zero-prior": ParallaxParams(sequence_zero_prior=True)}
 
 
 def pass_spec(name: str, frames: int, background_frames: int, width: int, standoff_m: float = 4.0,

@@ -99,3 +99,34 @@ def test_sequence_of_stills_3_m_apart_13_m_out_keeps_every_photo_with_wall(tmp_p
                                     sequence_wall_depth=False))
     now = dropped(ParallaxParams())
     assert before[0] > 0 and now[0] == 0 and now[1] >= before[1]
+
+
+def test_stills_beyond_the_scaled_window_are_measured_around_the_walls_predicted_motion():
+    """Stills 4 m apart 13 m from the wall: beyond the window scaled by the standoff (0.26-1.95 m) the wall moves 54
+    of the flow's 240 px. With the standoff and the field of view known, the chain measures the flow around the
+    wall's predicted motion (f x baseline / standoff) up to 0.3 of the width, so the still is judged by parallax
+    (before: the network alone), wall near and background far."""
+    standoff, spacing = 13.0, 4.0
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 39.95)  # + 0.05 m: 10 steps of 4 m
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    spec = PhotoPass("stills", wall, bg, standoff_m=standoff, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
+                     frames=round(40.0 / spacing) + 4, background_frames=4)
+    renderer = PhotoPassRenderer(spec)
+    p = ParallaxParams()
+    assert baseline_window(p, standoff)[1] < spacing < baseline_window(p, standoff, 69.0)[1]
+
+    def judge(params: ParallaxParams, i: int = 8):
+        seq = SequenceParallax(69.0, params, standoff_m=standoff)
+        a, b = renderer.render(i - 1), renderer.render(i)
+        assert b.along_m - a.along_m == pytest.approx(spacing, abs=0.01)
+        poses = [Pose(time_s=0.0, **dict(zip(("lat", "lon", "alt_amsl_m"), pymap3d.enu2geodetic(
+            f.along_m, -standoff, f.up_m, 47.0, 8.0, 400.0), strict=True)), relative_alt_m=f.up_m, roll_deg=0.0,
+            pitch_deg=0.0, yaw_deg=0.0) for f in (a, b)]
+        assert seq.update(a.image, poses[0]) is None
+        return b, seq.update(b.image, poses[1])
+
+    assert judge(ParallaxParams(telemetry_max_share=None))[1] is None  # the rule before: network alone
+    b, par = judge(p)
+    assert par is not None and 0.2 < b.wall_fraction < 0.9
+    truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+    assert par.near[truth].mean() > 0.6 and par.far[~truth].mean() > 0.6

@@ -116,16 +116,21 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
 def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
     """The flow of one pair for deciding a photo: around its own dominant motion, and where the pass's wall motion
     differs from that (the wall entering or leaving the view, the background dominating the pair) also around the
-    wall's, each pixel taking the first of the two that it can trust."""
+    wall's, each pixel taking the first of the two that it can trust. With ``sequence_zero_prior`` also around no
+    motion (a far background moves a few pixels while the wall dominates the pair: measured around the wall's
+    motion it is lost)."""
     own = dominant_prior(ref, cur, params)
     flow = dense_flow(ref, cur, params, own)
-    if wall_shift is None or np.hypot(*np.subtract(wall_shift, own or (0, 0))) < params.sequence_align_share * \
-            params.work_width / 2:
-        return flow
-    other = dense_flow(ref, cur, params, wall_shift)
-    use = ~flow.trusted & other.trusted
-    merged = np.where(use[..., None], other.flow, flow.flow)
-    return replace(flow, flow=merged, trusted=flow.trusted | other.trusted)
+    apart = params.sequence_align_share * params.work_width / 2 if params.sequence_align_share else 0.0
+    priors = [own or (0, 0)]
+    for prior in (wall_shift, (0, 0) if params.sequence_zero_prior and wall_shift is not None else None):
+        if prior is not None and all(np.hypot(*np.subtract(prior, q)) >= apart for q in priors):
+            priors.append(prior)
+    for prior in priors[1:]:
+        other = dense_flow(ref, cur, params, prior)
+        use = ~flow.trusted & other.trusted
+        flow = replace(flow, flow=np.where(use[..., None], other.flow, flow.flow), trusted=flow.trusted | other.trusted)
+    return flow
 
 
 def dominant_motion(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[float, float, float]:

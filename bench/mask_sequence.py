@@ -34,11 +34,12 @@ from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
 SEQUENCE_RULES = {"yes": ParallaxParams(),
                   "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"),
                                                  sequence_wall_depth=False, plane_far_step_px=None,
-                                                 sequence_zero_prior=False),
+                                                 sequence_zero_prior=False, sequence_break_deg=None),
                   "no-wall-depth": ParallaxParams(sequence_wall_depth=False),
                   # the rules before issue 27 item 3's last step: two far motions, no zero-motion flow
                   "before-far-step": ParallaxParams(plane_far_step_px=None, sequence_zero_prior=False),
-                  "zero-prior": ParallaxParams(sequence_zero_prior=True)}
+                  "zero-prior": ParallaxParams(sequence_zero_prior=True),
+                  "no-break": ParallaxParams(sequence_break_deg=None)}
 
 
 def pass_spec(name: str, frames: int, background_frames: int, width: int, standoff_m: float = 4.0,

@@ -130,3 +130,38 @@ def test_stills_beyond_the_scaled_window_are_measured_around_the_walls_predicted
     assert par is not None and 0.2 < b.wall_fraction < 0.9
     truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     assert par.near[truth].mean() > 0.6 and par.far[~truth].mean() > 0.6
+
+
+def test_sequence_compares_a_strips_first_photo_with_the_next_photo(tmp_path):
+    """``--sequence`` on two strips of stills 3 m apart 13 m out: the second strip's first photo follows the first
+    strip's last (the camera flown back 42 m and up 8 m). Its pair with that photo does not move along the pass, so it
+    is compared with the next photo instead (``sequence_break_deg``); compared with its predecessor it lost wall."""
+    from companion.depth.masker import Masker
+    from companion.depth.photomask import mask_photos
+    from companion.depth.sequence import SequenceMasker
+
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 38.95)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    spec = PhotoPass("stills", wall, bg, standoff_m=13.0, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
+                     strips_up_m=(5.8, 13.6), frames=30, background_frames=4)
+    renderer = PhotoPassRenderer(spec)
+    truths = []
+    for i in range(len(renderer)):
+        frame = renderer.render(i)
+        cv2.imwrite(str(tmp_path / f"IMG_{i:04d}.png"), frame.image)
+        truths.append(frame.roi_mask > 0)
+    first = 15  # the second strip's first photo
+    assert renderer.positions[first][1] > renderer.positions[first - 1][1]
+    paths = sorted(tmp_path.glob("IMG_*.png"))
+    masker = Masker()
+    _, motion = SequenceMasker(masker).measure((i, cv2.imread(str(p))) for i, p in enumerate(paths))
+    assert motion is not None and not motion.continuous[first]
+    assert all(motion.continuous[i] for i in range(1, first - 2)) and all(motion.continuous[i] for i in range(16, 26))
+
+    def error(params: ParallaxParams) -> float:
+        results = mask_photos(paths, tmp_path / f"out-{params.sequence_break_deg}", masker, sequence=True,
+                              sequence_params=params)
+        mask = cv2.imread(str(results[first].mask_path), cv2.IMREAD_UNCHANGED) > 127
+        return float((mask != truths[first]).mean())
+
+    assert error(ParallaxParams()) < 0.01 < error(ParallaxParams(sequence_break_deg=None))

@@ -175,6 +175,11 @@ class ParallaxParams:
     # the wall fills most of the pair). Off: on the validation passes at 3 m spacing 13 m out it raised the error
     # (val-b0169-40 12.8 -> 13.6 %, val-coruna-120 7.8 -> 8.4 %; docs/DEPTH.md). False: the two motions only.
     sequence_zero_prior: bool = False
+    # ``--sequence``: a photo whose pair with the previous photo moves more than this many degrees off the pass's
+    # direction (a strip's first photo: its predecessor is the last of the strip before, at another height and
+    # the camera flown back), while its pair with the next photo moves along it, is compared with the next photo
+    # (as the pass's first photo is). None: always the previous photo (the rule before).
+    sequence_break_deg: float | None = 30.0
     # Off by default (measured, docs/DEPTH.md "Tried and off"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall

@@ -52,6 +52,10 @@ class PassMotion:
     # frame's edge); None when no pair measured it or ``ParallaxParams.sequence_wall_depth`` is off
     wall_depth: float | None = None
     wall_motion_px: float | None = None  # that dominant motion (work pixels)
+    # per photo index: whether its pair with the previous readable photo moves along the pass (the median trusted
+    # flow within ``ParallaxParams.sequence_break_deg`` of the pass's direction); False at a strip's first photo,
+    # whose predecessor is the last of the strip before (another height, the camera flown back)
+    continuous: dict[int, bool] | None = None
 
 
 @dataclass(frozen=True)
@@ -200,6 +204,7 @@ class SequenceMasker:
         shifts: list[tuple[int, int]] = []
         wall_motions: list[float] = []
         previous: np.ndarray | None = None
+        pair_directions: dict[int, np.ndarray | None] = {}
         for i, image in images:
             if image is None:
                 continue
@@ -214,9 +219,14 @@ class SequenceMasker:
                 direction, scale = _pair_measure(dense_flow(previous, image, self.params, prior), near, depth,
                                                  self.params)
                 directions.append(direction)
+                pair_directions[i] = direction
                 scales.append(scale)
             previous = image
         motion = pass_motion(directions, scales, shifts, wall_motions)
+        if motion is not None and self.params.sequence_break_deg is not None:
+            limit = np.cos(np.radians(self.params.sequence_break_deg))
+            motion = replace(motion, continuous={
+                i: d is not None and float(np.dot(d, motion.direction)) >= limit for i, d in pair_directions.items()})
         if motion is not None and motion.wall_shift is not None and \
                 np.hypot(*motion.wall_shift) > self.params.sequence_max_share * self.params.work_width:
             return networks, None  # stills too far apart for the flow: the network alone decides
@@ -250,6 +260,7 @@ def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarr
     seq = SequenceMasker(masker, params)
     networks, motion = seq.measure((i, read(p)) for i, p in enumerate(paths))
     readable = [i for i in range(len(paths)) if i in networks]
+    continuous = (motion.continuous if motion is not None else None) or {}
     previous: np.ndarray | None = None
     for i in range(len(paths)):
         if i not in networks:
@@ -259,10 +270,13 @@ def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarr
         if image is None:  # changed on disk between the two readings
             raise CompanionError(f"{paths[i]} could not be read the second time",
                                  "leave the photos unchanged while they are being masked, then rerun")
-        if previous is not None:
+        later = [j for j in readable if j > i]
+        # a strip's first photo (its pair with the previous photo does not move along the pass, and its pair with the
+        # next one does) is compared with the next one, as the pass's first photo is
+        broken = i in continuous and not continuous[i] and bool(later) and continuous.get(later[0], False)
+        if previous is not None and not broken:
             neighbour, forward = previous, True
         else:  # the first photo: compared with the next one, whose content moves the other way
-            later = [j for j in readable if j > i]
             neighbour, forward = (read(paths[later[0]]) if later else None), False
         yield i, seq.decide(image, neighbour, forward, networks[i], motion)
         previous = image

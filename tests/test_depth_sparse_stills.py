@@ -165,3 +165,35 @@ def test_sequence_compares_a_strips_first_photo_with_the_next_photo(tmp_path):
         return float((mask != truths[first]).mean())
 
     assert error(ParallaxParams()) < 0.01 < error(ParallaxParams(sequence_break_deg=None))
+
+
+def test_a_wall_30_m_away_is_near_by_its_flow():
+    """Stills 2 m apart 30 m from the wall: the flow puts the wall at 30 m, beyond the 15 m near limit made for the
+    4 m standoff, so before ``max_near_standoffs`` the flow called the whole wall far and only the wall-plane check
+    gave it back (less 9-12 % of a frame under 0.1 m of pose noise on a validation pass). With the standoff known,
+    near reaches 2.5 standoffs."""
+    standoff, spacing = 30.0, 2.0
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 89.95)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    spec = PhotoPass("stills", wall, bg, standoff_m=standoff, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
+                     frames=round(90.0 / spacing) + 4, background_frames=4)
+    renderer = PhotoPassRenderer(spec)
+
+    def judge(params: ParallaxParams, i: int = 40):
+        seq = SequenceParallax(69.0, params, standoff_m=standoff)
+        a, b = renderer.render(i - 1), renderer.render(i)
+        assert b.along_m - a.along_m == pytest.approx(spacing, abs=0.01)
+        poses = [Pose(time_s=0.0, **dict(zip(("lat", "lon", "alt_amsl_m"), pymap3d.enu2geodetic(
+            f.along_m, -standoff, f.up_m, 47.0, 8.0, 400.0), strict=True)), relative_alt_m=f.up_m, roll_deg=0.0,
+            pitch_deg=0.0, yaw_deg=0.0) for f in (a, b)]
+        assert seq.update(a.image, poses[0]) is None
+        par = seq.update(b.image, poses[1])
+        truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        assert 0.2 < truth.mean() < 0.9  # the wall's end in view, the background beside it
+        return par, truth
+
+    before, truth = judge(ParallaxParams(max_near_standoffs=None))
+    assert before.before_plane.near[truth].mean() < 0.05  # the flow alone: all far
+    now, truth = judge(ParallaxParams())
+    assert now.before_plane.near[truth].mean() > 0.6 and now.near[truth].mean() > 0.6
+    assert now.far[~truth].mean() > 0.6

@@ -79,6 +79,11 @@ class ParallaxParams:
     # small copies track the wall's motion over the whole 8-60 cm baseline, and the flow costs a quarter
     work_width: int = 240
     max_near_depth_m: float = 15.0  # nearer than this is near surface (the masker's all-background limit)
+    # ... or, with the wall's depth known (the standoff), nearer than this many times it where that is farther:
+    # 15 m is the 4 m standoff's limit, and a wall 30 m away was all "far" by the flow (only the wall-plane check
+    # gave it back, less 9-12 % of a frame under 0.1 m of pose noise). At 4 m 2.5 x 4 = 10 m: unchanged. None:
+    # ``max_near_depth_m`` whatever the standoff (the rule before).
+    max_near_standoffs: float | None = 2.5
     # Which trusted pixels are near. "wall_ratio": within ``wall_ratio`` x the depth of the wall this frame's own
     # flow measured (the median depth of the nearest trusted pixels that cover ``min_wall_share`` of the frame,
     # when there are that many nearer than ``max_near_depth_m``), and never beyond ``max_near_depth_m``. A
@@ -216,6 +221,11 @@ class ParallaxParams:
     # ``plane_far_step_px`` pixels. None: the fractions above whatever the motion (the rule before). The demo's
     # frames a few centimetres apart move the wall a few pixels: unchanged.
     plane_far_step_px: float | None = 2.0
+    # The wall's motion the check tests is the telemetry's prediction unless the flow's near pixels move more than
+    # this many work pixels off it (a pose's noise on sparse stills far from the wall): then their median motion
+    # (``wall_motion_for_check``). Off: written for the 0.1 m pose noise on stills 30 m out, whose loss turned out
+    # to be the 15 m near limit (``max_near_standoffs``); with 1.0 the demo's keyframe masks at 4 m changed.
+    plane_wall_from_flow_px: float | None = None
     plane_drop_max_near_share: float = 0.015
     # "fit": the drop evidence is the share of the frame that moves like the wall AND fits the wall's motion
     # within ``plane_fit_max`` grey levels (a real wall matches up to JPEG noise; a background patch the wall's
@@ -388,6 +398,23 @@ def _patch_residual(ref: np.ndarray, cur: np.ndarray, dx: float, dy: float, box:
     return cv2.boxFilter(diff, -1, (box, box)), inside
 
 
+def wall_motion_for_check(flow: DenseFlow, near: np.ndarray, direction: np.ndarray, predicted_px: float,
+                          params: ParallaxParams) -> tuple[np.ndarray, float]:
+    """(direction, pixels) of the wall's image motion the wall-plane check tests: the telemetry's prediction, or
+    where the flow's own near pixels (``min_wall_share`` of the frame at least) move more than
+    ``plane_wall_from_flow_px`` off it, their median motion. A pose's noise moves the prediction: 0.1 m on stills
+    2 m apart 30 m out puts it a pixel or more off the wall's 12 px, and the check then called 9-12 % of a
+    wall-only frame far (untracked plain patches that fit the no-motion hypothesis better than a wrong wall motion)."""
+    p = params
+    if p.plane_wall_from_flow_px is None or float(near.mean()) < p.min_wall_share:
+        return direction, predicted_px
+    measured = np.median(flow.flow[near], axis=0)
+    size = float(np.hypot(*measured))
+    if size <= 1e-3 or float(np.hypot(*(measured - predicted_px * direction))) <= p.plane_wall_from_flow_px:
+        return direction, predicted_px
+    return measured / size, size
+
+
 def far_fractions(params: ParallaxParams, wall_flow_px: float) -> tuple[float, ...]:
     """The far motions the wall-plane check tries, as fractions of the wall's (``plane_far_step_px``)."""
     p = params
@@ -438,7 +465,10 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     along = fwd[..., 0] * direction[0] + fwd[..., 1] * direction[1]
     with np.errstate(divide="ignore"):
         depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
-    near = flow.trusted & (depth < p.max_near_depth_m)
+    limit = p.max_near_depth_m
+    if p.max_near_standoffs is not None and wall_depth_m is not None and np.isfinite(wall_depth_m):
+        limit = max(limit, p.max_near_standoffs * float(wall_depth_m))
+    near = flow.trusted & (depth < limit)
     k = int(p.min_wall_share * depth.size)
     if p.near_rule == NearRule.WALL_RATIO and k >= 2 and int(near.sum()) >= k:
         # the wall: the nearest trusted pixels covering min_wall_share of the frame (their median depth), so a
@@ -450,7 +480,8 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     far = flow.trusted & ~near
     if p.plane_check and flow.ref is not None and flow.cur is not None and wall_depth_m is not None \
             and np.isfinite(wall_depth_m) and wall_depth_m > 0:
-        like_wall, like_far, fits_wall, fits_far = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
+        plane_direction, plane_px = wall_motion_for_check(flow, near, direction, f * base / wall_depth_m, p)
+        like_wall, like_far, fits_wall, fits_far = wall_plane_check(flow, plane_direction, plane_px, p)
         near_flow, far_flow = near, far
         near = (near & ~like_far) | like_wall
         far = far & (like_far if p.plane_far_verified else ~like_wall)

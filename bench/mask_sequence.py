@@ -36,8 +36,10 @@ SEQUENCE_RULES = {"yes": ParallaxParams(),
                                                  sequence_wall_depth=False, plane_far_step_px=None,
                                                  sequence_zero_prior=False, sequence_break_deg=None),
                   "no-wall-depth": ParallaxParams(sequence_wall_depth=False),
-                  # the rules before issue 27 item 3's last step: two far motions, no zero-motion flow
-                  "before-far-step": ParallaxParams(plane_far_step_px=None, sequence_zero_prior=False),
+                  # the rules before issue 27's sparse-stills step (main at 59bc5c5): two far motions, a strip's first
+                  # photo compared with the previous strip's last
+                  "before-stills": ParallaxParams(plane_far_step_px=None, sequence_break_deg=None),
+                  "no-far-step": ParallaxParams(plane_far_step_px=None),
                   "zero-prior": ParallaxParams(sequence_zero_prior=True),
                   "no-break": ParallaxParams(sequence_break_deg=None)}
 

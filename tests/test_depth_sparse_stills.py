@@ -114,6 +114,7 @@ def test_stills_beyond_the_scaled_window_are_measured_around_the_walls_predicted
     renderer = PhotoPassRenderer(spec)
     p = ParallaxParams()
     assert baseline_window(p, standoff)[1] < spacing < baseline_window(p, standoff, 69.0)[1]
+    assert baseline_window(p, 4.0, 69.0) == pytest.approx((0.08, 0.6))  # the paper's 4 m: unchanged
 
     def judge(params: ParallaxParams, i: int = 8):
         seq = SequenceParallax(69.0, params, standoff_m=standoff)

@@ -152,9 +152,9 @@ class ParallaxParams:
     # cull``), a reference up to where the wall's predicted image motion (f x baseline / standoff) is this share of
     # the working width, the flow measured around that motion (``dense_flow(..., prior=...)``, as ``--sequence``
     # does around the dominant motion): stills 3 m apart 13 m out move the wall 40 of 240 px, beyond the scaled
-    # window's 1.95 m, and were left to the network alone (issue 27 item 4). 0.3 as ``sequence_max_share``. The
-    # demo's frames a few centimetres apart always find a reference inside the window (unchanged). None: the
-    # window alone (the rule before).
+    # window's 1.95 m, and were left to the network alone (issue 27 item 4). 0.3 as ``sequence_max_share``. Only
+    # for standoffs beyond ``baseline_standoff_m``: at the paper's 4 m nothing changes. None: the window alone (the
+    # rule before).
     telemetry_max_share: float | None = 0.3
     # ``companion mask --sequence`` (no telemetry): where two neighbouring photos' dominant motion (phase
     # correlation of the working copies) exceeds this share of the working width, the flow is measured around it
@@ -745,10 +745,18 @@ def baseline_window(params: ParallaxParams, standoff_m: float | None,
         return params.min_baseline_m, params.max_baseline_m
     scale = standoff_m / params.baseline_standoff_m
     low, high = params.min_baseline_m * scale, params.max_baseline_m * scale
-    if params.telemetry_max_share is not None and hfov_deg is not None:
+    if _aligns(params, standoff_m) and hfov_deg is not None:
         f_work = (params.work_width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
         high = max(high, params.telemetry_max_share * params.work_width * standoff_m / f_work)
     return low, high
+
+
+def _aligns(params: ParallaxParams, standoff_m: float | None) -> bool:
+    """Whether the telemetry window reaches beyond the scaled one (``telemetry_max_share``): only for a wall farther
+    than the window was made for (``baseline_standoff_m``), so at the paper's 4 m nothing changes (not measured
+    there: a reference a metre back at 4 m stays beyond reach, as before)."""
+    return params.telemetry_max_share is not None and params.baseline_standoff_m is not None \
+        and standoff_m is not None and standoff_m > params.baseline_standoff_m
 
 
 def wall_prior(params: ParallaxParams, translation_cam_m: np.ndarray, hfov_deg: float,
@@ -756,8 +764,7 @@ def wall_prior(params: ParallaxParams, translation_cam_m: np.ndarray, hfov_deg: 
     """The wall's predicted image motion (work pixels, ``cur(x) ~ ref(x + d)``: f x baseline / standoff) when it is
     large enough that DIS should measure around it (``sequence_align_share`` of the width, with
     ``telemetry_max_share`` on); None otherwise."""
-    if params.telemetry_max_share is None or params.sequence_align_share is None or standoff_m is None \
-            or not standoff_m > 0:
+    if not _aligns(params, standoff_m) or params.sequence_align_share is None:
         return None
     f_work = (params.work_width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
     t = np.asarray(translation_cam_m, float)

@@ -48,6 +48,7 @@ TELEMETRY_HZ = 10.0
 # ParallaxParams the cull's chain runs with, by name
 SPARSE_RULES: dict[str, ParallaxParams] = {
     "yes": ParallaxParams(),
+    "near-1.5": ParallaxParams(max_near_standoffs=1.5),
     "near-15m": ParallaxParams(max_near_standoffs=None),  # near never beyond 15 m (the 4 m standoff's limit)
     "wall-from-flow": ParallaxParams(plane_wall_from_flow_px=1.0),  # the plane check at the flow's wall motion
     "window": ParallaxParams(telemetry_max_share=None),  # the window scaled by the standoff alone

@@ -198,3 +198,33 @@ def test_a_wall_30_m_away_is_near_by_its_flow():
     now, truth = judge(ParallaxParams())
     assert now.before_plane.near[truth].mean() > 0.6 and now.near[truth].mean() > 0.6
     assert now.far[~truth].mean() > 0.6
+
+
+def test_sequence_judges_the_strip_that_entered_the_view_against_the_next_photo(tmp_path):
+    """Stills 3 m apart 13 m out: the strip of a photo that entered the view since the previous photo (a sixth of
+    the frame) has nothing to compare with there; judged against the next photo (``sequence_both_sides``) the
+    masks are closer to the truth than with the previous photo alone."""
+    from companion.depth.masker import Masker
+    from companion.depth.photomask import mask_photos
+
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), 38.95)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    spec = PhotoPass("stills", wall, bg, standoff_m=13.0, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
+                     frames=round(39.0 / 3.0) + 4, background_frames=4)
+    renderer = PhotoPassRenderer(spec)
+    truths = []
+    for i in range(len(renderer)):
+        frame = renderer.render(i)
+        cv2.imwrite(str(tmp_path / f"IMG_{i:04d}.png"), frame.image)
+        truths.append(frame.roi_mask > 0)
+    paths = sorted(tmp_path.glob("IMG_*.png"))
+    masker = Masker()
+
+    def errors(params: ParallaxParams) -> list[float]:
+        results = mask_photos(paths, tmp_path / f"out-{params.sequence_both_sides}", masker, sequence=True,
+                              sequence_params=params)
+        return [float(((cv2.imread(str(r.mask_path), cv2.IMREAD_UNCHANGED) > 127) != t).mean())
+                for r, t in zip(results, truths, strict=True) if t.any()]  # the photos showing wall
+
+    now, before = errors(ParallaxParams()), errors(ParallaxParams(sequence_both_sides=False))
+    assert np.mean(now) < np.mean(before) - 0.01

@@ -185,6 +185,10 @@ class ParallaxParams:
     # the camera flown back), while its pair with the next photo moves along it, is compared with the next photo
     # (as the pass's first photo is). None: always the previous photo (the rule before).
     sequence_break_deg: float | None = 30.0
+    # ``--sequence``: the pixels a photo's flow against the previous photo could not trust (the strip that entered
+    # the view since, which has nothing to compare with there) are judged against the next photo. False: the
+    # previous photo only (the rule before).
+    sequence_both_sides: bool = True
     # Off by default (measured, docs/DEPTH.md "Tried and off"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall

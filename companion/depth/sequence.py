@@ -232,13 +232,9 @@ class SequenceMasker:
             return networks, None  # stills too far apart for the flow: the network alone decides
         return networks, motion
 
-    def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
-               motion: PassMotion | None) -> SequenceMask:
-        """One photo's mask: the network's, corrected by its parallax against ``neighbour`` (the previous photo,
-        or the next one when ``forward`` is False) at the pass's scale."""
-        net_mask = network.mask()
-        if motion is None or neighbour is None or neighbour.shape != image.shape:
-            return SequenceMask(net_mask, network.empty, False)
+    def _parallax(self, image: np.ndarray, neighbour: np.ndarray, forward: bool, motion: PassMotion):
+        """The photo's parallax against ``neighbour`` (the previous photo, or the next one when ``forward`` is
+        False) at the pass's scale."""
         wall_shift = motion.wall_shift if forward or motion.wall_shift is None else \
             (-motion.wall_shift[0], -motion.wall_shift[1])
         flow = pass_flow(neighbour, image, self.params, wall_shift)
@@ -250,8 +246,35 @@ class SequenceMasker:
         if par.all_background and motion.wall_depth is not None and \
                 motion.wall_motion_px < (self.params.sequence_align_share or 0.0) * self.params.work_width:
             par = depth_from_flow(flow, translation, fx, self.params, motion.wall_depth)
+        return par
+
+    def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
+               motion: PassMotion | None, other: np.ndarray | None = None) -> SequenceMask:
+        """One photo's mask: the network's, corrected by its parallax against ``neighbour`` (the previous photo,
+        or the next one when ``forward`` is False) at the pass's scale. ``other``: the neighbour on the other side
+        (``ParallaxParams.sequence_both_sides``): its parallax decides the pixels the first flow could not trust
+        (the strip that entered the view since the previous photo has nothing to compare with there)."""
+        net_mask = network.mask()
+        if motion is None or neighbour is None or neighbour.shape != image.shape:
+            return SequenceMask(net_mask, network.empty, False)
+        par = self._parallax(image, neighbour, forward, motion)
+        if self.params.sequence_both_sides and other is not None and other.shape == image.shape:
+            par = fill_untrusted(par, self._parallax(image, other, not forward, motion))
         mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)
+
+
+def fill_untrusted(par, second):
+    """``par`` with the pixels it could not trust decided by ``second`` where that can (near, far, depth); the drop
+    evidence stays ``par``'s."""
+    use = ~par.trusted & second.trusted
+    before = par.before_plane
+    if before is not None and second.before_plane is not None:
+        b2 = second.before_plane
+        before = replace(before, trusted=before.trusted | (use & b2.trusted), near=before.near | (use & b2.near),
+                         far=before.far | (use & b2.far), depth_m=np.where(use, b2.depth_m, before.depth_m))
+    return replace(par, depth_m=np.where(use, second.depth_m, par.depth_m), trusted=par.trusted | use,
+                   near=par.near | (use & second.near), far=par.far | (use & second.far), before_plane=before)
 
 
 def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarray | None],
@@ -278,5 +301,8 @@ def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarr
             neighbour, forward = previous, True
         else:  # the first photo: compared with the next one, whose content moves the other way
             neighbour, forward = (read(paths[later[0]]) if later else None), False
-        yield i, seq.decide(image, neighbour, forward, networks[i], motion)
+        other = None
+        if seq.params.sequence_both_sides and forward and later and continuous.get(later[0], True):
+            other = read(paths[later[0]])
+        yield i, seq.decide(image, neighbour, forward, networks[i], motion, other)
         previous = image

@@ -33,8 +33,18 @@ from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
 # photos whose dominant motion is beyond DIS's reach)
 SEQUENCE_RULES = {"yes": ParallaxParams(),
                   "before-align": ParallaxParams(sequence_align_share=None, sequence_max_share=float("inf"),
-                                                 sequence_wall_depth=False),
-                  "no-wall-depth": ParallaxParams(sequence_wall_depth=False)}
+                                                 sequence_wall_depth=False, plane_far_step_px=None,
+                                                 sequence_zero_prior=False, sequence_break_deg=None,
+                                                 sequence_both_sides=False),
+                  "no-wall-depth": ParallaxParams(sequence_wall_depth=False),
+                  # the rules before issue 27's sparse-stills step (main at 59bc5c5): two far motions, a strip's first
+                  # photo compared with the previous strip's last
+                  "before-stills": ParallaxParams(plane_far_step_px=None, sequence_break_deg=None,
+                                                  sequence_both_sides=False),
+                  "no-far-step": ParallaxParams(plane_far_step_px=None),
+                  "zero-prior": ParallaxParams(sequence_zero_prior=True),
+                  "no-break": ParallaxParams(sequence_break_deg=None),
+                  "one-side": ParallaxParams(sequence_both_sides=False)}
 
 
 def pass_spec(name: str, frames: int, background_frames: int, width: int, standoff_m: float = 4.0,

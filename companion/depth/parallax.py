@@ -79,6 +79,11 @@ class ParallaxParams:
     # small copies track the wall's motion over the whole 8-60 cm baseline, and the flow costs a quarter
     work_width: int = 240
     max_near_depth_m: float = 15.0  # nearer than this is near surface (the masker's all-background limit)
+    # ... or, with the wall's depth known (the standoff), nearer than this many times it where that is farther:
+    # 15 m is the 4 m standoff's limit, and a wall 30 m away was all "far" by the flow (only the wall-plane check
+    # gave it back, less 9-12 % of a frame under 0.1 m of pose noise). At 4 m 2.5 x 4 = 10 m: unchanged. None:
+    # ``max_near_depth_m`` whatever the standoff (the rule before).
+    max_near_standoffs: float | None = 2.5
     # Which trusted pixels are near. "wall_ratio": within ``wall_ratio`` x the depth of the wall this frame's own
     # flow measured (the median depth of the nearest trusted pixels that cover ``min_wall_share`` of the frame,
     # when there are that many nearer than ``max_near_depth_m``), and never beyond ``max_near_depth_m``. A
@@ -143,6 +148,14 @@ class ParallaxParams:
     # sparse stills 13-31 m from the wall, 2-5 m apart, move the wall about as much as 0.3-1.5 m at 4 m (issue 27).
     # At the paper's 4 m nothing changes. None: the fixed window whatever the standoff (the rule before).
     baseline_standoff_m: float | None = 4.0
+    # ... and beyond it, with the standoff and the camera's field of view known (the onboard chain, ``companion
+    # cull``), a reference up to where the wall's predicted image motion (f x baseline / standoff) is this share of
+    # the working width, the flow measured around that motion (``dense_flow(..., prior=...)``, as ``--sequence``
+    # does around the dominant motion): stills 3 m apart 13 m out move the wall 40 of 240 px, beyond the scaled
+    # window's 1.95 m, and were left to the network alone (issue 27 item 4). 0.3 as ``sequence_max_share``. Only
+    # for standoffs beyond ``baseline_standoff_m``: at the paper's 4 m nothing changes. None: the window alone (the
+    # rule before).
+    telemetry_max_share: float | None = 0.3
     # ``companion mask --sequence`` (no telemetry): where two neighbouring photos' dominant motion (phase
     # correlation of the working copies) exceeds this share of the working width, the flow is measured around it
     # (``dense_flow(..., prior=...)``): DIS's fast preset lost the wall of stills 3 m apart 13 m out (39 of 240 px:
@@ -162,6 +175,20 @@ class ParallaxParams:
     # background-only photo of six was kept (5 of 6, under the 90 % bar), and on the held-out passes there 16 of 32
     # dropped instead of 31 (seen before this restriction was made: docs/DEPTH.md). False: the rule before.
     sequence_wall_depth: bool = True
+    # ``--sequence`` on a pass whose wall needed aligning: each photo's flow is also measured around no motion, for
+    # the pixels neither its dominant motion nor the wall's could track (a far background moves a few pixels while
+    # the wall fills most of the pair). Off: on the validation passes at 3 m spacing 13 m out it raised the error
+    # (val-b0169-40 12.8 -> 13.6 %, val-coruna-120 7.8 -> 8.4 %; docs/DEPTH.md). False: the two motions only.
+    sequence_zero_prior: bool = False
+    # ``--sequence``: a photo whose pair with the previous photo moves more than this many degrees off the pass's
+    # direction (a strip's first photo: its predecessor is the last of the strip before, at another height and
+    # the camera flown back), while its pair with the next photo moves along it, is compared with the next photo
+    # (as the pass's first photo is). None: always the previous photo (the rule before).
+    sequence_break_deg: float | None = 30.0
+    # ``--sequence``: the pixels a photo's flow against the previous photo could not trust (the strip that entered
+    # the view since, which has nothing to compare with there) are judged against the next photo. False: the
+    # previous photo only (the rule before).
+    sequence_both_sides: bool = True
     # Off by default (measured, docs/DEPTH.md "Tried and off"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall
@@ -191,6 +218,18 @@ class ParallaxParams:
     plane_margin: float = 2.0
     plane_box: int = 7
     plane_far_fractions: tuple[float, ...] = (0.0, 0.2)
+    # Where the wall moves far (at least ``sequence_align_share`` of the working width: stills metres apart, the
+    # flow measured around a prior), two far motions leave a background between them several pixels off both (a
+    # background 120 m behind a wall 13 m away moves 5 of the wall's 54 px; 0.2 of it is 11 px), so neither fits
+    # and it stays near or untrusted. There the far motions run from 0 to 1 / ``wall_ratio`` of the wall's every
+    # ``plane_far_step_px`` pixels. None: the fractions above whatever the motion (the rule before). The demo's
+    # frames a few centimetres apart move the wall a few pixels: unchanged.
+    plane_far_step_px: float | None = 2.0
+    # The wall's motion the check tests is the telemetry's prediction unless the flow's near pixels move more than
+    # this many work pixels off it (a pose's noise on sparse stills far from the wall): then their median motion
+    # (``wall_motion_for_check``). Off: written for the 0.1 m pose noise on stills 30 m out, whose loss turned out
+    # to be the 15 m near limit (``max_near_standoffs``); with 1.0 the demo's keyframe masks at 4 m changed.
+    plane_wall_from_flow_px: float | None = None
     plane_drop_max_near_share: float = 0.015
     # "fit": the drop evidence is the share of the frame that moves like the wall AND fits the wall's motion
     # within ``plane_fit_max`` grey levels (a real wall matches up to JPEG noise; a background patch the wall's
@@ -363,6 +402,34 @@ def _patch_residual(ref: np.ndarray, cur: np.ndarray, dx: float, dy: float, box:
     return cv2.boxFilter(diff, -1, (box, box)), inside
 
 
+def wall_motion_for_check(flow: DenseFlow, near: np.ndarray, direction: np.ndarray, predicted_px: float,
+                          params: ParallaxParams) -> tuple[np.ndarray, float]:
+    """(direction, pixels) of the wall's image motion the wall-plane check tests: the telemetry's prediction, or
+    where the flow's own near pixels (``min_wall_share`` of the frame at least) move more than
+    ``plane_wall_from_flow_px`` off it, their median motion. A pose's noise moves the prediction: 0.1 m on stills
+    2 m apart 30 m out puts it a pixel or more off the wall's 12 px, and the check then called 9-12 % of a
+    wall-only frame far (untracked plain patches that fit the no-motion hypothesis better than a wrong wall motion)."""
+    p = params
+    if p.plane_wall_from_flow_px is None or float(near.mean()) < p.min_wall_share:
+        return direction, predicted_px
+    measured = np.median(flow.flow[near], axis=0)
+    size = float(np.hypot(*measured))
+    if size <= 1e-3 or float(np.hypot(*(measured - predicted_px * direction))) <= p.plane_wall_from_flow_px:
+        return direction, predicted_px
+    return measured / size, size
+
+
+def far_fractions(params: ParallaxParams, wall_flow_px: float) -> tuple[float, ...]:
+    """The far motions the wall-plane check tries, as fractions of the wall's (``plane_far_step_px``)."""
+    p = params
+    if p.plane_far_step_px is None or p.sequence_align_share is None \
+            or wall_flow_px < p.sequence_align_share * p.work_width:
+        return p.plane_far_fractions
+    top = 1.0 / p.wall_ratio
+    n = int(np.ceil(top * wall_flow_px / p.plane_far_step_px))
+    return tuple(float(v) for v in np.linspace(0.0, top, n + 1)[:-1])  # the last is the near rule's own limit
+
+
 def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float,
                      params: ParallaxParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(moves like the wall, moves like the far background, moves like the wall and fits it closely, moves like
@@ -373,7 +440,7 @@ def wall_plane_check(flow: DenseFlow, direction: np.ndarray, wall_flow_px: float
     ref, cur = flow.ref, flow.cur
     e_wall, inside = _patch_residual(ref, cur, wall_flow_px * direction[0], wall_flow_px * direction[1], p.plane_box)
     e_far = np.min([_patch_residual(ref, cur, a * wall_flow_px * direction[0], a * wall_flow_px * direction[1],
-                                    p.plane_box)[0] for a in p.plane_far_fractions], axis=0)
+                                    p.plane_box)[0] for a in far_fractions(p, wall_flow_px)], axis=0)
     gx = cv2.Sobel(cur, cv2.CV_32F, 1, 0, ksize=3) / 4.0
     gy = cv2.Sobel(cur, cv2.CV_32F, 0, 1, ksize=3) / 4.0
     textured = cv2.boxFilter(np.hypot(gx, gy), -1, (7, 7)) >= p.min_texture
@@ -402,7 +469,10 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     along = fwd[..., 0] * direction[0] + fwd[..., 1] * direction[1]
     with np.errstate(divide="ignore"):
         depth = np.where(along > 1e-3, f * base / np.maximum(along, 1e-3), np.inf).astype(np.float32)
-    near = flow.trusted & (depth < p.max_near_depth_m)
+    limit = p.max_near_depth_m
+    if p.max_near_standoffs is not None and wall_depth_m is not None and np.isfinite(wall_depth_m):
+        limit = max(limit, p.max_near_standoffs * float(wall_depth_m))
+    near = flow.trusted & (depth < limit)
     k = int(p.min_wall_share * depth.size)
     if p.near_rule == NearRule.WALL_RATIO and k >= 2 and int(near.sum()) >= k:
         # the wall: the nearest trusted pixels covering min_wall_share of the frame (their median depth), so a
@@ -414,7 +484,8 @@ def depth_from_flow(flow: DenseFlow, translation_cam_m: np.ndarray, fx_px: float
     far = flow.trusted & ~near
     if p.plane_check and flow.ref is not None and flow.cur is not None and wall_depth_m is not None \
             and np.isfinite(wall_depth_m) and wall_depth_m > 0:
-        like_wall, like_far, fits_wall, fits_far = wall_plane_check(flow, direction, f * base / wall_depth_m, p)
+        plane_direction, plane_px = wall_motion_for_check(flow, near, direction, f * base / wall_depth_m, p)
+        like_wall, like_far, fits_wall, fits_far = wall_plane_check(flow, plane_direction, plane_px, p)
         near_flow, far_flow = near, far
         near = (near & ~like_far) | like_wall
         far = far & (like_far if p.plane_far_verified else ~like_wall)
@@ -669,21 +740,86 @@ def _reaching_border(region: np.ndarray) -> np.ndarray:
     return reach[labels]
 
 
-def baseline_window(params: ParallaxParams, standoff_m: float | None) -> tuple[float, float]:
+def baseline_window(params: ParallaxParams, standoff_m: float | None,
+                    hfov_deg: float | None = None) -> tuple[float, float]:
     """(min, max) baseline in metres for a wall ``standoff_m`` away (``ParallaxParams.baseline_standoff_m``): the
-    fixed 8-60 cm without a standoff or with the scaling off."""
+    fixed 8-60 cm without a standoff or with the scaling off. With ``hfov_deg`` too, the max reaches as far as the
+    wall's image motion stays within ``telemetry_max_share`` of the working width (:func:`wall_motion_px`)."""
     if params.baseline_standoff_m is None or standoff_m is None or not standoff_m > 0:
         return params.min_baseline_m, params.max_baseline_m
     scale = standoff_m / params.baseline_standoff_m
-    return params.min_baseline_m * scale, params.max_baseline_m * scale
+    low, high = params.min_baseline_m * scale, params.max_baseline_m * scale
+    if _aligns(params, standoff_m) and hfov_deg is not None:
+        f_work = (params.work_width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
+        high = max(high, params.telemetry_max_share * params.work_width * standoff_m / f_work)
+    return low, high
+
+
+def _aligns(params: ParallaxParams, standoff_m: float | None) -> bool:
+    """Whether the telemetry window reaches beyond the scaled one (``telemetry_max_share``): only for a wall farther
+    than the window was made for (``baseline_standoff_m``), so at the paper's 4 m nothing changes (not measured
+    there: a reference a metre back at 4 m stays beyond reach, as before)."""
+    return params.telemetry_max_share is not None and params.baseline_standoff_m is not None \
+        and standoff_m is not None and standoff_m > params.baseline_standoff_m
+
+
+def wall_prior(params: ParallaxParams, translation_cam_m: np.ndarray, hfov_deg: float,
+               standoff_m: float | None) -> tuple[int, int] | None:
+    """The wall's predicted image motion (work pixels, ``cur(x) ~ ref(x + d)``: f x baseline / standoff) when it is
+    large enough that DIS should measure around it (``sequence_align_share`` of the width, with
+    ``telemetry_max_share`` on); None otherwise."""
+    if not _aligns(params, standoff_m) or params.sequence_align_share is None:
+        return None
+    f_work = (params.work_width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
+    t = np.asarray(translation_cam_m, float)
+    dx, dy = f_work * t[0] / standoff_m, f_work * t[1] / standoff_m
+    if np.hypot(dx, dy) < params.sequence_align_share * params.work_width:
+        return None
+    return round(dx), round(dy)
+
+
+def dominant_motion_grey(ref: np.ndarray, cur: np.ndarray) -> tuple[float, float, float]:
+    """Two grey working copies' dominant image motion (``cur(x) ~ ref(x + d)``) by phase correlation, and the
+    correlation peak (near 1: one motion fills the frame)."""
+    size = (cur.shape[1], cur.shape[0])
+    (dx, dy), response = cv2.phaseCorrelate(cur.astype(np.float32), ref.astype(np.float32),
+                                            cv2.createHanningWindow(size, cv2.CV_32F))
+    return float(dx), float(dy), float(response)
+
+
+def aligned_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int, params: ParallaxParams,
+                      wall: tuple[int, int]) -> DenseFlow:
+    """The flow of two grey working copies whose wall moves by ``wall`` (work pixels, predicted from the
+    telemetry), measured around each motion the pair may show: its dominant one (phase correlation, when large
+    enough: the wall's, or the background's where that fills the frame), the wall's, and none (a far background
+    moves a few pixels), each pixel taking the first of them it can trust (as ``--sequence``'s ``pass_flow``).
+    Measured around the wall's motion alone the background is lost, and around none the wall."""
+    dx, dy, response = dominant_motion_grey(ref, cur)
+    own = None
+    if params.sequence_align_share is not None and response >= params.sequence_align_min_response \
+            and np.hypot(dx, dy) >= params.sequence_align_share * params.work_width:
+        own = (round(dx), round(dy))
+    apart = (params.sequence_align_share or 0.1) * params.work_width / 2
+    priors: list[tuple[int, int]] = []
+    for prior in (own or (0, 0), wall, (0, 0)):
+        if all(np.hypot(*np.subtract(prior, q)) >= apart for q in priors):
+            priors.append(prior)
+    flow = dense_flow_grey(ref, cur, frame_width, params, priors[0])
+    for prior in priors[1:]:
+        other = dense_flow_grey(ref, cur, frame_width, params, prior)
+        use = ~flow.trusted & other.trusted
+        flow = DenseFlow(np.where(use[..., None], other.flow, flow.flow), flow.trusted | other.trusted,
+                         flow.work_width, flow.frame_width, flow.ref, flow.cur)
+    return flow
 
 
 def pick_reference(positions: list[np.ndarray], current: np.ndarray,
-                   params: ParallaxParams | None = None, standoff_m: float | None = None) -> int | None:
+                   params: ParallaxParams | None = None, standoff_m: float | None = None,
+                   hfov_deg: float | None = None) -> int | None:
     """Index (into ``positions``, oldest first) of the latest earlier camera position at least the window's
     minimum (:func:`baseline_window`) from ``current`` and at most its maximum; None when there is none (hover,
     first frames, stills farther apart than the flow tracks)."""
-    low, high = baseline_window(params or ParallaxParams(), standoff_m)
+    low, high = baseline_window(params or ParallaxParams(), standoff_m, hfov_deg)
     for k in range(len(positions) - 1, -1, -1):
         d = float(np.linalg.norm(np.asarray(current, float) - np.asarray(positions[k], float)))
         if d >= low:
@@ -762,7 +898,7 @@ class SequenceParallax:
 
     def baseline_window(self) -> tuple[float, float]:
         """The baseline window (metres) for this pass's standoff (:func:`baseline_window`)."""
-        return baseline_window(self.params, self.standoff_m)
+        return baseline_window(self.params, self.standoff_m, self.hfov_deg)
 
     def remember(self, image: np.ndarray, pose) -> None:
         """Keep a frame as a possible reference without judging it (frames closer than a quarter of the minimum
@@ -783,7 +919,7 @@ class SequenceParallax:
             return None
         pos = self._enu(pose)
         grey = _grey(image, self.params.work_width)
-        k = pick_reference([h[1] for h in self._history], pos, self.params, self.standoff_m)
+        k = pick_reference([h[1] for h in self._history], pos, self.params, self.standoff_m, self.hfov_deg)
         result = None
         if k is not None and self._history[k][2] == image.shape:
             yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level
@@ -791,7 +927,9 @@ class SequenceParallax:
             t = camera_translation(R, self._history[k][1], R, pos)
             if np.hypot(t[0], t[1]) > 1e-6:
                 fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
-                flow = dense_flow_grey(self._history[k][0], grey, image.shape[1], self.params)
+                prior = wall_prior(self.params, t, self.hfov_deg, self.standoff_m)
+                flow = dense_flow_grey(self._history[k][0], grey, image.shape[1], self.params) if prior is None \
+                    else aligned_flow_grey(self._history[k][0], grey, image.shape[1], self.params, prior)
                 result = depth_from_flow(flow, t, fx, self.params, self.standoff_m)
         self._push(grey, pos, image.shape)
         return result

@@ -52,6 +52,10 @@ class PassMotion:
     # frame's edge); None when no pair measured it or ``ParallaxParams.sequence_wall_depth`` is off
     wall_depth: float | None = None
     wall_motion_px: float | None = None  # that dominant motion (work pixels)
+    # per photo index: whether its pair with the previous readable photo moves along the pass (the median trusted
+    # flow within ``ParallaxParams.sequence_break_deg`` of the pass's direction); False at a strip's first photo,
+    # whose predecessor is the last of the strip before (another height, the camera flown back)
+    continuous: dict[int, bool] | None = None
 
 
 @dataclass(frozen=True)
@@ -116,16 +120,21 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
 def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
     """The flow of one pair for deciding a photo: around its own dominant motion, and where the pass's wall motion
     differs from that (the wall entering or leaving the view, the background dominating the pair) also around the
-    wall's, each pixel taking the first of the two that it can trust."""
+    wall's, each pixel taking the first of the two that it can trust. With ``sequence_zero_prior`` also around no
+    motion (a far background moves a few pixels while the wall dominates the pair: measured around the wall's
+    motion it is lost)."""
     own = dominant_prior(ref, cur, params)
     flow = dense_flow(ref, cur, params, own)
-    if wall_shift is None or np.hypot(*np.subtract(wall_shift, own or (0, 0))) < params.sequence_align_share * \
-            params.work_width / 2:
-        return flow
-    other = dense_flow(ref, cur, params, wall_shift)
-    use = ~flow.trusted & other.trusted
-    merged = np.where(use[..., None], other.flow, flow.flow)
-    return replace(flow, flow=merged, trusted=flow.trusted | other.trusted)
+    apart = params.sequence_align_share * params.work_width / 2 if params.sequence_align_share else 0.0
+    priors = [own or (0, 0)]
+    for prior in (wall_shift, (0, 0) if params.sequence_zero_prior and wall_shift is not None else None):
+        if prior is not None and all(np.hypot(*np.subtract(prior, q)) >= apart for q in priors):
+            priors.append(prior)
+    for prior in priors[1:]:
+        other = dense_flow(ref, cur, params, prior)
+        use = ~flow.trusted & other.trusted
+        flow = replace(flow, flow=np.where(use[..., None], other.flow, flow.flow), trusted=flow.trusted | other.trusted)
+    return flow
 
 
 def dominant_motion(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[float, float, float]:
@@ -195,6 +204,7 @@ class SequenceMasker:
         shifts: list[tuple[int, int]] = []
         wall_motions: list[float] = []
         previous: np.ndarray | None = None
+        pair_directions: dict[int, np.ndarray | None] = {}
         for i, image in images:
             if image is None:
                 continue
@@ -209,21 +219,22 @@ class SequenceMasker:
                 direction, scale = _pair_measure(dense_flow(previous, image, self.params, prior), near, depth,
                                                  self.params)
                 directions.append(direction)
+                pair_directions[i] = direction
                 scales.append(scale)
             previous = image
         motion = pass_motion(directions, scales, shifts, wall_motions)
+        if motion is not None and self.params.sequence_break_deg is not None:
+            limit = np.cos(np.radians(self.params.sequence_break_deg))
+            motion = replace(motion, continuous={
+                i: d is not None and float(np.dot(d, motion.direction)) >= limit for i, d in pair_directions.items()})
         if motion is not None and motion.wall_shift is not None and \
                 np.hypot(*motion.wall_shift) > self.params.sequence_max_share * self.params.work_width:
             return networks, None  # stills too far apart for the flow: the network alone decides
         return networks, motion
 
-    def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
-               motion: PassMotion | None) -> SequenceMask:
-        """One photo's mask: the network's, corrected by its parallax against ``neighbour`` (the previous photo,
-        or the next one when ``forward`` is False) at the pass's scale."""
-        net_mask = network.mask()
-        if motion is None or neighbour is None or neighbour.shape != image.shape:
-            return SequenceMask(net_mask, network.empty, False)
+    def _parallax(self, image: np.ndarray, neighbour: np.ndarray, forward: bool, motion: PassMotion):
+        """The photo's parallax against ``neighbour`` (the previous photo, or the next one when ``forward`` is
+        False) at the pass's scale."""
         wall_shift = motion.wall_shift if forward or motion.wall_shift is None else \
             (-motion.wall_shift[0], -motion.wall_shift[1])
         flow = pass_flow(neighbour, image, self.params, wall_shift)
@@ -235,8 +246,35 @@ class SequenceMasker:
         if par.all_background and motion.wall_depth is not None and \
                 motion.wall_motion_px < (self.params.sequence_align_share or 0.0) * self.params.work_width:
             par = depth_from_flow(flow, translation, fx, self.params, motion.wall_depth)
+        return par
+
+    def decide(self, image: np.ndarray, neighbour: np.ndarray | None, forward: bool, network: NetworkMask,
+               motion: PassMotion | None, other: np.ndarray | None = None) -> SequenceMask:
+        """One photo's mask: the network's, corrected by its parallax against ``neighbour`` (the previous photo,
+        or the next one when ``forward`` is False) at the pass's scale. ``other``: the neighbour on the other side
+        (``ParallaxParams.sequence_both_sides``): its parallax decides the pixels the first flow could not trust
+        (the strip that entered the view since the previous photo has nothing to compare with there)."""
+        net_mask = network.mask()
+        if motion is None or neighbour is None or neighbour.shape != image.shape:
+            return SequenceMask(net_mask, network.empty, False)
+        par = self._parallax(image, neighbour, forward, motion)
+        if self.params.sequence_both_sides and other is not None and other.shape == image.shape:
+            par = fill_untrusted(par, self._parallax(image, other, not forward, motion))
         mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)
+
+
+def fill_untrusted(par, second):
+    """``par`` with the pixels it could not trust decided by ``second`` where that can (near, far, depth); the drop
+    evidence stays ``par``'s."""
+    use = ~par.trusted & second.trusted
+    before = par.before_plane
+    if before is not None and second.before_plane is not None:
+        b2 = second.before_plane
+        before = replace(before, trusted=before.trusted | (use & b2.trusted), near=before.near | (use & b2.near),
+                         far=before.far | (use & b2.far), depth_m=np.where(use, b2.depth_m, before.depth_m))
+    return replace(par, depth_m=np.where(use, second.depth_m, par.depth_m), trusted=par.trusted | use,
+                   near=par.near | (use & second.near), far=par.far | (use & second.far), before_plane=before)
 
 
 def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarray | None],
@@ -245,6 +283,7 @@ def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarr
     seq = SequenceMasker(masker, params)
     networks, motion = seq.measure((i, read(p)) for i, p in enumerate(paths))
     readable = [i for i in range(len(paths)) if i in networks]
+    continuous = (motion.continuous if motion is not None else None) or {}
     previous: np.ndarray | None = None
     for i in range(len(paths)):
         if i not in networks:
@@ -254,10 +293,16 @@ def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarr
         if image is None:  # changed on disk between the two readings
             raise CompanionError(f"{paths[i]} could not be read the second time",
                                  "leave the photos unchanged while they are being masked, then rerun")
-        if previous is not None:
+        later = [j for j in readable if j > i]
+        # a strip's first photo (its pair with the previous photo does not move along the pass, and its pair with the
+        # next one does) is compared with the next one, as the pass's first photo is
+        broken = i in continuous and not continuous[i] and bool(later) and continuous.get(later[0], False)
+        if previous is not None and not broken:
             neighbour, forward = previous, True
         else:  # the first photo: compared with the next one, whose content moves the other way
-            later = [j for j in readable if j > i]
             neighbour, forward = (read(paths[later[0]]) if later else None), False
-        yield i, seq.decide(image, neighbour, forward, networks[i], motion)
+        other = None
+        if seq.params.sequence_both_sides and forward and later and continuous.get(later[0], True):
+            other = read(paths[later[0]])
+        yield i, seq.decide(image, neighbour, forward, networks[i], motion, other)
         previous = image

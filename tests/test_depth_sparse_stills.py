@@ -34,10 +34,19 @@ def stills() -> PhotoPassRenderer:
     return PhotoPassRenderer(spec)
 
 
-def _pose(f) -> Pose:
-    lat, lon, alt = pymap3d.enu2geodetic(f.along_m, -STANDOFF, f.up_m, 47.0, 8.0, 400.0)
+def _pose(f, standoff_m: float = STANDOFF) -> Pose:
+    lat, lon, alt = pymap3d.enu2geodetic(f.along_m, -standoff_m, f.up_m, 47.0, 8.0, 400.0)
     return Pose(time_s=0.0, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=f.up_m, roll_deg=0.0, pitch_deg=0.0,
                 yaw_deg=0.0)
+
+
+def _judge_pair(renderer: PhotoPassRenderer, params: ParallaxParams, i: int, standoff_m: float, spacing_m: float):
+    """Still ``i`` judged by the chain's parallax against still ``i - 1`` (exact poses): (the still, the result)."""
+    seq = SequenceParallax(69.0, params, standoff_m=standoff_m)
+    a, b = renderer.render(i - 1), renderer.render(i)
+    assert b.along_m - a.along_m == pytest.approx(spacing_m, abs=0.01)
+    assert seq.update(a.image, _pose(a, standoff_m)) is None
+    return b, seq.update(b.image, _pose(b, standoff_m))
 
 
 def _judge(renderer, i: int, params: ParallaxParams):
@@ -117,14 +126,7 @@ def test_stills_beyond_the_scaled_window_are_measured_around_the_walls_predicted
     assert baseline_window(p, 4.0, 69.0) == pytest.approx((0.08, 0.6))  # the paper's 4 m: unchanged
 
     def judge(params: ParallaxParams, i: int = 8):
-        seq = SequenceParallax(69.0, params, standoff_m=standoff)
-        a, b = renderer.render(i - 1), renderer.render(i)
-        assert b.along_m - a.along_m == pytest.approx(spacing, abs=0.01)
-        poses = [Pose(time_s=0.0, **dict(zip(("lat", "lon", "alt_amsl_m"), pymap3d.enu2geodetic(
-            f.along_m, -standoff, f.up_m, 47.0, 8.0, 400.0), strict=True)), relative_alt_m=f.up_m, roll_deg=0.0,
-            pitch_deg=0.0, yaw_deg=0.0) for f in (a, b)]
-        assert seq.update(a.image, poses[0]) is None
-        return b, seq.update(b.image, poses[1])
+        return _judge_pair(renderer, params, i, standoff, spacing)
 
     assert judge(ParallaxParams(telemetry_max_share=None))[1] is None  # the rule before: network alone
     b, par = judge(p)
@@ -181,14 +183,7 @@ def test_a_wall_30_m_away_is_near_by_its_flow():
     renderer = PhotoPassRenderer(spec)
 
     def judge(params: ParallaxParams, i: int = 40):
-        seq = SequenceParallax(69.0, params, standoff_m=standoff)
-        a, b = renderer.render(i - 1), renderer.render(i)
-        assert b.along_m - a.along_m == pytest.approx(spacing, abs=0.01)
-        poses = [Pose(time_s=0.0, **dict(zip(("lat", "lon", "alt_amsl_m"), pymap3d.enu2geodetic(
-            f.along_m, -standoff, f.up_m, 47.0, 8.0, 400.0), strict=True)), relative_alt_m=f.up_m, roll_deg=0.0,
-            pitch_deg=0.0, yaw_deg=0.0) for f in (a, b)]
-        assert seq.update(a.image, poses[0]) is None
-        par = seq.update(b.image, poses[1])
+        b, par = _judge_pair(renderer, params, i, standoff, spacing)
         truth = cv2.resize(b.roi_mask, par.near.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
         assert 0.2 < truth.mean() < 0.9  # the wall's end in view, the background beside it
         return par, truth

@@ -26,12 +26,8 @@ def _texture(h: int, w: int, seed: int) -> np.ndarray:
 @pytest.fixture(scope="module")
 def stills() -> PhotoPassRenderer:
     """A 75 m wall 25 m away (the 12 m test wall at 4 m, scaled by 6.25) shot as stills 3 m apart."""
-    wall = PhotoTexture("wall", _texture(600, 1200, 1), 74.95)  # + 0.05 m: 25 steps of 3 m
-    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
-    frames = round(75.0 / SPACING) + 4
-    spec = PhotoPass("stills", wall, bg, standoff_m=STANDOFF, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
-                     frames=frames, background_frames=4)
-    return PhotoPassRenderer(spec)
+    # + 0.05 m: 25 steps of 3 m
+    return _stills_pass(74.95, STANDOFF, frames=round(75.0 / SPACING) + 4, background_frames=4)
 
 
 def _pose(f, standoff_m: float = STANDOFF) -> Pose:
@@ -47,6 +43,24 @@ def _judge_pair(renderer: PhotoPassRenderer, params: ParallaxParams, i: int, sta
     assert b.along_m - a.along_m == pytest.approx(spacing_m, abs=0.01)
     assert seq.update(a.image, _pose(a, standoff_m)) is None
     return b, seq.update(b.image, _pose(b, standoff_m))
+
+def _stills_pass(wall_width_m: float, standoff_m: float, **pass_kw) -> PhotoPassRenderer:
+    """Stills of a random-texture wall ``wall_width_m`` wide at ``standoff_m`` with a far background, 640x360."""
+    wall = PhotoTexture("wall", _texture(600, 1200, 1), wall_width_m)
+    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
+    return PhotoPassRenderer(PhotoPass("stills", wall, bg, standoff_m=standoff_m,
+                                       camera=CameraModel(width=640, height=360, hfov_deg=69.0), **pass_kw))
+
+
+def _write_stills(renderer: PhotoPassRenderer, folder) -> list[np.ndarray]:
+    """Every still written as IMG_NNNN.png in capture order; their truth masks."""
+    truths = []
+    for i in range(len(renderer)):
+        frame = renderer.render(i)
+        cv2.imwrite(str(folder / f"IMG_{i:04d}.png"), frame.image)
+        truths.append(frame.roi_mask > 0)
+    return truths
+
 
 
 def _judge(renderer, i: int, params: ParallaxParams):
@@ -84,16 +98,8 @@ def test_sequence_of_stills_3_m_apart_13_m_out_keeps_every_photo_with_wall(tmp_p
     from companion.depth.photomask import mask_photos
 
     standoff, spacing = 13.0, 3.0
-    wall = PhotoTexture("wall", _texture(600, 1200, 1), 38.95)
-    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
-    spec = PhotoPass("stills", wall, bg, standoff_m=standoff, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
-                     frames=round(39.0 / spacing) + 4, background_frames=4)
-    renderer = PhotoPassRenderer(spec)
-    truths = []
-    for i in range(len(renderer)):
-        frame = renderer.render(i)
-        cv2.imwrite(str(tmp_path / f"IMG_{i:04d}.png"), frame.image)
-        truths.append(frame.roi_mask > 0)
+    renderer = _stills_pass(38.95, standoff, frames=round(39.0 / spacing) + 4, background_frames=4)
+    truths = _write_stills(renderer, tmp_path)
     masker = Masker()
 
     def dropped(params) -> tuple[int, int]:
@@ -116,11 +122,8 @@ def test_stills_beyond_the_scaled_window_are_measured_around_the_walls_predicted
     wall's predicted motion (f x baseline / standoff) up to 0.3 of the width, so the still is judged by parallax
     (before: the network alone), wall near and background far."""
     standoff, spacing = 13.0, 4.0
-    wall = PhotoTexture("wall", _texture(600, 1200, 1), 39.95)  # + 0.05 m: 10 steps of 4 m
-    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
-    spec = PhotoPass("stills", wall, bg, standoff_m=standoff, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
-                     frames=round(40.0 / spacing) + 4, background_frames=4)
-    renderer = PhotoPassRenderer(spec)
+    # + 0.05 m: 10 steps of 4 m
+    renderer = _stills_pass(39.95, standoff, frames=round(40.0 / spacing) + 4, background_frames=4)
     p = ParallaxParams()
     assert baseline_window(p, standoff)[1] < spacing < baseline_window(p, standoff, 69.0)[1]
     assert baseline_window(p, 4.0, 69.0) == pytest.approx((0.08, 0.6))  # the paper's 4 m: unchanged
@@ -143,16 +146,8 @@ def test_sequence_compares_a_strips_first_photo_with_the_next_photo(tmp_path):
     from companion.depth.photomask import mask_photos
     from companion.depth.sequence import SequenceMasker
 
-    wall = PhotoTexture("wall", _texture(600, 1200, 1), 38.95)
-    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
-    spec = PhotoPass("stills", wall, bg, standoff_m=13.0, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
-                     strips_up_m=(5.8, 13.6), frames=30, background_frames=4)
-    renderer = PhotoPassRenderer(spec)
-    truths = []
-    for i in range(len(renderer)):
-        frame = renderer.render(i)
-        cv2.imwrite(str(tmp_path / f"IMG_{i:04d}.png"), frame.image)
-        truths.append(frame.roi_mask > 0)
+    renderer = _stills_pass(38.95, 13.0, strips_up_m=(5.8, 13.6), frames=30, background_frames=4)
+    truths = _write_stills(renderer, tmp_path)
     first = 15  # the second strip's first photo
     assert renderer.positions[first][1] > renderer.positions[first - 1][1]
     paths = sorted(tmp_path.glob("IMG_*.png"))
@@ -176,11 +171,7 @@ def test_a_wall_30_m_away_is_near_by_its_flow():
     gave it back (less 9-12 % of a frame under 0.1 m of pose noise on a validation pass). With the standoff known,
     near reaches 2.5 standoffs."""
     standoff, spacing = 30.0, 2.0
-    wall = PhotoTexture("wall", _texture(600, 1200, 1), 89.95)
-    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
-    spec = PhotoPass("stills", wall, bg, standoff_m=standoff, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
-                     frames=round(90.0 / spacing) + 4, background_frames=4)
-    renderer = PhotoPassRenderer(spec)
+    renderer = _stills_pass(89.95, standoff, frames=round(90.0 / spacing) + 4, background_frames=4)
 
     def judge(params: ParallaxParams, i: int = 40):
         b, par = _judge_pair(renderer, params, i, standoff, spacing)
@@ -202,16 +193,8 @@ def test_sequence_judges_the_strip_that_entered_the_view_against_the_next_photo(
     from companion.depth.masker import Masker
     from companion.depth.photomask import mask_photos
 
-    wall = PhotoTexture("wall", _texture(600, 1200, 1), 38.95)
-    bg = PhotoTexture("bg", _texture(600, 800, 2), 1.0)
-    spec = PhotoPass("stills", wall, bg, standoff_m=13.0, camera=CameraModel(width=640, height=360, hfov_deg=69.0),
-                     frames=round(39.0 / 3.0) + 4, background_frames=4)
-    renderer = PhotoPassRenderer(spec)
-    truths = []
-    for i in range(len(renderer)):
-        frame = renderer.render(i)
-        cv2.imwrite(str(tmp_path / f"IMG_{i:04d}.png"), frame.image)
-        truths.append(frame.roi_mask > 0)
+    renderer = _stills_pass(38.95, 13.0, frames=round(39.0 / 3.0) + 4, background_frames=4)
+    truths = _write_stills(renderer, tmp_path)
     paths = sorted(tmp_path.glob("IMG_*.png"))
     masker = Masker()
 

@@ -43,6 +43,7 @@ SEQUENCE_RULES = {"yes": ParallaxParams(),
                                                   sequence_both_sides=False),
                   "no-far-step": ParallaxParams(plane_far_step_px=None),
                   "zero-prior": ParallaxParams(sequence_zero_prior=True),
+                  "all-pairs-scale": ParallaxParams(sequence_scale_min_motion=None),
                   "no-break": ParallaxParams(sequence_break_deg=None),
                   "one-side": ParallaxParams(sequence_both_sides=False)}
 

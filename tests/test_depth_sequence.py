@@ -17,7 +17,7 @@ import pytest
 from companion.cli import main
 from companion.depth.masker import Masker
 from companion.depth.photomask import mask_photos
-from companion.depth.sequence import SequenceMasker, pass_motion
+from companion.depth.sequence import ScaleSample, SequenceMasker, pass_motion, pass_scale
 from companion.errors import CompanionError
 from sim.camera.photo_passes import RECIPES, build_pass
 from sim.camera.photo_scene import CameraModel, PhotoPassRenderer
@@ -116,6 +116,21 @@ def test_scale_free_model_is_refused_with_the_fix():
 def test_pass_motion_needs_a_measured_scale():
     right = np.array([1.0, 0.0])
     assert pass_motion([right, None], [None, None]) is None
-    motion = pass_motion([right, right, np.array([0.9, 0.1])], [100.0, None, 120.0])
+    samples = [ScaleSample(100.0, 20.0), None, ScaleSample(120.0, 21.0)]
+    motion = pass_motion([right, right, np.array([0.9, 0.1])], samples)
     assert motion is not None and motion.pairs == 2 and motion.scale_px_m == pytest.approx(110.0)
     assert motion.direction[0] > 0.99
+
+
+def test_background_only_pairs_do_not_set_the_pass_scale():
+    """Stills past the wall's end: their pairs move a few pixels and, where the network reads the far background as
+    near, measure a scale far too small. With more of them than wall pairs the median was theirs (every background
+    kept as near); the pairs that move with the wall set the scale."""
+    wall = [ScaleSample(400.0 + k, 39.0 + k % 3) for k in range(8)]
+    background = [ScaleSample(20.0 + k, 4.0) for k in range(12)]
+    right = np.array([1.0, 0.0])
+    before = pass_motion([right] * 20, wall + background)
+    now = pass_motion([right] * 20, wall + background, scale_min_motion=0.5)
+    assert before is not None and before.scale_px_m < 40.0
+    assert now is not None and 400.0 <= now.scale_px_m <= 408.0
+    assert pass_scale(wall, 0.5) == pytest.approx(pass_scale(wall, None))  # a pass of wall pairs: as before

@@ -189,6 +189,13 @@ class ParallaxParams:
     # the view since, which has nothing to compare with there) are judged against the next photo. False: the
     # previous photo only (the rule before).
     sequence_both_sides: bool = True
+    # ``--sequence``: the pass's scale (f x baseline) is the median of the pairs whose motion is at least this share
+    # of the pass's wall motion (the 90th percentile of the pairs' median flow). A pair of background-only photos
+    # (past the wall's end) moves a few pixels and, where the network reads the far background as near, measures a
+    # scale many times too small; with more such pairs than wall pairs (16 photos past the wall's end, stills 3 m
+    # apart 13 m out) their median set the scale and every background was kept as near. None: every pair (the rule
+    # before).
+    sequence_scale_min_motion: float | None = 0.5
     # Off by default (measured, docs/DEPTH.md "Tried and off"): no frame is dropped while the wall the
     # last kept frame showed is still in view: that mask, moved by the wall's image motion between the two camera
     # positions (f x baseline / wall depth; the wall's end is a fixed point on the wall plane), is a strip of wall

@@ -78,30 +78,51 @@ class SequenceMask:
     parallax: bool  # False: the network alone decided (no usable motion or no pass scale)
 
 
+@dataclass(frozen=True)
+class ScaleSample:
+    """One pair's measure of the pass's scale: ``depth x flow`` over what the network calls near, and how far the
+    pair's content moved (its median trusted flow, work pixels)."""
+
+    scale_px_m: float
+    motion_px: float
+
+
 def _pair_measure(flow: DenseFlow, network_near: np.ndarray, network_depth_m: np.ndarray,
-                  params: ParallaxParams) -> tuple[np.ndarray | None, float | None]:
+                  params: ParallaxParams) -> tuple[np.ndarray | None, ScaleSample | None]:
     """A pair's median flow vector (None without enough trusted, moving pixels) and its scale sample
     ``depth x flow`` over the pixels the network calls near (None with too few of them)."""
     if flow.trusted.mean() < params.min_confident_share:
         return None, None
     vectors = flow.flow[flow.trusted]
     median = np.median(vectors, axis=0)
-    if float(np.hypot(*median)) < MIN_MOTION_PX:
+    motion = float(np.hypot(*median))
+    if motion < MIN_MOTION_PX:
         return None, None
-    direction = median / float(np.hypot(*median))
+    direction = median / motion
     near = flow.trusted & network_near
     along = flow.flow[near] @ direction
     moving = along > MIN_MOTION_PX
     if int(moving.sum()) < MIN_SCALE_PIXELS:
         return direction, None
-    return direction, float(np.median(network_depth_m[near][moving] * along[moving]))
+    return direction, ScaleSample(float(np.median(network_depth_m[near][moving] * along[moving])), motion)
 
 
-def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float | None],
-                shifts: Sequence[tuple[int, int]] = (), wall_motions: Sequence[float] = ()) -> PassMotion | None:
-    """The pass's direction (median of the pairs') and scale (median of the pairs that measured one); None when no
-    pair measured a scale (the network alone decides every photo). ``shifts``: the priors of the aligned pairs;
-    ``wall_motions``: the dominant motion (work pixels) of pairs the network reads as mostly near."""
+def pass_scale(samples: Sequence[ScaleSample], min_motion_share: float | None) -> float:
+    """The pass's scale: the median of the samples, or (``min_motion_share``) of those whose pair moved at least that
+    share of the pass's wall motion (the 90th percentile of the pairs' motion): background-only pairs past the
+    wall's end move little and, where the network reads the far background as near, measure far too small a scale."""
+    if min_motion_share is not None:
+        floor = min_motion_share * float(np.percentile([s.motion_px for s in samples], 90))
+        samples = [s for s in samples if s.motion_px >= floor] or list(samples)
+    return float(np.median([s.scale_px_m for s in samples]))
+
+
+def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[ScaleSample | None],
+                shifts: Sequence[tuple[int, int]] = (), wall_motions: Sequence[float] = (),
+                scale_min_motion: float | None = None) -> PassMotion | None:
+    """The pass's direction (median of the pairs') and scale (:func:`pass_scale` of the pairs that measured one);
+    None when no pair measured a scale (the network alone decides every photo). ``shifts``: the priors of the
+    aligned pairs; ``wall_motions``: the dominant motion (work pixels) of pairs the network reads as mostly near."""
     measured = [s for s in scales if s is not None]
     moving = [d for d in directions if d is not None]
     if not measured or not moving:
@@ -111,7 +132,7 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[float 
     if norm < 1e-6:
         return None
     wall_shift = tuple(int(round(v)) for v in np.median(np.array(shifts), axis=0)) if shifts else None
-    scale = float(np.median(measured))
+    scale = pass_scale(measured, scale_min_motion)
     wall_motion = float(np.median(wall_motions)) if wall_motions else None
     wall_depth = scale / wall_motion if wall_motion else None
     return PassMotion(d / norm, scale, len(measured), wall_shift, wall_depth, wall_motion)
@@ -200,7 +221,7 @@ class SequenceMasker:
         """First reading: the network's mask of every readable photo and the pass's motion."""
         networks: dict[int, NetworkMask] = {}
         directions: list[np.ndarray | None] = []
-        scales: list[float | None] = []
+        scales: list[ScaleSample | None] = []
         shifts: list[tuple[int, int]] = []
         wall_motions: list[float] = []
         previous: np.ndarray | None = None
@@ -222,7 +243,7 @@ class SequenceMasker:
                 pair_directions[i] = direction
                 scales.append(scale)
             previous = image
-        motion = pass_motion(directions, scales, shifts, wall_motions)
+        motion = pass_motion(directions, scales, shifts, wall_motions, self.params.sequence_scale_min_motion)
         if motion is not None and self.params.sequence_break_deg is not None:
             limit = np.cos(np.radians(self.params.sequence_break_deg))
             motion = replace(motion, continuous={

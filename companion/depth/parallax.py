@@ -14,8 +14,8 @@ plain surfaces have no trackable texture and are left to the network.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
 from enum import StrEnum
 
 import cv2
@@ -794,30 +794,46 @@ def dominant_motion_grey(ref: np.ndarray, cur: np.ndarray) -> tuple[float, float
     return float(dx), float(dy), float(response)
 
 
+def motion_prior(motion: tuple[float, float, float], params: ParallaxParams) -> tuple[int, int] | None:
+    """A pair's dominant motion (:func:`dominant_motion_grey`) rounded to work pixels when it is large and clear
+    enough that DIS should measure around it (``sequence_align_share``, ``sequence_align_min_response``)."""
+    if params.sequence_align_share is None:
+        return None
+    dx, dy, response = motion
+    if response < params.sequence_align_min_response or \
+            np.hypot(dx, dy) < params.sequence_align_share * params.work_width:
+        return None
+    return round(dx), round(dy)
+
+
+def merged_flow(flow_around: Callable[[tuple[int, int]], DenseFlow], candidates: Iterable[tuple[int, int] | None],
+                params: ParallaxParams) -> DenseFlow:
+    """The flow measured around each candidate motion in turn (None skipped; one within half the align share of a
+    kept one skipped too), each pixel taking the first flow that it can trust: a pair may show two motions (the
+    wall's and a far background's), and DIS measured around one loses the other."""
+    apart = params.sequence_align_share * params.work_width / 2 if params.sequence_align_share else 0.0
+    priors: list[tuple[int, int]] = []
+    for prior in candidates:
+        if prior is not None and (not priors or all(np.hypot(*np.subtract(prior, q)) >= apart for q in priors)):
+            priors.append(prior)
+    flow = flow_around(priors[0])
+    for prior in priors[1:]:
+        other = flow_around(prior)
+        use = ~flow.trusted & other.trusted
+        flow = replace(flow, flow=np.where(use[..., None], other.flow, flow.flow), trusted=flow.trusted | other.trusted)
+    return flow
+
+
 def aligned_flow_grey(ref: np.ndarray, cur: np.ndarray, frame_width: int, params: ParallaxParams,
                       wall: tuple[int, int]) -> DenseFlow:
     """The flow of two grey working copies whose wall moves by ``wall`` (work pixels, predicted from the
-    telemetry), measured around each motion the pair may show: its dominant one (phase correlation, when large
-    enough: the wall's, or the background's where that fills the frame), the wall's, and none (a far background
-    moves a few pixels), each pixel taking the first of them it can trust (as ``--sequence``'s ``pass_flow``).
-    Measured around the wall's motion alone the background is lost, and around none the wall."""
-    dx, dy, response = dominant_motion_grey(ref, cur)
-    own = None
-    if params.sequence_align_share is not None and response >= params.sequence_align_min_response \
-            and np.hypot(dx, dy) >= params.sequence_align_share * params.work_width:
-        own = (round(dx), round(dy))
-    apart = (params.sequence_align_share or 0.1) * params.work_width / 2
-    priors: list[tuple[int, int]] = []
-    for prior in (own or (0, 0), wall, (0, 0)):
-        if all(np.hypot(*np.subtract(prior, q)) >= apart for q in priors):
-            priors.append(prior)
-    flow = dense_flow_grey(ref, cur, frame_width, params, priors[0])
-    for prior in priors[1:]:
-        other = dense_flow_grey(ref, cur, frame_width, params, prior)
-        use = ~flow.trusted & other.trusted
-        flow = DenseFlow(np.where(use[..., None], other.flow, flow.flow), flow.trusted | other.trusted,
-                         flow.work_width, flow.frame_width, flow.ref, flow.cur)
-    return flow
+    telemetry), measured around each motion the pair may show (:func:`merged_flow`): its dominant one (phase
+    correlation, when large enough: the wall's, or the background's where that fills the frame), the wall's, and
+    none (a far background moves a few pixels). Around the wall's motion alone the background is lost, and around
+    none the wall."""
+    own = motion_prior(dominant_motion_grey(ref, cur), params)
+    return merged_flow(lambda prior: dense_flow_grey(ref, cur, frame_width, params, prior),
+                       (own or (0, 0), wall, (0, 0)), params)
 
 
 def pick_reference(positions: list[np.ndarray], current: np.ndarray,

@@ -29,7 +29,16 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from companion.depth.parallax import DenseFlow, ParallaxParams, dense_flow, depth_from_flow, fuse_with_network
+from companion.depth.parallax import (
+    DenseFlow,
+    ParallaxParams,
+    dense_flow,
+    depth_from_flow,
+    dominant_motion_grey,
+    fuse_with_network,
+    merged_flow,
+    motion_prior,
+)
 from companion.errors import CompanionError
 
 MIN_MOTION_PX = 0.5  # median flow (work pixels) below which a pair shows no usable motion (hover, repeated photo)
@@ -139,23 +148,13 @@ def pass_motion(directions: Sequence[np.ndarray | None], scales: Sequence[ScaleS
 
 
 def pass_flow(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams, wall_shift: tuple[int, int] | None):
-    """The flow of one pair for deciding a photo: around its own dominant motion, and where the pass's wall motion
-    differs from that (the wall entering or leaving the view, the background dominating the pair) also around the
-    wall's, each pixel taking the first of the two that it can trust. With ``sequence_zero_prior`` also around no
-    motion (a far background moves a few pixels while the wall dominates the pair: measured around the wall's
-    motion it is lost)."""
+    """The flow of one pair for deciding a photo (:func:`merged_flow`): around its own dominant motion, and where the
+    pass's wall motion differs from that (the wall entering or leaving the view, the background dominating the
+    pair) also around the wall's. With ``sequence_zero_prior`` also around no motion (a far background moves a few
+    pixels while the wall dominates the pair: measured around the wall's motion it is lost)."""
     own = dominant_prior(ref, cur, params)
-    flow = dense_flow(ref, cur, params, own)
-    apart = params.sequence_align_share * params.work_width / 2 if params.sequence_align_share else 0.0
-    priors = [own or (0, 0)]
-    for prior in (wall_shift, (0, 0) if params.sequence_zero_prior and wall_shift is not None else None):
-        if prior is not None and all(np.hypot(*np.subtract(prior, q)) >= apart for q in priors):
-            priors.append(prior)
-    for prior in priors[1:]:
-        other = dense_flow(ref, cur, params, prior)
-        use = ~flow.trusted & other.trusted
-        flow = replace(flow, flow=np.where(use[..., None], other.flow, flow.flow), trusted=flow.trusted | other.trusted)
-    return flow
+    zero = (0, 0) if params.sequence_zero_prior and wall_shift is not None else None
+    return merged_flow(lambda prior: dense_flow(ref, cur, params, prior), (own or (0, 0), wall_shift, zero), params)
 
 
 def dominant_motion(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) -> tuple[float, float, float]:
@@ -164,21 +163,16 @@ def dominant_motion(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams) ->
     size = _work_size(cur, params)
     grey = [cv2.resize(cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) if im.ndim == 3 else im, size,
                        interpolation=cv2.INTER_AREA).astype(np.float32) for im in (ref, cur)]
-    (dx, dy), response = cv2.phaseCorrelate(grey[1], grey[0], cv2.createHanningWindow(size, cv2.CV_32F))
-    return float(dx), float(dy), float(response)
+    return dominant_motion_grey(grey[0], grey[1])
 
 
 def dominant_prior(ref: np.ndarray, cur: np.ndarray, params: ParallaxParams,
                    motion: tuple[float, float, float] | None = None) -> tuple[int, int] | None:
     """:func:`dominant_motion` (or the one given) when it is large enough that DIS should measure around it
-    (``ParallaxParams.sequence_align_share``); None otherwise."""
+    (:func:`motion_prior`); None otherwise."""
     if params.sequence_align_share is None:
         return None
-    dx, dy, response = motion or dominant_motion(ref, cur, params)
-    if response < params.sequence_align_min_response or \
-            np.hypot(dx, dy) < params.sequence_align_share * params.work_width:
-        return None
-    return round(dx), round(dy)
+    return motion_prior(motion or dominant_motion(ref, cur, params), params)
 
 
 def _work_size(image: np.ndarray, params: ParallaxParams) -> tuple[int, int]:

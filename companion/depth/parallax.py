@@ -209,7 +209,7 @@ class ParallaxParams:
     # all within 0.6 m of the wall's end). Measured on the validation passes (docs/DEPTH.md "A sliver of wall at
     # the wall's end"): frames with wall dropped 1 -> 0 for both models, background-only frames dropped 68 -> 65
     # of 70 (the frame just past the wall's end keeps the few pixels the last kept mask reached beyond the wall).
-    # Off before (docs/DEPTH.md "Tried and off"): measured before the wall-plane check, it carried plain sky into
+    # Off before (docs/DEPTH.md, the same section): measured before the wall-plane check, it carried plain sky into
     # every background-only frame of val-montana-40; with today's rules it does not (16 of 18 dropped either way).
     # False: the rule before.
     wall_in_view_rule: bool = True

@@ -59,9 +59,9 @@ sys.path.insert(0, str(ROOT))  # the bench.* modules it borrows from, run as a s
 EVAL_WIDTH = 480
 VARIANTS: dict[str, ParallaxParams] = {
     "today": PARALLAX_RULES["fixed-15m"],
-    "ratio": ParallaxParams(plain_rule=PlainRule.NETWORK),
-    "ratio+continuity": ParallaxParams(plain_rule=PlainRule.CONTINUITY),
-    "ratio+calibrated": ParallaxParams(),
+    "ratio": ParallaxParams(plain_rule=PlainRule.NETWORK, wall_in_view_rule=False),
+    "ratio+continuity": ParallaxParams(plain_rule=PlainRule.CONTINUITY, wall_in_view_rule=False),
+    "ratio+calibrated": ParallaxParams(wall_in_view_rule=False),
     "ratio+calibrated+in-view": ParallaxParams(wall_in_view_rule=True),
 }
 

@@ -13,7 +13,8 @@ held-out real outdoor photos behind it, exact truth masks), rendered at ``--widt
   ``pass_spec``: the frames look as at 4 m; only the metres between photos change);
 * ``chain``: the onboard ``Masker`` with ``SequenceParallax`` at the pass's standoff, as
   ``companion/onboard/setup.py`` builds it, on ``--frames`` frames of the pass in capture order with exact telemetry
-  poses (``bench/depth_real_passes.py``'s ``facade_pose``); every frame masked.
+  poses (``bench/depth_real_passes.py``'s ``facade_pose``); every frame masked. ``--pose-bias ALONG,OUT,UP``: every
+  pose moved by that many metres (a non-RTK GNSS receiver's bias, constant over a pass).
 
 ``--command-standoff``: the command modes are told the stills' distance to the wall (``companion mask --standoff``),
 as a user who knows it would.
@@ -161,9 +162,11 @@ def score(name: str, masks: list[np.ndarray], truths: list[np.ndarray]) -> MaskE
     return ev
 
 
-def chain_masks(spec, model: str, threads: int | None) -> tuple[MaskEval, float, float]:
+def chain_masks(spec, model: str, threads: int | None,
+                pose_bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[MaskEval, float, float]:
     """Every frame of the pass through the onboard masker with parallax (as ``companion/onboard/setup.py`` builds
-    it) with exact telemetry poses, in capture order; CPU and wall seconds of the ``mask`` calls only."""
+    it) with telemetry poses, exact or moved by ``pose_bias_m`` (along, out, up), in capture order; CPU and wall
+    seconds of the ``mask`` calls only."""
     from companion.depth.masker import Masker
     from companion.depth.parallax import SequenceParallax
     from companion.records import Frame, TaggedFrame
@@ -172,7 +175,7 @@ def chain_masks(spec, model: str, threads: int | None) -> tuple[MaskEval, float,
                     parallax=SequenceParallax(spec.camera.hfov_deg, standoff_m=spec.standoff_m))
     ev, cpu, wall = MaskEval(recording=spec.name), 0.0, 0.0
     for i, image, truth, (pos, _, _, _) in rendered_pass_frames(spec):
-        tagged = TaggedFrame(Frame(i, i / 10.0, image), facade_pose(i, pos))
+        tagged = TaggedFrame(Frame(i, i / 10.0, image), facade_pose(i, pos + np.asarray(pose_bias_m, float)))
         c0, w0 = time.process_time(), time.perf_counter()
         masked, roi = masker.mask(tagged)
         cpu, wall = cpu + time.process_time() - c0, wall + time.perf_counter() - w0
@@ -196,6 +199,7 @@ class Settings:
     far_standoff_m: float = 13.0
     threads: int | None = 1
     command_standoff: bool = False  # the command modes told the stills' standoff (``companion mask --standoff``)
+    pose_bias_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the chain's poses moved by this (along, out, up)
 
 
 def run_pass(name: str, s: Settings, cells: dict[tuple[str, str], Cell], tmp: Path,
@@ -218,7 +222,7 @@ def run_pass(name: str, s: Settings, cells: dict[tuple[str, str], Cell], tmp: Pa
             cell = cells.setdefault((model, mode), Cell(model, mode))
             if mode == "chain":
                 spec = pass_spec(name, s.frames, s.background_frames, s.width)
-                ev, cpu, wall = chain_masks(spec, model, s.threads)
+                ev, cpu, wall = chain_masks(spec, model, s.threads, s.pose_bias_m)
             else:
                 folder, truths, standoff = photos(mode)
                 out = tmp / name / f"{Path(model).stem}-{mode.replace(' ', '_')}"
@@ -268,7 +272,14 @@ def mode_label(mode: str, s: Settings) -> str:
     return {"single": f"`companion mask`{told} (stills {s.near_spacing_m:g} m apart at 4 m)",
             "sequence 0.5 m": f"`--sequence`{told}, stills {s.near_spacing_m:g} m apart at 4 m",
             "sequence 3 m": f"`--sequence`{told}, stills {s.far_spacing_m:g} m apart at {s.far_standoff_m:g} m",
-            "chain": f"onboard chain (parallax, exact telemetry, {s.frames} frames at 4 m)"}[mode]
+            "chain": f"onboard chain (parallax, {telemetry_label(s.pose_bias_m)}, {s.frames} frames at 4 m)"}[mode]
+
+
+def telemetry_label(bias_m: tuple[float, float, float]) -> str:
+    """How the chain's poses were given: exact, or moved by a bias (along / out / up)."""
+    if not any(bias_m):
+        return "exact telemetry"
+    return f"telemetry biased {' / '.join(f'{v:+g}' for v in bias_m)} m along / out / up"
 
 
 def table(rows: list[dict], s: Settings) -> str:
@@ -311,6 +322,8 @@ def parse_settings(argv: list[str] | None = None) -> tuple[Settings, str | None]
     ap.add_argument("--threads", type=int, default=1, help="onnxruntime threads (0: the product's default)")
     ap.add_argument("--command-standoff", action="store_true",
                     help="run the command modes with --standoff (the stills' distance to the wall, as a user knows it)")
+    ap.add_argument("--pose-bias", default="0,0,0",
+                    help="chain: every telemetry pose moved by ALONG,OUT,UP metres (a GNSS bias); default exact")
     ap.add_argument("--quick", action="store_true", help="a few minutes: 80 chain frames, 6 past the wall's end")
     ap.add_argument("--json", default=None, help="write the rows here")
     args = ap.parse_args(argv)
@@ -318,10 +331,13 @@ def parse_settings(argv: list[str] | None = None) -> tuple[Settings, str | None]
     modes = split(args.modes)
     if unknown := [m for m in modes if m not in MODES]:
         ap.error(f"unknown modes {unknown}; choose from {', '.join(MODES)}")
+    bias = tuple(float(v) for v in args.pose_bias.split(","))
+    if len(bias) != 3:
+        ap.error(f"--pose-bias takes ALONG,OUT,UP metres, got {args.pose_bias!r}")
     frames, background = (80, 6) if args.quick else (args.frames, args.background_frames)
     settings = Settings(split(args.passes), split(args.models), tuple(m for m in MODES if m in modes), args.width,
                         frames, background, args.near_spacing, args.far_spacing, args.far_standoff,
-                        args.threads or None, args.command_standoff)
+                        args.threads or None, args.command_standoff, bias)
     return settings, args.json
 
 

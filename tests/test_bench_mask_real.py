@@ -65,3 +65,14 @@ def test_table_has_every_mode_and_its_verdict_follows_its_numbers(bench, capsys)
         assert ("*" in line.split(" | ")[3]) == any(e > 0.05 for e in row["error_mean"].values())
         assert row["cpu_ms_per_frame"] > 0
     assert "load average" in printed
+
+
+def test_the_chain_can_be_given_biased_poses_and_its_row_says_so(bench):
+    """``--pose-bias`` moves every chain pose (a GNSS bias) and the chain row's label names it; exact by default."""
+    exact, _ = bench.parse_settings(["--modes", "chain"])
+    biased, _ = bench.parse_settings(["--modes", "chain", "--pose-bias", "1.5,1.5,0.5"])
+    assert exact.pose_bias_m == (0.0, 0.0, 0.0) and "exact telemetry" in bench.mode_label("chain", exact)
+    assert biased.pose_bias_m == (1.5, 1.5, 0.5)
+    assert "biased +1.5 / +1.5 / +0.5 m" in bench.mode_label("chain", biased)
+    with pytest.raises(SystemExit):
+        bench.parse_settings(["--pose-bias", "1.5,0"])

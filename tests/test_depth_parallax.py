@@ -273,7 +273,7 @@ def test_a_plain_wall_strip_leaving_the_view_is_carried_from_the_last_kept_frame
     r = PhotoPassRenderer(PhotoPass("t", PhotoTexture("wall", plain, 12.0), PhotoTexture("bg", _texture(600, 800, 2),
                                                                                          1.0),
                                     camera=CAM, frames=120, background_frames=10))
-    pp = ParallaxParams(wall_in_view_rule=True)  # off by default: docs/DEPTH.md says why
+    pp = ParallaxParams(wall_in_view_rule=True)
     last = r.render(104)
     kept = kept_wall(last.roi_mask, np.array([last.along_m, 4.0, last.up_m]), 4.0, pp)
     for i, leaving in ((107, True), (112, False)):
@@ -292,13 +292,14 @@ def test_a_plain_wall_strip_leaving_the_view_is_carried_from_the_last_kept_frame
             assert ((mask > 0) == truth).mean() > 0.97 and (mask[truth] > 0).mean() > 0.9
     far_back = np.array([last.along_m - 2.0, 4.0, last.up_m])
     assert carried_wall(kept, far_back, R, CAM.fx, CAM.width, pp) is None  # too far to carry a mask
-    off = ParallaxParams()
+    off = ParallaxParams(wall_in_view_rule=False)
     assert carried_wall(kept, np.array([last.along_m + 0.1, 4.0, last.up_m]), R, CAM.fx, CAM.width, off) is None
 
 
 def test_the_masker_carries_the_wall_only_with_the_rule_on():
-    """SequenceParallax remembers the last kept frame's wall only when the in-view rule is on, and then gives it
-    back moved by the camera's motion (the chain's path of the rule the test above checks on its own)."""
+    """SequenceParallax remembers the last kept frame's wall only when the in-view rule is on (the default), and
+    then gives it back moved by the camera's motion (the chain's path of the rule the test above checks on its
+    own)."""
     import cv2
 
     from companion.depth.parallax import ParallaxParams, SequenceParallax
@@ -307,7 +308,7 @@ def test_the_masker_carries_the_wall_only_with_the_rule_on():
                                     PhotoTexture("bg", _texture(600, 800, 2), 1.0), camera=CAM, frames=120,
                                     background_frames=10))
     f, g = r.render(104), r.render(107)  # 33 cm apart, the wall's end leaving the view
-    off = SequenceParallax(69.0)
+    off = SequenceParallax(69.0, ParallaxParams(wall_in_view_rule=False))
     off.note_kept(f.roi_mask, _geo_pose(0, f), 4.0)
     assert off.wall_in_view(_geo_pose(1, g), g.roi_mask.shape) is None
     on = SequenceParallax(69.0, ParallaxParams(wall_in_view_rule=True))
@@ -316,6 +317,52 @@ def test_the_masker_carries_the_wall_only_with_the_rule_on():
     truth = cv2.resize(g.roi_mask, carried.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
     assert 0.02 < truth.mean() < (f.roi_mask > 0).mean()
     assert (carried & truth).sum() / (carried | truth).sum() > 0.9  # where the wall's end is now
+
+
+def _biased_geo_pose(i, f, bias_m):
+    """The telemetry pose of a photo pass's camera with a constant GNSS bias ``bias_m`` (along, out, up): what a
+    non-RTK receiver reports for minutes."""
+    import pymap3d
+
+    from companion.records import Pose
+
+    along, out, up = f.along_m + bias_m[0], 4.0 + bias_m[1], f.up_m + bias_m[2]
+    lat, lon, alt = pymap3d.enu2geodetic(along, -out, up, 47.0, 8.0, 400.0)
+    return Pose(time_s=i * 0.1, lat=lat, lon=lon, alt_amsl_m=alt, relative_alt_m=up, roll_deg=0.0, pitch_deg=0.0,
+                yaw_deg=0.0)
+
+
+@pytest.mark.parametrize("bias_m", [(1.5, 1.5, 0.5), (-1.5, -1.5, -0.5)])
+def test_the_chain_keeps_a_sliver_of_wall_at_the_walls_end_under_a_gnss_bias(bias_m):
+    """Issue 27: never drop a frame that shows wall. At the wall's end the last frame with wall shows it as a few
+    pixel columns at the frame's edge: too little for the flow to measure, so parallax saw only far pixels and
+    the chain dropped it (the rule before, ``no-wall-in-view``). The last kept frame's wall moved by the
+    telemetry's baseline is still in view there: the frame is kept with that strip. The baseline is a difference of
+    two poses, so a GNSS bias of 1.5 m (constant over the seconds between them) changes nothing; the background-only
+    frames past the wall's end are still dropped, all but the first, 5 cm past it (the last kept mask reaches a
+    few pixels beyond the wall)."""
+    from companion.depth.masker import Masker
+    from companion.depth.parallax import SequenceParallax
+    from companion.records import Frame, TaggedFrame
+
+    r = PhotoPassRenderer(PhotoPass("t", PhotoTexture("wall", _texture(600, 1200, 1), 12.0),
+                                    PhotoTexture("bg", _texture(600, 800, 2), 1.0), camera=CAM, frames=250,
+                                    background_frames=16))
+    masker = Masker("sim", threads=1, parallax=SequenceParallax(CAM.hfov_deg, standoff_m=4.0))
+    kept = {}
+    for i in range(224, len(r)):
+        f = r.render(i)
+        masked, _ = masker.mask(TaggedFrame(Frame(i, i * 0.1, f.image), _biased_geo_pose(i, f, bias_m)))
+        kept[i] = (f, None if masked is None else masked.mask)
+    with_wall = [i for i, (f, _) in kept.items() if f.wall_fraction > 0.0]
+    background = [i for i, (f, _) in kept.items() if f.wall_fraction == 0.0]
+    sliver, mask = with_wall[-1], kept[with_wall[-1]][1]
+    truth = kept[sliver][0].roi_mask > 0
+    assert 0.0 < truth.mean() < 0.01 and not truth[:, 16:].any()  # a few columns at the left edge
+    assert mask is not None  # the rule before dropped it
+    assert (mask[truth] > 0).mean() > 0.9 and not mask[:, 32:].any()  # kept where the wall's end is, no more
+    assert all(kept[i][1] is not None for i in with_wall)
+    assert len(background) >= 16 and all(kept[i][1] is None for i in background[1:])
 
 
 def _training_photo_pass(camera: CameraModel):

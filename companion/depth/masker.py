@@ -35,7 +35,9 @@ class Masker:
     ``parallax`` (a :class:`companion.depth.parallax.SequenceParallax`, off by default): frames arriving in
     capture order with telemetry poses are also compared with an earlier frame; where the motion parallax is
     trusted it overrides the network's near/far answer, and it drops frames whose trusted pixels are all far
-    (docs/DEPTH.md). Frames without a pose or a baseline keep the network's mask.
+    (docs/DEPTH.md), except while the last kept frame's wall, moved by the telemetry's baseline, must still be in
+    view (a sliver of wall at the wall's end: ``ParallaxParams.wall_in_view_rule``). Frames without a pose or a
+    baseline keep the network's mask.
     """
 
     def __init__(

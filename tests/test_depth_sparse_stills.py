@@ -261,8 +261,8 @@ def test_a_keyframe_judged_against_an_earlier_still_only_is_judged_again_against
     """Masked as it arrives, a still has only earlier stills to compare with: the strip that entered the view
     since (a quarter of the frame) has no flow, the network decides it, and on this wall it cuts part of it.
     ``first_look`` says what a later frame should judge; ``judge_with_later`` judges the untrusted pixels against
-    the next still and the mask keeps the wall there. With the rule off (the rule before) nothing is left for a
-    later frame."""
+    the next still and the mask keeps the wall there, and only there (``telemetry_both_sides_strip_only``). With
+    the rule off (the rule before) nothing is left for a later frame."""
     from companion.depth.masker import Masker
     from companion.depth.parallax_first import first_look, judge_with_later
     from companion.records import Frame, TaggedFrame
@@ -288,6 +288,10 @@ def test_a_keyframe_judged_against_an_earlier_still_only_is_judged_again_against
         judged = judge_with_later(masker, tagged(i), tagged(i + 1), look.earlier)
         assert judged.parallax.trusted[right].mean() > 0.9 and judged.parallax.near[right].mean() > 0.6
         assert np.array_equal(look.masked.mask, before[i].masked.mask)  # the first look is main's mask
+        strip = judged.parallax.trusted & ~look.earlier.trusted  # what only the next still could judge
+        strip = cv2.resize(cv2.dilate(strip.astype(np.uint8), np.ones((5, 5), np.uint8)), truth.shape[::-1],
+                           interpolation=cv2.INTER_NEAREST) > 0
+        assert np.array_equal(judged.masked.mask[~strip], look.masked.mask[~strip])  # elsewhere: the first look
         kept_first, kept_now = (float((m > 0)[truth].mean()) for m in (look.masked.mask, judged.masked.mask))
         assert kept_now >= 0.95 and kept_now >= kept_first
         gains.append(kept_now - kept_first)

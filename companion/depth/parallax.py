@@ -198,6 +198,13 @@ class ParallaxParams:
     # (``parallax_first.LaterReference``, the hold of a strip's first keyframe). At the paper's 4 m nothing
     # changes. False: one reference (the rule before).
     telemetry_both_sides: bool = True
+    # ... and the second reference decides the mask only in the pixels it newly trusts (the strip), the rest of the
+    # frame keeps the mask of the first reference alone (:func:`second_look_in_strip`). Its trusted pixels also
+    # feed the frame's plain-pixel rules (the calibrated split, the continuity and the watershed), which then moved
+    # the mask far from the strip: on the validation passes at 13 m 4 of 88 keyframes lost 5-16 points of their
+    # wall that way (val-montana-40, val-b0309-120, val-b0169-40; docs/DEPTH.md). False: the filled answer decides
+    # the whole frame.
+    telemetry_both_sides_strip_only: bool = True
     # ``--sequence``: the pass's scale (f x baseline) is the median of the pairs whose motion is at least this share
     # of the pass's wall motion (the 90th percentile of the pairs' median flow). A pair of background-only photos
     # (past the wall's end) moves a few pixels and, where the network reads the far background as near, measures a
@@ -318,6 +325,9 @@ class ParallaxResult:
     plane_checked: bool = False  # near and far were decided with the wall-plane check
     before_plane: ParallaxResult | None = None  # the same flow without the wall-plane check (for the drop rule)
     wall_fit_share: float = float("nan")  # share of the frame that moves like the wall and fits it closely
+    # the answer against the first reference alone, when the pixels it could not trust were judged against a second
+    # (the chain beyond 4 m, ``telemetry_both_sides``): the second look then decides only those
+    first_reference: ParallaxResult | None = None
 
     @property
     def trusted_share(self) -> float:
@@ -343,6 +353,13 @@ def fill_untrusted(par: ParallaxResult, second: ParallaxResult) -> ParallaxResul
                          far=before.far | (use & b2.far), depth_m=np.where(use, b2.depth_m, before.depth_m))
     return replace(par, depth_m=np.where(use, second.depth_m, par.depth_m), trusted=par.trusted | use,
                    near=par.near | (use & second.near), far=par.far | (use & second.far), before_plane=before)
+
+
+def with_second_reference(par: ParallaxResult, second: ParallaxResult) -> ParallaxResult:
+    """The chain's answer for a frame judged against two references (``ParallaxParams.telemetry_both_sides``):
+    :func:`fill_untrusted`, remembering ``par`` when the second decides only the strip (``..._strip_only``)."""
+    filled = fill_untrusted(par, second)
+    return replace(filled, first_reference=par) if par.params.telemetry_both_sides_strip_only else filled
 
 
 def camera_translation(R_world_from_cam_ref: np.ndarray, pos_ref: np.ndarray, R_world_from_cam_cur: np.ndarray,
@@ -620,6 +637,8 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     network's answer as ``plain_rule`` corrects it, and with ``image`` (the frame) those the watershed gives to the
     far side are cut (``ParallaxParams.plain_watershed_cut``).
     """
+    if parallax.first_reference is not None:
+        return second_look_in_strip(network_mask, parallax, network_depth_m, image)
     h, w = network_mask.shape[:2]
     # all background: the trusted pixels say so, and what the network keeps is not hiding in untrusted (plain)
     # parts of the frame, such as a plain strip of wall parallax cannot track. With the wall-plane check: the flow
@@ -641,6 +660,24 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     vote = cv2.medianBlur(vote, 5)
     fused = cv2.resize(vote, (w, h), interpolation=cv2.INTER_LINEAR)
     return np.where(fused >= 0.5, 255, 0).astype(np.uint8), False
+
+
+def second_look_in_strip(network_mask: np.ndarray, parallax: ParallaxResult,
+                         network_depth_m: np.ndarray | None = None,
+                         image: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """:func:`fuse_with_network` of a frame judged against two references (``parallax.first_reference``: the
+    first alone): the mask fused from both in the pixels only the second reference could trust (the strip the
+    first does not show, grown by 2 work pixels for the median smoothing), the mask of the first alone elsewhere
+    (``ParallaxParams.telemetry_both_sides_strip_only``). Dropped only when both answers drop it."""
+    first, first_dropped = fuse_with_network(network_mask, parallax.first_reference, network_depth_m, image)
+    both, both_dropped = fuse_with_network(network_mask, replace(parallax, first_reference=None), network_depth_m,
+                                           image)
+    if first_dropped and both_dropped:
+        return first, True
+    h, w = network_mask.shape[:2]
+    strip = (parallax.trusted & ~parallax.first_reference.trusted).astype(np.uint8)
+    strip = cv2.resize(cv2.dilate(strip, np.ones((5, 5), np.uint8)), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    return np.where(strip, both, first).astype(np.uint8), False
 
 
 def watershed_cut(net: np.ndarray, parallax: ParallaxResult, image: np.ndarray) -> np.ndarray:
@@ -992,7 +1029,7 @@ class SequenceParallax:
                 other = self._other_side(k, pos, image.shape)
                 second = None if other is None else self._against(other, grey, pos, pose, image.shape)
                 if second is not None:
-                    result = fill_untrusted(result, second)
+                    result = with_second_reference(result, second)
                 else:
                     self.last_wants_later = self._history[k][3] < pose.time_s
         self._push(grey, pos, image.shape, pose.time_s)

@@ -22,8 +22,9 @@ The same hold gives a second look to a frame judged against an EARLIER frame onl
 at the frame's leading side (a quarter of the frame at 5 m spacing 13 m out), which the earlier frame does not show,
 so its flow trusts nothing there and the network decided it (and cut 20-25 % of such keyframes on a real-texture
 validation pass). The later frame shows that strip; its parallax decides the pixels the earlier flow could not
-trust (``parallax.fill_untrusted``, as ``companion mask --sequence`` does with both neighbours), the trusted ones
-keep the earlier answer. Released as above: a frame no later frame reaches keeps its first mask.
+trust (``parallax.fill_untrusted``, as ``companion mask --sequence`` does with both neighbours) and the mask there
+(``parallax.second_look_in_strip``); the rest of the frame keeps the earlier answer's mask. Released as above: a
+frame no later frame reaches keeps its first mask.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from enum import StrEnum
 import numpy as np
 
 from companion.depth.masker import Masker
-from companion.depth.parallax import ParallaxResult, SequenceParallax, fill_untrusted
+from companion.depth.parallax import ParallaxResult, SequenceParallax, with_second_reference
 from companion.records import MaskedFrame, Pose, TaggedFrame
 
 
@@ -106,14 +107,14 @@ def baseline_between(masker: Masker, held: Pose, later: Pose) -> Baseline:
 class _LaterOnly(SequenceParallax):
     """A SequenceParallax whose one reference is a later frame (its answer kept in ``last_answer`` for whoever asks
     why). With ``earlier`` (the frame's answer against an earlier frame) its answer is that one, the pixels it could
-    not trust decided by the later frame (:func:`fill_untrusted`)."""
+    not trust decided by the later frame (:func:`with_second_reference`)."""
 
     earlier: ParallaxResult | None = None
 
     def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
         later = super().update(image, pose)
         if self.earlier is not None:
-            self.last_answer = self.earlier if later is None else fill_untrusted(self.earlier, later)
+            self.last_answer = self.earlier if later is None else with_second_reference(self.earlier, later)
         return self.last_answer
 
 

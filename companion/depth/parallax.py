@@ -201,9 +201,9 @@ class ParallaxParams:
     # ... and the second reference decides the mask only in the pixels it newly trusts (the strip), the rest of the
     # frame keeps the mask of the first reference alone (:func:`second_look_in_strip`). Its trusted pixels also
     # feed the frame's plain-pixel rules (the calibrated split, the continuity and the watershed), which then moved
-    # the mask far from the strip: on the validation passes at 13 m 4 of 88 keyframes lost 5-16 points of their
-    # wall that way (val-montana-40, val-b0309-120, val-b0169-40; docs/DEPTH.md). False: the filled answer decides
-    # the whole frame.
+    # the mask far from the strip: on the validation passes at 13 m (stills 2 and 5 m apart) 6 of 218 keyframes with
+    # wall lost more than 5 points of it against one reference alone (up to 16), none with this rule
+    # (docs/DEPTH.md). False: the filled answer decides the whole frame.
     telemetry_both_sides_strip_only: bool = True
     # ``--sequence``: the pass's scale (f x baseline) is the median of the pairs whose motion is at least this share
     # of the pass's wall motion (the 90th percentile of the pairs' median flow). A pair of background-only photos

@@ -51,6 +51,8 @@ SPARSE_RULES: dict[str, ParallaxParams] = {
     "near-1.5": ParallaxParams(max_near_standoffs=1.5),
     "near-15m": ParallaxParams(max_near_standoffs=None),  # near never beyond 15 m (the 4 m standoff's limit)
     "wall-from-flow": ParallaxParams(plane_wall_from_flow_px=1.0),  # the plane check at the flow's wall motion
+    "one-side": ParallaxParams(telemetry_both_sides=False),  # keyframes judged against an earlier frame only
+    "fill-all": ParallaxParams(telemetry_both_sides_strip_only=False),  # the second look feeds the whole frame
     "window": ParallaxParams(telemetry_max_share=None),  # the window scaled by the standoff alone
     "fixed": ParallaxParams(baseline_standoff_m=None, telemetry_max_share=None),  # 8-60 cm: before issue 27
 }

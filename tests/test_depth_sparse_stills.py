@@ -3,6 +3,8 @@ baseline window follows the standoff (the wall's image motion), not a fixed 8-60
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pymap3d
@@ -206,3 +208,146 @@ def test_sequence_judges_the_strip_that_entered_the_view_against_the_next_photo(
 
     now, before = errors(ParallaxParams()), errors(ParallaxParams(sequence_both_sides=False))
     assert np.mean(now) < np.mean(before) - 0.01
+
+
+# -- the chain's second look at the strip that entered the view (issue 27 item 4, ``telemetry_both_sides``) -------
+
+BOTH_STANDOFF, BOTH_SPACING = 13.0, 5.0
+
+
+@pytest.fixture(scope="module")
+def stills_5_m_apart() -> PhotoPassRenderer:
+    """A 39 m wall 13 m away shot as stills 5 m apart (the wall moves a quarter of the frame between stills)."""
+    return _stills_pass(38.95, BOTH_STANDOFF, frames=round(39.0 / BOTH_SPACING) + 4, background_frames=4)
+
+
+def _timed_pose(renderer: PhotoPassRenderer, i: int, standoff_m: float = BOTH_STANDOFF) -> Pose:
+    """Still ``i``'s exact pose, taken ``i`` seconds into the flight (capture order is time order)."""
+    return replace(_pose(renderer.render(i), standoff_m), time_s=float(i))
+
+
+def _strip_columns(shape: tuple[int, ...], side: str) -> tuple[slice, slice]:
+    """The eighth of a work-resolution frame at its ``side`` (where a still's new strip enters: the pass runs
+    left to right along the wall, so the wall enters at the right)."""
+    w = shape[1]
+    return (slice(None), slice(w - w // 8, w)) if side == "right" else (slice(None), slice(0, w // 8))
+
+
+def test_a_still_between_two_kept_references_is_judged_against_both():
+    """The chain may mask a still after it has seen the next one (the tracked selection decides late). Judged
+    against the latest reference (the NEXT still) alone, the strip that left the view since the previous still is
+    untrusted; with ``telemetry_both_sides`` the previous still, kept on the other side, judges it. At 4 m nothing
+    changes: no second reference is used."""
+    renderer = _stills_pass(38.95, BOTH_STANDOFF, frames=round(39.0 / BOTH_SPACING) + 4, background_frames=4)
+    i = 3
+
+    def judge(params: ParallaxParams, standoff_m: float = BOTH_STANDOFF):
+        seq = SequenceParallax(69.0, params, standoff_m=standoff_m)
+        for j in (i - 1, i + 1):
+            seq.remember(renderer.render(j).image, _timed_pose(renderer, j, standoff_m))
+        return seq, seq.update(renderer.render(i).image, _timed_pose(renderer, i, standoff_m))
+
+    seq, one_side = judge(ParallaxParams(telemetry_both_sides=False))
+    left = _strip_columns(one_side.trusted.shape, "left")
+    assert one_side.trusted[left].mean() < 0.1  # against the next still: the strip it no longer shows
+    seq, both = judge(ParallaxParams())
+    assert both.trusted[left].mean() > 0.9 and both.near[left].mean() > 0.9  # the wall, by the previous still
+    assert np.array_equal(both.near[one_side.trusted], one_side.near[one_side.trusted])  # trusted pixels stay
+    assert not seq.last_wants_later
+    assert judge(ParallaxParams(), standoff_m=4.0)[1] is None  # 5 m apart at 4 m: beyond the window, unchanged
+
+
+def test_a_keyframe_judged_against_an_earlier_still_only_is_judged_again_against_the_next(stills_5_m_apart):
+    """Masked as it arrives, a still has only earlier stills to compare with: the strip that entered the view
+    since (a quarter of the frame) has no flow, the network decides it, and on this wall it cuts part of it.
+    ``first_look`` says what a later frame should judge; ``judge_with_later`` judges the untrusted pixels against
+    the next still and the mask keeps the wall there, and only there (``telemetry_both_sides_strip_only``). With
+    the rule off (the rule before) nothing is left for a later frame."""
+    from companion.depth.masker import Masker
+    from companion.depth.parallax_first import first_look, judge_with_later
+    from companion.records import Frame, TaggedFrame
+
+    renderer = stills_5_m_apart
+
+    def tagged(i: int) -> TaggedFrame:
+        return TaggedFrame(Frame(i, float(i), renderer.render(i).image), _timed_pose(renderer, i))
+
+    def looks(params: ParallaxParams, last: int):
+        masker = Masker("sim", parallax=SequenceParallax(69.0, params, standoff_m=BOTH_STANDOFF))
+        return masker, [first_look(masker, tagged(i)) for i in range(last + 1)]
+
+    _, before = looks(ParallaxParams(telemetry_both_sides=False), 4)
+    assert all(look.earlier is None for look in before)
+    masker, now = looks(ParallaxParams(), 4)
+    gains = []
+    for i in (1, 2, 3, 4):
+        look, truth = now[i], renderer.render(i).roi_mask > 0
+        assert look.earlier is not None and not look.alone and truth.all()
+        right = _strip_columns(look.earlier.trusted.shape, "right")
+        assert look.earlier.trusted[right].mean() < 0.3  # the entering strip: nothing to compare with
+        judged = judge_with_later(masker, tagged(i), tagged(i + 1), look.earlier)
+        assert judged.parallax.trusted[right].mean() > 0.9 and judged.parallax.near[right].mean() > 0.6
+        assert np.array_equal(look.masked.mask, before[i].masked.mask)  # the first look is main's mask
+        strip = judged.parallax.trusted & ~look.earlier.trusted  # what only the next still could judge
+        strip = cv2.resize(cv2.dilate(strip.astype(np.uint8), np.ones((5, 5), np.uint8)), truth.shape[::-1],
+                           interpolation=cv2.INTER_NEAREST) > 0
+        assert np.array_equal(judged.masked.mask[~strip], look.masked.mask[~strip])  # elsewhere: the first look
+        kept_first, kept_now = (float((m > 0)[truth].mean()) for m in (look.masked.mask, judged.masked.mask))
+        assert kept_now >= 0.95 and kept_now >= kept_first
+        gains.append(kept_now - kept_first)
+    assert max(gains) > 0.1  # the network cut a strip of wall the second look keeps
+
+
+def _chain_over(renderer: PhotoPassRenderer, frames: int, out, params: ParallaxParams):
+    """``frames`` stills (2 s apart, telemetry at 10 Hz between their exact poses) through the onboard chain with
+    the sim model and parallax at the 13 m standoff, then the end of the stream; the chain, and which call spooled
+    each keyframe."""
+    from types import SimpleNamespace
+
+    from companion.capture.tagging import FrameTagger
+    from companion.capture.telemetry import ClockMap, TelemetryBuffer
+    from companion.depth.masker import Masker
+    from companion.keyframes.gate import GateConfig, KeyframeGate
+    from companion.onboard.chain import CullChain
+    from companion.onboard.tracked import MeasureSchedule
+    from companion.records import Frame
+    from companion.spool import KeyframeSpool
+
+    renders = [renderer.render(i) for i in range(frames)]
+    buf = TelemetryBuffer()
+    along, up = [f.along_m for f in renders], [f.up_m for f in renders]
+    for t in np.arange(-0.5, 2.0 * (frames - 1) + 0.55, 0.1):
+        at = SimpleNamespace(along_m=float(np.interp(t / 2.0, range(frames), along)),
+                             up_m=float(np.interp(t / 2.0, range(frames), up)))
+        buf.add(replace(_pose(at, BOTH_STANDOFF), time_s=round(float(t), 3)))
+    masker = Masker("sim", parallax=SequenceParallax(69.0, params, standoff_m=BOTH_STANDOFF))
+    chain = CullChain(FrameTagger(buf, ClockMap(0.0)), masker, KeyframeGate(GateConfig(rth=0.80)),
+                      KeyframeSpool(out), track=MeasureSchedule())
+    spooled_by = {}  # keyframe index: the frame whose processing spooled it (-1: the end of the stream)
+    for i, f in enumerate(renders):
+        spooled_by.update({entry.index: i for entry in chain.process(Frame(i, 2.0 * i, f.image))})
+    spooled_by.update({entry.index: -1 for entry in chain.finish()})
+    return chain, spooled_by
+
+
+def test_a_held_keyframe_is_released_when_the_stream_ends_and_nothing_is_lost(stills_5_m_apart, tmp_path):
+    """The chain holds a keyframe judged against an earlier still only for the next still; a flight that ends
+    first (three stills) still spools it, with the mask of its first look, and spools the same keyframes as with
+    the rule off. The keyframe the next still did reach was judged again (the rule before: none)."""
+    import json
+
+    from companion.spool.layout import CLOSED, MANIFEST
+
+    def spooled(out) -> dict[int, np.ndarray]:
+        entries = [json.loads(line) for line in (out / MANIFEST).read_text().splitlines()]
+        return {e["index"]: cv2.imread(str(out / e["mask"]), cv2.IMREAD_GRAYSCALE) for e in entries}
+
+    off, off_by = _chain_over(stills_5_m_apart, 3, tmp_path / "off", ParallaxParams(telemetry_both_sides=False))
+    now, now_by = _chain_over(stills_5_m_apart, 3, tmp_path / "now", ParallaxParams())
+    before, after = spooled(tmp_path / "off"), spooled(tmp_path / "now")
+    assert off.stats.keyframes_judged_later == 0 and now.stats.keyframes_judged_later >= 1
+    assert sorted(after) == sorted(before) == sorted(now_by) and len(after) >= 2
+    last = max(after)
+    assert off_by[last] == last and now_by[last] == -1  # spooled as decided before; now held to the stream's end
+    assert np.array_equal(after[last], before[last])  # ... and released with its first look's mask: not lost
+    assert (tmp_path / "now" / CLOSED).exists() and now.full_resolution_held == 0

@@ -189,6 +189,22 @@ class ParallaxParams:
     # the view since, which has nothing to compare with there) are judged against the next photo. False: the
     # previous photo only (the rule before).
     sequence_both_sides: bool = True
+    # The chain (``companion cull``, onboard) at a standoff beyond ``baseline_standoff_m``: a frame judged against
+    # one reference has no flow in the strip the reference does not show (the strip that entered the view since an
+    # earlier frame: a quarter of the frame for stills 5 m apart 13 m out), which the network decided, and on real
+    # walls it cut 20-25 % of such keyframes there. Those pixels are judged against a reference on the other side
+    # (:func:`fill_untrusted`, as ``sequence_both_sides``): one already kept (the chain may mask a frame after it has
+    # seen the next one), else, for a keyframe, the next frame far enough along the baseline, which it waits for
+    # (``parallax_first.LaterReference``, the hold of a strip's first keyframe). At the paper's 4 m nothing
+    # changes. False: one reference (the rule before).
+    telemetry_both_sides: bool = True
+    # ... and the second reference decides the mask only in the pixels it newly trusts (the strip), the rest of the
+    # frame keeps the mask of the first reference alone (:func:`second_look_in_strip`). Its trusted pixels also
+    # feed the frame's plain-pixel rules (the calibrated split, the continuity and the watershed), which then moved
+    # the mask far from the strip: on the validation passes at 13 m (stills 2 and 5 m apart) 6 of 218 keyframes with
+    # wall lost more than 5 points of it against one reference alone (up to 16), none with this rule
+    # (docs/DEPTH.md). False: the filled answer decides the whole frame.
+    telemetry_both_sides_strip_only: bool = True
     # ``--sequence``: the pass's scale (f x baseline) is the median of the pairs whose motion is at least this share
     # of the pass's wall motion (the 90th percentile of the pairs' median flow). A pair of background-only photos
     # (past the wall's end) moves a few pixels and, where the network reads the far background as near, measures a
@@ -317,6 +333,9 @@ class ParallaxResult:
     plane_checked: bool = False  # near and far were decided with the wall-plane check
     before_plane: ParallaxResult | None = None  # the same flow without the wall-plane check (for the drop rule)
     wall_fit_share: float = float("nan")  # share of the frame that moves like the wall and fits it closely
+    # the answer against the first reference alone, when the pixels it could not trust were judged against a second
+    # (the chain beyond 4 m, ``telemetry_both_sides``): the second look then decides only those
+    first_reference: ParallaxResult | None = None
 
     @property
     def trusted_share(self) -> float:
@@ -328,6 +347,27 @@ class ParallaxResult:
         p = self.params
         limit = p.plane_drop_max_near_share if self.plane_checked else p.drop_max_near_share
         return self.trusted_share >= p.min_confident_share and float(self.near.mean()) <= limit
+
+
+def fill_untrusted(par: ParallaxResult, second: ParallaxResult) -> ParallaxResult:
+    """``par`` with the pixels it could not trust decided by ``second`` where that can (near, far, depth); the drop
+    evidence stays ``par``'s. Both answers are for the same frame, against two references (an earlier and a
+    later frame: the strip that entered the view since the earlier one has no flow there)."""
+    use = ~par.trusted & second.trusted
+    before = par.before_plane
+    if before is not None and second.before_plane is not None:
+        b2 = second.before_plane
+        before = replace(before, trusted=before.trusted | (use & b2.trusted), near=before.near | (use & b2.near),
+                         far=before.far | (use & b2.far), depth_m=np.where(use, b2.depth_m, before.depth_m))
+    return replace(par, depth_m=np.where(use, second.depth_m, par.depth_m), trusted=par.trusted | use,
+                   near=par.near | (use & second.near), far=par.far | (use & second.far), before_plane=before)
+
+
+def with_second_reference(par: ParallaxResult, second: ParallaxResult) -> ParallaxResult:
+    """The chain's answer for a frame judged against two references (``ParallaxParams.telemetry_both_sides``):
+    :func:`fill_untrusted`, remembering ``par`` when the second decides only the strip (``..._strip_only``)."""
+    filled = fill_untrusted(par, second)
+    return replace(filled, first_reference=par) if par.params.telemetry_both_sides_strip_only else filled
 
 
 def camera_translation(R_world_from_cam_ref: np.ndarray, pos_ref: np.ndarray, R_world_from_cam_cur: np.ndarray,
@@ -605,6 +645,8 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     network's answer as ``plain_rule`` corrects it, and with ``image`` (the frame) those the watershed gives to the
     far side are cut (``ParallaxParams.plain_watershed_cut``).
     """
+    if parallax.first_reference is not None:
+        return second_look_in_strip(network_mask, parallax, network_depth_m, image)
     h, w = network_mask.shape[:2]
     # all background: the trusted pixels say so, and what the network keeps is not hiding in untrusted (plain)
     # parts of the frame, such as a plain strip of wall parallax cannot track. With the wall-plane check: the flow
@@ -626,6 +668,24 @@ def fuse_with_network(network_mask: np.ndarray, parallax: ParallaxResult,
     vote = cv2.medianBlur(vote, 5)
     fused = cv2.resize(vote, (w, h), interpolation=cv2.INTER_LINEAR)
     return np.where(fused >= 0.5, 255, 0).astype(np.uint8), False
+
+
+def second_look_in_strip(network_mask: np.ndarray, parallax: ParallaxResult,
+                         network_depth_m: np.ndarray | None = None,
+                         image: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """:func:`fuse_with_network` of a frame judged against two references (``parallax.first_reference``: the
+    first alone): the mask fused from both in the pixels only the second reference could trust (the strip the
+    first does not show, grown by 2 work pixels for the median smoothing), the mask of the first alone elsewhere
+    (``ParallaxParams.telemetry_both_sides_strip_only``). Dropped only when both answers drop it."""
+    first, first_dropped = fuse_with_network(network_mask, parallax.first_reference, network_depth_m, image)
+    both, both_dropped = fuse_with_network(network_mask, replace(parallax, first_reference=None), network_depth_m,
+                                           image)
+    if first_dropped and both_dropped:
+        return first, True
+    h, w = network_mask.shape[:2]
+    strip = (parallax.trusted & ~parallax.first_reference.trusted).astype(np.uint8)
+    strip = cv2.resize(cv2.dilate(strip, np.ones((5, 5), np.uint8)), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    return np.where(strip, both, first).astype(np.uint8), False
 
 
 def watershed_cut(net: np.ndarray, parallax: ParallaxResult, image: np.ndarray) -> np.ndarray:
@@ -770,6 +830,15 @@ def baseline_window(params: ParallaxParams, standoff_m: float | None,
     return low, high
 
 
+def judges_both_sides(params: ParallaxParams, standoff_m: float | None) -> bool:
+    """Whether the pixels a frame's flow could not trust are judged against a second reference on the other side
+    (``ParallaxParams.telemetry_both_sides``): only for a wall farther than the window was made for
+    (``baseline_standoff_m``), where frames metres apart bring a strip of new wall into view; at the paper's 4 m
+    nothing changes."""
+    return params.telemetry_both_sides and params.baseline_standoff_m is not None \
+        and standoff_m is not None and standoff_m > params.baseline_standoff_m
+
+
 def _aligns(params: ParallaxParams, standoff_m: float | None) -> bool:
     """Whether the telemetry window reaches beyond the scaled one (``telemetry_max_share``): only for a wall farther
     than the window was made for (``baseline_standoff_m``), so at the paper's 4 m nothing changes (not measured
@@ -898,8 +967,13 @@ class SequenceParallax:
         self.keep = keep
         self.standoff_m = standoff_m
         self._origin: tuple[float, float, float] | None = None
-        self._history: list[tuple[np.ndarray, np.ndarray, tuple[int, ...]]] = []  # (grey copy, ENU, frame shape)
+        # (grey copy, ENU, frame shape, capture time s)
+        self._history: list[tuple[np.ndarray, np.ndarray, tuple[int, ...], float]] = []
         self._kept: tuple[KeptWall, tuple[int, ...]] | None = None  # the last kept frame's wall, its frame shape
+        self.last_answer: ParallaxResult | None = None  # what the last :meth:`update` returned
+        # the last answer came from an earlier frame alone and left pixels untrusted that a later frame, on the
+        # other side, may judge (``telemetry_both_sides``; the chain holds such a keyframe for one)
+        self.last_wants_later = False
 
     def _enu(self, pose) -> np.ndarray:
         import pymap3d
@@ -939,13 +1013,17 @@ class SequenceParallax:
         pos = self._enu(pose)
         if self._history and np.linalg.norm(pos - self._history[-1][1]) < self.baseline_window()[0] / 4:
             return
-        self._push(_grey(image, self.params.work_width), pos, image.shape)
+        self._push(_grey(image, self.params.work_width), pos, image.shape, pose.time_s)
 
-    def _push(self, grey: np.ndarray, pos: np.ndarray, shape: tuple[int, ...]) -> None:
-        self._history = (self._history + [(grey, pos, shape)])[-self.keep:]
+    def _push(self, grey: np.ndarray, pos: np.ndarray, shape: tuple[int, ...], time_s: float) -> None:
+        self._history = (self._history + [(grey, pos, shape, time_s)])[-self.keep:]
 
     def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
-        """Judge a frame against the latest reference far enough back, then keep it as a reference too."""
+        """Judge a frame against the latest reference far enough back, then keep it as a reference too. Beyond the
+        4 m standoff (``telemetry_both_sides``), the pixels that flow could not trust are judged against a
+        reference on the other side of the frame when one is kept (:meth:`_other_side`: the chain may mask a frame
+        after it has seen the next one)."""
+        self.last_wants_later = False
         if pose is None:
             return None
         pos = self._enu(pose)
@@ -953,14 +1031,41 @@ class SequenceParallax:
         k = pick_reference([h[1] for h in self._history], pos, self.params, self.standoff_m, self.hfov_deg)
         result = None
         if k is not None and self._history[k][2] == image.shape:
-            yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level
-            R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
-            t = camera_translation(R, self._history[k][1], R, pos)
-            if np.hypot(t[0], t[1]) > 1e-6:
-                fx = (image.shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
-                prior = wall_prior(self.params, t, self.hfov_deg, self.standoff_m)
-                flow = dense_flow_grey(self._history[k][0], grey, image.shape[1], self.params) if prior is None \
-                    else aligned_flow_grey(self._history[k][0], grey, image.shape[1], self.params, prior)
-                result = depth_from_flow(flow, t, fx, self.params, self.standoff_m)
-        self._push(grey, pos, image.shape)
+            result = self._against(k, grey, pos, pose, image.shape)
+            if result is not None and judges_both_sides(self.params, self.standoff_m) \
+                    and not bool(result.trusted.all()):
+                other = self._other_side(k, pos, image.shape)
+                second = None if other is None else self._against(other, grey, pos, pose, image.shape)
+                if second is not None:
+                    result = with_second_reference(result, second)
+                else:
+                    self.last_wants_later = self._history[k][3] < pose.time_s
+        self._push(grey, pos, image.shape, pose.time_s)
+        self.last_answer = result
         return result
+
+    def _against(self, k: int, grey: np.ndarray, pos: np.ndarray, pose,
+                 shape: tuple[int, ...]) -> ParallaxResult | None:
+        """The parallax of a frame (its grey working copy, position and pose) against kept reference ``k``."""
+        yaw, pitch, roll = pose.camera_angles()  # the gimbal holds the camera level
+        R = camera_rotation_enu(yaw_deg=yaw, pitch_deg=pitch, roll_deg=roll)
+        t = camera_translation(R, self._history[k][1], R, pos)
+        if np.hypot(t[0], t[1]) <= 1e-6:
+            return None
+        fx = (shape[1] / 2.0) / np.tan(np.radians(self.hfov_deg) / 2.0)
+        prior = wall_prior(self.params, t, self.hfov_deg, self.standoff_m)
+        flow = dense_flow_grey(self._history[k][0], grey, shape[1], self.params) if prior is None \
+            else aligned_flow_grey(self._history[k][0], grey, shape[1], self.params, prior)
+        return depth_from_flow(flow, t, fx, self.params, self.standoff_m)
+
+    def _other_side(self, k: int, pos: np.ndarray, shape: tuple[int, ...]) -> int | None:
+        """The latest kept reference within the baseline window on the other side of ``pos`` from reference ``k``
+        (the frame between them: what entered the view since one of them, the other shows); None when none is kept."""
+        low, high = self.baseline_window()
+        towards_k = self._history[k][1] - pos
+        for j in range(len(self._history) - 1, -1, -1):
+            grey, q, frame_shape, _ = self._history[j]
+            d = float(np.linalg.norm(q - pos))
+            if j != k and frame_shape == shape and low <= d <= high and float(np.dot(q - pos, towards_k)) < 0:
+                return j
+        return None

@@ -16,6 +16,15 @@ dropped as any other. The onboard chain holds the keyframe for this before spool
 the benches hold every frame in the same way (``bench/stitch_photo_passes.py``, ``bench/mask_wall_coverage.py``).
 A frame no later frame reaches (the stream or the segment ends first, or the next frame is already beyond
 ``max_baseline_m``) keeps the network's mask.
+
+The same hold gives a second look to a frame judged against an EARLIER frame only, beyond the 4 m standoff
+(issue 27 item 4, ``ParallaxParams.telemetry_both_sides``): stills metres apart bring a strip of new wall into view
+at the frame's leading side (a quarter of the frame at 5 m spacing 13 m out), which the earlier frame does not show,
+so its flow trusts nothing there and the network decided it (and cut 20-25 % of such keyframes on a real-texture
+validation pass). The later frame shows that strip; its parallax decides the pixels the earlier flow could not
+trust (``parallax.fill_untrusted``, as ``companion mask --sequence`` does with both neighbours) and the mask there
+(``parallax.second_look_in_strip``); the rest of the frame keeps the earlier answer's mask. Released as above: a
+frame no later frame reaches keeps its first mask.
 """
 
 from __future__ import annotations
@@ -26,7 +35,7 @@ from enum import StrEnum
 import numpy as np
 
 from companion.depth.masker import Masker
-from companion.depth.parallax import ParallaxResult, SequenceParallax
+from companion.depth.parallax import ParallaxResult, SequenceParallax, with_second_reference
 from companion.records import MaskedFrame, Pose, TaggedFrame
 
 
@@ -55,9 +64,32 @@ def judged_alone(masker: Masker, mark: tuple[int, int, int], tagged: TaggedFrame
 
 def masked_without_reference(masker: Masker, tagged: TaggedFrame) -> tuple[MaskedFrame | None, bool]:
     """``masker(tagged)``, and whether the network alone decided it for want of a reference (:func:`judged_alone`)."""
+    look = first_look(masker, tagged)
+    return look.masked, look.alone
+
+
+@dataclass(frozen=True)
+class FirstLook:
+    """A frame masked in capture order, and what a later frame should still judge of it: everything (``alone``: the
+    network alone decided it for want of a reference) or the pixels the flow against an earlier frame could not
+    trust (``earlier``: that answer, beyond the 4 m standoff, ``ParallaxParams.telemetry_both_sides``)."""
+
+    masked: MaskedFrame | None
+    alone: bool
+    earlier: ParallaxResult | None = None
+
+
+def first_look(masker: Masker, tagged: TaggedFrame) -> FirstLook:
+    """``masker(tagged)`` and what a later frame should still judge of it (:class:`FirstLook`)."""
     mark = reference_mark(masker)
     masked = masker(tagged)
-    return masked, judged_alone(masker, mark, tagged)
+    alone = judged_alone(masker, mark, tagged)
+    earlier = None
+    seq = masker.parallax
+    if masked is not None and not alone and seq is not None and reference_mark(masker)[1] == mark[1] + 1 \
+            and seq.last_wants_later and seq.last_answer is not None:
+        earlier = seq.last_answer
+    return FirstLook(masked, alone, earlier)
 
 
 def baseline_between(masker: Masker, held: Pose, later: Pose) -> Baseline:
@@ -73,13 +105,17 @@ def baseline_between(masker: Masker, held: Pose, later: Pose) -> Baseline:
 
 
 class _LaterOnly(SequenceParallax):
-    """A SequenceParallax whose one reference is a later frame; it keeps its answer for whoever asks why."""
+    """A SequenceParallax whose one reference is a later frame (its answer kept in ``last_answer`` for whoever asks
+    why). With ``earlier`` (the frame's answer against an earlier frame) its answer is that one, the pixels it could
+    not trust decided by the later frame (:func:`with_second_reference`)."""
 
-    answer: ParallaxResult | None = None
+    earlier: ParallaxResult | None = None
 
     def update(self, image: np.ndarray, pose) -> ParallaxResult | None:
-        self.answer = super().update(image, pose)
-        return self.answer
+        later = super().update(image, pose)
+        if self.earlier is not None:
+            self.last_answer = self.earlier if later is None else with_second_reference(self.earlier, later)
+        return self.last_answer
 
 
 @dataclass(frozen=True)
@@ -92,14 +128,18 @@ class LaterJudgement:
     later_index: int
 
 
-def judge_with_later(masker: Masker, tagged: TaggedFrame, later: TaggedFrame) -> LaterJudgement:
+def judge_with_later(masker: Masker, tagged: TaggedFrame, later: TaggedFrame,
+                     earlier: ParallaxResult | None = None) -> LaterJudgement:
     """Mask ``tagged`` again with ``later`` as its only parallax reference (same model, ROI rules and parallax rules
-    as ``masker``; its own state untouched). Costs one network run and the two flows of any judged frame."""
+    as ``masker``; its own state untouched). Costs one network run and the two flows of any judged frame.
+    ``earlier``: the frame's answer against an earlier frame (:class:`FirstLook`); ``later`` then judges only the
+    pixels that one could not trust."""
     seq = masker.parallax
     reference = _LaterOnly(seq.hfov_deg, seq.params, keep=1, standoff_m=seq.standoff_m)
+    reference.earlier = earlier
     reference.remember(later.frame.image, later.pose)
     judge = Masker(session=masker.session, params=masker.params, max_roi_depth_m=None, parallax=reference)
-    return LaterJudgement(judge(tagged), reference.answer, later.frame.index)
+    return LaterJudgement(judge(tagged), reference.last_answer, later.frame.index)
 
 
 @dataclass(frozen=True)
@@ -107,7 +147,7 @@ class Resolved:
     """A held frame's outcome: ``judgement`` None when no later frame could judge it (the network's mask stands)."""
 
     tagged: TaggedFrame
-    network: MaskedFrame | None  # the mask the network alone gave it
+    network: MaskedFrame | None  # the mask it was held with (the network's; or its earlier parallax's, FirstLook)
     item: object  # what the caller held with it (the chain: the keyframe)
     judgement: LaterJudgement | None
 
@@ -125,15 +165,18 @@ class LaterReference:
         if masker.parallax is None:
             raise ValueError("a masker without parallax has no later reference to use")
         self.masker = masker
-        self._held: list[tuple[TaggedFrame, MaskedFrame | None, object]] = []
+        self._held: list[tuple[TaggedFrame, MaskedFrame | None, object, ParallaxResult | None]] = []
         self.judged = 0  # held frames masked against a later frame
         self.unjudged = 0  # held frames that kept the network's mask (no later frame in reach)
 
     def held_indices(self) -> list[int]:
-        return [t.frame.index for t, _, _ in self._held]
+        return [t.frame.index for t, _, _, _ in self._held]
 
-    def hold(self, tagged: TaggedFrame, network: MaskedFrame | None, item: object = None) -> None:
-        self._held.append((tagged, network, item))
+    def hold(self, tagged: TaggedFrame, network: MaskedFrame | None, item: object = None,
+             earlier: ParallaxResult | None = None) -> None:
+        """Hold a frame for a later one: ``network`` the mask it has now, ``earlier`` its answer against an earlier
+        frame when it had one (then the later frame judges only what that could not trust, :class:`FirstLook`)."""
+        self._held.append((tagged, network, item, earlier))
 
     def offer(self, later: TaggedFrame) -> list[Resolved]:
         """Resolve, in capture order, the held frames ``later`` judges (or lies beyond reach of); stops at the first
@@ -142,14 +185,14 @@ class LaterReference:
         if later.pose is None or later.pose_stale:
             return out
         while self._held:
-            tagged, network, item = self._held[0]
+            tagged, network, item, earlier = self._held[0]
             if later.frame.index <= tagged.frame.index:
                 break
             reach = baseline_between(self.masker, tagged.pose, later.pose)
             if reach == Baseline.SHORT:
                 break
             self._held.pop(0)
-            judgement = judge_with_later(self.masker, tagged, later) if reach == Baseline.USABLE else None
+            judgement = judge_with_later(self.masker, tagged, later, earlier) if reach == Baseline.USABLE else None
             self.judged += judgement is not None
             self.unjudged += judgement is None
             out.append(Resolved(tagged, network, item, judgement))
@@ -157,7 +200,7 @@ class LaterReference:
 
     def release(self) -> list[Resolved]:
         """Every held frame with the network's mask (no later frame will come)."""
-        out = [Resolved(t, n, item, None) for t, n, item in self._held]
+        out = [Resolved(t, n, item, None) for t, n, item, _ in self._held]
         self.unjudged += len(out)
         self._held = []
         return out

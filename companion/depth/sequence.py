@@ -35,6 +35,7 @@ from companion.depth.parallax import (
     dense_flow,
     depth_from_flow,
     dominant_motion_grey,
+    fill_untrusted,
     fuse_with_network,
     merged_flow,
     motion_prior,
@@ -277,19 +278,6 @@ class SequenceMasker:
             par = fill_untrusted(par, self._parallax(image, other, not forward, motion))
         mask, dropped = fuse_with_network(net_mask, par, image=image)
         return SequenceMask(mask, dropped or not mask.any(), True)
-
-
-def fill_untrusted(par, second):
-    """``par`` with the pixels it could not trust decided by ``second`` where that can (near, far, depth); the drop
-    evidence stays ``par``'s."""
-    use = ~par.trusted & second.trusted
-    before = par.before_plane
-    if before is not None and second.before_plane is not None:
-        b2 = second.before_plane
-        before = replace(before, trusted=before.trusted | (use & b2.trusted), near=before.near | (use & b2.near),
-                         far=before.far | (use & b2.far), depth_m=np.where(use, b2.depth_m, before.depth_m))
-    return replace(par, depth_m=np.where(use, second.depth_m, par.depth_m), trusted=par.trusted | use,
-                   near=par.near | (use & second.near), far=par.far | (use & second.far), before_plane=before)
 
 
 def mask_sequence(paths: Sequence[Path], masker, read: Callable[[Path], np.ndarray | None],

@@ -15,7 +15,7 @@ import numpy as np
 
 from companion.capture.tagging import FrameTagger
 from companion.depth.masker import Masker
-from companion.depth.parallax_first import masked_without_reference
+from companion.depth.parallax_first import first_look
 from companion.errors import CompanionError
 from companion.keyframes.gate import KeyframeGate
 from companion.keyframes.gate_scope import ScanPhase, ScanScope, ScopeStep
@@ -234,9 +234,12 @@ class CullChain:
             masked = MaskedFrame(tagged, np.full(tagged.image.shape[:2], 255, np.uint8))
             self.record.masked(masked, None)
             return masked
-        masked, alone = masked_without_reference(self.masker, tagged)
-        if alone:
+        look = first_look(self.masker, tagged)
+        masked = look.masked
+        if look.alone:
             self.pending.mark_alone(tagged.index)
+        elif look.earlier is not None:
+            self.pending.mark_one_sided(tagged.index, look.earlier)
         self.record.masked(masked, self.masker.stats)
         return masked
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 from typing import Protocol
 
 from companion.depth.masker import Masker
+from companion.depth.parallax import ParallaxResult
 from companion.depth.parallax_first import LaterReference, Resolved
 from companion.onboard.working import FullResolution
 from companion.records import EncodedFrame, Frame, Keyframe, MaskedFrame, TaggedFrame
@@ -66,7 +67,10 @@ class PendingFrames:
         self._later = None if masker is None or masker.parallax is None else LaterReference(masker)
         self._holds: tuple[Hold, ...] = (*holds, *([] if self._later is None else [self._later]))
         self._full = FullResolution()
-        self._alone: set[int] = set()  # frames masked by the network alone for want of a reference
+        # frames a later frame should judge before they are spooled: None, masked by the network alone for want of
+        # a reference; else the answer of their parallax against an earlier frame, whose untrusted pixels a later
+        # frame judges (beyond the 4 m standoff, ``ParallaxParams.telemetry_both_sides``)
+        self._for_later: dict[int, ParallaxResult | None] = {}
         self._skipped: SkippedFrame | None = None
 
     @property
@@ -82,7 +86,12 @@ class PendingFrames:
     def mark_alone(self, index: int) -> None:
         """The network alone masked this frame (no reference before it): if it becomes a keyframe, a later frame's
         parallax judges it before it is spooled."""
-        self._alone.add(index)
+        self._for_later[index] = None
+
+    def mark_one_sided(self, index: int, earlier: ParallaxResult) -> None:
+        """This frame was judged against an earlier frame only, which left pixels untrusted (the strip that entered
+        the view since): if it becomes a keyframe, a later frame's parallax judges those before it is spooled."""
+        self._for_later[index] = earlier
 
     def skip(self, frame: Frame | EncodedFrame, tagged: TaggedFrame) -> None:
         """The newest frame was skipped far above Rth: kept as it came, the segment may end on it."""
@@ -107,7 +116,7 @@ class PendingFrames:
         become a keyframe; None: all, nothing is undecided any more)."""
         oldest = None if newest is None else self.oldest_undecided(newest)
         self._full.release_below(oldest)
-        self._alone = set() if oldest is None else {i for i in self._alone if i >= oldest}
+        self._for_later = {} if oldest is None else {i: e for i, e in self._for_later.items() if i >= oldest}
 
     def restore(self, kf: Keyframe) -> Keyframe:
         """The keyframe as spooled: its full-resolution image, mask and pixel displacements."""
@@ -122,7 +131,9 @@ class PendingFrames:
         the parallax rules every other frame gets (``companion.depth.parallax_first``) and spooled. ``later``: this
         frame, which may resolve a held keyframe; None when no later frame will come (end of stream or of the scan
         segment), so a held keyframe is spooled now with the network's mask. A newer keyframe never overtakes a held
-        one: it is released first (network mask), so the spool stays in capture order."""
+        one: it is released first (network mask), so the spool stays in capture order. A keyframe judged against an
+        earlier frame only beyond the 4 m standoff (``mark_one_sided``) is held the same way; the later frame judges
+        the pixels that flow could not trust, and released unjudged it keeps the mask it has."""
         if self._later is None:
             return SpoolOrder(tuple(keyframes))
         verdicts: list[LaterVerdict] = []
@@ -131,9 +142,9 @@ class PendingFrames:
             resolved += self._later.release()
         ready = [kf for kf in (_settled(r, verdicts) for r in resolved) if kf is not None]
         for n, kf in enumerate(keyframes):
-            if later is not None and n == len(keyframes) - 1 and kf.index in self._alone:
+            if later is not None and n == len(keyframes) - 1 and kf.index in self._for_later:
                 tagged = TaggedFrame(kf.frame, kf.pose, kf.pose_stale)
-                self._later.hold(tagged, MaskedFrame(tagged, kf.mask), kf)
+                self._later.hold(tagged, MaskedFrame(tagged, kf.mask), kf, self._for_later[kf.index])
                 ready += [k for k in (_settled(r, verdicts) for r in self._later.offer(later)) if k is not None]
             else:
                 ready.append(kf)

@@ -219,3 +219,13 @@ def test_a_wall_without_window_labels_never_reflects():
     off, on = _compose_many(bank, CompositeOptions(), 4), _compose_many(bank, CompositeOptions(1.0), 4)
     for a, b in zip(off, on, strict=True):
         np.testing.assert_array_equal(a.image, b.image)
+
+
+@pytest.mark.parametrize("flags", [["--reflect-windows", "1.5"], ["--bright-walls", "-0.1"]])
+def test_train_command_refuses_a_share_outside_0_to_1(tmp_path, capsys, flags):
+    from companion.cli import main
+
+    rc = main(["depth", "train", "--out", str(tmp_path / "run"), "--view-seeds", "0", *flags])
+    assert rc != 0
+    assert "between 0 and 1" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # refused before anything was written or rendered

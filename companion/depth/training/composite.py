@@ -59,12 +59,15 @@ class CompositeOptions:
     ``reflect_windows``: share of wall composites whose window glass (CMP class 3, LabelMe window) shows a
     mirrored, zoomed crop of the sample's own background photo (trees, sky, buildings), blended in at a random
     strength, while the depth truth stays the wall plane's. Real windows reflect what is behind and around the
-    camera; a model that only saw windows as the labelled photos' glass learned "trees and sky = far" and cuts a
-    window reflecting them (the DJI photo with a window full of trees and sky, docs/DEPTH.md "Near/far mask loss").
+    camera, and every real-photo model so far cuts a window reflecting trees and sky (the DJI photo); the labelled
+    photos' glass rarely shows them, so the composites never taught that such pixels can be near.
 
     ``bright_walls``: share of composites whose facade becomes bright, grey, low-texture cladding
     (``data.bright_cladding``), mostly under an overcast sky: the labelled facades are mostly darker brick, stone
-    and render, so such walls were rare.
+    and render, so such walls were rare in the composites.
+
+    Tried once with the mask loss (docs/DEPTH.md, "Reflecting windows and bright cladding"): not enough on their own
+    to make a model pass the real-photo checks.
     """
 
     reflect_windows: float = 0.0

@@ -92,8 +92,8 @@ def bright_cladding(img: np.ndarray, facade: np.ndarray, rng: np.random.Generato
     """Turn the facade pixels (float BGR in [0, 1], ``facade`` bool) into bright, grey, nearly textureless cladding.
 
     ``plain_wall`` keeps the photo's own mean colour, and most labelled facades are mid-dark brick, stone or
-    render, so a bright grey clad wall under an overcast sky (the drone's common case) was rare in the composites;
-    the models that saw them cut such a wall as sky. Here the level is 0.55-0.92 (before the global brightness
+    render, so a bright grey clad wall under an overcast sky (a common case for an inspection drone) was rare in the
+    composites. Here the level is 0.55-0.92 (before the global brightness
     jitter), the colour grey with at most a faint tint of the photo's own, 0-25 % of the detail kept, soft light
     (overcast: +-0-12 %), and in half the samples faint panel seams.
     """

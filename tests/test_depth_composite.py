@@ -14,6 +14,7 @@ from companion.depth.training.composite import (
     BACKGROUND_M,
     STANDOFF_M,
     BackgroundPhoto,
+    CompositeOptions,
     PhotoBank,
     WallPhoto,
     compose,
@@ -105,6 +106,9 @@ def test_photo_bank_loads_only_the_train_split(tmp_path):
     assert loaded and loaded <= train_names and not loaded & held_names
     for w in bank.walls:
         assert w.image.shape[:2] == w.facade.shape and 0.2 <= w.facade.mean() <= 1.0
+        # window glass (CMP class 3, LabelMe 0:0:128) is loaded at the same size and is part of the facade
+        assert w.windows is not None and w.windows.shape == w.facade.shape and w.windows.any()
+        assert not (w.windows & ~w.facade).any()
     c = compose(bank, np.random.default_rng(0), 192, 640, background_only=False)
     assert c.facade.any()
 
@@ -154,3 +158,74 @@ def test_real_photo_training_step_exports_a_non_commercial_model(tmp_path):
     a = start.depth.state_dict()["decoder.0.conv.conv.weight"]
     b = trained.depth.state_dict()["decoder.0.conv.conv.weight"]
     assert 0 < float((a - b).abs().max()) < 0.05
+
+
+def _bank_with_windows(windows: bool = True) -> PhotoBank:
+    """A grey textured wall with two window panes before a saturated green background (top half blue sky)."""
+    rng = np.random.default_rng(2)
+    wall = np.repeat((100 + rng.random((120, 200, 1)) * 60).astype(np.uint8), 3, axis=2)  # grey: chroma 0
+    facade = np.ones((120, 200), bool)
+    glass = np.zeros((120, 200), bool)
+    glass[30:90, 20:80] = glass[30:90, 120:180] = True
+    bg = np.zeros((150, 200, 3), np.uint8)
+    bg[:] = (20, 200, 20)  # BGR green: trees
+    sky = np.zeros((150, 200), bool)
+    sky[:75] = True
+    bg[sky] = (230, 180, 120)
+    return PhotoBank((WallPhoto(wall, facade, "w", glass if windows else None),), (BackgroundPhoto(bg, sky, "b"),))
+
+
+def _compose_many(bank: PhotoBank, options: CompositeOptions, seed: int, n: int = 12) -> list:
+    """``n`` composites, each from its own generator (an option's extra draws come last in a sample, so sample i
+    with and without it is the same view)."""
+    return [compose(bank, np.random.default_rng((seed, i)), 96, 320, MAX_DEPTH, options=options) for i in range(n)]
+
+
+def test_options_off_give_the_samples_of_before():
+    """Off draws nothing extra: window labels in the bank and explicit zero options change no bit of a sample
+    (checked once against the code before the options: the same SHA-1 over 40 composites and their crops)."""
+    for seed in range(3):
+        before = _compose_many(_bank_with_windows(windows=False), CompositeOptions(), seed)
+        now = _compose_many(_bank_with_windows(), CompositeOptions(reflect_windows=0.0, bright_walls=0.0), seed)
+        for a, b in zip(before, now, strict=True):
+            for field in ("image", "depth", "facade", "sky"):
+                np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_reflecting_windows_turn_toward_the_background_and_keep_the_walls_depth(seed):
+    bank = _bank_with_windows()
+    off = _compose_many(bank, CompositeOptions(), seed)
+    on = _compose_many(bank, CompositeOptions(reflect_windows=1.0), seed)
+    moved = 0
+    for a, b in zip(off, on, strict=True):
+        # the truth is untouched: same depth (the wall plane's on the panes), same facade and sky labels
+        np.testing.assert_array_equal(a.depth, b.depth)
+        np.testing.assert_array_equal(a.facade, b.facade)
+        np.testing.assert_array_equal(a.sky, b.sky)
+        changed = np.abs(a.image.astype(int) - b.image.astype(int)).max(axis=2) > 0
+        assert not (changed & (a.facade == 0)).any()  # only wall pixels (the panes) change
+        if changed.sum() > 50:
+            # toward the background's colours: from the grey wall (chroma 0) to green trees or blue sky
+            # (chroma 110-180, dimmed to 0.6x at least), at a strength of 0.35 or more (pane edges are partly glass)
+            before, after = (float(np.ptp(im[changed].astype(float), axis=1).mean()) for im in (a.image, b.image))
+            assert after > before + 8
+            moved += 1
+    assert moved >= 3
+
+
+def test_a_wall_without_window_labels_never_reflects():
+    bank = _bank_with_windows(windows=False)
+    off, on = _compose_many(bank, CompositeOptions(), 4), _compose_many(bank, CompositeOptions(1.0), 4)
+    for a, b in zip(off, on, strict=True):
+        np.testing.assert_array_equal(a.image, b.image)
+
+
+@pytest.mark.parametrize("flags", [["--reflect-windows", "1.5"], ["--bright-walls", "-0.1"]])
+def test_train_command_refuses_a_share_outside_0_to_1(tmp_path, capsys, flags):
+    from companion.cli import main
+
+    rc = main(["depth", "train", "--out", str(tmp_path / "run"), "--view-seeds", "0", *flags])
+    assert rc != 0
+    assert "between 0 and 1" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()  # refused before anything was written or rendered

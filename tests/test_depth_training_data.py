@@ -1,5 +1,6 @@
 """Training-data randomisation: the plain-wall and overcast-sky changes touch only their regions, keep the geometry,
-and do what they are for (less wall texture; a sky that is flat but never the wall's exact shade)."""
+and do what they are for (less wall texture; a sky that is flat but never the wall's exact shade; bright grey
+cladding, off unless asked for)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,15 @@ import cv2
 import numpy as np
 import pytest
 
-from companion.depth.training.data import FrameSet, overcast_sky, plain_wall, randomise, sample_batch
+from companion.depth.training.data import (
+    FrameSet,
+    augment_crop,
+    bright_cladding,
+    overcast_sky,
+    plain_wall,
+    randomise,
+    sample_batch,
+)
 
 
 def _scene(h: int = 96, w: int = 160) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -21,11 +30,13 @@ def _scene(h: int = 96, w: int = 160) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return img, facade, ~facade
 
 
+def _texture(image: np.ndarray, where: np.ndarray) -> float:
+    """High-frequency spread, the low-frequency light field excluded."""
+    return float((image - cv2.GaussianBlur(image, (0, 0), 2.0))[where].std())
+
+
 def test_plain_wall_flattens_only_the_facade():
     img, facade, sky = _scene()
-
-    def texture(image: np.ndarray, where: np.ndarray) -> float:  # high-frequency spread, light field excluded
-        return float((image - cv2.GaussianBlur(image, (0, 0), 2.0))[where].std())
 
     for seed in range(20):
         out = plain_wall(img, facade, np.random.default_rng(seed))
@@ -35,7 +46,7 @@ def test_plain_wall_flattens_only_the_facade():
         assert changed.any() and not (changed & sky).any()
         inner = changed & (cv2.erode(changed.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0)
         if inner.sum() > 100:
-            assert texture(out, inner) < 0.6 * texture(img, inner)
+            assert _texture(out, inner) < 0.6 * _texture(img, inner)
 
 
 def test_overcast_sky_is_flat_and_never_the_walls_shade():
@@ -79,3 +90,36 @@ def test_randomise_without_masks_still_works():
     img, _, _ = _scene()
     out = randomise((img * 255).astype(np.uint8), np.random.default_rng(0))
     assert out.shape == img.shape and out.dtype == np.uint8
+
+
+def test_bright_cladding_makes_the_facade_bright_grey_and_plain_and_leaves_the_rest():
+    img, facade, sky = _scene()
+    img[facade] *= 0.6  # a dark textured wall, the labelled photos' common case
+    for seed in range(20):
+        out = bright_cladding(img, facade, np.random.default_rng(seed))
+        assert out.shape == img.shape and out.dtype == np.float32
+        np.testing.assert_array_equal(out[sky], img[sky])
+        changed = np.abs(out - img).max(axis=2) > 1e-6
+        if changed.sum() < 200:  # a patch that missed most of the wall
+            continue
+        wall = out[changed]
+        assert wall.mean() > 0.45 > img[changed].mean()  # bright
+        assert np.abs(wall.mean(axis=0) - wall.mean()).max() < 0.08 * wall.mean()  # grey (at most a faint tint)
+        inner = changed & (cv2.erode(changed.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0)
+        assert _texture(out, inner) < 0.5 * _texture(img, inner)  # plain (light field and seams aside)
+
+
+def test_bright_walls_off_draws_nothing_and_on_keeps_the_geometry():
+    img, facade, sky = _scene()
+    image = (img * 255).astype(np.uint8)
+    for seed in range(10):
+        np.testing.assert_array_equal(
+            randomise(image, np.random.default_rng(seed), facade=facade, sky=sky),
+            randomise(image, np.random.default_rng(seed), facade=facade, sky=sky, bright_walls=0.0),
+        )
+    depth = np.where(facade, 6.0, 100.0).astype(np.float32)
+    for seed in range(10):
+        x, d, f = augment_crop(image, depth, (facade * 255).astype(np.uint8), sky, np.random.default_rng(seed),
+                               (64, 96), bright_walls=1.0)
+        assert x.shape == (3, 64, 96)
+        np.testing.assert_array_equal(d[0] == 6.0, f[0])  # the facade crop and its depth still agree

@@ -76,6 +76,11 @@ def cmd_train(args) -> int:
         recs += ensure_recordings(args.mission, args.seeds, out / "data", width_px=args.width_px, stride=args.stride)
     if args.eval_seeds:
         evals += ensure_recordings(args.mission, args.eval_seeds, out / "data", width_px=args.width_px, stride=4)
+    if not (0.0 <= args.reflect_windows <= 1.0 and 0.0 <= args.bright_walls <= 1.0):
+        raise CompanionError(
+            f"--reflect-windows {args.reflect_windows} / --bright-walls {args.bright_walls} out of range",
+            "give shares between 0 and 1 (0 = off)",
+        )
     if args.mask_loss_weight < 0 or args.mask_margin < 1.0:
         raise CompanionError(
             f"--mask-loss-weight {args.mask_loss_weight} / --mask-margin {args.mask_margin} out of range",
@@ -89,6 +94,7 @@ def cmd_train(args) -> int:
         views_per_seed=args.views_per_seed, init_from=Path(args.init_from) if args.init_from else None,
         real_photos=Path(args.real_photos) if args.real_photos else None, real_fraction=args.real_fraction,
         mask_loss_weight=args.mask_loss_weight, mask_margin=args.mask_margin,
+        reflect_windows=args.reflect_windows, bright_walls=args.bright_walls,
     )
     path = train(cfg)
     print(f"model: {path}")
@@ -212,6 +218,11 @@ def register(subparsers) -> None:
                         "(0: depth loss only)")
     p.add_argument("--mask-margin", type=float, default=TrainConfig.mask_margin,
                    help="the hinge's margin: a factor (> 1) on disparity around the ROI rules' keep/cut threshold")
+    p.add_argument("--reflect-windows", type=float, default=TrainConfig.reflect_windows,
+                   help="share of real-photo wall composites whose windows reflect the background photo (depth "
+                        "truth stays the wall's; 0: off)")
+    p.add_argument("--bright-walls", type=float, default=TrainConfig.bright_walls,
+                   help="share of real-photo composites whose wall becomes bright grey low-texture cladding (0: off)")
     p.set_defaults(func=cmd_train)
 
     p = dsub.add_parser("average", help="uniform weight average of training runs (a model soup) -> verified ONNX")

@@ -12,6 +12,8 @@ decides what is wall: a photo's own sky or neighbours never count as wall, and w
 Views: mid-wall (the scan's common frame), views that run off the wall's end or over its top (part wall, part
 background: the roof line and the wall end of a real building), and background-only views (no wall at all,
 the frames the masker must drop). Plain walls come from the shared domain randomisation (``data.plain_wall``).
+Two named options (``CompositeOptions``, off by default): windows that reflect the background, and bright grey
+cladding.
 
 Only photos of ``realdata``'s ``train`` split are ever loaded here.
 """
@@ -26,7 +28,14 @@ import cv2
 import numpy as np
 
 from companion.attitude import camera_rotation_enu
-from companion.depth.training.realdata import RealPhoto, Split, facade_mask, list_real_photos, load_image
+from companion.depth.training.realdata import (
+    RealPhoto,
+    Split,
+    facade_mask,
+    list_real_photos,
+    load_image,
+    window_mask,
+)
 from companion.errors import CompanionError
 
 log = logging.getLogger(__name__)
@@ -39,15 +48,41 @@ MAX_PITCH_DEG = 12.0
 BACKGROUND_ONLY = 0.12
 OFF_WALL_EDGE = 0.40  # views that show a wall end or the top of the wall
 _SKY_RGB = (0, 128, 128)  # LabelMeFacade sky
+REFLECTION_STRENGTH = (0.35, 1.0)  # share of a reflecting window's colour that is the reflection
+REFLECTION_ZOOM = (1.0, 2.5)  # the reflected crop is 1/2.5 to all of the background frame
+
+
+@dataclass(frozen=True)
+class CompositeOptions:
+    """Named changes of the real-photo composites, all off by default (off: the samples of before, bit for bit).
+
+    ``reflect_windows``: share of wall composites whose window glass (CMP class 3, LabelMe window) shows a
+    mirrored, zoomed crop of the sample's own background photo (trees, sky, buildings), blended in at a random
+    strength, while the depth truth stays the wall plane's. Real windows reflect what is behind and around the
+    camera, and every real-photo model so far cuts a window reflecting trees and sky (the DJI photo); the labelled
+    photos' glass rarely shows them, so the composites never taught that such pixels can be near.
+
+    ``bright_walls``: share of composites whose facade becomes bright, grey, low-texture cladding
+    (``data.bright_cladding``), mostly under an overcast sky: the labelled facades are mostly darker brick, stone
+    and render, so such walls were rare in the composites.
+
+    Tried once with the mask loss (docs/DEPTH.md, "Reflecting windows and bright cladding"): not enough on their own
+    to make a model pass the real-photo checks.
+    """
+
+    reflect_windows: float = 0.0
+    bright_walls: float = 0.0
 
 
 @dataclass(frozen=True)
 class WallPhoto:
-    """A real facade photo (BGR uint8) and its facade mask (bool), downscaled for training."""
+    """A real facade photo (BGR uint8), its facade mask and its window-glass mask (bool), downscaled for
+    training (``windows`` None: no window labels, such a wall never reflects)."""
 
     image: np.ndarray
     facade: np.ndarray
     name: str
+    windows: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -110,8 +145,9 @@ def load_photo_bank(root: Path | None = None, max_side: int = 768, split: Split 
             facade = facade_mask(photo) > 0
             if facade.mean() < 0.2:
                 continue
+            _, windows = _downscale(image, window_mask(photo) > 0, max_side)
             image, facade = _downscale(image, facade, max_side)
-            walls.append(WallPhoto(image, facade, photo.image.name))
+            walls.append(WallPhoto(image, facade, photo.image.name, windows))
         else:
             image, sky = _downscale(image, _sky_mask(photo), max_side)
             backgrounds.append(BackgroundPhoto(image, sky, photo.image.name))
@@ -169,12 +205,40 @@ def _background(bank: PhotoBank, rng: np.random.Generator, height: int, width: i
     return np.ascontiguousarray(image), np.ascontiguousarray(sky)
 
 
+def reflection(background: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """What a window pane shows of the scene: the background frame mirrored left-right, a crop of it (biased to its
+    upper part: trees and sky) zoomed 1-2.5x, dimmed or tinted and a little soft, as float32 BGR 0-255."""
+    h, w = background.shape[:2]
+    zoom = rng.uniform(*REFLECTION_ZOOM)
+    cw, ch = w / zoom, h / zoom
+    x0, y0 = rng.uniform(0, w - cw), rng.uniform(0, 0.5 * (h - ch))
+    src = np.float32([[x0 + cw, y0], [x0, y0], [x0 + cw, y0 + ch]])  # right edge -> left: mirrored
+    dst = np.float32([[0, 0], [w, 0], [0, h]])
+    A = cv2.getAffineTransform(src, dst)
+    out = cv2.warpAffine(background, A, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    out = out.astype(np.float32) * rng.uniform(0.6, 1.1) * rng.uniform(0.9, 1.1, size=3).astype(np.float32)
+    sigma = rng.uniform(0.0, 1.5)
+    return cv2.GaussianBlur(out, (0, 0), sigma) if sigma > 0.3 else out
+
+
+def reflect_in_windows(
+    image: np.ndarray, background: np.ndarray, glass: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """Blend ``reflection(background)`` into the float image where ``glass`` (0-1 coverage) is, at a random
+    strength: the pixels change, their depth (the wall plane's) does not."""
+    strength = rng.uniform(*REFLECTION_STRENGTH)
+    a = (glass * strength)[..., None]
+    return image * (1.0 - a) + reflection(background, rng) * a
+
+
 def compose(
     bank: PhotoBank, rng: np.random.Generator, height: int = 192, width: int = 640, max_depth: float = 100.0,
     *, background_only: bool | None = None, square_pixels: bool = False,
+    options: CompositeOptions = CompositeOptions(),
 ) -> Composite:
     """One random composite frame (see the module docstring). ``square_pixels``: a camera frame of height x width
-    (for evaluation) instead of a 16:9 or 4:3 frame squashed to the model input (for training)."""
+    (for evaluation) instead of a 16:9 or 4:3 frame squashed to the model input (for training). ``options``: see
+    ``CompositeOptions`` (their random draws come after all others, so they change nothing else of a sample)."""
     K = camera_matrix(rng, height, width, aspect=height / width if square_pixels else None)
     aspect = (K[0, 0] / K[1, 1]) * height / width  # source-frame height / width
     bg_image, sky = _background(bank, rng, height, width, aspect)
@@ -188,7 +252,8 @@ def compose(
 
     wall = bank.walls[int(rng.integers(len(bank.walls)))]
     tex, tex_mask = wall.image, wall.facade
-    if rng.random() < 0.5:
+    flipped = rng.random() < 0.5
+    if flipped:
         tex, tex_mask = tex[:, ::-1], tex_mask[:, ::-1]
     th, tw = tex.shape[:2]
     ys, xs = np.nonzero(tex_mask)
@@ -216,6 +281,14 @@ def compose(
     warped = cv2.resize(warped, (width, height), interpolation=cv2.INTER_AREA).astype(np.float32)
     alpha = cv2.resize(alpha, (width, height), interpolation=cv2.INTER_AREA)
     image = warped * alpha[..., None] + bg_image.astype(np.float32) * (1.0 - alpha[..., None])
+    reflect = (options.reflect_windows > 0 and wall.windows is not None and wall.windows.any()
+               and rng.random() < options.reflect_windows)
+    if reflect:
+        glass = wall.windows[:, ::-1] if flipped else wall.windows
+        glass_alpha = cv2.warpPerspective(glass.astype(np.float32), H2, big, flags=cv2.INTER_LINEAR,
+                                          borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        glass_alpha = np.minimum(cv2.resize(glass_alpha, (width, height), interpolation=cv2.INTER_AREA), alpha)
+        image = reflect_in_windows(image, bg_image, glass_alpha, rng)
     image = np.clip(image + 0.5, 0, 255).astype(np.uint8)
     on_wall = alpha >= 0.5
     offset = float(normal @ centre)

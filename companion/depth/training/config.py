@@ -40,3 +40,5 @@ class TrainConfig:
     head_warmup_steps: int = 60  # from a .onnx: steps that fit only the coarse disparity heads first
     mask_loss_weight: float = 0.0  # weight of the near/far mask hinge (training.maskloss); 0 = depth loss only
     mask_margin: float = 1.25  # the hinge's margin, a factor on disparity around the ROI keep/cut threshold
+    reflect_windows: float = 0.0  # share of wall composites whose windows reflect the background (CompositeOptions)
+    bright_walls: float = 0.0  # share of composites whose wall is bright grey cladding (CompositeOptions)

@@ -88,6 +88,36 @@ def plain_wall(img: np.ndarray, facade: np.ndarray, rng: np.random.Generator) ->
     return np.where(region[..., None], flat, img).astype(np.float32)
 
 
+def bright_cladding(img: np.ndarray, facade: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Turn the facade pixels (float BGR in [0, 1], ``facade`` bool) into bright, grey, nearly textureless cladding.
+
+    ``plain_wall`` keeps the photo's own mean colour, and most labelled facades are mid-dark brick, stone or
+    render, so a bright grey clad wall under an overcast sky (a common case for an inspection drone) was rare in the
+    composites. Here the level is 0.55-0.92 (before the global brightness
+    jitter), the colour grey with at most a faint tint of the photo's own, 0-25 % of the detail kept, soft light
+    (overcast: +-0-12 %), and in half the samples faint panel seams.
+    """
+    region = facade if rng.random() < 0.75 else _region_patch(facade, rng)
+    if region.sum() < 50:
+        return img
+    own = img[region].mean(axis=0)
+    own = own / max(float(own.mean()), 1e-3)  # the photo's hue at unit level
+    hue = 1.0 + (own - 1.0) * rng.uniform(0.0, 0.4) + rng.uniform(-0.03, 0.03, size=3)
+    base = (rng.uniform(0.55, 0.92) * hue).astype(np.float32)
+    detail = img - cv2.GaussianBlur(img, (0, 0), 3.0)
+    light = 1.0 + _smooth_field(region.shape, rng, rng.uniform(0.0, 0.12))
+    flat = base[None, None, :] * light[..., None] + detail * rng.uniform(0.0, 0.25)
+    if rng.random() < 0.5:  # panel seams: thin darker lines on a regular grid
+        h, w = region.shape
+        seams = np.zeros((h, w), np.float32)
+        step_x, step_y = int(rng.integers(15, 80)), int(rng.integers(15, 80))
+        seams[:, int(rng.integers(0, step_x))::step_x] = 1.0
+        seams[int(rng.integers(0, step_y))::step_y, :] = 1.0
+        flat = flat * (1.0 - seams[..., None] * rng.uniform(0.02, 0.1))
+    flat = flat + rng.normal(0, rng.uniform(0.002, 0.012), img.shape).astype(np.float32)
+    return np.where(region[..., None], flat, img).astype(np.float32)
+
+
 def overcast_sky(img: np.ndarray, sky: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Replace the sky pixels (float BGR, ``sky`` bool) with a flat grey-white cloud deck, never the wall's exact
     shade (a roof line against a sky of the same colour has no visible edge for any model to find)."""
@@ -101,16 +131,23 @@ def overcast_sky(img: np.ndarray, sky: np.ndarray, rng: np.random.Generator) -> 
 
 
 def randomise(
-    image: np.ndarray, rng: np.random.Generator, *, facade: np.ndarray | None = None, sky: np.ndarray | None = None
+    image: np.ndarray, rng: np.random.Generator, *, facade: np.ndarray | None = None, sky: np.ndarray | None = None,
+    bright_walls: float = 0.0,
 ) -> np.ndarray:
     """Domain randomisation of one BGR uint8 image (geometry untouched).
 
     ``facade`` and ``sky`` (bool masks from the simulator's truth) enable the plain-wall and overcast-sky changes.
+    ``bright_walls``: share of samples whose facade becomes bright grey cladding (``bright_cladding``), then under
+    an overcast sky 70 % of the time instead of 30 %; 0 (the default) draws nothing extra, so the samples are the
+    ones before the option existed.
     """
     img = image.astype(np.float32) / 255.0
-    if facade is not None and rng.random() < 0.4:
+    clad = facade is not None and bright_walls > 0 and rng.random() < bright_walls
+    if clad:
+        img = bright_cladding(img, facade, rng)
+    elif facade is not None and rng.random() < 0.4:
         img = plain_wall(img, facade, rng)
-    if sky is not None and rng.random() < 0.3:
+    if sky is not None and rng.random() < (0.7 if clad else 0.3):
         img = overcast_sky(img, sky, rng)
     if rng.random() < 0.2:  # greyscale: real facades are often colourless concrete / cladding
         g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
@@ -145,12 +182,12 @@ def to_input(image_bgr: np.ndarray) -> np.ndarray:
 
 def augment_crop(
     image: np.ndarray, depth: np.ndarray, facade: np.ndarray, sky: np.ndarray, rng: np.random.Generator,
-    crop: tuple[int, int] | None, augment: bool = True,
+    crop: tuple[int, int] | None, augment: bool = True, bright_walls: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One training sample from a frame at model input size: a random crop, randomised and maybe flipped.
 
     Returns (3 x h x w RGB float input, 1 x h x w float32 depth, 1 x h x w bool facade) (the facade crop feeds the
-    near/far mask loss)."""
+    near/far mask loss). ``bright_walls``: see ``randomise``."""
     h, w = depth.shape
     ch, cw = crop or (h, w)
     y0 = int(rng.integers(0, h - ch + 1))
@@ -159,7 +196,7 @@ def augment_crop(
     dep = depth[y0 : y0 + ch, x0 : x0 + cw]
     fac = facade[y0 : y0 + ch, x0 : x0 + cw] > 0
     if augment:
-        img = randomise(img, rng, facade=fac, sky=sky[y0 : y0 + ch, x0 : x0 + cw])
+        img = randomise(img, rng, facade=fac, sky=sky[y0 : y0 + ch, x0 : x0 + cw], bright_walls=bright_walls)
         if rng.random() < 0.5:
             img, dep, fac = img[:, ::-1], dep[:, ::-1], fac[:, ::-1]
     return (to_input(np.ascontiguousarray(img)), np.ascontiguousarray(dep, dtype=np.float32)[None],

@@ -37,6 +37,8 @@ HELDOUT_MODULUS = 5  # one photo in five is held out
 # LabelMeFacade RGB label colours that belong to the facade (building, window, door); everything else is background.
 _LABELME_FACADE_RGB = ((128, 0, 0), (0, 0, 128), (128, 128, 0))
 _CMP_BACKGROUND_INDEX = 1  # CMP class 1 = background; 2..12 are facade parts (wall, window, door, balcony, ...)
+_CMP_WINDOW_INDEX = 3  # cmp/label_names.txt: "3 window"
+_LABELME_WINDOW_RGB = (0, 0, 128)
 
 
 @dataclass(frozen=True)
@@ -117,4 +119,25 @@ def facade_mask(photo: RealPhoto) -> np.ndarray | None:
     keep = np.zeros(rgb.shape[:2], dtype=bool)
     for colour in _LABELME_FACADE_RGB:
         keep |= np.all(rgb == np.array(colour, dtype=np.uint8), axis=-1)
+    return np.where(keep, 255, 0).astype(np.uint8)
+
+
+def window_mask(photo: RealPhoto) -> np.ndarray | None:
+    """uint8 mask, 255 = window glass (CMP class 3, LabelMeFacade window colour 0:0:128); None without labels.
+
+    The composites use it to let a window reflect the background (``composite.CompositeOptions``): real windows
+    mirror trees and sky, and a model that learned "trees and sky = far" cuts them out of the wall.
+    """
+    if photo.label is None:
+        return None
+    if photo.source == "cmp":
+        from PIL import Image
+
+        with Image.open(photo.label) as im:
+            index = np.array(im)
+        return np.where(index == _CMP_WINDOW_INDEX, 255, 0).astype(np.uint8)
+    bgr = cv2.imread(str(photo.label), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise CompanionError(f"cannot decode label {photo.label}", "restore the file from the shared data set")
+    keep = np.all(bgr[..., ::-1] == np.array(_LABELME_WINDOW_RGB, dtype=np.uint8), axis=-1)
     return np.where(keep, 255, 0).astype(np.uint8)

@@ -154,11 +154,12 @@ def mixed_batch(
     if cfg.batch - n_real:
         xs, ds, fs = (list(a) for a in sample_batch(frames, cfg.batch - n_real, cfg.crop, rng, max_depth=cfg.max_depth))
     if n_real:
-        from companion.depth.training.composite import compose
+        from companion.depth.training.composite import CompositeOptions, compose
 
+        options = CompositeOptions(reflect_windows=cfg.reflect_windows, bright_walls=cfg.bright_walls)
         for _ in range(n_real):
-            c = compose(bank, rng, cfg.height, cfg.width, cfg.max_depth)
-            x, d, f = augment_crop(c.image, c.depth, c.facade, c.sky, rng, cfg.crop)
+            c = compose(bank, rng, cfg.height, cfg.width, cfg.max_depth, options=options)
+            x, d, f = augment_crop(c.image, c.depth, c.facade, c.sky, rng, cfg.crop, bright_walls=options.bright_walls)
             xs.append(x)
             ds.append(d)
             fs.append(f)
@@ -279,6 +280,9 @@ def finish(model: Monodepth2, cfg: TrainConfig, step: int, elapsed_s: float, hel
         f"{len(cfg.recordings)} simulator recordings + {len(cfg.view_seeds)} random-view scenes"
         + (f" + real-photo composites ({cfg.real_fraction:.0%} of each batch, train split of {cfg.real_photos})"
            if cfg.real_photos is not None else "")
+        + (f" (windows reflecting the background in {cfg.reflect_windows:.0%}, bright cladding in "
+           f"{cfg.bright_walls:.0%})" if cfg.real_photos is not None and (cfg.reflect_windows or cfg.bright_walls)
+           else "")
         + (f", near/far mask loss weight {cfg.mask_loss_weight:g} (margin {cfg.mask_margin:g})"
            if cfg.mask_loss_weight > 0 else "")
         + (f", fine-tuned from {Path(cfg.init_from).name}" if cfg.init_from is not None else "")

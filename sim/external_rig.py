@@ -45,6 +45,7 @@ class ExternalSitlRig:
         record_max_out_m: float | None = None,
         renderer: str = "warp",
         bridge_timeout_s: float = 60.0,
+        truth_log: str | Path | None = None,
     ):
         self.mission_path = Path(mission_path).resolve()
         self.autopilot_url = autopilot_url  # the bridge's MAVLink URL: a port the companion does not use
@@ -55,6 +56,7 @@ class ExternalSitlRig:
         self.record_max_out_m = record_max_out_m
         self.renderer = renderer
         self.bridge_timeout_s = bridge_timeout_s
+        self.truth_log = Path(truth_log).resolve() if truth_log else None  # the bridge's poses: the SITL's truth
         self.pose_port = free_port(socket.SOCK_DGRAM)
         self.stream_port = stream_port or free_port(socket.SOCK_STREAM)
         self.camera: subprocess.Popen | None = None
@@ -85,7 +87,8 @@ class ExternalSitlRig:
         self.bridge, bridge_log = self._spawn(
             [sys.executable, "-m", "sim", "posebridge", "--connect", self.autopilot_url, "--pose-port",
              str(self.pose_port), "--gimbal-pitch", str(self.gimbal_pitch_deg), "--timeout",
-             str(self.bridge_timeout_s / 2)], "posebridge")
+             str(self.bridge_timeout_s / 2),
+             *(["--truth-log", str(self.truth_log)] if self.truth_log else [])], "posebridge")
         if not wait_for_line(self.bridge, bridge_log, "SIM_STATE flowing", self.bridge_timeout_s + 5.0):
             said = bridge_log.read_text().strip().splitlines()
             self.stop()

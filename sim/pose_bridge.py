@@ -22,6 +22,7 @@ import socket
 import sys
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink  # common + ArduPilot messages, MAVLink 2
@@ -58,6 +59,7 @@ class BridgeConfig:
     gimbal: Gimbal = field(default_factory=Gimbal)  # until the vehicle reports its gimbal
     timeout_s: float = 20.0  # for the first HEARTBEAT, then again for the first SIM_STATE
     duration_s: float | None = None  # wall seconds, for tests and scripted runs
+    truth_log: Path | None = None  # also append every published pose here (JSON lines): the flight's truth
     source_system: int = 253
     source_component: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER
 
@@ -95,6 +97,7 @@ class PoseBridge:
         self.unstamped = 0  # SIM_STATEs dropped: no clock message seen yet
         self._stop = False
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._truth = None  # the truth log's file, opened by run()
 
     def stop(self) -> None:
         self._stop = True
@@ -164,14 +167,21 @@ class PoseBridge:
         return None
 
     def publish(self, pose: dict) -> None:
+        line = json.dumps(pose)
         with contextlib.suppress(OSError):  # no camera listening yet: the pose is lost, as the vehicle's would be
-            self.sock.sendto(json.dumps(pose).encode(), (self.cfg.pose_host, self.cfg.pose_port))
+            self.sock.sendto(line.encode(), (self.cfg.pose_host, self.cfg.pose_port))
+        if self._truth is not None:
+            self._truth.write(line + "\n")
+            self._truth.flush()  # a killed bridge keeps what it saw
         self.published += 1
 
     def run(self) -> int:
         """Bridge until stopped; the number of poses published."""
         if self.conn is None:
             self.open()
+        if self.cfg.truth_log is not None and self._truth is None:
+            self.cfg.truth_log.parent.mkdir(parents=True, exist_ok=True)
+            self._truth = open(self.cfg.truth_log, "a")  # noqa: SIM115 (closed by close())
         start = time.monotonic()
         self._wait_heartbeat()
         asked = first_ask = time.monotonic()
@@ -209,6 +219,9 @@ class PoseBridge:
             with contextlib.suppress(OSError):
                 self.conn.close()
             self.conn = None
+        if self._truth is not None:
+            self._truth.close()
+            self._truth = None
         self.sock.close()
 
 
@@ -227,6 +240,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=20.0,
                    help="seconds to wait for the first HEARTBEAT, then for the first SIM_STATE")
     p.add_argument("--duration", type=float, help="stop after this many wall seconds")
+    p.add_argument("--truth-log", type=Path,
+                   help="also append every pose published to this file (JSON lines): where the SITL's vehicle "
+                        "truly was, for judging a flight against the wall")
     return p
 
 
@@ -235,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     cfg = BridgeConfig(connect=args.connect, pose_port=args.pose_port, pose_host=args.pose_host, rate_hz=args.rate,
                        gimbal=Gimbal(args.gimbal_pitch, args.gimbal_yaw), timeout_s=args.timeout,
-                       duration_s=args.duration)
+                       duration_s=args.duration, truth_log=args.truth_log)
     bridge = None
     try:
         bridge = PoseBridge(cfg)

@@ -46,7 +46,9 @@ def test_the_bridge_publishes_the_truth_of_an_ardupilot_sitl_not_its_biased_esti
     truth_log = tmp_path / "truth.jsonl"
     port = free_port()
     listener = PoseListener(0)  # the camera's own receiver
-    bridge = _Watching(BridgeConfig(connect=f"udpin:127.0.0.1:{port}", pose_port=listener.port, timeout_s=20.0))
+    bridge_truth = tmp_path / "bridge-truth.jsonl"  # what the bridge says the flight truly was
+    bridge = _Watching(BridgeConfig(connect=f"udpin:127.0.0.1:{port}", pose_port=listener.port, timeout_s=20.0,
+                                    truth_log=bridge_truth))
     errors = []
 
     def _run():
@@ -88,6 +90,8 @@ def test_the_bridge_publishes_the_truth_of_an_ardupilot_sitl_not_its_biased_esti
             "lat": HOME[0], "lon": HOME[1], "alt_amsl_m": HOME[2]}
     times = [p["t_s"] for p in poses]
     assert times == sorted(times) and len(set(times)) == len(times)
+    written = [json.loads(line) for line in bridge_truth.read_text().splitlines()]
+    assert len(written) == bridge.published and written[:len(poses)] == poses  # every pose published, as sent
     pose = poses[-1]
     assert "home" in pose
     for est in bridge.estimates:  # the autopilot's estimate: the bias (1.5 m South) off the published truth

@@ -14,7 +14,7 @@ from companion.flight.link_watch import link_watch_overrides, watched_by_gcs_id
 from companion.flight.param_journal import ParamJournal, VehicleIdentity, state_dir
 from companion.flight.parameters import FlightParameters
 from companion.flight.restore import refuse_unless_restored, restore_left_parameters, uid_text
-from tests.test_flight_parameters import _Params
+from tests.test_flight_parameters import _ParamError, _Params
 
 ME = VehicleIdentity(1, "00000000000003e8")
 
@@ -170,6 +170,33 @@ def test_ardupilot_failsafe_is_made_to_watch_the_companions_heartbeats():
     assert asyncio.run(link_watch_overrides(ranged)) == {}
     with pytest.raises(CompanionError, match="MAV_GCS_SYSID"):
         asyncio.run(link_watch_overrides(_Vehicle(_Params({}))))
+
+
+class _SilentOnUnknown(_Params):
+    """ArduPilot as real ArduCopter V4.7.0-dev SITL answered: a read of a parameter it lacks gets no reply, which
+    mavsdk reports as TIMEOUT (not DOES_NOT_EXIST); every request is counted."""
+
+    def __init__(self, values: dict):
+        super().__init__(values)
+        self.requests: list[str] = []
+
+    def _get(self, name, want_int):
+        self.requests.append(name)
+        if name not in self.values:
+            raise _ParamError("TIMEOUT")
+        return super()._get(name, want_int)
+
+
+def test_a_gcs_id_range_the_firmware_lacks_costs_one_unanswered_read(caplog):
+    """Real ArduCopter V4.7.0-dev has MAV_GCS_SYSID but no MAV_GCS_SYSID_HI, and leaves its read unanswered: the
+    companion asked three times (about 10 s and three warnings before every flight). The optional range is asked
+    once, and the flight still makes the failsafe watch the companion."""
+    params = _SilentOnUnknown({"MAV_GCS_SYSID": 255})
+    with caplog.at_level("INFO"):
+        assert asyncio.run(link_watch_overrides(_Vehicle(params))) == {"MAV_GCS_SYSID": 245.0}
+    assert params.requests.count("MAV_GCS_SYSID_HI") == 1
+    assert "MAV_GCS_SYSID_HI: no answer from the vehicle" in caplog.text
+    assert "asking again" not in caplog.text
 
 
 def test_px4_link_loss_exceptions_in_auto_modes_are_cleared_for_the_flight():

@@ -113,3 +113,17 @@ def test_copter_refuses_to_arm_until_the_companions_first_counted_heartbeat_clea
         assert _mode_after(v, [_from(245)], wall_s=0.3) == fl.MISSION
     finally:
         v.close()
+
+
+def test_copter_has_no_gcs_id_range_as_real_arducopter_4_7_dev():
+    """Real ArduCopter V4.7.0-dev SITL (2598e9d4) has MAV_GCS_SYSID and no MAV_GCS_SYSID_HI: a read of it went
+    unanswered and the GCS failsafe compares the sender with MAV_GCS_SYSID alone (GCS_Common.cpp). The simulator
+    had the range."""
+    v = _vehicle(autopilot="ardupilot", gps_ready_after_s=0.0)
+    try:
+        assert "MAV_GCS_SYSID" in v.params and "MAV_GCS_SYSID_HI" not in v.params
+        rule = v.flavour.counts_for_link_failsafe
+        assert rule({"MAV_GCS_SYSID": 245}, _from(245), 1)
+        assert not rule({"MAV_GCS_SYSID": 240, "MAV_GCS_SYSID_HI": 250}, _from(245), 1)
+    finally:
+        v.close()

@@ -67,9 +67,13 @@ async def _first_parameter(vehicle: Vehicle, names: tuple[str, ...]):
 
 
 async def _optional_parameter(vehicle: Vehicle, name: str):
+    """``name``'s value, or None when the firmware has no such parameter. Asked once: real ArduCopter V4.7.0-dev
+    has no MAV_GCS_SYSID_HI and leaves the read unanswered, which three link attempts made a 10 s wait and three
+    warnings before every flight."""
     try:
-        return await read_parameter(vehicle.param, name)
+        return await read_parameter(vehicle.param, name, attempts=1)
     except CompanionError:
+        log.info("%s: no answer from the vehicle; taken as a parameter this firmware does not have", name)
         return None
 
 

@@ -53,7 +53,7 @@ def _result_name(exc: Exception) -> str:
 LINK_ATTEMPTS = 3  # mavsdk already re-sends each request 5 times; a lossy link (20 % each way) still loses some
 
 
-async def _over_the_link(request, what: str):
+async def _over_the_link(request, what: str, attempts: int = LINK_ATTEMPTS):
     """``await request()``, asked again when mavsdk gave up with ``TIMEOUT``.
 
     Why: mavsdk's parameter client re-sends a request a few times within about 3 s and then reports TIMEOUT. Over a
@@ -61,26 +61,30 @@ async def _over_the_link(request, what: str):
     happened for one of the flight's parameter reads; the flight then stopped before take-off although the vehicle
     was answering. A read or a write of the same value is safe to repeat; any other result is the vehicle's answer
     and is raised at once."""
-    for attempt in range(1, LINK_ATTEMPTS + 1):
+    for attempt in range(1, attempts + 1):
         try:
             return await request()
         except Exception as exc:
-            if _result_name(exc) != "TIMEOUT" or attempt == LINK_ATTEMPTS:
+            if _result_name(exc) != "TIMEOUT" or attempt == attempts:
                 raise
-            log.warning("%s timed out over the link (attempt %d of %d); asking again", what, attempt, LINK_ATTEMPTS)
+            log.warning("%s timed out over the link (attempt %d of %d); asking again", what, attempt, attempts)
 
 
-async def read_parameter(param_plugin, name: str) -> ParamValue:
-    """The vehicle's value of ``name`` with its type; CompanionError if the vehicle does not have it."""
+async def read_parameter(param_plugin, name: str, *, attempts: int = LINK_ATTEMPTS) -> ParamValue:
+    """The vehicle's value of ``name`` with its type; CompanionError if the vehicle does not have it.
+
+    ArduPilot does not answer a read of a parameter it lacks (no PARAM_ERROR): that reads as a link TIMEOUT. A
+    parameter only some firmware versions have is read with ``attempts=1``, so its absence costs one mavsdk
+    request (about 3 s), not ``LINK_ATTEMPTS``."""
     try:
-        value = await _over_the_link(lambda: param_plugin.get_param_float(name), f"reading {name}")
+        value = await _over_the_link(lambda: param_plugin.get_param_float(name), f"reading {name}", attempts)
         return ParamValue(name, float(value), False)
     except Exception as exc:
         if _result_name(exc) != "WRONG_TYPE":
             raise CompanionError(f"cannot read parameter {name} from the vehicle ({_result_name(exc)})",
                                  "check the parameter name for this firmware and the link") from exc
     try:
-        value = await _over_the_link(lambda: param_plugin.get_param_int(name), f"reading {name}")
+        value = await _over_the_link(lambda: param_plugin.get_param_int(name), f"reading {name}", attempts)
         return ParamValue(name, float(value), True)
     except Exception as exc:
         raise CompanionError(f"cannot read parameter {name} from the vehicle ({_result_name(exc)})",

@@ -270,9 +270,9 @@ class ArduCopter(Px4):
     after_takeoff_mode = GUIDED
     sw_version = (4 << 24) | (6 << 16) | 255
     # ArduCopter 4.7 Parameters.cpp; MAV_GCS_SYSID: the only source system whose heartbeats the GCS failsafe counts
-    # (HI 0: no range; GCS.cpp)
-    failsafe_defaults = {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500, "MAV_GCS_SYSID": 255,
-                         "MAV_GCS_SYSID_HI": 0}
+    # (GCS.cpp). No MAV_GCS_SYSID_HI: real ArduCopter V4.7.0-dev SITL (2598e9d4) has none and leaves a read of it
+    # unanswered (the companion's read timed out); a later firmware's range is what the companion's rule still reads
+    failsafe_defaults = {"FS_GCS_ENABLE": 0, "FS_GCS_TIMEOUT": 5.0, "RTL_ALT": 1500, "MAV_GCS_SYSID": 255}
     gps_ready_after_s = 38.0
     # Real ArduCopter 4.7 SITL (-w, wiped storage): its first words ("ArduPilot Ready") came about 1 s after the first
     # heartbeat at speed-up 1 and at 5 alike, so the start-up is wall time (storage and sensor set-up).
@@ -328,14 +328,12 @@ class ArduCopter(Px4):
 
     def counts_for_link_failsafe(self, params: dict, msg, own_system: int) -> bool:
         """``GCS_MAVLINK::handle_heartbeat``: a HEARTBEAT, RC override or MANUAL_CONTROL whose source system is a GCS
-        id: MAV_GCS_SYSID (default 255), or MAV_GCS_SYSID .. MAV_GCS_SYSID_HI when HI is not below it. Anything
-        from another system id (mavsdk's 245) does not count: real ArduCopter 4.7 flew on after the companion was
-        killed."""
+        id: MAV_GCS_SYSID (default 255; this firmware has no MAV_GCS_SYSID_HI range, so it is never set here).
+        Anything from another system id (mavsdk's 245) does not count: real ArduCopter 4.7 flew on after the
+        companion was killed."""
         if msg.get_type() not in COPTER_GCS_ALIVE_MESSAGES:
             return False
-        low, high = int(params.get("MAV_GCS_SYSID", 255)), int(params.get("MAV_GCS_SYSID_HI", 0))
-        src = msg.get_srcSystem()
-        return low <= src <= high if high >= low else src == low
+        return msg.get_srcSystem() == int(params.get("MAV_GCS_SYSID", 255))
 
     def lost_link_ignored(self, params: dict, mode: str) -> bool:
         return False  # no such exception by default (FS_OPTIONS 0)

@@ -3,9 +3,9 @@
 
 Starts ArduPilot's own SITL (a binary the user built, ``sim/ardupilot_sitl.py``) at the demo mission's take-off
 point, reads the parameters the flight changes, runs ``companion fly missions/demo-facade.yaml --lost-link-action
-rtl`` as a user would, waits until the scan has begun, kills the companion with SIGKILL, and listens on the SITL's
-third port (sending nothing, so no heartbeat of ours keeps the failsafe off) for the first HEARTBEAT in RTL. Then
-``companion restore`` and the parameters read back; then whether the vehicle would arm again.
+rtl --return-alt auto`` as a user would, waits until the scan has begun, kills the companion with SIGKILL, and
+listens on the SITL's third port (sending nothing, so no heartbeat of ours keeps the failsafe off) for the first
+HEARTBEAT in RTL. Then ``companion restore`` and the parameters read back.
 
     python bench/real_sitl_lost_link.py --ardupilot ~/ardupilot --out /tmp/real-lost-link [--runs 2]
 
@@ -97,7 +97,8 @@ def one_run(k: int, args, mission: Path, plan) -> dict:
         before = read_parameters(sitl.watch_url)
         proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "fly", str(mission), "--connect",
                                  sitl.companion_url, "--connect-timeout", "90", "--lost-link-action", "rtl",
-                                 "--no-progress", "--telemetry-log", str(telemetry), "--state-dir", str(state)],
+                                 "--return-alt", "auto", "--no-progress", "--telemetry-log", str(telemetry),
+                                 "--state-dir", str(state)],
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         watch = mavutil.mavlink_connection(sitl.watch_url, source_system=99)  # listens, sends nothing
         try:

@@ -11,12 +11,14 @@ from companion.flight.standoff_control import (
     ABORT,
     CAPPED,
     CORRECT,
+    MEASURING,
     NO_MEASUREMENT,
     NOT_JUDGED,
     ON_PLAN,
     RECOVERED,
     SETTLING,
     TOO_CLOSE,
+    HeightTracker,
     Measurement,
     StandoffController,
     StandoffSettings,
@@ -155,10 +157,67 @@ def test_camera_and_rangefinder_combine_by_uncertainty():
     for k in range(40):
         t = k / 10
         ctl.observe(Measurement(t, 2.5, 0.03, "rangefinder"), 3)
-        ctl.observe(Measurement(t, 3.5, 0.3, "camera"), 3)  # the camera's sigma is 10x: it weighs 1 %
+        ctl.observe(Measurement(t, 3.0, 0.3, "camera"), 3)  # the camera's sigma is 10x: it weighs 1 %
     d = ctl.decide(4.0, 3)
     assert d.action == CORRECT and d.measured.distance_m == pytest.approx(2.51, abs=0.01)
     assert d.measured.source == "camera+rangefinder"
+
+
+def test_a_rangefinder_reading_the_height_never_pulls_the_scan_into_the_wall():
+    """Real ArduCopter SITL's rangefinder, configured facing forward (RNGFND1_ORIENT 0), reported the height above
+    the ground; with a GNSS bias putting the vehicle 2.45 m from the wall, the flight took the height for the wall
+    distance and moved the scan 4 m in. Now: while it climbs a strip its readings spread, which moves nothing; when
+    the camera measures too, the two disagree and the nearer (the camera's 2.45 m) steers: the scan moves out."""
+    ctl = StandoffController(StandoffSettings(PLAN))
+    height = lambda t: 1.5 + 0.72 * t  # noqa: E731 (a vertical strip climbed at the scan speed)
+    alone = _fly(ctl, height, 0.0, 6.0, noise=0.01)
+    assert CORRECT not in {d.action for d in alone}
+    assert any(d.action == MEASURING and "spread" in d.reason for d in alone)
+    decisions = []
+    for k in range(60):
+        t = 6.0 + k / 10
+        ctl.observe(Measurement(t, height(t), 0.03, "rangefinder"), 3)
+        ctl.observe(Measurement(t, 2.45, 0.03, "camera"), 3)
+        decisions.append(ctl.decide(t, 3))
+    d = next(d for d in decisions if d.action in (CORRECT, TOO_CLOSE))
+    assert d.shift_out_m == pytest.approx(1.55, abs=0.05) and d.measured.source == "camera"
+    assert ctl.disagreements and ctl.disagreements[0].camera_m == pytest.approx(2.45)
+
+
+def test_a_rangefinder_whose_readings_follow_the_climb_is_found_and_ignored():
+    """The height reading of real ArduCopter SITL's rangefinder, seen along a climbed strip: it rose 1:1 with the
+    altitude, which a wall flown along never does. A real wall reading (constant, or with a step at a balcony) is
+    kept."""
+    tracker = HeightTracker()
+    assert not any(tracker.follows_height(3, 31.5 + 0.07 * k, 1.5 + 0.07 * k) for k in range(20))  # 1.33 m climbed
+    assert tracker.follows_height(3, 31.5 + 0.07 * 25, 1.5 + 0.07 * 25)  # 1.75 m: it followed the height
+    wall = HeightTracker()
+    assert not any(wall.follows_height(5, 31.5 + 0.07 * k, 4.0 if k < 40 else 3.2) for k in range(100))
+    assert not any(wall.follows_height(6, 40.0 - 0.07 * k, 4.0 + 0.01 * (k % 3)) for k in range(100))
+    ctl = StandoffController(StandoffSettings(PLAN))
+    _fly(ctl, 11.0, 0.0, 2.0)
+    ctl.ignore_source("rangefinder")
+    decisions = _fly(ctl, 11.0, 2.0, 8.0)  # ignored from now on: its history is gone with it
+    assert {d.action for d in decisions} == {NO_MEASUREMENT}
+
+
+def test_without_the_camera_a_reading_moves_the_scan_in_only_as_far_as_a_wrong_one_is_safe():
+    """A downward sensor on a horizontal pass reads a steady height (11 m), which the rangefinder alone cannot tell
+    from a wall: the scan moves in at most planned - floor - tolerance (1.3 m at 4 m), so were the reading wrong the
+    vehicle would still be above the floor; the camera agreeing lifts the limit."""
+    ctl = StandoffController(StandoffSettings(PLAN))
+    d = next(d for d in _fly(ctl, 11.0, 0.0, 4.0) if d.action == CORRECT)
+    assert d.shift_out_m == pytest.approx(-1.3, abs=0.01)
+    ctl.applied(d, 4.0, leg=3)
+    later = _fly(ctl, 9.7, 20.0, 30.0, leg=4)
+    assert CORRECT not in {d.action for d in later}
+    assert any(d.action == CAPPED and "confirm" in d.reason for d in later)
+    confirmed = StandoffController(StandoffSettings(PLAN))
+    for k in range(40):
+        confirmed.observe(Measurement(k / 10, 6.0, 0.03, "rangefinder"), 3)
+        confirmed.observe(Measurement(k / 10, 6.1, 0.05, "camera"), 3)
+    d = confirmed.decide(4.0, 3)
+    assert d.action == CORRECT and d.shift_out_m == pytest.approx(-2.0, abs=0.05)
 
 
 def test_rangefinder_counts_only_facing_the_wall():

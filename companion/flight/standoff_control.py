@@ -16,7 +16,13 @@ Why the rules look like this:
     measurement recovers within ``recover_s``;
   * no measurement is a decision of its own (``NO_MEASUREMENT``), never "on plan";
   * corrections are capped: one per leg, ``min_interval_s`` apart, at most ``max_correction_m`` each, and never
-    bringing the expected true standoff below the floor.
+    bringing the expected true standoff below the floor;
+  * a sensor can be wrong, and real ArduCopter SITL showed how: its simulated rangefinder, configured facing
+    forward, reported the height above the ground, and the flight moved the scan 4 m towards the wall. So readings
+    that spread by more than ``spread_m`` within the hold (a wall flown along stays at one distance) move nothing;
+    when the rangefinder and the camera disagree by more than ``spread_m`` the nearer steers (it can only hold or
+    back off); and without the camera confirming, the scan never moves in further than keeps the GNSS path
+    ``floor + tolerance`` from the wall, so a wrong reading cannot bring the vehicle below the floor.
 """
 
 from __future__ import annotations
@@ -84,6 +90,7 @@ class StandoffSettings:
     # as the chain runs behind the camera: current for longer, and only counted once its window is past a move
     camera_fresh_s: float = 10.0
     camera_window_s: float = 5.0
+    spread_m: float | None = None  # readings further apart than this are not one wall distance (None: 2 x tolerance)
 
     @property
     def floor(self) -> float:
@@ -92,6 +99,16 @@ class StandoffSettings:
     @property
     def max_correction(self) -> float:
         return self.max_correction_m if self.max_correction_m is not None else self.planned_m
+
+    @property
+    def spread(self) -> float:
+        return self.spread_m if self.spread_m is not None else 2.0 * self.tolerance_m
+
+    @property
+    def max_unconfirmed_in(self) -> float:
+        """How far in the scan may move on a measurement the camera does not confirm: the GNSS path stays
+        ``floor + tolerance`` from the wall, so a wrong reading cannot take the vehicle below the floor."""
+        return max(0.0, self.planned_m - self.floor - self.tolerance_m)
 
     def check(self) -> StandoffSettings:
         """Refuse settings no flight can hold; returns itself."""
@@ -211,6 +228,15 @@ def fuse(samples: list[Measurement], time_s: float) -> Measurement | None:
     return Measurement(time_s, distance, 1.0 / math.sqrt(total), "+".join(sorted(s.source for s in samples)))
 
 
+@dataclass(frozen=True)
+class Disagreement:
+    """The rangefinder and the camera, both current, further apart than ``StandoffSettings.spread``."""
+
+    time_s: float
+    rangefinder_m: float
+    camera_m: float
+
+
 @dataclass
 class _LegLog:
     samples: dict[int, list[float]] = field(default_factory=dict)
@@ -237,9 +263,13 @@ class StandoffController:
         # the leg being flown when the scan was moved: the vehicle reaches the moved path only at that leg's end
         # (it flies a straight line to the moved waypoint), so what is measured on it is neither path
         self._moving_leg: int | None = None
+        self.disagreements: list[Disagreement] = []
+        self.ignored: set[str] = set()  # sources found not to see the wall (ignore_source)
 
     def observe(self, m: Measurement, leg: int) -> None:
         """One measurement taken on scan leg ``leg`` (facing the wall)."""
+        if m.source in self.ignored:
+            return
         self._log.sources.add(m.source)
         self._log.samples.setdefault(leg, []).append(m.distance_m)
         self._newest_seen_s = max(m.time_s, self._newest_seen_s if self._newest_seen_s is not None else m.time_s)
@@ -251,10 +281,32 @@ class StandoffController:
         if self._is_camera(m.source) and ranged is not None and ranged.time_s >= m.time_s - self.s.fresh_s:
             return  # the rangefinder is current: the camera joins its next readings (fused), not the history alone
         fresh = [s for s in self._latest.values() if abs(m.time_s - s.time_s) <= self._fresh_limit(s.source)]
-        self._history.append(fuse(fresh, m.time_s))
+        self._history.append(self._combine(fresh, m.time_s))
         keep_from = m.time_s - self.s.hold_s - self.s.camera_fresh_s
         while self._history and self._history[0].time_s < keep_from:
             self._history.popleft()
+
+    def ignore_source(self, source: str) -> None:
+        """Stop counting ``source`` (a sensor found not to see the wall): its readings so far are forgotten."""
+        self.ignored.add(source)
+        self._latest.pop(source, None)
+        self._history = deque(h for h in self._history if source not in h.source)
+
+    def _combine(self, fresh: list[Measurement], time_s: float) -> Measurement:
+        """The sources fused, unless the rangefinder and the camera disagree: then the nearer alone (recorded in
+        ``disagreements``), which can hold the path or back it off but never pull it in on the farther reading."""
+        ranged = [f for f in fresh if not self._is_camera(f.source)]
+        seen = [f for f in fresh if self._is_camera(f.source)]
+        if ranged and seen and abs(ranged[0].distance_m - seen[0].distance_m) > self.s.spread:
+            self.disagreements.append(Disagreement(time_s, ranged[0].distance_m, seen[0].distance_m))
+            nearer = min(ranged[0], seen[0], key=lambda f: f.distance_m)
+            return Measurement(time_s, nearer.distance_m, nearer.sigma_m, nearer.source)
+        return fuse(fresh, time_s)
+
+    def _camera_confirms(self, distance_m: float, ref_s: float) -> bool:
+        cam = next((f for f in self._latest.values() if self._is_camera(f.source)), None)
+        return (cam is not None and ref_s - cam.time_s <= self.s.camera_fresh_s
+                and abs(cam.distance_m - distance_m) <= self.s.spread)
 
     @staticmethod
     def _is_camera(source: str) -> bool:
@@ -315,6 +367,11 @@ class StandoffController:
         half = self.s.tolerance_m / 2
         if not (all(e > half for e in errors) or all(e < -half for e in errors)):
             return StandoffDecision(MEASURING, measured, reason="the measurements disagree")
+        spread = max(h.distance_m for h in recent) - min(h.distance_m for h in recent)
+        if spread > self.s.spread:
+            return StandoffDecision(MEASURING, measured, reason=(
+                f"the measurements spread over {spread:.2f} m in {self.s.hold_s:g} s, and a wall flown along stays at "
+                "one distance (relief, or a sensor that does not see the wall)"))
         if leg in self._corrected_legs:
             return StandoffDecision(CAPPED, measured, reason="one correction per scan leg")
         if now_s - self._last_correction_s < self.s.min_interval_s:
@@ -323,6 +380,12 @@ class StandoffController:
         shift = max(-cap, min(cap, error))
         shift = max(-cap - self.offset_m, min(cap - self.offset_m, shift))  # the total move is capped too
         shift = max(shift, self.s.floor + self.s.tolerance_m - measured.distance_m)  # never in past the floor
+        if shift < 0 and not self._camera_confirms(measured.distance_m, ref_s):
+            shift = max(shift, -self.s.max_unconfirmed_in - self.offset_m)
+            if abs(shift) <= self.s.tolerance_m / 2:
+                return StandoffDecision(CAPPED, measured, reason=(
+                    f"the scan is already moved {self.offset_m:+.2f} m; further in needs the camera to confirm the "
+                    f"{measured.source} (at most {self.s.max_unconfirmed_in:.2f} m in without it)"))
         if abs(shift) <= self.s.tolerance_m / 2:
             return StandoffDecision(CAPPED, measured, reason=f"the scan is already moved {self.offset_m:+.2f} m, "
                                                              f"the most it may be ({cap:g} m)")
@@ -385,6 +448,28 @@ class StandoffController:
         unmeasured = tuple(sorted(self._log.seen - set(self._log.samples)))
         return StandoffSummary(self.s.planned_m, self.s.tolerance_m, self.s.floor, tuple(sorted(self._log.sources)),
                                legs, unmeasured, tuple(self.corrections), self.offset_m)
+
+
+@dataclass
+class HeightTracker:
+    """Does the "forward" rangefinder read the height instead of the wall? On a scan leg that climbs or descends, a
+    sensor that sees the wall reads about the same distance all along; one that sees the ground changes with the
+    altitude. Real ArduCopter SITL's simulated rangefinder, configured facing forward (RNGFND1_ORIENT 0), measured
+    along its downward beam and reported the height: the flight took it for the wall. ``follows_height`` once the
+    vehicle has moved ``min_climb_m`` vertically on one leg and the range moved with it (within ``share``)."""
+
+    min_climb_m: float = 1.5
+    share: float = 0.3
+    _start: dict[int, tuple[float, float]] = field(default_factory=dict)  # leg -> (altitude, range) first seen
+
+    def follows_height(self, leg: int, altitude_m: float | None, range_m: float | None) -> bool:
+        if altitude_m is None or range_m is None:
+            return False
+        alt0, range0 = self._start.setdefault(leg, (altitude_m, range_m))
+        climb = altitude_m - alt0
+        if abs(climb) < self.min_climb_m:
+            return False
+        return abs((range_m - range0) - climb) <= self.share * abs(climb)
 
 
 def rangefinder_measurement(time_s: float | None, range_m: float | None, yaw_deg: float | None,

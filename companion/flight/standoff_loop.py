@@ -83,6 +83,8 @@ class StandoffLoop:
         self._camera_t: float | None = None
         self._pending: dict | None = None
         self._said: set[tuple[str, int]] = set()
+        self._disagreements_said = 0
+        self._height = sc.HeightTracker()
         self.moved = 0  # successful moves of the scan
 
     def on_row(self, row: dict) -> dict:
@@ -92,8 +94,15 @@ class StandoffLoop:
         if leg is not None:
             m = sc.rangefinder_measurement(row.get("t_boot_s"), row.get("range_forward_m"), row.get("yaw_deg"),
                                            row.get("pitch_deg"), self.frame.yaw_facing_wall_deg)
-            if m is not None:
-                self.controller.observe(m, leg)
+            if m is not None and "rangefinder" not in self.controller.ignored:
+                if self._height.follows_height(leg, row.get("alt_amsl_m"), row.get("range_forward_m")):
+                    self.controller.ignore_source("rangefinder")
+                    log.warning("the forward rangefinder's readings follow the vehicle's height on scan leg %s (%.2f "
+                                "m now): it does not see the wall, and is ignored for the rest of the flight; check "
+                                "its mounting and orientation parameter (e.g. ArduPilot's RNGFND1_ORIENT)", leg,
+                                row.get("range_forward_m"))
+                else:
+                    self.controller.observe(m, leg)
         extra = {"standoff_offset_m": round(self.controller.offset_m, 3)}
         if self._pending is not None:
             extra["standoff_correction"], self._pending = self._pending, None
@@ -122,6 +131,9 @@ class StandoffLoop:
         leg = self.legs.leg_of.get(current_seq)
         self._poll_camera(leg)
         d = self.controller.decide(now, leg)
+        self._say_disagreement(leg)
+        if d.action == sc.MEASURING and d.reason.startswith("the measurements spread"):
+            self._say_once("spread", leg, f"standoff not corrected on scan leg {leg}: {d.reason}")
         if d.action == sc.NO_MEASUREMENT:
             self._say_once("unmeasured", leg, f"standoff not measured on scan leg {leg} ({d.reason}): flying the "
                                               f"GNSS position uncorrected")
@@ -143,6 +155,18 @@ class StandoffLoop:
             self._say_once("off", leg, f"standoff measured {d.measured.distance_m:.2f} m (plan "
                                        f"{self.controller.s.planned_m:.2f}): not correcting (--no-standoff-correction)")
         return None
+
+    def _say_disagreement(self, leg: int | None) -> None:
+        found = self.controller.disagreements
+        if len(found) == self._disagreements_said or leg is None:
+            return
+        self._disagreements_said = len(found)
+        last = found[-1]
+        self._say_once("disagree", leg, (
+            f"the forward rangefinder reads {last.rangefinder_m:.2f} m and the camera {last.camera_m:.2f} m on scan "
+            f"leg {leg}: more than {self.controller.s.spread:.2f} m apart, so the nearer steers; check that the "
+            "rangefinder faces the wall (its mounting and orientation parameter, e.g. ArduPilot's RNGFND1_ORIENT: a "
+            "sensor that reads the height is not looking at the wall)"))
 
     async def _move(self, vehicle, d: sc.StandoffDecision, current_seq: int, leg: int) -> str | None:
         line = sc.correction_line(d, self.controller.s.planned_m)

@@ -34,14 +34,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.standoff_bias import CONDITIONS, _corrections, _two, enu_bias, map_errors  # noqa: E402
+from bench.standoff_bias import (  # noqa: E402
+    CONDITIONS,
+    _corrections,
+    camera_arguments,
+    condition_names,
+    enu_bias,
+    run_conditions,
+    stitch_both_ways,
+)
 from companion.files import read_jsonl  # noqa: E402
 from companion.onboard.live import run_live_scan  # noqa: E402
 from companion.resources import demo_mission  # noqa: E402
-from companion.spool.reader import load_spool  # noqa: E402
-from companion.stitch import StitchConfig, stitch  # noqa: E402
 from sim.ardupilot_sitl import ArduCopterSitl, SitlParameters  # noqa: E402
-from sim.camera.scene import Scene  # noqa: E402
 from sim.demo import plan_for_camera, true_standoff  # noqa: E402
 from sim.external_rig import ExternalSitlRig  # noqa: E402
 
@@ -86,17 +91,7 @@ def run_condition(name: str, args, plan, mission_path: Path) -> dict:
     joined = run / "sim" / "truth-with-estimate.jsonl"
     joined.write_text("".join(json.dumps(r) + "\n" for r in truth))
     cull = json.loads((run / "spool" / "cull_report.json").read_text())
-    scene = Scene.build(plan.frame.length_m, float(plan.mission.facade.height_m), seed=args.seed)
-    tex_mm = 5.0
-    texture = scene.texture.full_image(tex_mm)
-    maps = {}
-    for label, cfg in (("measured", StitchConfig()), ("telemetry", StitchConfig(measure_wall=False))):
-        dest = run / f"map-{label}"
-        if label == "telemetry":
-            shutil.copytree(run / "map-measured" / "cache", dest / "cache", dirs_exist_ok=True)
-        res = stitch(load_spool(run / "spool"), dest, cfg, progress=False)
-        maps[label] = {**map_errors(res, texture, tex_mm, float(plan.mission.facade.height_m)),
-                       "mm_per_px": res.mm_per_px, "wall_distance": res.report.get("wall_distance")}
+    maps = stitch_both_ways(run, plan, args.seed)
     flight = scan.flight
     ranges = [r["range_forward_m"] for r in read_jsonl(scan.telemetry_log) if r.get("range_forward_m") is not None]
     return {"condition": name, "bias_facade_m": [along, out, up], "rangefinder": args.rangefinder,
@@ -108,47 +103,22 @@ def run_condition(name: str, args, plan, mission_path: Path) -> dict:
             "flight_s": round(flight_s, 1), "maps": maps}
 
 
-def print_table(rows: list[dict]) -> None:
-    print("| condition | rangefinder | true standoff median (after 1st strip) | chain measured | corrections | "
-          "scale error measured / telemetry | placement error (2 sigma) measured / telemetry |")
-    print("|---|---|---|---|---|---|---|")
-    for r in rows:
-        ts = r["true_standoff"] or {}
-        ms = r["measured_standoff"] or {}
-        m, t = r["maps"]["measured"], r["maps"]["telemetry"]
-        print(f"| {r['condition']} | {'on' if r['rangefinder'] else 'off'} | {ts.get('median_m')} m "
-              f"({ts.get('after_first_strip_min_m')}-{ts.get('after_first_strip_max_m')}) | "
-              f"{ms.get('measured_median_m')} m | {len(r['corrections'])} | {m['scale_error_percent']} % / "
-              f"{t['scale_error_percent']} % | {m['placement_error_m']} m ({_two(m['placement_sigma_m'])}) / "
-              f"{t['placement_error_m']} m ({_two(t['placement_sigma_m'])}) |")
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ardupilot", type=Path, required=True, help="an ArduPilot source tree built for SITL")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--conditions", default="none,away,towards", help="comma list of none, towards, away")
     p.add_argument("--rangefinder", action="store_true", help="ArduPilot's SITL rangefinder, facing forward")
-    p.add_argument("--fps", type=float, default=10.0)
-    p.add_argument("--width", type=int, default=640)
-    p.add_argument("--seed", type=int, default=0)
+    camera_arguments(p)
     args = p.parse_args()
-    names = [c.strip() for c in args.conditions.split(",") if c.strip()]
-    unknown = [c for c in names if c not in CONDITIONS]
-    if unknown:
-        p.error(f"unknown condition(s) {unknown}; use {', '.join(CONDITIONS)}")
+    names = condition_names(p, args.conditions)
     mission_path = demo_mission()
     plan = plan_for_camera(mission_path, args.fps)
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, python {platform.python_version()}; "
           f"demo mission on real ArduCopter SITL ({args.ardupilot}), camera {args.width} px @ {args.fps:g} fps, "
           f"rangefinder {'on' if args.rangefinder else 'off'}")
-    rows = []
-    for name in names:
-        rows.append(run_condition(name, args, plan, mission_path))
-        print(json.dumps(rows[-1], default=str), flush=True)
-    print_table(rows)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "real_sitl_standoff.json").write_text(json.dumps(rows, indent=1, default=str))
+    run_conditions(names, lambda name: run_condition(name, args, plan, mission_path), args.out,
+                   "real_sitl_standoff.json")
     return 0
 
 

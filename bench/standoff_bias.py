@@ -71,6 +71,51 @@ def map_errors(result, texture: np.ndarray, tex_mm: float, wall_h: float) -> dic
             "placement_sigma_m": anchor.get("placement_sigma_m")}
 
 
+def stitch_both_ways(run: Path, plan, seed: int) -> dict:
+    """``run/spool`` stitched with the wall measured (default) and from telemetry alone (the map before issue 26),
+    each scored against the camera's wall texture (scene ``seed``)."""
+    scene = Scene.build(plan.frame.length_m, float(plan.mission.facade.height_m), seed=seed)
+    tex_mm = 5.0
+    texture = scene.texture.full_image(tex_mm)
+    maps = {}
+    for label, cfg in (("measured", StitchConfig()), ("telemetry", StitchConfig(measure_wall=False))):
+        dest = run / f"map-{label}"
+        if label == "telemetry":  # the same spool and settings: the features and pairs are the first map's
+            shutil.copytree(run / "map-measured" / "cache", dest / "cache", dirs_exist_ok=True)
+        res = stitch(load_spool(run / "spool"), dest, cfg, progress=False)
+        maps[label] = {**map_errors(res, texture, tex_mm, float(plan.mission.facade.height_m)),
+                       "mm_per_px": res.mm_per_px, "wall_distance": res.report.get("wall_distance"),
+                       "anchored_by": (res.report.get("placement") or {}).get("anchored_by")}
+    return maps
+
+
+def camera_arguments(p: argparse.ArgumentParser) -> None:
+    """The live camera's options both flight benches share."""
+    p.add_argument("--fps", type=float, default=10.0)
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--seed", type=int, default=0)
+
+
+def condition_names(parser: argparse.ArgumentParser, text: str) -> list[str]:
+    names = [c.strip() for c in text.split(",") if c.strip()]
+    unknown = [c for c in names if c not in CONDITIONS]
+    if unknown:
+        parser.error(f"unknown condition(s) {unknown}; use {', '.join(CONDITIONS)}")
+    return names
+
+
+def run_conditions(names: list[str], run_one, out: Path, json_name: str) -> list[dict]:
+    """``run_one(name)`` for each condition, a JSON line as each ends, then the table and ``out/json_name``."""
+    rows = []
+    for name in names:
+        rows.append(run_one(name))
+        print(json.dumps(rows[-1], default=str), flush=True)
+    print_table(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / json_name).write_text(json.dumps(rows, indent=1, default=str))
+    return rows
+
+
 def run_condition(name: str, args, plan, mission_path: Path) -> dict:
     """One demo flight under condition ``name`` (``--no-correction``: the flight does not move the scan), its
     spool stitched with and without the wall measured."""
@@ -85,18 +130,7 @@ def run_condition(name: str, args, plan, mission_path: Path) -> dict:
                     standoff=StandoffOptions(correct=not args.no_correction) if args.no_correction else None)
     flight_s = time.monotonic() - t0
     cull = json.loads((args.out / name / "spool" / "cull_report.json").read_text())
-    scene = Scene.build(plan.frame.length_m, float(plan.mission.facade.height_m), seed=args.seed)
-    tex_mm = 5.0
-    texture = scene.texture.full_image(tex_mm)
-    maps = {}
-    for label, cfg in (("measured", StitchConfig()), ("telemetry", StitchConfig(measure_wall=False))):
-        dest = args.out / name / f"map-{label}"
-        if label == "telemetry":  # the same spool and settings: the features and pairs are the first map's
-            shutil.copytree(args.out / name / "map-measured" / "cache", dest / "cache", dirs_exist_ok=True)
-        res = stitch(load_spool(args.out / name / "spool"), dest, cfg, progress=False)
-        maps[label] = {**map_errors(res, texture, tex_mm, float(plan.mission.facade.height_m)),
-                       "mm_per_px": res.mm_per_px, "wall_distance": res.report.get("wall_distance"),
-                       "anchored_by": (res.report.get("placement") or {}).get("anchored_by")}
+    maps = stitch_both_ways(args.out / name, plan, args.seed)
     flight = demo.scan.flight
     return {"condition": name, "bias_facade_m": [along, out, up], "drift_m_per_min": drift,
             "true_standoff": demo.standoff, "measured_standoff": cull.get("standoff"),
@@ -138,27 +172,17 @@ def main() -> int:
     p.add_argument("--rangefinder", action="store_true", help="the vehicle also has a forward rangefinder")
     p.add_argument("--no-correction", action="store_true",
                    help="the flight measures but does not move the scan (the flight before issue 26's loop)")
-    p.add_argument("--fps", type=float, default=10.0)
-    p.add_argument("--width", type=int, default=640)
     p.add_argument("--speedup", type=float, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
+    camera_arguments(p)
     args = p.parse_args()
-    names = [c.strip() for c in args.conditions.split(",") if c.strip()]
-    unknown = [c for c in names if c not in CONDITIONS]
-    if unknown:
-        p.error(f"unknown condition(s) {unknown}; use {', '.join(CONDITIONS)}")
+    names = condition_names(p, args.conditions)
     mission_path = demo_mission()
     plan = plan_for_camera(mission_path, args.fps)
     print(f"# {platform.node()} {platform.processor() or platform.machine()}, python {platform.python_version()}; "
           f"demo mission, camera {args.width} px @ {args.fps:g} fps, speed-up {args.speedup:g}, rangefinder "
           f"{'on' if args.rangefinder else 'off'}, flight correction {'off' if args.no_correction else 'on'}; "
           "simulator figures")
-    rows = []
-    for name in names:
-        rows.append(run_condition(name, args, plan, mission_path))
-        print(json.dumps(rows[-1], default=str), flush=True)
-    print_table(rows)
-    (args.out / "standoff_bias.json").write_text(json.dumps(rows, indent=1, default=str))
+    run_conditions(names, lambda name: run_condition(name, args, plan, mission_path), args.out, "standoff_bias.json")
     return 0
 
 

@@ -30,13 +30,13 @@ def plan():
     return small_demo_plan()
 
 
-def _fly(plan, tmp_path, bias_m: float, autopilot: str = "px4", **fly_options):
+def _fly(plan, tmp_path, bias_m: float, autopilot: str = "px4", sees: str = "wall", **fly_options):
     truth, telemetry = tmp_path / "truth.jsonl", tmp_path / "telemetry.jsonl"
     h = plan.home
     oe, on = plan.frame.out_enu  # the estimate bias_m further out than the truth: the vehicle truly nearer
     with SitlVehicle(speedup=SPEEDUP, autopilot=autopilot, truth_log=truth, home=f"{h.lat},{h.lon},{h.alt_amsl_m}",
                      rangefinder=True, rangefinder_wall=WallSpec.of_mission(plan.mission).option(),
-                     gnss_bias=(round(bias_m * oe, 4), round(bias_m * on, 4), 0.0),
+                     rangefinder_sees=sees, gnss_bias=(round(bias_m * oe, 4), round(bias_m * on, 4), 0.0),
                      log_path=tmp_path / "sim.log") as v:
         result = fly_mission_sync(plan, v.url, telemetry_log=telemetry, progress=False, handle_signals=False,
                                   flight_timeout_s=300.0, connect_timeout_s=60.0, **fly_options)
@@ -103,6 +103,20 @@ def test_without_a_bias_no_correction_is_made(plan, tmp_path):
     # within the tolerance (the simulator's approach leaves the first leg 0.2-0.3 m near): nothing to correct
     assert all(abs(g.median_m - plan.mission.standoff_m) < 0.3 for g in result.standoff.legs), result.standoff
     assert all(r.get("standoff_offset_m") == 0.0 for r in rows if "standoff_offset_m" in r)
+
+
+def test_a_rangefinder_that_reads_the_height_never_moves_the_scan_into_the_wall(plan, tmp_path, caplog):
+    """What real ArduCopter SITL's simulated rangefinder did (RNGFND1_ORIENT 0, the reading the height along a
+    downward beam): the companion took 11-12 m for the wall distance and moved the scan 4 m in, through the wall.
+    The simulator reproduces that sensor (``rangefinder_sees="ground"``); the flight finds that its readings follow
+    the climb, ignores it, says so, and the TRUE standoff never drops below the plan by more than noise."""
+    with caplog.at_level("WARNING"):
+        result, truth, rows = _fly(plan, tmp_path, 0.0, "ardupilot", sees="ground")
+    assert result.completed and result.landed, result
+    assert all(c.shift_out_m >= 0.0 for c in result.standoff_corrections), result.standoff_corrections
+    assert "follow the vehicle's height" in caplog.text and "RNGFND1_ORIENT" in caplog.text
+    standoffs = [o for _, o in _true_standoffs(plan, truth, rows, "ardupilot")]
+    assert len(standoffs) > 100 and min(standoffs) > plan.mission.standoff_m - 0.5, min(standoffs)
 
 
 def test_below_the_floor_without_correction_the_flight_ends(plan, tmp_path):

@@ -86,6 +86,7 @@ class VehicleConfig:
     rangefinder_max_m: float = rf.DEFAULT_MAX_M
     rangefinder_min_m: float = rf.DEFAULT_MIN_M
     rangefinder_noise_m: float = rf.DEFAULT_NOISE_M
+    rangefinder_sees: str = "wall"  # "ground": ArduPilot SITL's rangefinder, the height labelled forward
     duration_s: float | None = None
     max_mission_items: int | None = None  # None: the firmware's own (flavour.max_mission_items)
     system_id: int = 1
@@ -141,7 +142,8 @@ class SimVehicle(TelemetryStreams, CommandHandler, FirmwareRules):
         wall = WallNed.from_spec(cfg.rangefinder_wall, cfg.home) if cfg.rangefinder_wall else None
         self.rangefinder = ForwardRangefinder(wall, np.random.default_rng((cfg.seed, RANGEFINDER_STREAM)),
                                               min_m=cfg.rangefinder_min_m, max_m=cfg.rangefinder_max_m,
-                                              noise_m=cfg.rangefinder_noise_m) if cfg.rangefinder else None
+                                              noise_m=cfg.rangefinder_noise_m,
+                                              sees=cfg.rangefinder_sees) if cfg.rangefinder else None
         self.battery = Battery()
         self.link = FaultyUdpLink(cfg.target, np.random.default_rng(cfg.seed + 3),
                                   bind=("127.0.0.1", cfg.bind_port), loss=cfg.packet_loss,

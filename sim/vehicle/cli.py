@@ -15,7 +15,7 @@ from sim.vehicle.autopilot import SimVehicle, VehicleConfig
 from sim.vehicle.flavours import FLAVOURS
 from sim.vehicle.home_drift import PX4_HOME_CORRECTION_WINDOW_S
 from sim.vehicle.model import Limits
-from sim.vehicle.rangefinder import DEFAULT_MAX_M, DEFAULT_MIN_M, parse_wall
+from sim.vehicle.rangefinder import DEFAULT_MAX_M, DEFAULT_MIN_M, SEES, parse_wall
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +87,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    metavar="LAT,LON,LAT,LON,BASE_AMSL,HEIGHT",
                    help="the wall the rangefinder sees: both base ends, the base altitude AMSL and the height (the "
                         "SITL rig and fly --sitl pass the mission's wall)")
+    p.add_argument("--rangefinder-sees", choices=SEES, default="wall",
+                   help="what the forward-labelled rangefinder measures: the wall (default) or, as real ArduCopter "
+                        "SITL's simulated one did, the height above the ground (a sensor mounted or configured wrong)")
     p.add_argument("--rangefinder-max", type=float, default=DEFAULT_MAX_M, metavar="M",
                    help=f"rangefinder's maximum range, metres (default {DEFAULT_MAX_M:g})")
     p.add_argument("--packet-loss", type=float, default=0.0, metavar="PCT", help="drop this percent of datagrams")
@@ -201,7 +204,8 @@ def config_from_args(args: argparse.Namespace) -> VehicleConfig:
         truth_log=args.truth_log, wind_m_s=args.wind, gusts_m_s=args.gusts, wind_from_deg=args.wind_from,
         gps_noise_m=args.gps_noise, gnss_bias_enu_m=tuple(args.gnss_bias), gnss_drift_m_per_min=args.gnss_drift,
         gnss_drift_max_m=args.gnss_drift_max, rangefinder=args.rangefinder, rangefinder_wall=args.rangefinder_wall,
-        rangefinder_max_m=args.rangefinder_max, packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
+        rangefinder_max_m=args.rangefinder_max, rangefinder_sees=args.rangefinder_sees,
+        packet_loss=args.packet_loss / 100.0, latency_ms=args.latency_ms,
         stream_stall_s=args.stream_stall, stream_stall_every_s=args.stream_stall_every,
         outage_at_s=args.outage_at, outage_s=args.outage_s,
         gps_glitch_at_s=args.gps_glitch_at, gps_glitch_m=args.gps_glitch_m, gps_glitch_s=args.gps_glitch_s,

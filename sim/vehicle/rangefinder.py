@@ -111,15 +111,29 @@ def forward_ray(yaw_deg: float, pitch_deg: float) -> np.ndarray:
     return np.array([math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), -math.sin(p)])
 
 
+SEES = ("wall", "ground")  # what the sensor labelled forward measures (--rangefinder-sees)
+
+
 class ForwardRangefinder:
-    """Readings of the forward rangefinder: metres, or None (no wall within [min, max] on the ray)."""
+    """Readings of the forward rangefinder: metres, or None (no wall within [min, max] on the ray).
+
+    ``sees="ground"`` reproduces what real ArduCopter SITL's simulated rangefinder did (RNGFND1_TYPE 100 with
+    RNGFND1_ORIENT 0, 2026-12-04): DISTANCE_SENSOR said "forward" but the reading was the height above the ground
+    along a downward beam (its model uses SIM_SONAR_ROT, down, whatever the orientation parameter says). A sensor
+    mounted or configured wrong on a real vehicle does the same; the companion must not take it for the wall."""
 
     def __init__(self, wall: WallNed | None, rng: np.random.Generator, *, min_m: float = DEFAULT_MIN_M,
-                 max_m: float = DEFAULT_MAX_M, noise_m: float = DEFAULT_NOISE_M):
-        self.wall, self.rng = wall, rng
+                 max_m: float = DEFAULT_MAX_M, noise_m: float = DEFAULT_NOISE_M, sees: str = "wall"):
+        if sees not in SEES:
+            raise ValueError(f"a rangefinder sees one of {SEES}, not {sees!r}")
+        self.wall, self.rng, self.sees = wall, rng, sees
         self.min_m, self.max_m, self.noise_m = min_m, max_m, noise_m
 
     def measure(self, true_pos_ned: np.ndarray, yaw_deg: float, pitch_deg: float) -> float | None:
+        if self.sees == "ground":  # the height (home is on the ground), along a beam tilted with the body
+            d = -float(true_pos_ned[2]) / max(math.cos(math.radians(pitch_deg)), 0.1)
+            d += self.noise_m * float(self.rng.standard_normal()) if self.noise_m > 0.0 else 0.0
+            return d if self.min_m <= d <= self.max_m else None
         if self.wall is None:
             return None
         d = self.wall.ray_distance(true_pos_ned, forward_ray(yaw_deg, pitch_deg))

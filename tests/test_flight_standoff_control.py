@@ -196,9 +196,12 @@ def test_a_rangefinder_whose_readings_follow_the_climb_is_found_and_ignored():
     assert not any(wall.follows_height(6, 40.0 - 0.07 * k, 4.0 + 0.01 * (k % 3)) for k in range(100))
     ctl = StandoffController(StandoffSettings(PLAN))
     _fly(ctl, 11.0, 0.0, 2.0)
+    _fly(ctl, 4.0, 0.0, 2.0, leg=4, source="camera")
     ctl.ignore_source("rangefinder")
     decisions = _fly(ctl, 11.0, 2.0, 8.0)  # ignored from now on: its history is gone with it
     assert {d.action for d in decisions} == {NO_MEASUREMENT}
+    summary = ctl.summary()  # nor does the flight's summary report its readings as the wall's distance
+    assert summary.sources == ("camera",) and [g.leg for g in summary.legs] == [4] and summary.unmeasured_legs == (3,)
 
 
 def test_without_the_camera_a_reading_moves_the_scan_in_only_as_far_as_a_wrong_one_is_safe():

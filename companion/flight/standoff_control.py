@@ -240,6 +240,7 @@ class Disagreement:
 @dataclass
 class _LegLog:
     samples: dict[int, list[float]] = field(default_factory=dict)
+    by_source: dict[int, list[tuple[str, float]]] = field(default_factory=dict)
     seen: set[int] = field(default_factory=set)
     sources: set[str] = field(default_factory=set)
 
@@ -272,6 +273,7 @@ class StandoffController:
             return
         self._log.sources.add(m.source)
         self._log.samples.setdefault(leg, []).append(m.distance_m)
+        self._log.by_source.setdefault(leg, []).append((m.source, m.distance_m))
         self._newest_seen_s = max(m.time_s, self._newest_seen_s if self._newest_seen_s is not None else m.time_s)
         settled = self._settle_until + (self.s.camera_window_s if self._is_camera(m.source) else 0.0)
         if m.time_s < settled:
@@ -287,8 +289,13 @@ class StandoffController:
             self._history.popleft()
 
     def ignore_source(self, source: str) -> None:
-        """Stop counting ``source`` (a sensor found not to see the wall): its readings so far are forgotten."""
+        """Stop counting ``source`` (a sensor found not to see the wall): its readings so far are forgotten, in
+        the decisions and in the flight's summary."""
         self.ignored.add(source)
+        self._log.sources.discard(source)
+        for leg, kept in list(self._log.by_source.items()):
+            self._log.by_source[leg] = [(src, d) for src, d in kept if src != source]
+        self._log.samples = {leg: [d for _, d in kept] for leg, kept in self._log.by_source.items() if kept}
         self._latest.pop(source, None)
         self._history = deque(h for h in self._history if source not in h.source)
 

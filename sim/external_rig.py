@@ -127,6 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gimbal-pitch", type=float, default=0.0, metavar="DEG",
                    help="until the vehicle reports its gimbal (default level, as our missions command it)")
     p.add_argument("--record", type=Path, help="also write a recording with ground truth to this directory")
+    p.add_argument("--truth-log", type=Path,
+                   help="the bridge also appends every pose it publishes here (JSON lines): where the vehicle was")
     return p
 
 
@@ -134,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     rig = ExternalSitlRig(args.mission, args.connect, log_dir=args.log_dir, seed=args.seed, width_px=args.width,
                           fps=args.fps, stream_port=args.stream_port, gimbal_pitch_deg=args.gimbal_pitch,
-                          record_dir=args.record)
+                          record_dir=args.record, truth_log=args.truth_log)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())

@@ -102,18 +102,26 @@ def wait_for_item(proc, telemetry_log: Path, min_item: int, timeout_s: float) ->
     raise SystemExit(f"the flight did not reach item {min_item} in {timeout_s:g} s")
 
 
-def seconds_to_rtl(url: str, since: float, system_id: int, timeout_s: float = 60.0) -> float | None:
+def seconds_to_rtl(url: str, since: float, system_id: int,
+                   timeout_s: float = 60.0) -> tuple[float | None, float | None]:
+    """Wall seconds from ``since`` to the first HEARTBEAT in Return, and the autopilot's time_boot_ms (s) then, from
+    the last timed message before it (HEARTBEAT has no time): PX4's timeouts run on its clock, which the speed
+    factor runs faster than the wall's."""
     from pymavlink import mavutil
 
     link = mavutil.mavlink_connection(url, source_system=99)  # listens, sends nothing
+    boot_s = None
     try:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            hb = link.recv_match(type="HEARTBEAT", blocking=True, timeout=0.5)
-            if hb is not None and hb.get_srcSystem() == system_id and \
-                    px4_mode(hb.custom_mode) == (PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL):
-                return round(time.monotonic() - since, 2)
-        return None
+            msg = link.recv_match(blocking=True, timeout=0.5)
+            if msg is None or msg.get_srcSystem() != system_id:
+                continue
+            if getattr(msg, "time_boot_ms", None) is not None:
+                boot_s = msg.time_boot_ms / 1000.0
+            if msg.get_type() == "HEARTBEAT" and px4_mode(msg.custom_mode) == (PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL):
+                return round(time.monotonic() - since, 2), boot_s
+        return None, boot_s
     finally:
         link.close()
 
@@ -147,8 +155,9 @@ def lost_link_run(k: int, args, mission: Path, plan) -> dict:
             proc.kill()  # SIGKILL: the companion has no way to say goodbye
             killed = time.monotonic()
             said = proc.communicate()[0]
-        rtl_s = seconds_to_rtl(px4.ports.watch_url, killed, px4.ports.system_id,
-                               timeout_s=120.0)
+        rows = read_telemetry_log(telemetry)
+        last_heard_s = max((r["t_boot_s"] for r in rows if r.get("t_boot_s") is not None), default=None)
+        rtl_s, rtl_boot_s = seconds_to_rtl(px4.ports.watch_url, killed, px4.ports.system_id, timeout_s=120.0)
         journal = sorted(c["name"] for f in (state / "parameter-journal").glob("*.json")
                          for c in json.loads(f.read_text())["changes"])
         during = read_parameters(px4.ports.watch_url)
@@ -159,7 +168,9 @@ def lost_link_run(k: int, args, mission: Path, plan) -> dict:
     (run / "fly.log").write_text(said)
     (run / "restore.log").write_text(restore.stdout + restore.stderr)
     return {"run": k, "kill_at_item": args.kill_at_item, "seconds_to_item": round(to_scan_s, 1),
-            "seconds_kill_to_rtl_wall": rtl_s, "speed_factor": args.speed_factor, "journal": journal,
+            "seconds_kill_to_rtl_wall": rtl_s, "autopilot_s_last_logged_to_rtl":
+                None if rtl_boot_s is None or last_heard_s is None else round(rtl_boot_s - last_heard_s, 2),
+            "speed_factor": args.speed_factor, "journal": journal,
             "before": before, "after_kill": during, "restore_rc": restore.returncode,
             "restore_said": [ln for ln in restore.stdout.splitlines() if "restor" in ln.lower()][-3:],
             "after_restore": after, "restored_all": after == before,

@@ -12,10 +12,10 @@ What it sets, and why each:
   start beside it).
 * ``PX4_HOME_LAT/LON/ALT`` the mission's take-off point at its ground altitude: SIH puts the vehicle there
   (SIH_LOC_LAT0/LON0/H0), so the wall is where the mission says it is.
-* A fresh working directory per run, with ``etc`` linked to the build's ``rootfs/etc``: PX4 keeps its parameters
+* A fresh working directory per run (``-w DIR``, the build's ``etc`` linked into it): PX4 keeps its parameters
   (``parameters.bson``), its mission storage (``dataman``) and its logs in the working directory, and a run started
   in a directory an earlier run used inherits that run's parameters and mission. Every run starts from the same
-  vehicle.
+  vehicle. (Without ``-w`` every run of instance N shares the build's ``rootfs/N``.)
 * ``PX4_SIM_SPEED_FACTOR``: SIH is lockstep, so a speed factor runs the autopilot's clock faster than the wall's;
   figures in autopilot time (the telemetry log's ``time_boot_ms``) do not depend on it, a loaded machine only
   slows the run down.
@@ -39,7 +39,7 @@ from companion.errors import CompanionError
 from sim.process import terminate
 
 BINARY_IN_TREE = Path("build/px4_sitl_default/bin/px4")
-ROOTFS_IN_TREE = Path("build/px4_sitl_default/rootfs")
+ETC_IN_TREE = Path("build/px4_sitl_default/etc")  # the startup scripts (rcS, airframes) the build generated
 GCS_PORT = 14550  # where PX4 SITL's GCS link sends (MAV_0, "remote port 14550"), whatever the instance
 
 
@@ -81,17 +81,17 @@ class Px4Ports:
 
 
 def find_binary(px4: Path) -> tuple[Path, Path]:
-    """The ``px4`` binary and its ``rootfs`` of a PX4 tree built for SITL, or a clear error."""
+    """The ``px4`` binary and its ``etc`` of a PX4 tree built for SITL, or a clear error."""
     px4 = Path(px4).expanduser().resolve()
-    binary, rootfs = px4 / BINARY_IN_TREE, px4 / ROOTFS_IN_TREE
+    binary, etc = px4 / BINARY_IN_TREE, px4 / ETC_IN_TREE
     if not binary.is_file():
         raise CompanionError(f"no PX4 SITL binary at {binary}",
                              "give --px4 the top of a PX4-Autopilot source tree built for SITL "
                              "(make px4_sitl_default)")
-    if not (rootfs / "etc" / "init.d-posix" / "rcS").is_file():
-        raise CompanionError(f"no {ROOTFS_IN_TREE / 'etc/init.d-posix/rcS'} in {px4}",
+    if not (etc / "init.d-posix" / "rcS").is_file():
+        raise CompanionError(f"no {ETC_IN_TREE / 'init.d-posix/rcS'} in {px4}",
                              "give the PX4 tree the binary was built in")
-    return binary, rootfs
+    return binary, etc
 
 
 def sitl_environment(home: Px4Home, speed_factor: float) -> dict[str, str]:
@@ -102,14 +102,21 @@ def sitl_environment(home: Px4Home, speed_factor: float) -> dict[str, str]:
     return env
 
 
-def prepare_run_dir(run_dir: Path, rootfs: Path) -> Path:
-    """A clean working directory: no parameters, dataman or logs of an earlier run, ``etc`` linked to the build's."""
-    run_dir = Path(run_dir)
+def prepare_run_dir(run_dir: Path) -> Path:
+    """A clean working directory: no parameters, dataman or logs of an earlier run (px4 links ``etc`` into it)."""
+    run_dir = Path(run_dir).resolve()
     if run_dir.exists():
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True)
-    (run_dir / "etc").symlink_to(rootfs / "etc", target_is_directory=True)
     return run_dir
+
+
+def px4_arguments(binary: Path, etc: Path, run_dir: Path, instance: int) -> list[str]:
+    """``-d``: no interactive shell (stdin is no terminal). ``-w RUN_DIR ETC``: run in the run's own directory, with
+    the build's ``etc`` linked into it. Without them px4 -i N runs in the build's ``rootfs/N``, shared by every run
+    of that instance: its parameters.bson keeps what the last run set (a save PX4 had not flushed when it was
+    stopped is lost too, so a restore can look undone), and the next run starts from that."""
+    return [str(binary), "-d", "-i", str(instance), "-w", str(run_dir), str(etc)]
 
 
 class Px4Sitl:
@@ -118,7 +125,7 @@ class Px4Sitl:
 
     def __init__(self, px4: Path, *, home: Px4Home, run_dir: Path, instance: int = 1, speed_factor: float = 1.0,
                  start_timeout_s: float = 60.0):
-        self.binary, self.rootfs = find_binary(px4)
+        self.binary, self.etc = find_binary(px4)
         self.home, self.run_dir, self.speed_factor = home, Path(run_dir), speed_factor
         self.ports, self.start_timeout_s = Px4Ports(instance), start_timeout_s
         self.process: subprocess.Popen | None = None
@@ -128,12 +135,11 @@ class Px4Sitl:
         if _udp_bound(18570 + self.ports.instance):
             raise CompanionError(f"PX4 SITL instance {self.ports.instance} seems to run already "
                                  f"(UDP {18570 + self.ports.instance} is bound)", "stop it, or give another instance")
-        prepare_run_dir(self.run_dir, self.rootfs)
+        self.run_dir = prepare_run_dir(self.run_dir)
         env = dict(os.environ, **sitl_environment(self.home, self.speed_factor))
         self._log = open(self.run_dir / "px4.log", "w")  # noqa: SIM115 (lives as long as the process)
-        # -d: no interactive shell (stdin is not a terminal); the working directory is the run's own
-        self.process = subprocess.Popen([str(self.binary), "-d", "-i", str(self.ports.instance)], cwd=self.run_dir,
-                                        env=env, stdout=self._log, stderr=subprocess.STDOUT,
+        self.process = subprocess.Popen(px4_arguments(self.binary, self.etc, self.run_dir, self.ports.instance),
+                                        cwd=self.run_dir, env=env, stdout=self._log, stderr=subprocess.STDOUT,
                                         stdin=subprocess.DEVNULL)
         try:
             self._wait_heartbeat()

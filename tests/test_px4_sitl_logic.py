@@ -9,7 +9,15 @@ from pathlib import Path
 import pytest
 
 from companion.errors import CompanionError
-from sim.px4_sitl import Px4Home, Px4Ports, find_binary, is_heartbeat_of, prepare_run_dir, sitl_environment
+from sim.px4_sitl import (
+    Px4Home,
+    Px4Ports,
+    find_binary,
+    is_heartbeat_of,
+    prepare_run_dir,
+    px4_arguments,
+    sitl_environment,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -42,14 +50,14 @@ def test_missing_binary_says_how_to_build(tmp_path):
     assert "no PX4 SITL binary" in e.value.problem and "make px4_sitl_default" in e.value.fix
 
 
-def test_run_dir_is_fresh(tmp_path):
-    rootfs = tmp_path / "rootfs"
-    (rootfs / "etc").mkdir(parents=True)
+def test_run_dir_is_fresh_and_px4_runs_in_it(tmp_path):
     run = tmp_path / "run"
     (run / "log").mkdir(parents=True)
     (run / "parameters.bson").write_bytes(b"stale")
-    prepare_run_dir(run, rootfs)
-    assert sorted(p.name for p in run.iterdir()) == ["etc"] and (run / "etc").resolve() == (rootfs / "etc")
+    assert prepare_run_dir(run) == run.resolve() and list(run.iterdir()) == []
+    # without -w, px4 -i 1 would run in the build's shared rootfs/1 and start from the last run's parameters
+    args = px4_arguments(Path("/px4/bin/px4"), Path("/px4/etc"), run, 1)
+    assert args == ["/px4/bin/px4", "-d", "-i", "1", "-w", str(run), "/px4/etc"]
 
 
 def test_heartbeat_framing():

@@ -8,8 +8,10 @@ working directory per run and runs ``companion fly`` as a user would (``--connec
 ``lost-link``: reads the parameters the flight changes, flies with ``--lost-link-action rtl``, waits until the scan
 has begun, kills the companion with SIGKILL and listens on PX4's GCS port (UDP 14550, sending nothing: no heartbeat
 of ours keeps the failsafe off) for the first HEARTBEAT in Return (custom_mode main mode AUTO 4, sub mode RTL 5).
-Then ``companion restore`` and the parameters read back. PX4 sees the link lost ~2.5 s (its heartbeat timeout) +
-COM_DL_LOSS_T (10 s) after the last heartbeat.
+Then ``companion restore`` and the parameters read back. PX4 sees the link lost COM_DL_LOSS_T after the last
+heartbeat, holds COM_FAIL_ACT_T (5 s), then returns. PX4's SITL startup (init.d-posix/rcS) sets COM_DL_LOSS_T to
+10 s x PX4_SIM_SPEED_FACTOR (40 s at 4x), so the bench prints autopilot seconds (from the last logged sample to the
+first Return heartbeat) beside the wall's.
 
 ``demo``: flies the whole demo and prints the take-off-to-landing time in autopilot time (first to last in-air row
 of the telemetry log: the speed factor and the machine's load do not change it) and ``bench/flight_judge.py``'s
@@ -30,6 +32,7 @@ import datetime
 import json
 import os
 import platform
+import struct
 import subprocess
 import sys
 import time
@@ -64,9 +67,17 @@ def airborne_s(rows: list[dict]) -> float | None:
     return round(stamped[air[-1] + 1]["t_boot_s"] - stamped[air[0]]["t_boot_s"], 1)
 
 
+def param_number(value: float, param_type: int) -> float:
+    """A PARAM_VALUE's value: PX4 sends integer parameters as their bytes in the float (NAV_DLL_ACT 2 arrives as
+    2.8e-45, which reads 0.0 rounded), so an integer type is read back from those bytes."""
+    if param_type in (1, 2, 3, 4, 5, 6):  # MAV_PARAM_TYPE_UINT8 .. INT32
+        return float(struct.unpack("<i", struct.pack("<f", value))[0])
+    return round(float(value), 4)
+
+
 def read_parameters(url: str, names=CHANGED, timeout_s: float = 30.0) -> dict[str, float]:
     """PARAM_REQUEST_READ for each name over a plain MAVLink link (no heartbeats sent). PX4 answers integers as
-    their bytes in the float; pymavlink's value is read back as-is, which compares equal before and after."""
+    their bytes in the float (``param_number``)."""
     from pymavlink import mavutil
 
     link = mavutil.mavlink_connection(url, source_system=98)
@@ -84,7 +95,7 @@ def read_parameters(url: str, names=CHANGED, timeout_s: float = 30.0) -> dict[st
             while time.monotonic() < end:
                 msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
                 if msg is not None and msg.param_id in names:
-                    out[msg.param_id] = round(float(msg.param_value), 4)
+                    out[msg.param_id] = param_number(msg.param_value, msg.param_type)
         return out
     finally:
         link.close()

@@ -80,3 +80,11 @@ def test_airborne_is_take_off_to_landing(bench):
     assert bench.airborne_s(rows) == 290.5
     assert bench.airborne_s(rows[:4]) is None  # still flying
     assert bench.airborne_s([{"t_boot_s": 1.0, "in_air": False}]) is None
+
+
+def test_integer_parameters_are_read_from_their_bytes(bench):
+    import struct
+
+    as_float = struct.unpack("<f", struct.pack("<i", 2))[0]  # how PX4 sends NAV_DLL_ACT = 2
+    assert bench.param_number(as_float, 6) == 2.0  # MAV_PARAM_TYPE_INT32
+    assert bench.param_number(0.716, 9) == 0.716  # REAL32

@@ -46,9 +46,10 @@ from companion.mission import load_mission, plan_scan  # noqa: E402
 from companion.resources import demo_mission  # noqa: E402
 from sim.px4_sitl import Px4Home, Px4Sitl  # noqa: E402
 
-# what a PX4 demo flight may change: the lost-link pair, flight_parameters' vertical-scan set, the SIH profile's
+# what a PX4 demo flight may change: the lost-link pair, flight_parameters' vertical-scan set and gains, the SIH
+# profile's
 CHANGED = ("NAV_DLL_ACT", "COM_DLL_EXCEPT", "MPC_Z_V_AUTO_UP", "MPC_Z_V_AUTO_DN", "NAV_MC_ALT_RAD",
-           "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN", "EKF2_ACC_NOISE", "EKF2_GYR_NOISE")
+           "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN", "MPC_XY_P", "MPC_XY_VEL_P_ACC", "EKF2_ACC_NOISE", "EKF2_GYR_NOISE")
 PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL = 4, 5
 
 

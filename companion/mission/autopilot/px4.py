@@ -32,9 +32,9 @@ PX4_MC_ALT_RAD_RANGE = (0.05, 200.0)  # NAV_MC_ALT_RAD (navigator_params.c; defa
 PX4_HOME_CORRECTION_WINDOW_S = 120.0
 # Position and velocity gains for a scan flight (defaults 0.95 and 1.8; ranges 0..2 and 1.2..5,
 # multicopter_position_control_gain_params.c). Real PX4 SIH (2026-12-04, docs/FLIGHT.md "Re-measured 2026-12-04"):
-# the demo's worst standoff error 0.293 / 0.284 m at the defaults, 0.204 / 0.171 m with MPC_XY_P 1.8, 0.171 / 0.160 m
-# with both (two flights each); the error wanders about zero (per-strip std 0.073 -> 0.050 m: estimator noise the
-# position loop corrects), so stiffer loops hold it closer. Values inside PX4's ranges, within 2x the defaults.
+# the demo's worst standoff error 0.293 / 0.284 m at the defaults, 0.204 / 0.171 m with MPC_XY_P 1.8, 0.171 / 0.160 /
+# 0.215 / 0.204 m with both (four flights); the error wanders about zero (per-strip std 0.073 -> 0.048 m), so the
+# stiffer loops hold it closer, though not always under 0.2 m. Inside PX4's ranges, within 2x the defaults.
 PX4_SCAN_GAINS = {"MPC_XY_P": 1.8, "MPC_XY_VEL_P_ACC": 2.7}
 # The furthest home is taken to move DOWN at any moment of that window, for the waypoints flown in it. Real PX4 SIH
 # (22 flights' ULogs, tests/data/real-px4-sih-home.json): home's lowest in each window -0.57 .. -2.36 m, below -2.0 m
@@ -116,8 +116,8 @@ class Px4(Autopilot):
         defaults: a pilot taking over keeps the vehicle's normal limits otherwise. Yaw needs no parameter.
 
         ``PX4_SCAN_GAINS`` (MPC_XY_P 1.8, MPC_XY_VEL_P_ACC 2.7) with them: on real PX4 SIH the standoff on the strips
-        wandered about zero by up to 0.29 m at the default gains and stayed within 0.2 m with these (measured on
-        vertical strips only, so set for those only); restored after the flight like the others."""
+        wandered about zero by up to 0.29 m at the default gains and by 0.16-0.22 m with these (measured on vertical
+        strips only, so set for those only); restored after the flight like the others."""
         v = _vertical_scan_speed(plan)
         if v is None:
             return {}

@@ -102,7 +102,8 @@ def test_px4_gets_horizontal_speed_items_and_vertical_speed_parameters(plan):
     v = plan.estimates.scan_speed_m_s
     if plan.mission.pattern == "vertical":
         assert params == {"MPC_Z_V_AUTO_UP": pytest.approx(v, abs=1e-3), "MPC_Z_V_AUTO_DN": pytest.approx(v, abs=1e-3),
-                          "NAV_MC_ALT_RAD": 0.3}  # the strips' acceptance radius, not PX4's 0.8 m vertically
+                          "NAV_MC_ALT_RAD": 0.3,  # the strips' acceptance radius, not PX4's 0.8 m vertically
+                          "MPC_XY_P": 2.0, "MPC_XY_VEL_P_ACC": 3.6}  # stiffer: less standoff wander on real PX4 SIH
     else:
         assert params == {}
 
@@ -153,3 +154,14 @@ def test_plan_summary_lists_the_flight_parameters_or_why_not():
     summary = json.loads(summary_json(slow))["flight_parameters"]
     assert "MPC_Z_V_AUTO_UP range" in summary["px4"]["error"] and summary["px4"]["fix"]
     assert "px4: cannot be flown as planned" in format_estimates(slow)
+
+
+def test_px4_scan_gains_are_inside_px4s_ranges_and_only_for_vertical_strips(plan):
+    """MPC_XY_P 2.0 and MPC_XY_VEL_P_ACC 3.6 held real PX4 SIH's standoff under 0.2 m (0.29 m at the defaults,
+    0.22 m at 1.8 / 2.7); measured on vertical strips only, so a horizontal scan gets none."""
+    from companion.mission.autopilot.px4 import PX4_SCAN_GAINS
+
+    assert PX4_SCAN_GAINS == {"MPC_XY_P": 2.0, "MPC_XY_VEL_P_ACC": 3.6}
+    assert 0.0 <= PX4_SCAN_GAINS["MPC_XY_P"] <= 2.0 and 1.2 <= PX4_SCAN_GAINS["MPC_XY_VEL_P_ACC"] <= 5.0
+    if plan.mission.pattern == "vertical":
+        assert flight_parameters(plan, "px4").items() >= PX4_SCAN_GAINS.items()

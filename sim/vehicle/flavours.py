@@ -108,6 +108,7 @@ class Px4:
         "MPC_ACC_HOR": 4.0, "MPC_YAWRAUTO_MAX": 60.0, "NAV_ACC_RAD": 2.0, "COM_DL_LOSS_T": 10, "NAV_DLL_ACT": 2,
         "COM_DISARM_LAND": 2.0, "BAT_LOW_THR": 0.15, "MIS_YAWMODE": 0, "MPC_Z_V_AUTO_UP": 3.0,
         "MPC_Z_V_AUTO_DN": 1.5, "NAV_MC_ALT_RAD": 0.8,
+        "MPC_XY_P": 0.95, "MPC_XY_VEL_P_ACC": 1.8,  # held, not flown by: the model tracks its path as tuned
         # PX4 SIH SITL as it boots (SYS_AUTOSTART 10040, init.d-posix/rcS: CAL_*_ID = SIH's simulated IMU, device id
         # 1310988 = DRV_IMU_DEVTYPE_SIM on bus type SIMULATION) with EKF2's default sensor noise (ekf2 module.yaml).
         # A real vehicle: --params CAL_ACC0_ID=<its IMU's id>,CAL_GYRO0_ID=...,SYS_AUTOSTART=<its airframe>.

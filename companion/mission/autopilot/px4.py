@@ -30,6 +30,14 @@ PX4_Z_VEL_MAX_UP_DEFAULT = 3.0  # multicopter_position_control_limits_params.c (
 PX4_Z_VEL_MAX_DN_DEFAULT = 1.5  # (range 0.5..4)
 PX4_MC_ALT_RAD_RANGE = (0.05, 200.0)  # NAV_MC_ALT_RAD (navigator_params.c; default 0.8 m)
 PX4_HOME_CORRECTION_WINDOW_S = 120.0
+# Position and velocity gains for a scan flight (defaults 0.95 and 1.8; ranges 0..2 and 1.2..5,
+# multicopter_position_control_gain_params.c). Real PX4 SIH (2026-12-04, docs/FLIGHT.md "Re-measured 2026-12-04"),
+# the demo's worst standoff error per flight: 0.293 / 0.284 m at the defaults; 0.171 / 0.160 / 0.215 / 0.204 m with
+# 1.8 / 2.7; 0.193 / 0.149 / 0.160 / 0.149 m with 2.0 / 3.6. The error wanders about zero (per-strip std
+# 0.073 -> 0.048 -> 0.042 m), so stiffer loops hold it closer. MPC_XY_P 2.0 is the top of PX4's range and the
+# velocity gain twice its default: stiff for a real airframe tuned at the defaults, so they are set for the scan
+# flight only and restored after it like the others.
+PX4_SCAN_GAINS = {"MPC_XY_P": 2.0, "MPC_XY_VEL_P_ACC": 3.6}
 # The furthest home is taken to move DOWN at any moment of that window, for the waypoints flown in it. Real PX4 SIH
 # (22 flights' ULogs, tests/data/real-px4-sih-home.json): home's lowest in each window -0.57 .. -2.36 m, below -2.0 m
 # for 0.02 % of the windows' time and never below -2.36 m; PX4 computes a waypoint's altitude from home when the
@@ -107,7 +115,11 @@ class Px4(Autopilot):
         turned there, losing the wall's base from the last strip. With the plan's radius PX4 accepts the strip's
         end where the plan means it to (its trajectory brakes to a stop in z there anyway: no longer flights). PX4
         caps the auto speeds at MPC_Z_VEL_MAX_UP/DN, so those are raised only when the scan speed is above their
-        defaults: a pilot taking over keeps the vehicle's normal limits otherwise. Yaw needs no parameter."""
+        defaults: a pilot taking over keeps the vehicle's normal limits otherwise. Yaw needs no parameter.
+
+        ``PX4_SCAN_GAINS`` (MPC_XY_P 2.0, MPC_XY_VEL_P_ACC 3.6) with them: on real PX4 SIH the standoff on the strips
+        wandered about zero by up to 0.29 m at the default gains and under 0.2 m with these (measured on vertical
+        strips only, so set for those only); restored after the flight like the others."""
         v = _vertical_scan_speed(plan)
         if v is None:
             return {}
@@ -126,4 +138,5 @@ class Px4(Autopilot):
                                         ("MPC_Z_VEL_MAX_DN", PX4_Z_VEL_MAX_DN_DEFAULT, PX4_Z_V_AUTO_DN_RANGE)):
             if v > default:
                 params[name] = round(min(max(v, lo), hi), 3)
+        params.update(PX4_SCAN_GAINS)
         return params

@@ -1,0 +1,90 @@
+"""sim/px4_sitl.py and bench/real_px4_checks.py: the pure parts (no PX4 binary: CI has none)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+from companion.errors import CompanionError
+from sim.px4_sitl import (
+    Px4Home,
+    Px4Ports,
+    find_binary,
+    is_heartbeat_of,
+    prepare_run_dir,
+    px4_arguments,
+    sitl_environment,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("real_px4_checks", ROOT / "bench" / "real_px4_checks.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["real_px4_checks"] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_environment_puts_sih_at_home():
+    env = sitl_environment(Px4Home(37.56638, 126.97815, 30.0), speed_factor=4)
+    assert env == {"PX4_SIM_MODEL": "sihsim_quadx", "PX4_HOME_LAT": "37.56638000", "PX4_HOME_LON": "126.97815000",
+                   "PX4_HOME_ALT": "30.00", "PX4_SIM_SPEED_FACTOR": "4"}
+    assert "PX4_SIM_SPEED_FACTOR" not in sitl_environment(Px4Home(0, 0, 0), speed_factor=1.0)
+
+
+def test_ports_of_an_instance():
+    p = Px4Ports(1)
+    assert (p.system_id, p.onboard_port, p.companion_url) == (2, 14541, "udp://:14541")
+    assert p.watch_url == "udpin:127.0.0.1:14550"
+
+
+def test_missing_binary_says_how_to_build(tmp_path):
+    with pytest.raises(CompanionError) as e:
+        find_binary(tmp_path)
+    assert "no PX4 SITL binary" in e.value.problem and "make px4_sitl_default" in e.value.fix
+
+
+def test_run_dir_is_fresh_and_px4_runs_in_it(tmp_path):
+    run = tmp_path / "run"
+    (run / "log").mkdir(parents=True)
+    (run / "parameters.bson").write_bytes(b"stale")
+    assert prepare_run_dir(run) == run.resolve() and list(run.iterdir()) == []
+    # without -w, px4 -i 1 would run in the build's shared rootfs/1 and start from the last run's parameters
+    args = px4_arguments(Path("/px4/bin/px4"), Path("/px4/etc"), run, 1)
+    assert args == ["/px4/bin/px4", "-d", "-i", "1", "-w", str(run), "/px4/etc"]
+
+
+def test_heartbeat_framing():
+    v2 = bytes([0xFD, 9, 0, 0, 7, 2, 1, 0, 0, 0]) + bytes(9 + 2)
+    v1 = bytes([0xFE, 9, 7, 2, 1, 0]) + bytes(9 + 2)
+    assert is_heartbeat_of(v2, 2) and is_heartbeat_of(v1, 2)
+    assert not is_heartbeat_of(v2, 1) and not is_heartbeat_of(bytes([0xFD, 9, 0, 0, 7, 2, 1, 33, 0, 0]), 2)
+    assert not is_heartbeat_of(b"", 2)
+
+
+def test_px4_mode_decodes_return(bench):
+    assert bench.px4_mode((5 << 24) | (4 << 16)) == (4, 5)  # AUTO / RTL
+    assert bench.px4_mode((4 << 24) | (4 << 16)) == (4, 4)  # AUTO / MISSION
+
+
+def test_airborne_is_take_off_to_landing(bench):
+    rows = [{"t_boot_s": 10.0, "in_air": False}, {"t_boot_s": 11.0, "in_air": True},
+            {"t_boot_s": 12.0, "in_air": None}, {"t_boot_s": 300.0, "in_air": True},
+            {"t_boot_s": 301.5, "in_air": False}, {"t_boot_s": 400.0, "in_air": False}]
+    assert bench.airborne_s(rows) == 290.5
+    assert bench.airborne_s(rows[:4]) is None  # still flying
+    assert bench.airborne_s([{"t_boot_s": 1.0, "in_air": False}]) is None
+
+
+def test_integer_parameters_are_read_from_their_bytes(bench):
+    import struct
+
+    as_float = struct.unpack("<f", struct.pack("<i", 2))[0]  # how PX4 sends NAV_DLL_ACT = 2
+    assert bench.param_number(as_float, 6) == 2.0  # MAV_PARAM_TYPE_INT32
+    assert bench.param_number(0.716, 9) == 0.716  # REAL32

@@ -68,15 +68,16 @@ def airborne_s(rows: list[dict]) -> float | None:
     return round(stamped[air[-1] + 1]["t_boot_s"] - stamped[air[0]]["t_boot_s"], 1)
 
 
-def param_number(value: float, param_type: int) -> float:
+def param_number(value: float, param_type: int, ints_bytewise: bool = True) -> float:
     """A PARAM_VALUE's value: PX4 sends integer parameters as their bytes in the float (NAV_DLL_ACT 2 arrives as
-    2.8e-45, which reads 0.0 rounded), so an integer type is read back from those bytes."""
-    if param_type in (1, 2, 3, 4, 5, 6):  # MAV_PARAM_TYPE_UINT8 .. INT32
+    2.8e-45, which reads 0.0 rounded), so an integer type is read back from those bytes; ArduPilot casts them
+    (``ints_bytewise=False``)."""
+    if ints_bytewise and param_type in (1, 2, 3, 4, 5, 6):  # MAV_PARAM_TYPE_UINT8 .. INT32
         return float(struct.unpack("<i", struct.pack("<f", value))[0])
     return round(float(value), 4)
 
 
-def read_parameters(url: str, names=CHANGED, timeout_s: float = 30.0) -> dict[str, float]:
+def read_parameters(url: str, names=CHANGED, timeout_s: float = 30.0, ints_bytewise: bool = True) -> dict[str, float]:
     """PARAM_REQUEST_READ for each name over a plain MAVLink link (no heartbeats sent). PX4 answers integers as
     their bytes in the float (``param_number``)."""
     from pymavlink import mavutil
@@ -96,7 +97,7 @@ def read_parameters(url: str, names=CHANGED, timeout_s: float = 30.0) -> dict[st
             while time.monotonic() < end:
                 msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
                 if msg is not None and msg.param_id in names:
-                    out[msg.param_id] = param_number(msg.param_value, msg.param_type)
+                    out[msg.param_id] = param_number(msg.param_value, msg.param_type, ints_bytewise)
         return out
     finally:
         link.close()

@@ -30,7 +30,8 @@ from pymavlink import mavutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from companion.flight import read_telemetry_log  # noqa: E402
+from bench.real_px4_checks import read_parameters as _read  # noqa: E402
+from bench.real_px4_checks import wait_for_item  # noqa: E402
 from companion.mission import load_mission, plan_scan  # noqa: E402
 from companion.resources import demo_mission  # noqa: E402
 from sim.ardupilot_sitl import ArduCopterSitl  # noqa: E402
@@ -39,41 +40,9 @@ CHANGED = ("WP_YAW_BEHAVIOR", "FS_GCS_ENABLE", "RTL_ALT", "MAV_GCS_SYSID")  # wh
 COPTER_RTL = 6
 
 
-def read_parameters(url: str, names=CHANGED, timeout_s: float = 30.0) -> dict[str, float]:
-    """PARAM_REQUEST_READ for each name over a plain MAVLink link (no heartbeats sent)."""
-    link = mavutil.mavlink_connection(url, source_system=98)
-    try:
-        hb = link.wait_heartbeat(timeout=timeout_s)
-        if hb is None:
-            raise SystemExit(f"no HEARTBEAT on {url}")
-        out: dict[str, float] = {}
-        deadline = time.monotonic() + timeout_s
-        while len(out) < len(names) and time.monotonic() < deadline:
-            for name in names:
-                if name not in out:
-                    link.mav.param_request_read_send(link.target_system, link.target_component,
-                                                     name.encode(), -1)
-            end = time.monotonic() + 1.0
-            while time.monotonic() < end:
-                msg = link.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
-                if msg is not None and msg.param_id in names:
-                    out[msg.param_id] = round(float(msg.param_value), 4)
-        return out
-    finally:
-        link.close()
-
-
-def wait_for_scan(proc, telemetry_log: Path, min_item: int, timeout_s: float) -> float:
-    """Seconds until the companion's log says item ``min_item`` (the scan) is under way."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout_s:
-        if proc.poll() is not None:
-            raise SystemExit(f"companion fly ended before the scan:\n{proc.stdout.read()}")
-        rows = read_telemetry_log(telemetry_log) if telemetry_log.exists() else []
-        if rows and rows[-1]["mission_item"] >= min_item:
-            return time.monotonic() - t0
-        time.sleep(0.2)
-    raise SystemExit(f"the scan did not reach item {min_item} in {timeout_s:g} s")
+def read_parameters(url: str) -> dict[str, float]:
+    """The parameters the flight changes, as ArduPilot sends them (integers cast into the float)."""
+    return _read(url, CHANGED, ints_bytewise=False)
 
 
 def seconds_to_rtl(link, since: float, timeout_s: float = 30.0) -> float | None:
@@ -102,7 +71,7 @@ def one_run(k: int, args, mission: Path, plan) -> dict:
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         watch = mavutil.mavlink_connection(sitl.watch_url, source_system=99)  # listens, sends nothing
         try:
-            to_scan_s = wait_for_scan(proc, telemetry, args.kill_at_item, timeout_s=300.0)
+            to_scan_s = wait_for_item(proc, telemetry, args.kill_at_item, timeout_s=300.0)
             time.sleep(args.kill_after_s)
         finally:
             proc.kill()  # SIGKILL: the companion has no way to say goodbye

@@ -29,13 +29,12 @@ from __future__ import annotations
 
 import math
 import socket
-import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from companion.errors import CompanionError
-from sim.process import terminate
+from sim.process import LoggedProcess
 
 BINARY_IN_TREE = Path("build/sitl/bin/arducopter")
 DEFAULTS_IN_TREE = Path("Tools/autotest/default_params/copter.parm")
@@ -77,7 +76,7 @@ def find_binary(ardupilot: Path) -> tuple[Path, Path]:
     return binary, defaults
 
 
-class ArduCopterSitl:
+class ArduCopterSitl(LoggedProcess):
     """``with ArduCopterSitl(tree, home=(lat, lon, alt, heading), run_dir=...) as sitl:`` ``sitl.companion_url``,
     ``sitl.bridge_url``, ``sitl.watch_url``; the process is stopped on exit."""
 
@@ -88,8 +87,7 @@ class ArduCopterSitl:
         self.home, self.run_dir, self.parameters = home, Path(run_dir), parameters
         self.instance, self.speedup, self.start_timeout_s = instance, speedup, start_timeout_s
         self.base_port = 5760 + 10 * instance
-        self.process: subprocess.Popen | None = None
-        self._log = None
+        super().__init__()
 
     @property
     def companion_url(self) -> str:
@@ -115,9 +113,8 @@ class ArduCopterSitl:
         args = [str(self.binary), "--model", "+", "--speedup", f"{self.speedup:g}", "-I", str(self.instance),
                 "--home", f"{lat:.8f},{lon:.8f},{alt:.2f},{heading:.1f}", "-w",
                 "--defaults", f"{self.defaults},{check}", "--serial0", "tcp:0"]
-        self._log = open(self.run_dir / "arducopter.log", "w")  # noqa: SIM115 (lives as long as the process)
         # the SITL writes eeprom.bin, logs/ and terrain/ into its working directory: the run's own
-        self.process = subprocess.Popen(args, cwd=self.run_dir, stdout=self._log, stderr=subprocess.STDOUT)
+        self._spawn(args, self.run_dir / "arducopter.log", cwd=self.run_dir)
         deadline = time.monotonic() + self.start_timeout_s
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
@@ -130,19 +127,6 @@ class ArduCopterSitl:
         self.stop()
         raise CompanionError(f"ArduCopter SITL did not open TCP {self.base_port} in {self.start_timeout_s:g} s",
                              f"see {self.run_dir / 'arducopter.log'}")
-
-    def stop(self) -> None:
-        if self.process is not None:
-            terminate(self.process, timeout_s=5.0)
-        if self._log is not None:
-            self._log.close()
-            self._log = None
-
-    def __enter__(self) -> ArduCopterSitl:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
 
 
 def _listening(port: int) -> bool:

@@ -53,6 +53,38 @@ def terminate(proc: subprocess.Popen, timeout_s: float) -> None:
         proc.wait()
 
 
+class LoggedProcess:
+    """A firmware SITL process the user built, its output in a log file: started by a subclass's ``start()``
+    (``_spawn``), stopped with SIGTERM then SIGKILL; a context manager."""
+
+    stop_timeout_s = 5.0
+
+    def __init__(self) -> None:
+        self.process: subprocess.Popen | None = None
+        self._log = None
+
+    def _spawn(self, args: list[str], log_path: Path, **popen) -> subprocess.Popen:
+        self._log = open(log_path, "w")  # noqa: SIM115 (lives as long as the process)
+        self.process = subprocess.Popen(args, stdout=self._log, stderr=subprocess.STDOUT, **popen)
+        return self.process
+
+    def start(self):
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        if self.process is not None:
+            terminate(self.process, timeout_s=self.stop_timeout_s)
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
 def switch_value(value) -> bool | None:
     """True / False for an on-off option's value, None for any other value. ``--sim-arg rangefinder=true`` arrives
     as the text 'true', so the words count as well as Python's booleans."""

@@ -35,8 +35,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from pymavlink.dialects.v20 import common as mavlink
+
 from companion.errors import CompanionError
-from sim.process import terminate
+from sim.process import LoggedProcess
 
 BINARY_IN_TREE = Path("build/px4_sitl_default/bin/px4")
 ETC_IN_TREE = Path("build/px4_sitl_default/etc")  # the startup scripts (rcS, airframes) the build generated
@@ -119,7 +121,7 @@ def px4_arguments(binary: Path, etc: Path, run_dir: Path, instance: int) -> list
     return [str(binary), "-d", "-i", str(instance), "-w", str(run_dir), str(etc)]
 
 
-class Px4Sitl:
+class Px4Sitl(LoggedProcess):
     """``with Px4Sitl(tree, home=Px4Home(...), run_dir=..., instance=1) as sitl:`` ``sitl.ports.companion_url``,
     ``sitl.ports.watch_url``; the process is stopped on exit."""
 
@@ -128,8 +130,7 @@ class Px4Sitl:
         self.binary, self.etc = find_binary(px4)
         self.home, self.run_dir, self.speed_factor = home, Path(run_dir), speed_factor
         self.ports, self.start_timeout_s = Px4Ports(instance), start_timeout_s
-        self.process: subprocess.Popen | None = None
-        self._log = None
+        super().__init__()
 
     def start(self) -> Px4Sitl:
         if _udp_bound(18570 + self.ports.instance):
@@ -137,10 +138,8 @@ class Px4Sitl:
                                  f"(UDP {18570 + self.ports.instance} is bound)", "stop it, or give another instance")
         self.run_dir = prepare_run_dir(self.run_dir)
         env = dict(os.environ, **sitl_environment(self.home, self.speed_factor))
-        self._log = open(self.run_dir / "px4.log", "w")  # noqa: SIM115 (lives as long as the process)
-        self.process = subprocess.Popen(px4_arguments(self.binary, self.etc, self.run_dir, self.ports.instance),
-                                        cwd=self.run_dir, env=env, stdout=self._log, stderr=subprocess.STDOUT,
-                                        stdin=subprocess.DEVNULL)
+        self._spawn(px4_arguments(self.binary, self.etc, self.run_dir, self.ports.instance), self.run_dir / "px4.log",
+                    cwd=self.run_dir, env=env, stdin=subprocess.DEVNULL)
         try:
             self._wait_heartbeat()
         except BaseException:
@@ -167,33 +166,20 @@ class Px4Sitl:
                     data = s.recv(2048)
                 except TimeoutError:
                     continue
-                if is_heartbeat_of(data, self.ports.system_id):
+                if self.ports.system_id in heartbeat_systems(data):
                     return
         raise CompanionError(f"no HEARTBEAT from PX4 SITL (system {self.ports.system_id}) on UDP {GCS_PORT} in "
                              f"{self.start_timeout_s:g} s", f"see {self.run_dir / 'px4.log'}")
 
-    def stop(self) -> None:
-        if self.process is not None:
-            terminate(self.process, timeout_s=10.0)
-        if self._log is not None:
-            self._log.close()
-            self._log = None
-
-    def __enter__(self) -> Px4Sitl:
-        return self.start()
-
-    def __exit__(self, *exc) -> None:
-        self.stop()
+    stop_timeout_s = 10.0
 
 
-def is_heartbeat_of(data: bytes, system_id: int) -> bool:
-    """Whether a UDP datagram starts with a MAVLink HEARTBEAT (message id 0) from ``system_id`` (v1 or v2 framing;
-    pure, so the check needs no MAVLink library)."""
-    if len(data) >= 6 and data[0] == 0xFE:  # v1: STX len seq sys comp msgid
-        return data[3] == system_id and data[5] == 0
-    if len(data) >= 10 and data[0] == 0xFD:  # v2: STX len incompat compat seq sys comp msgid(3)
-        return data[5] == system_id and data[7:10] == b"\x00\x00\x00"
-    return False
+def heartbeat_systems(data: bytes) -> list[int]:
+    """The system ids of the HEARTBEATs in one UDP datagram (pymavlink's parser: MAVLink 1 or 2 framing)."""
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True
+    msgs = parser.parse_buffer(data) or []
+    return [m.get_srcSystem() for m in msgs if m.get_type() == "HEARTBEAT"]
 
 
 def _udp_bound(port: int) -> bool:

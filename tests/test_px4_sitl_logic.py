@@ -13,7 +13,7 @@ from sim.px4_sitl import (
     Px4Home,
     Px4Ports,
     find_binary,
-    is_heartbeat_of,
+    heartbeat_systems,
     prepare_run_dir,
     px4_arguments,
     sitl_environment,
@@ -60,12 +60,19 @@ def test_run_dir_is_fresh_and_px4_runs_in_it(tmp_path):
     assert args == ["/px4/bin/px4", "-d", "-i", "1", "-w", str(run), "/px4/etc"]
 
 
-def test_heartbeat_framing():
-    v2 = bytes([0xFD, 9, 0, 0, 7, 2, 1, 0, 0, 0]) + bytes(9 + 2)
-    v1 = bytes([0xFE, 9, 7, 2, 1, 0]) + bytes(9 + 2)
-    assert is_heartbeat_of(v2, 2) and is_heartbeat_of(v1, 2)
-    assert not is_heartbeat_of(v2, 1) and not is_heartbeat_of(bytes([0xFD, 9, 0, 0, 7, 2, 1, 33, 0, 0]), 2)
-    assert not is_heartbeat_of(b"", 2)
+def test_heartbeats_are_told_by_their_system():
+    """PX4 instance 1 is system 2: its HEARTBEAT counts, another system's or another message does not."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    def packet(system: int, heartbeat: bool = True) -> bytes:
+        mav = mavlink.MAVLink(None, srcSystem=system, srcComponent=1)
+        msg = (mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 3, 3) if heartbeat
+               else mavlink.MAVLink_system_time_message(0, 1000))
+        return msg.pack(mav)
+
+    assert heartbeat_systems(packet(2)) == [2]
+    assert heartbeat_systems(packet(1)) == [1] and heartbeat_systems(packet(2, heartbeat=False)) == []
+    assert heartbeat_systems(packet(3) + packet(2)) == [3, 2] and heartbeat_systems(b"") == []
 
 
 def test_px4_mode_decodes_return(bench):

@@ -69,8 +69,8 @@ def find_binary(ardupilot: Path) -> tuple[Path, Path]:
     binary, defaults = ardupilot / BINARY_IN_TREE, ardupilot / DEFAULTS_IN_TREE
     if not binary.is_file():
         raise CompanionError(f"no ArduCopter SITL binary at {binary}",
-                             "give --ardupilot the top of an ArduPilot source tree built for SITL "
-                             "(./waf configure --board sitl && ./waf copter)")
+                             "give --ardupilot the top of an ArduPilot source tree built for its sitl board "
+                             "(ArduPilot's own build documentation says how)")
     if not defaults.is_file():
         raise CompanionError(f"no {DEFAULTS_IN_TREE} in {ardupilot}", "give the ArduPilot tree the binary was built in")
     return binary, defaults

@@ -3,7 +3,7 @@
 Why: the project's simulator follows real firmware, but where the two disagree the firmware is right, so the
 checks that matter on PX4 (its lost-link failsafe, its position controller on the scan legs, the flight's length)
 are run against PX4's own SITL with its built-in SIH physics (no Gazebo). This module only *runs* a binary the user
-built (``build/px4_sitl_default/bin/px4`` of a PX4-Autopilot tree, ``make px4_sitl_default``); nothing here builds
+built (``build/px4_sitl_default/bin/px4`` of a PX4-Autopilot tree); nothing here builds
 or fetches one.
 
 What it sets, and why each:
@@ -89,7 +89,7 @@ def find_binary(px4: Path) -> tuple[Path, Path]:
     if not binary.is_file():
         raise CompanionError(f"no PX4 SITL binary at {binary}",
                              "give --px4 the top of a PX4-Autopilot source tree built for SITL "
-                             "(make px4_sitl_default)")
+                             "(PX4's own build documentation says how)")
     if not (etc / "init.d-posix" / "rcS").is_file():
         raise CompanionError(f"no {ETC_IN_TREE / 'init.d-posix/rcS'} in {px4}",
                              "give the PX4 tree the binary was built in")

@@ -47,7 +47,7 @@ def test_ports_of_an_instance():
 def test_missing_binary_says_how_to_build(tmp_path):
     with pytest.raises(CompanionError) as e:
         find_binary(tmp_path)
-    assert "no PX4 SITL binary" in e.value.problem and "make px4_sitl_default" in e.value.fix
+    assert "no PX4 SITL binary" in e.value.problem and "built for SITL" in e.value.fix
 
 
 def test_run_dir_is_fresh_and_px4_runs_in_it(tmp_path):

@@ -55,7 +55,9 @@ SPARSE_RULES: dict[str, ParallaxParams] = {
     "fill-all": ParallaxParams(telemetry_both_sides_strip_only=False),  # the second look feeds the whole frame
     "window": ParallaxParams(telemetry_max_share=None),  # the window scaled by the standoff alone
     "fixed": ParallaxParams(baseline_standoff_m=None, telemetry_max_share=None),  # 8-60 cm: before issue 27
+    "no-bound": ParallaxParams(),  # the shipped rules without the mission's wall bound (companion/depth/pose_bound.py)
 }
+WITHOUT_WALL_BOUND = {"no-bound"}
 
 
 def write_flight(spec, renderer, folder: Path, *, bias_m: tuple[float, float, float], noise_m: float,
@@ -111,11 +113,13 @@ def write_flight(spec, renderer, folder: Path, *, bias_m: tuple[float, float, fl
     return frames, telemetry, mission_path, truths
 
 
-def mask_coverage(spool: Path, truths, wall_seen: np.ndarray, grid) -> tuple[float, int]:
+def mask_coverage(spool: Path, truths, wall_seen: np.ndarray, grid) -> tuple[float, int, float]:
     """Share of the seen wall (``wall_seen`` on ``grid``) the spool's keyframe masks cover, laid on the wall by the
-    stills' true geometry (a keyframe's still from its capture time); and the number of keyframes."""
+    stills' true geometry (a keyframe's still from its capture time); the number of keyframes; and the share of the
+    keyframes' background pixels (their stills' truth) their own masks keep, pixel-weighted."""
     entries = [json.loads(line) for line in (spool / "manifest.jsonl").read_text().splitlines() if line.strip()]
     union = np.zeros_like(wall_seen)
+    background = background_kept = 0
     for entry in entries:
         f = truths[round((entry["capture_time_s"] - FIRST_STILL_S) / STILL_INTERVAL_S)]
         h, w = f.roi_mask.shape
@@ -126,8 +130,12 @@ def mask_coverage(spool: Path, truths, wall_seen: np.ndarray, grid) -> tuple[flo
                                     [0, 0, 1]]) @ f.wall_from_image
         warped = cv2.warpPerspective(mask, grid_from_image, (grid.width, grid.height), flags=cv2.INTER_NEAREST)
         union |= (warped > 127).astype(np.uint8) * 255
+        not_wall = f.roi_mask == 0
+        background += int(not_wall.sum())
+        background_kept += int(np.count_nonzero(mask[not_wall] > 127))
     seen = wall_seen > 0
-    return float(np.count_nonzero(union[seen])) / max(1, int(seen.sum())), len(entries)
+    return (float(np.count_nonzero(union[seen])) / max(1, int(seen.sum())), len(entries),
+            background_kept / max(1, background))
 
 
 def run_one(name: str, standoff: float, spacing: float, args, rule: str, work: Path) -> dict:
@@ -158,21 +166,28 @@ def run_one(name: str, standoff: float, spacing: float, args, rule: str, work: P
             super().__init__(hfov_deg, p or params, keep, standoff_m)
 
     parallax_module.SequenceParallax = WithRules
+    import companion.depth.pose_bound as pose_bound
+
+    shipped_bound = pose_bound.TelemetryWallBound.for_mission
+    if rule in WITHOUT_WALL_BOUND:
+        pose_bound.TelemetryWallBound.for_mission = classmethod(lambda cls, mission, beyond_standoff_m=4.0: None)
     try:
         with contextlib.redirect_stdout(io.StringIO()) as log:
             rc = cli(["cull", str(frames), "--telemetry", str(telemetry), "--out", str(spool),
                       "--mission", str(mission), *(["--model", args.model] if args.model else [])])
     finally:
         parallax_module.SequenceParallax = shipped
+        pose_bound.TelemetryWallBound.for_mission = shipped_bound
     row["cull_s"] = round(time.perf_counter() - t0, 1)
     if rc != 0:
         row["error"] = f"cull exit {rc}: {log.getvalue()[-300:]}"
         return row
     cull = json.loads((spool / "cull_report.json").read_text()) if (spool / "cull_report.json").exists() else {}
     row["parallax_frames"] = cull.get("parallax_frames")
+    row["bound_cut"] = cull.get("bound_cut")
     seen_grid = truth_grid_for(rp, args.mm_per_px / 1000.0)
     seen = wall_truth(rp, list(range(len(renderer))), seen_grid)
-    row["mask_cover"], row["keyframes"] = mask_coverage(spool, truths, seen.seen, seen_grid)
+    row["mask_cover"], row["keyframes"], row["background_kept"] = mask_coverage(spool, truths, seen.seen, seen_grid)
     t1 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()) as log:
         rc = cli(["stitch", str(spool), "--out", str(out), "--quiet"])
@@ -207,9 +222,9 @@ def main() -> None:
     args = ap.parse_args()
     print(f"machine: {platform.platform()}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}; "
           f"bias {tuple(args.bias)} m, noise {args.noise} m, {args.width} px")
-    print("\n| pass | standoff | spacing | rules | stills | keyframes | parallax frames | masks cover | map covers | "
-          "used | background inliers | cull s | stitch s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| pass | standoff | spacing | rules | stills | keyframes | parallax frames | bound cut | masks cover | "
+          "keyframes keep background | map covers | used | background inliers | cull s | stitch s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(args.keep) if args.keep else Path(tmp)
@@ -225,7 +240,9 @@ def main() -> None:
                             return "-" if v is None else f"{100 * v:.1f} %"
                         print(f"| {name} | {standoff:g} m | {spacing:g} m | {rule} | {row['stills']} | "
                               f"{row.get('keyframes', '-')} | {row.get('parallax_frames', '-')} | "
-                              f"{pct(row.get('mask_cover'))} | {pct(row.get('map_cover'))} | {row.get('used', '-')} | "
+                              f"{row.get('bound_cut', '-')} | {pct(row.get('mask_cover'))} | "
+                              f"{pct(row.get('background_kept'))} | {pct(row.get('map_cover'))} | "
+                              f"{row.get('used', '-')} | "
                               f"{row.get('background_inliers', '-')} | {row.get('cull_s', '-')} | "
                               f"{row.get('stitch_s', '-')} |" + (f" {row['error']}" if "error" in row else ""),
                               flush=True)

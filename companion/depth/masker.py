@@ -6,6 +6,7 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from companion.depth.roi import RoiParams, RoiResult, extract_roi
@@ -20,6 +21,8 @@ class MaskerStats:
     no_boundary: int = 0  # whole frame facade
     parallax_frames: int = 0  # frames whose mask parallax confirmed or corrected (the rest: network alone)
     parallax_skipped_sure: int = 0  # frames the network read as wall everywhere at the standoff: no flow spent
+    bound_cut: int = 0  # frames whose mask the mission's wall bound cut (pixels where the wall cannot be)
+    bound_dropped: int = 0  # ... of those, frames it left nothing of: dropped as background
     depth_ms: list[float] = field(default_factory=list)
     mask_ms: list[float] = field(default_factory=list)
 
@@ -49,8 +52,10 @@ class Masker:
         max_roi_depth_m: float | None = 15.0,
         threads: int | None = None,
         parallax=None,
+        bound=None,
     ):
         self.parallax = parallax
+        self.bound = bound
         self.session = session or DepthSession(model_path, threads=threads)
         params = params or RoiParams()
         info = self.session.info
@@ -88,6 +93,8 @@ class Masker:
         roi = self.roi_from_disparity(disp, image.shape[:2])
         if self.parallax is not None:
             roi = self._with_parallax(image, tagged, roi, disp)
+        if self.bound is not None and not roi.empty and not tagged.pose_stale:
+            roi = self._within_bound(roi, self.bound(tagged.pose, image.shape))
         t2 = time.perf_counter()
         st = self.stats
         st.frames += 1
@@ -139,6 +146,19 @@ class Masker:
         if par is None and mask is network:
             return roi
         return replace(roi, mask=mask, empty=dropped or share == 0.0, no_boundary=share == 1.0, roi_fraction=share)
+
+    def _within_bound(self, roi: RoiResult, bound: np.ndarray | None) -> RoiResult:
+        """The ROI cut to the wall bound (counted in ``stats`` when that cut anything)."""
+        if bound is None:
+            return roi
+        mask = cv2.bitwise_and(roi.mask, bound)
+        kept = int(np.count_nonzero(mask))
+        if kept == int(np.count_nonzero(roi.mask)):
+            return roi
+        self.stats.bound_cut += 1
+        self.stats.bound_dropped += int(kept == 0)
+        share = kept / mask.size
+        return replace(roi, mask=mask, empty=kept == 0, no_boundary=False, roi_fraction=share)
 
     def _unjudged(self, roi: RoiResult, disparity, frame_shape: tuple[int, int]) -> RoiResult:
         """The network's ROI for a frame parallax cannot judge (``ParallaxParams.unjudged_far_cut_ratio``)."""

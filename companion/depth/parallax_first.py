@@ -133,12 +133,13 @@ def judge_with_later(masker: Masker, tagged: TaggedFrame, later: TaggedFrame,
     """Mask ``tagged`` again with ``later`` as its only parallax reference (same model, ROI rules and parallax rules
     as ``masker``; its own state untouched). Costs one network run and the two flows of any judged frame.
     ``earlier``: the frame's answer against an earlier frame (:class:`FirstLook`); ``later`` then judges only the
-    pixels that one could not trust."""
+    pixels that one could not trust. The masker's wall bound, if any, cuts the new mask as it cut the first."""
     seq = masker.parallax
     reference = _LaterOnly(seq.hfov_deg, seq.params, keep=1, standoff_m=seq.standoff_m)
     reference.earlier = earlier
     reference.remember(later.frame.image, later.pose)
-    judge = Masker(session=masker.session, params=masker.params, max_roi_depth_m=None, parallax=reference)
+    judge = Masker(session=masker.session, params=masker.params, max_roi_depth_m=None, parallax=reference,
+                   bound=masker.bound)
     return LaterJudgement(judge(tagged), reference.last_answer, later.frame.index)
 
 

@@ -56,6 +56,10 @@ class ChainStats:
     dropped_no_roi: int = 0
     parallax_frames: int = 0  # masked frames whose mask motion parallax confirmed or corrected (docs/DEPTH.md)
     parallax_skipped_sure: int = 0  # masked frames the network read as wall everywhere: no flow spent on them
+    # masked frames the mission's wall bound cut (beyond a 4 m standoff: companion.depth.pose_bound), and of those,
+    # frames it left nothing of (dropped as background)
+    bound_cut: int = 0
+    bound_dropped: int = 0
     # keyframes the network alone had masked (no reference before them: a scan's first) masked again against a
     # later frame before they were spooled (companion.depth.parallax_first), and of those, found all background
     # by that parallax (not spooled)
@@ -210,6 +214,8 @@ class ChainRecorder:
         if masker is not None:
             st.parallax_frames = masker.parallax_frames
             st.parallax_skipped_sure = masker.parallax_skipped_sure
+            st.bound_cut = masker.bound_cut
+            st.bound_dropped = masker.bound_dropped
 
     def judged_later(self, verdicts: Iterable[LaterVerdict]) -> None:
         """Held keyframes masked again against a later frame (``PendingFrames.spool_order``); a background one is

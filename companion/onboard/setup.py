@@ -66,7 +66,9 @@ def build_chain(
     """Every frame is followed by the wall tracker and only the frames around keyframe decisions are measured.
     ``parallax``: with a mission (its camera's field of view), the depth mask is confirmed or corrected by the
     motion parallax against a frame a few centimetres back along the telemetry's baseline, and frames whose
-    trusted pixels are all far are dropped (``companion.depth.parallax``, docs/DEPTH.md); False: network alone."""
+    trusted pixels are all far are dropped (``companion.depth.parallax``, docs/DEPTH.md); False: network alone.
+    With a mission whose standoff is beyond 4 m, each frame is also masked only where the mission's wall can be in
+    view from its pose (``companion.depth.pose_bound``)."""
     if mission is None and mission_path is not None:
         from companion.mission import load_mission
 
@@ -84,7 +86,12 @@ def build_chain(
             from companion.depth.parallax import SequenceParallax
 
             seq = SequenceParallax(mission.camera.hfov_deg, standoff_m=mission.standoff_m)
-        masker = Masker(model, parallax=seq)
+        bound = None
+        if mission is not None:
+            from companion.depth.pose_bound import TelemetryWallBound
+
+            bound = TelemetryWallBound.for_mission(mission)
+        masker = Masker(model, parallax=seq, bound=bound)
         model_name = str(model) if model is not None else "shipped default"
     working = WorkingCopy()
     settings = {"rth": gate_cfg.rth, "depth_model": model_name, "mask": mask,

@@ -155,7 +155,7 @@ def shipped_masks(spec, renderer, model: str, *, parallax: bool = True,
     drops the frame (the onboard chain never passes it on)."""
     from companion.depth.masker import Masker
     from companion.depth.parallax import SequenceParallax
-    from companion.depth.parallax_first import LaterReference, masked_without_reference
+    from companion.depth.parallax_first import LaterReference, first_look
     from companion.records import Frame, TaggedFrame
 
     wall = SyntheticWall(length_m=spec.wall.width_m, height_m=spec.wall.height_m)
@@ -178,12 +178,12 @@ def shipped_masks(spec, renderer, model: str, *, parallax: bool = True,
         pose = reported_pose(rng, frame, (f.along_m, spec.standoff_m, f.up_m, 0.0, 0.0), TelemetryErrors(), i,
                              time_s=i / 10.0)
         tagged = TaggedFrame(Frame(i, i / 10.0, f.image), pose)
-        masked, alone = masked_without_reference(masker, tagged)
-        masks[i] = None if masked is None else masked.mask
+        look = first_look(masker, tagged)
+        masks[i] = None if look.masked is None else look.masked.mask
         if later is not None:
             settle(later.offer(tagged))
-            if alone:
-                later.hold(tagged, masked)
+            if look.alone:
+                later.hold(tagged, look.masked)
     if later is not None:
         settle(later.release())
     if network_first is not None:

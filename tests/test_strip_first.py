@@ -24,8 +24,8 @@ from companion.depth.parallax_first import (
     Baseline,
     LaterReference,
     baseline_between,
+    first_look,
     judge_with_later,
-    masked_without_reference,
 )
 from companion.keyframes.gate import GateConfig, KeyframeGate
 from companion.onboard.chain import CullChain
@@ -98,9 +98,10 @@ def _mask_of(out, entry: dict) -> np.ndarray:
 def test_the_masker_alone_cuts_the_first_frames_wall_top_and_a_later_frame_gives_it_back(ornate):
     spec, renders, _ = ornate
     masker = _masker(spec)
-    network, alone = masked_without_reference(masker, _tagged(ornate, 0))
+    look = first_look(masker, _tagged(ornate, 0))
+    network = look.masked
     truth = renders[0].roi_mask > 0
-    assert alone  # no frame behind the pass's first: the network alone decided
+    assert look.alone  # no frame behind the pass's first: the network alone decided
     assert _top_wall_kept(truth, network.mask) < 0.1  # it reads this real wall's top as far
     assert baseline_between(masker, *(p for p in ornate[2][:2])) == Baseline.USABLE
     judged = judge_with_later(masker, _tagged(ornate, 0), _tagged(ornate, 1))
@@ -108,7 +109,7 @@ def test_the_masker_alone_cuts_the_first_frames_wall_top_and_a_later_frame_gives
     assert _top_wall_kept(truth, judged.masked.mask) > 0.6
     assert float((truth & (judged.masked.mask > 0)).mean()) > float((truth & (network.mask > 0)).mean()) + 0.2
     # the next frame has the first behind it: the masker judges it by parallax, not alone
-    assert not masked_without_reference(masker, _tagged(ornate, 1))[1]
+    assert not first_look(masker, _tagged(ornate, 1)).alone
 
 
 def test_the_chain_spools_a_passs_first_keyframe_with_the_wall_top_main_cut(ornate, tmp_path):
@@ -161,7 +162,7 @@ def test_held_frames_resolve_in_order_and_only_from_later_frames(ornate):
     spec, _, poses = ornate
     masker = _masker(spec)
     later = LaterReference(masker)
-    first, alone = masked_without_reference(masker, _tagged(ornate, 0))
+    first = first_look(masker, _tagged(ornate, 0)).masked
     later.hold(_tagged(ornate, 0), first, "kf0")
     assert later.offer(_tagged(ornate, 0)) == []  # itself: not later
     assert later.offer(_tagged(ornate, 2, replace(poses[0], time_s=0.2))) == []  # no baseline yet: waits

@@ -62,12 +62,6 @@ def judged_alone(masker: Masker, mark: tuple[int, int, int], tagged: TaggedFrame
             and frames == mark[0] + 1 and by_parallax == mark[1] and sure == mark[2])
 
 
-def masked_without_reference(masker: Masker, tagged: TaggedFrame) -> tuple[MaskedFrame | None, bool]:
-    """``masker(tagged)``, and whether the network alone decided it for want of a reference (:func:`judged_alone`)."""
-    look = first_look(masker, tagged)
-    return look.masked, look.alone
-
-
 @dataclass(frozen=True)
 class FirstLook:
     """A frame masked in capture order, and what a later frame should still judge of it: everything (``alone``: the

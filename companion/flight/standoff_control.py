@@ -239,10 +239,18 @@ class Disagreement:
 
 @dataclass
 class _LegLog:
-    samples: dict[int, list[float]] = field(default_factory=dict)
+    """What the flight's summary reports per scan leg. Each sample is kept once, with its source, so that a source
+    found not to see the wall (``StandoffController.ignore_source``) can be forgotten; the per-leg distances are
+    derived from it (:meth:`distances_by_leg`) rather than stored a second time and kept in step."""
+
     by_source: dict[int, list[tuple[str, float]]] = field(default_factory=dict)
     seen: set[int] = field(default_factory=set)
     sources: set[str] = field(default_factory=set)
+
+    def distances_by_leg(self) -> dict[int, list[float]]:
+        """Leg -> its distances in the order measured; a leg whose every sample was forgotten is left out (it
+        counts as unmeasured)."""
+        return {leg: [d for _, d in kept] for leg, kept in self.by_source.items() if kept}
 
 
 class StandoffController:
@@ -272,7 +280,6 @@ class StandoffController:
         if m.source in self.ignored:
             return
         self._log.sources.add(m.source)
-        self._log.samples.setdefault(leg, []).append(m.distance_m)
         self._log.by_source.setdefault(leg, []).append((m.source, m.distance_m))
         self._newest_seen_s = max(m.time_s, self._newest_seen_s if self._newest_seen_s is not None else m.time_s)
         settled = self._settle_until + (self.s.camera_window_s if self._is_camera(m.source) else 0.0)
@@ -295,7 +302,6 @@ class StandoffController:
         self._log.sources.discard(source)
         for leg, kept in list(self._log.by_source.items()):
             self._log.by_source[leg] = [(src, d) for src, d in kept if src != source]
-        self._log.samples = {leg: [d for _, d in kept] for leg, kept in self._log.by_source.items() if kept}
         self._latest.pop(source, None)
         self._history = deque(h for h in self._history if source not in h.source)
 
@@ -451,8 +457,9 @@ class StandoffController:
         return correction
 
     def summary(self) -> StandoffSummary:
-        legs = tuple(LegStandoff(leg, statistics.median(v), len(v)) for leg, v in sorted(self._log.samples.items()))
-        unmeasured = tuple(sorted(self._log.seen - set(self._log.samples)))
+        distances = self._log.distances_by_leg()
+        legs = tuple(LegStandoff(leg, statistics.median(v), len(v)) for leg, v in sorted(distances.items()))
+        unmeasured = tuple(sorted(self._log.seen - set(distances)))
         return StandoffSummary(self.s.planned_m, self.s.tolerance_m, self.s.floor, tuple(sorted(self._log.sources)),
                                legs, unmeasured, tuple(self.corrections), self.offset_m)
 

@@ -70,6 +70,35 @@ def _region_patch(region: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return region & (patch > 0)
 
 
+def _chosen_region(facade: np.ndarray, rng: np.random.Generator, whole_share: float) -> np.ndarray | None:
+    """The facade whole (``whole_share`` of the samples) or a patch of it (:func:`_region_patch`); None when too
+    few pixels are left to paint. One helper for :func:`plain_wall` and :func:`bright_cladding` so both draw it the
+    same way (the draws and their order decide every training sample)."""
+    region = facade if rng.random() < whole_share else _region_patch(facade, rng)
+    return None if region.sum() < 50 else region
+
+
+def _lit_flat(base: np.ndarray, img: np.ndarray, region: np.ndarray, rng: np.random.Generator, *,
+              light_max: float, detail_max: float, lift: tuple[float, float] | None = None) -> np.ndarray:
+    """``base`` colour under a smooth random light field (0-``light_max``, plus a brightness lift drawn from
+    ``lift`` when given), with 0-``detail_max`` of the photo's local detail kept: the plain surface both
+    :func:`plain_wall` and :func:`bright_cladding` paint. The draws keep their order (field amplitude, field, lift,
+    detail share) so the samples stay the ones before this helper existed."""
+    detail = img - cv2.GaussianBlur(img, (0, 0), 3.0)
+    light = 1.0 + _smooth_field(region.shape, rng, rng.uniform(0.0, light_max))
+    if lift is not None:
+        light = light + rng.uniform(*lift)
+    return base[None, None, :] * light[..., None] + detail * rng.uniform(0.0, detail_max)
+
+
+def _painted(img: np.ndarray, region: np.ndarray, flat: np.ndarray, rng: np.random.Generator,
+             noise_max: float) -> np.ndarray:
+    """``flat`` with sensor noise (sigma 0.002-``noise_max``) in ``region``, ``img`` elsewhere: the outline stays
+    sharp, as a real roof line or wall end is."""
+    flat = flat + rng.normal(0, rng.uniform(0.002, noise_max), img.shape).astype(np.float32)
+    return np.where(region[..., None], flat, img).astype(np.float32)
+
+
 def plain_wall(img: np.ndarray, facade: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Suppress the texture of the facade pixels (float BGR in [0, 1], ``facade`` bool), whole or a patch.
 
@@ -77,15 +106,12 @@ def plain_wall(img: np.ndarray, facade: np.ndarray, rng: np.random.Generator) ->
     smooth random field and a brightness lift: what plain cladding or render looks like under soft light. The
     region's outline is left sharp, as a real roof line or wall end is.
     """
-    region = facade if rng.random() < 0.6 else _region_patch(facade, rng)
-    if region.sum() < 50:
+    region = _chosen_region(facade, rng, 0.6)
+    if region is None:
         return img
     base = img[region].mean(axis=0)
-    detail = img - cv2.GaussianBlur(img, (0, 0), 3.0)
-    light = 1.0 + _smooth_field(region.shape, rng, rng.uniform(0.0, 0.3)) + rng.uniform(-0.1, 0.35)
-    flat = base[None, None, :] * light[..., None] + detail * rng.uniform(0.0, 0.4)
-    flat = flat + rng.normal(0, rng.uniform(0.002, 0.015), img.shape).astype(np.float32)
-    return np.where(region[..., None], flat, img).astype(np.float32)
+    flat = _lit_flat(base, img, region, rng, light_max=0.3, detail_max=0.4, lift=(-0.1, 0.35))
+    return _painted(img, region, flat, rng, 0.015)
 
 
 def bright_cladding(img: np.ndarray, facade: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -97,25 +123,28 @@ def bright_cladding(img: np.ndarray, facade: np.ndarray, rng: np.random.Generato
     jitter), the colour grey with at most a faint tint of the photo's own, 0-25 % of the detail kept, soft light
     (overcast: +-0-12 %), and in half the samples faint panel seams.
     """
-    region = facade if rng.random() < 0.75 else _region_patch(facade, rng)
-    if region.sum() < 50:
+    region = _chosen_region(facade, rng, 0.75)
+    if region is None:
         return img
     own = img[region].mean(axis=0)
     own = own / max(float(own.mean()), 1e-3)  # the photo's hue at unit level
     hue = 1.0 + (own - 1.0) * rng.uniform(0.0, 0.4) + rng.uniform(-0.03, 0.03, size=3)
     base = (rng.uniform(0.55, 0.92) * hue).astype(np.float32)
-    detail = img - cv2.GaussianBlur(img, (0, 0), 3.0)
-    light = 1.0 + _smooth_field(region.shape, rng, rng.uniform(0.0, 0.12))
-    flat = base[None, None, :] * light[..., None] + detail * rng.uniform(0.0, 0.25)
+    flat = _lit_flat(base, img, region, rng, light_max=0.12, detail_max=0.25)
     if rng.random() < 0.5:  # panel seams: thin darker lines on a regular grid
-        h, w = region.shape
-        seams = np.zeros((h, w), np.float32)
-        step_x, step_y = int(rng.integers(15, 80)), int(rng.integers(15, 80))
-        seams[:, int(rng.integers(0, step_x))::step_x] = 1.0
-        seams[int(rng.integers(0, step_y))::step_y, :] = 1.0
-        flat = flat * (1.0 - seams[..., None] * rng.uniform(0.02, 0.1))
-    flat = flat + rng.normal(0, rng.uniform(0.002, 0.012), img.shape).astype(np.float32)
-    return np.where(region[..., None], flat, img).astype(np.float32)
+        flat = _with_seams(flat, region.shape, rng)
+    return _painted(img, region, flat, rng, 0.012)
+
+
+def _with_seams(flat: np.ndarray, shape: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
+    """``flat`` darkened 2-10 % along thin lines on a regular grid (15-80 px apart, random offset): the panel
+    seams of clad walls."""
+    h, w = shape
+    seams = np.zeros((h, w), np.float32)
+    step_x, step_y = int(rng.integers(15, 80)), int(rng.integers(15, 80))
+    seams[:, int(rng.integers(0, step_x))::step_x] = 1.0
+    seams[int(rng.integers(0, step_y))::step_y, :] = 1.0
+    return flat * (1.0 - seams[..., None] * rng.uniform(0.02, 0.1))
 
 
 def overcast_sky(img: np.ndarray, sky: np.ndarray, rng: np.random.Generator) -> np.ndarray:

@@ -115,6 +115,19 @@ def wait_for_item(proc, telemetry_log: Path, min_item: int, timeout_s: float) ->
     raise SystemExit(f"the flight did not reach item {min_item} in {timeout_s:g} s")
 
 
+def kill_mid_scan(proc, telemetry_log: Path, item: int, after_s: float, timeout_s: float) -> tuple[float, float, str]:
+    """Wait until the companion ``proc`` flies mission item ``item``, let ``after_s`` pass and SIGKILL it (it has no
+    way to say goodbye): (seconds to that item, monotonic time of the kill, what it printed). Killed on any error."""
+    try:
+        to_scan_s = wait_for_item(proc, telemetry_log, item, timeout_s=timeout_s)
+        time.sleep(after_s)
+    finally:
+        proc.kill()
+        killed = time.monotonic()
+        said = proc.communicate()[0]
+    return to_scan_s, killed, said
+
+
 def seconds_to_rtl(url: str, since: float, system_id: int,
                    timeout_s: float = 60.0) -> tuple[float | None, float | None]:
     """Wall seconds from ``since`` to the first HEARTBEAT in Return, and the autopilot's time_boot_ms (s) then, from
@@ -161,13 +174,7 @@ def lost_link_run(k: int, args, mission: Path, plan) -> dict:
         proc = subprocess.Popen(fly_command(args, mission, px4.ports.companion_url, telemetry, state,
                                             ["--lost-link-action", "rtl"]),
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
-        try:
-            to_scan_s = wait_for_item(proc, telemetry, args.kill_at_item, timeout_s=900.0)
-            time.sleep(args.kill_after_s)
-        finally:
-            proc.kill()  # SIGKILL: the companion has no way to say goodbye
-            killed = time.monotonic()
-            said = proc.communicate()[0]
+        to_scan_s, killed, said = kill_mid_scan(proc, telemetry, args.kill_at_item, args.kill_after_s, 900.0)
         rows = read_telemetry_log(telemetry)
         last_heard_s = max((r["t_boot_s"] for r in rows if r.get("t_boot_s") is not None), default=None)
         rtl_s, rtl_boot_s = seconds_to_rtl(px4.ports.watch_url, killed, px4.ports.system_id, timeout_s=120.0)

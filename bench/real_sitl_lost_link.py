@@ -30,8 +30,8 @@ from pymavlink import mavutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from bench.real_px4_checks import kill_mid_scan  # noqa: E402
 from bench.real_px4_checks import read_parameters as _read  # noqa: E402
-from bench.real_px4_checks import wait_for_item  # noqa: E402
 from companion.mission import load_mission, plan_scan  # noqa: E402
 from companion.resources import demo_mission  # noqa: E402
 from sim.ardupilot_sitl import ArduCopterSitl  # noqa: E402
@@ -70,13 +70,7 @@ def one_run(k: int, args, mission: Path, plan) -> dict:
                                  "--state-dir", str(state)],
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
         watch = mavutil.mavlink_connection(sitl.watch_url, source_system=99)  # listens, sends nothing
-        try:
-            to_scan_s = wait_for_item(proc, telemetry, args.kill_at_item, timeout_s=300.0)
-            time.sleep(args.kill_after_s)
-        finally:
-            proc.kill()  # SIGKILL: the companion has no way to say goodbye
-            killed = time.monotonic()
-            said = proc.communicate()[0]
+        to_scan_s, killed, said = kill_mid_scan(proc, telemetry, args.kill_at_item, args.kill_after_s, 300.0)
         rtl_s = seconds_to_rtl(watch, killed)
         watch.close()
         journal = sorted(c["name"] for f in (state / "parameter-journal").glob("*.json")

@@ -95,3 +95,26 @@ def test_integer_parameters_are_read_from_their_bytes(bench):
     as_float = struct.unpack("<f", struct.pack("<i", 2))[0]  # how PX4 sends NAV_DLL_ACT = 2
     assert bench.param_number(as_float, 6) == 2.0  # MAV_PARAM_TYPE_INT32
     assert bench.param_number(0.716, 9) == 0.716  # REAL32
+
+
+def test_kill_mid_scan_kills_the_companion_once_it_flies_the_item(bench, tmp_path):
+    """The lost-link checks SIGKILL the companion mid-scan: only once the telemetry log shows the scan's item, and
+    the process is killed (not left flying) whatever happens."""
+    import json
+    import subprocess
+    import threading
+
+    log = tmp_path / "flight.jsonl"
+    log.write_text(json.dumps({"mission_item": 2}) + "\n")
+    proc = subprocess.Popen([sys.executable, "-c", "import time; print('flying', flush=True); time.sleep(60)"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    late_item = threading.Timer(
+        1.0, lambda: log.write_text(log.read_text() + json.dumps({"mission_item": 5}) + "\n"))
+    late_item.start()
+    to_item_s, killed, said = bench.kill_mid_scan(proc, log, item=5, after_s=0.1, timeout_s=30.0)
+    late_item.join()
+    assert 0.9 < to_item_s < 10.0 and proc.returncode == -9 and "flying" in said
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    with pytest.raises(SystemExit, match="did not reach item 9"):
+        bench.kill_mid_scan(proc, log, item=9, after_s=0.0, timeout_s=1.0)
+    assert proc.returncode == -9

@@ -34,6 +34,8 @@ if TYPE_CHECKING:
 METHODS = ("displacement", "polygon")
 # The gate's matcher: Lowe's 0.75, 4 kd-trees, 32 checks (64 found the same matches at twice the search time).
 GATE_MATCHING = MatcherSettings(ratio=0.75, kind="flann", trees=4, checks=32)
+# the seed of every keyframe index's randomised trees: the gate's matches depend on the frames alone
+GATE_INDEX_SEED = 104729
 
 
 class OverlapStatus(StrEnum):
@@ -166,6 +168,9 @@ class OverlapEstimator:
     The reference frame's descriptor index (FLANN kd-trees) is built once and kept while the same reference is
     compared with new frames (the gate compares every frame with the current keyframe): each frame's descriptors
     query the keyframe's index, so a comparison costs the search, not the build.
+    Its randomised trees are seeded (``GATE_INDEX_SEED``), so the matches depend on the two frames only, not on
+    what drew from OpenCV's RNG earlier in the process (a resumed cull keeps the keyframes an uninterrupted one
+    keeps).
     """
 
     def __init__(self, config: OverlapConfig | None = None):
@@ -175,7 +180,7 @@ class OverlapEstimator:
 
     def _index_of(self, p: FeatureSet) -> DescriptorIndex:
         if self._ref is not p or self._ref_index is None:
-            self._ref_index = DescriptorIndex(p.descriptors, self.config.matching)
+            self._ref_index = DescriptorIndex(p.descriptors, self.config.matching, seed=GATE_INDEX_SEED)
             self._ref = p
         return self._ref_index
 

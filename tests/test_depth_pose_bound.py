@@ -116,3 +116,80 @@ def test_a_jump_of_the_relative_altitude_does_not_move_the_bound(far_mission):
     assert np.array_equal(bound(pose, (H, W)), bound(jumped, (H, W)))
     lower = replace(pose, alt_amsl_m=pose.alt_amsl_m - 8.0)  # the AMSL altitude does move it
     assert not np.array_equal(bound(pose, (H, W)), bound(lower, (H, W)))
+
+
+def test_the_chain_drops_the_near_building_beyond_the_walls_end_and_keeps_the_wall(tmp_path):
+    """Stills 5 m apart 25 m from a 60 m wall, a background 15 m behind it (40 m from the camera: within the 2.5
+    standoffs parallax calls near, so parallax keeps it): through the chain with the mission's wall bound the
+    keyframes past the wall's end keep far less of that background (48 -> 13 % of the keyframes' background), the
+    stills that show no wall are no longer spooled, and no keyframe loses wall."""
+    import json
+
+    import cv2
+    import pymap3d
+
+    from companion.capture.tagging import FrameTagger
+    from companion.capture.telemetry import ClockMap, TelemetryBuffer
+    from companion.depth.parallax import SequenceParallax
+    from companion.depth.wall_bound import WallExtent
+    from companion.geo import FacadeFrame, GeoPoint
+    from companion.keyframes.gate import GateConfig, KeyframeGate
+    from companion.onboard.chain import CullChain
+    from companion.onboard.tracked import MeasureSchedule
+    from companion.spool import KeyframeSpool
+    from companion.spool.layout import MANIFEST
+    from sim.camera.model import CameraModel
+    from sim.camera.photo_scene import PhotoPass, PhotoPassRenderer, PhotoTexture
+
+    standoff, length, origin = 25.0, 60.0, (47.0, 8.0, 400.0)
+
+    def texture(seed: int) -> np.ndarray:
+        small = np.random.default_rng(seed).integers(0, 255, (75, 150, 3), dtype=np.uint8)
+        return cv2.GaussianBlur(cv2.resize(small, (1200, 600), interpolation=cv2.INTER_NEAREST), (5, 5), 0)
+
+    renderer = PhotoPassRenderer(PhotoPass(
+        "near-building", PhotoTexture("wall", texture(1), length), PhotoTexture("bg", texture(2), 1.0),
+        background_distance_m=15.0, standoff_m=standoff, frames=16, background_frames=4,
+        camera=CameraModel(width=640, height=360, hfov_deg=69.0)))
+    renders = [renderer.render(i) for i in range(len(renderer))]
+    end = pymap3d.enu2geodetic(length, 0.0, 0.0, *origin)
+    frame = FacadeFrame.from_wall(GeoPoint(*origin), GeoPoint(float(end[0]), float(end[1]), origin[2]))
+    wall = MissionWall(frame, WallExtent(length, length / 2), origin[2], origin[2], 69.0)
+
+    def pose(t: float) -> Pose:
+        along = float(np.interp(t / 2.0, range(len(renders)), [f.along_m for f in renders]))
+        up = renders[0].up_m
+        lat, lon, alt = pymap3d.enu2geodetic(along + 1.0, -(standoff + 1.0), up + 0.3, *origin)  # a GNSS bias
+        return Pose(round(t, 3), float(lat), float(lon), float(alt), up, 0.0, 0.0, 0.0, gimbal_pitch_deg=0.0,
+                    gimbal_yaw_deg=0.0)
+
+    def cull(out, bound) -> dict[int, np.ndarray]:
+        buf = TelemetryBuffer()
+        for t in np.arange(-0.5, 2.0 * (len(renders) - 1) + 0.55, 0.1):
+            buf.add(pose(float(t)))
+        masker = Masker("sim", parallax=SequenceParallax(69.0, standoff_m=standoff), bound=bound)
+        chain = CullChain(FrameTagger(buf, ClockMap(0.0)), masker, KeyframeGate(GateConfig(rth=0.80)),
+                          KeyframeSpool(out), track=MeasureSchedule())
+        for i, f in enumerate(renders):
+            chain.process(Frame(i, 2.0 * i, f.image))
+        chain.finish()
+        entries = [json.loads(line) for line in (out / MANIFEST).read_text().splitlines()]
+        return {e["index"]: cv2.imread(str(out / e["mask"]), cv2.IMREAD_GRAYSCALE) > 127 for e in entries}
+
+    without = cull(tmp_path / "without", None)
+    within = cull(tmp_path / "within", TelemetryWallBound(wall))
+    background_kept = {}
+    for name, spooled in (("without", without), ("within", within)):
+        kept = total = 0
+        for i, mask in spooled.items():
+            background = renders[i].roi_mask == 0
+            kept, total = kept + int((mask & background).sum()), total + int(background.sum())
+        background_kept[name] = kept / max(1, total)
+    assert background_kept["without"] > 0.3  # parallax alone keeps the near building
+    assert background_kept["within"] < 0.5 * background_kept["without"]
+    # parallax alone spools stills that show no wall at all; the bound drops them
+    assert any(not renders[i].roi_mask.any() for i in without)
+    assert all(renders[i].roi_mask.any() for i in within)
+    for i in set(without) & set(within):
+        wall_px = renders[i].roi_mask > 0
+        assert (within[i] & wall_px).sum() >= (without[i] & wall_px).sum() - 0.002 * wall_px.size, i

@@ -103,8 +103,9 @@ def _register_cull(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--telemetry", type=Path, required=True, help="telemetry log (JSON lines from companion fly)")
     p.add_argument("--out", type=Path, required=True, help="keyframe spool directory (resumable)")
     p.add_argument("--mission", type=mission_argument,
-                   help="mission YAML the flight flew: overlap threshold, camera and facade, the map's scale "
-                        "(found in a `companion record` recording's meta.json; otherwise required)")
+                   help="mission YAML the flight flew: overlap threshold, camera and facade, the map's scale, and "
+                        "beyond a 4 m standoff where each frame can show the wall (found in a `companion record` "
+                        "recording's meta.json; otherwise required)")
     p.add_argument("--no-mission", action="store_true",
                    help="cull without a mission: the spool has no camera identity or scale, its map is in pixels")
     p.add_argument("--model", type=Path, help="depth model (.onnx); default: the shipped model")

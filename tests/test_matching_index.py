@@ -131,12 +131,14 @@ def test_bad_matcher_settings_are_refused_with_the_fix(bad, named):
 
 def test_the_gate_measures_the_r_opencvs_per_pair_flann_matcher_gives(features, monkeypatch):
     """The gate's estimator through the index with GATE_MATCHING: the same matches, inliers and R, candidate by
-    candidate, as with OpenCV's FlannBasedMatcher trained on the keyframe with the same trees, checks and ratio."""
+    candidate, as with OpenCV's FlannBasedMatcher trained on the keyframe with the same trees, checks, ratio, seed."""
     from companion.keyframes import overlap as overlap_module
     from companion.matching import Matches
 
     class OpenCVFlannIndex:
-        def __init__(self, descriptors, settings):
+        def __init__(self, descriptors, settings, *, seed=None):
+            if seed is not None:  # the gate seeds its trees (GATE_INDEX_SEED): the same draw here
+                cv2.setRNGSeed(seed)
             self.settings = settings
             self.matcher = cv2.FlannBasedMatcher({"algorithm": 1, "trees": settings.trees}, {"checks": settings.checks})
             self.matcher.add([descriptors])

@@ -6,7 +6,6 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from companion.depth.roi import RoiParams, RoiResult, extract_roi
@@ -149,9 +148,11 @@ class Masker:
 
     def _within_bound(self, roi: RoiResult, bound: np.ndarray | None) -> RoiResult:
         """The ROI cut to the wall bound (counted in ``stats`` when that cut anything)."""
+        from companion.depth.wall_bound import apply_bound
+
         if bound is None:
             return roi
-        mask = cv2.bitwise_and(roi.mask, bound)
+        mask = apply_bound(roi.mask, bound)
         kept = int(np.count_nonzero(mask))
         if kept == int(np.count_nonzero(roi.mask)):
             return roi
